@@ -1,0 +1,1 @@
+"""Actuator bridge of rths: simulated servo-hydraulic plant with the DTM specimen, a UDP hardware backend and its controller emulator, safety limits, DTM characterisation, and the bridge node."""

@@ -1,0 +1,67 @@
+"""The ``rths`` command: one entry point for every user-facing tool of the project.
+
+Each package contributes its own sub-commands through a ``cli`` module with a
+``register(commands, benches)`` function: ``commands`` is the argparse
+sub-parser collection of ``rths <command>`` and ``benches`` the one of
+``rths bench <name>``.  Every sub-parser sets ``func`` (``func(args) -> int``,
+the exit code) with ``set_defaults``.
+
+Errors the user can fix (bad input file, missing column, out-of-range value)
+are raised as ``ValueError`` or ``OSError`` with a message that names the
+file/field and the fix; they are printed without a traceback and the command
+exits with code 2.  Set ``RTHS_DEBUG=1`` to see the traceback.
+"""
+
+import argparse
+import importlib
+import os
+import sys
+
+#: Packages whose ``<package>.cli`` module adds sub-commands, in --help order.
+CLI_MODULES = (
+    'rths_bringup.commands',
+    'rths_numerical.cli',
+    'rths_compensator.cli',
+    'rths_actuator_bridge.cli',
+    'rths_discrepancy.cli',
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Create the full ``rths`` argument parser from every package's cli module."""
+    parser = argparse.ArgumentParser(
+        prog='rths',
+        description='Real-time hybrid simulation (RTHS) on ROS 2: run the node graph, '
+                    'identify and compensate the actuator, simulate the building, review runs.',
+        epilog="Run 'rths COMMAND --help' for the options of one command.")
+    commands = parser.add_subparsers(dest='command', metavar='COMMAND')
+    commands.required = True
+    bench = commands.add_parser(
+        'bench', help='benchmarks that measure speed/accuracy targets and save JSON',
+        description='Benchmarks: each prints its results and writes them to --out as JSON.')
+    benches = bench.add_subparsers(dest='bench', metavar='NAME')
+    benches.required = True
+    for name in CLI_MODULES:
+        module = importlib.import_module(name)
+        module.register(commands, benches)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Parse the command line and run the chosen sub-command."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (ValueError, OSError) as err:
+        if os.environ.get('RTHS_DEBUG'):
+            raise
+        print(f'rths {args.command}: error: {err}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f'rths {args.command}: interrupted', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())
