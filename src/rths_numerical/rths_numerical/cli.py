@@ -1,5 +1,321 @@
-"""Sub-commands this package adds to the ``rths`` command (see rths_bringup.cli)."""
+"""Sub-commands this package adds to the ``rths`` command (see rths_bringup.cli).
+
+* ``rths simulate``: whole building + DTMs numerically (seed 6.3.4), tables 6-8 metrics.
+* ``rths study building-frequency`` (seed 7.1) and ``rths study dtm-tuning`` (seed 7.2).
+* ``rths bench numerical``: step times of the integrators and the dtm-tuning run time.
+"""
+
+import json
+import os
+import sys
+import tempfile
+
+
+def _progress(label):
+    def report(i, n):
+        print(f'{label}: {i}/{n}', file=sys.stderr, flush=True)
+    return report
+
+
+def _write_json(path, data):
+    """Write JSON atomically (temp file in the same directory, then rename)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=folder, suffix='.tmp')
+    try:
+        with os.fdopen(fd, 'w') as fh:
+            json.dump(data, fh, indent=2, default=_jsonable)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _jsonable(obj):
+    import numpy as np
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(f'cannot write {type(obj).__name__} to JSON')
+
+
+def _save_fig(fig, path):
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(dir=folder, suffix='.png')
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=120)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def _building(name, mass=None):
+    from .building import BUILDING_MASS_KG, building_16dof, building_240dof
+    from .model import load_model_yaml
+    if name in ('building2story', '16'):
+        return building_16dof(mass or BUILDING_MASS_KG)
+    if name == 'building2story-240':
+        return building_240dof(mass or BUILDING_MASS_KG)
+    if not os.path.exists(name):
+        raise ValueError(f'--building {name!r}: use building2story, building2story-240 or an '
+                         'existing model YAML path')
+    return load_model_yaml(name)
+
+
+def cmd_simulate(args):
+    """Run ``rths simulate``."""
+    import numpy as np
+    from .ground_motion import baseline_correct, ground_motion, peak_g
+    from .reference import INCH, simulate_reference, simulate_uncontrolled
+    model = _building(args.building)
+    fs = args.fs_hz
+    ag = ground_motion(args.record, fs, args.scale, args.duration_s or None, rng=args.seed)
+    ag, _, _ = baseline_correct(ag, 1 / fs)
+    print(f'model {model.name} ({model.n} DOF), record {args.record} x {args.scale} '
+          f'(peak {peak_g(ag):.4f} g, {ag.size / fs:.1f} s at {fs:g} Hz)', flush=True)
+    unc = simulate_uncontrolled(model, ag, 1 / fs, args.integrator)
+    rows = {'uncontrolled': unc}
+    dampers = ['valve4', 'novalve'] if args.damper == 'all' else (
+        [] if args.damper == 'none' else [args.damper])
+    for d in dampers:
+        rows[d] = simulate_reference(model, ag, 1 / fs, d, args.n_dtm, integrator=args.integrator,
+                                     uncontrolled=unc)
+    print(f'{"model":14s} {"max (in)":>9s} {"red. %":>7s} {"RMS (in)":>9s} {"red. %":>7s}')
+    for name, res in rows.items():
+        m = res['metrics']
+        print(f'{name:14s} {m["max_disp_m"] / INCH:9.4f} {m.get("max_reduction_pct", 0):7.1f} '
+              f'{m["rms_disp_m"] / INCH:9.4f} {m.get("rms_reduction_pct", 0):7.1f}')
+    os.makedirs(args.out, exist_ok=True)
+    data = {'model': model.name, 'record': args.record, 'scale': args.scale, 'fs_hz': fs,
+            'n_dtm': args.n_dtm, 'peak_ground_g': peak_g(ag),
+            'results': {k: v['metrics'] for k, v in rows.items()}}
+    _write_json(os.path.join(args.out, 'simulate.json'), data)
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(len(rows), 1, sharex=True, figsize=(9, 2.2 * len(rows) + 1))
+    axes = np.atleast_1d(axes)
+    for ax, (name, res) in zip(axes, rows.items()):
+        ax.plot(res['time'], res['disp'] / INCH, lw=0.8)
+        ax.set_ylabel('2nd floor (in)')
+        ax.set_title(name, fontsize=9)
+    axes[-1].set_xlabel('time (s)')
+    fig.tight_layout()
+    _save_fig(fig, os.path.join(args.out, 'simulate.png'))
+    print(f'wrote {args.out}/simulate.json and simulate.png')
+    return 0
+
+
+def _surface_plot(path, x, y, surfaces, xlabel, ylabel, title):
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from .studies import CRITERIA
+    fig, axes = plt.subplots(2, 2, figsize=(10, 8))
+    for ax, c in zip(axes.ravel(), CRITERIA):
+        cs = ax.contourf(x, y, np.asarray(surfaces[c]).T, 30)
+        fig.colorbar(cs, ax=ax)
+        ax.set_title(c.replace('_', ' ') + (' (m)' if 'disp' in c else ' (m/s^2)'), fontsize=9)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+    fig.suptitle(title)
+    fig.tight_layout()
+    _save_fig(fig, path)
+
+
+def cmd_study_building_frequency(args):
+    """Run ``rths study building-frequency``."""
+    import numpy as np
+    from .ground_motion import baseline_correct, ground_motion
+    from .studies import CRITERIA, building_frequency_study
+    model = _building(args.building)
+    fs = args.fs_hz
+    ag, _, _ = baseline_correct(ground_motion(args.record, fs, args.scale, None), 1 / fs)
+    f1 = np.linspace(args.f1_min, args.f1_max, args.n_freq)
+    mu = np.linspace(0.0, args.mu_max, args.n_ratio)
+    os.makedirs(args.out, exist_ok=True)
+    result = {}
+    for damper in args.dampers:
+        res = building_frequency_study(model, ag, 1 / fs, f1, mu, damper,
+                                       progress=_progress(f'building-frequency {damper}'))
+        result[damper] = {c: res[c] for c in CRITERIA}
+        best = {}
+        for c in CRITERIA:
+            i = int(np.argmin(res[c][:, -1]))
+            best[c] = float(f1[i])
+        result[damper]['f1_of_minimum_at_max_ratio_hz'] = best
+        print(f'{damper}: f1 minimising each criterion at mass ratio {mu[-1]:.3f}: {best}')
+        _surface_plot(os.path.join(args.out, f'building_frequency_{damper}.png'), f1, mu, res,
+                      'building f1 (Hz)', 'mass ratio', f'seed 7.1, DTM {damper}')
+    data = {'record': args.record, 'scale': args.scale, 'f1_hz': f1, 'mass_ratios': mu,
+            'results': result}
+    _write_json(os.path.join(args.out, 'building_frequency.json'), data)
+    print(f'wrote {args.out}/building_frequency.json and PNGs')
+    return 0
+
+
+def run_dtm_tuning(n_fn=100, n_zeta=30, duration_s=60.0, fs_hz=256.0, seed=0, mass_ratio=0.01,
+                   f1_hz=2.81, progress=None):
+    """Seed 7.2 study on the 16-DOF building with BLWN 0-10 Hz, 1 g peak; return the result."""
+    import numpy as np
+    from .building import building_16dof
+    from .ground_motion import G
+    from .signals import blwn
+    from .studies import dtm_tuning_study
+    ag = blwn(duration_s, fs_hz, 10.0, 1.0 * G, rng=seed)
+    return dtm_tuning_study(building_16dof(), ag, 1 / fs_hz, np.linspace(0.1, 10.0, n_fn),
+                            np.linspace(0.005, 0.15, n_zeta), mass_ratio, f1_hz, progress)
+
+
+def cmd_study_dtm_tuning(args):
+    """Run ``rths study dtm-tuning``."""
+    from .studies import CRITERIA
+    if args.n_fn < 2 or args.n_zeta < 2:
+        raise ValueError('--n-fn and --n-zeta must be >= 2')
+    res = run_dtm_tuning(args.n_fn, args.n_zeta, args.duration_s, args.fs_hz, args.seed,
+                         args.mass_ratio, args.f1_hz, _progress('dtm-tuning'))
+    seed_optima = {'max_disp': (1.7, 0.06), 'max_accel': (1.8, 0.02), 'rms_disp': (1.8, 0.04),
+                   'rms_accel': (1.8, 0.04)}
+    print(f'building f1 = {args.f1_hz} Hz, mass ratio {args.mass_ratio} '
+          f'(mu on the first-mode mass: {res["mu_modal"]:.4f})')
+    for c in CRITERIA:
+        o = res['optima'][c]
+        s = seed_optima[c]
+        print(f'{c:10s} optimum f_n = {o["fn_hz"]:.2f} Hz, zeta = {100 * o["zeta"]:.1f} % '
+              f'(seed: {s[0]} Hz, {100 * s[1]:.0f} %)')
+    dh, wb = res['den_hartog'], res['warburton_ground']
+    print(f'Den Hartog: f_n = {dh["fn_hz"]:.2f} Hz, zeta = {100 * dh["zeta"]:.1f} %; '
+          f'Warburton (ground accel.): f_n = {wb["fn_hz"]:.2f} Hz, zeta = {100 * wb["zeta"]:.1f} %')
+    os.makedirs(args.out, exist_ok=True)
+    res['seed_optima'] = {c: {'fn_hz': v[0], 'zeta': v[1]} for c, v in seed_optima.items()}
+    _write_json(os.path.join(args.out, 'dtm_tuning.json'), res)
+    _surface_plot(os.path.join(args.out, 'dtm_tuning.png'), res['fn_hz'], 100 * res['zetas'],
+                  res, 'DTM f_n (Hz)', 'DTM zeta (%)', 'seed 7.2: building 2.81 Hz, mu = 1 %')
+    print(f'wrote {args.out}/dtm_tuning.json and dtm_tuning.png')
+    return 0
+
+
+def _time_steps(model, name, dt, repeats=5, n=2000):
+    import time
+    import numpy as np
+    from .integrators import make_integrator
+    integ = make_integrator(name, model.M, model.C, model.K, dt)
+    p = np.zeros(model.n)
+    r = np.zeros(model.n)
+    best = float('inf')
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(n):
+            integ.predict(p)
+            integ.correct(p, r)
+        best = min(best, (time.perf_counter() - t0) / n)
+    return best * 1e6
+
+
+def cmd_bench_numerical(args):
+    """Run ``rths bench numerical``."""
+    import time
+    from .building import building_16dof, building_240dof, x_frequencies
+    b16 = building_16dof()
+    b240 = building_240dof()
+    f1, f2 = x_frequencies(b16)
+    dt = 1.0 / args.fs_hz
+    steps = {}
+    for name in ('cr', 'kr_alpha', 'newmark'):
+        steps[name] = {'16': _time_steps(b16, name, dt), '240': _time_steps(b240, name, dt)}
+        print(f'{name:9s} step: 16 DOF {steps[name]["16"]:.1f} us, '
+              f'240 DOF {steps[name]["240"]:.1f} us', flush=True)
+    t0 = time.perf_counter()
+    res = run_dtm_tuning(n_fn=args.n_fn, n_zeta=args.n_zeta)
+    tuning_s = time.perf_counter() - t0
+    f1_240 = building_240dof().dominant_frequencies(2)[0]
+    data = {'f1_hz': f1, 'f2_hz': f2, 'seed_f1_hz': 2.81, 'seed_f2_hz': 7.77,
+            'f1_240dof_hz': float(f1_240[0]), 'f2_240dof_hz': float(f1_240[1]),
+            'step_us_16dof': steps['cr']['16'], 'step_us_240dof': steps['cr']['240'],
+            'step_us_by_integrator': steps, 'dtm_tuning_s': tuning_s,
+            'dtm_tuning_grid': [args.n_fn, args.n_zeta], 'dtm_tuning_optima': res['optima'],
+            'fs_hz': args.fs_hz, 'integrator_for_step_fields': 'cr'}
+    print(f'f1_hz {f1:.3f} (seed 2.81), f2_hz {f2:.3f} (seed 7.77)')
+    print(f'step_us_16dof {data["step_us_16dof"]:.1f} (target <= 20), step_us_240dof '
+          f'{data["step_us_240dof"]:.1f} (target <= 100)')
+    print(f'dtm_tuning_s {tuning_s:.2f} for {args.n_fn} x {args.n_zeta} grid (target <= 60)')
+    _write_json(args.out, data)
+    print(f'wrote {args.out}')
+    return 0
 
 
 def register(commands, benches):
     """Add this package's ``rths <command>`` and ``rths bench <name>`` parsers."""
+    from .dtm import TABLE4
+    sim = commands.add_parser(
+        'simulate', help='whole building + DTMs numerically (seed 6.3.4), tables 6-8 metrics',
+        description='Simulate the building uncontrolled and with 5 DTMs (all numerical, seed '
+                    '6.3.4); print the 2nd-floor max and RMS displacement and their reduction '
+                    '(tables 6-8 layout); write OUT/simulate.json and OUT/simulate.png.')
+    sim.add_argument('--building', default='building2story',
+                     help='building2story (16 DOF), building2story-240 or a model YAML path')
+    sim.add_argument('--damper', default='all', choices=['all', 'none'] + list(TABLE4),
+                     help='Table 4 DTM configuration; all = valve4 and novalve')
+    sim.add_argument('--record', default='kobe',
+                     help='kobe, northridge, imperial_valley, blwn or a PEER .AT2 path')
+    sim.add_argument('--scale', type=float, default=0.135, help='record scale factor')
+    sim.add_argument('--fs-hz', type=float, default=1024.0, help='integration rate (Hz)')
+    sim.add_argument('--duration-s', type=float, default=0.0, help='0 = whole record')
+    sim.add_argument('--integrator', default='cr', choices=['cr', 'kr_alpha', 'newmark'])
+    sim.add_argument('--n-dtm', type=int, default=5, help='number of DTMs (seed: 5)')
+    sim.add_argument('--seed', type=int, default=0, help='random seed for blwn')
+    sim.add_argument('--out', default='out/simulate', help='output directory')
+    sim.set_defaults(func=cmd_simulate)
+
+    study = commands.add_parser(
+        'study', help='DTM parameter studies of seed chapter 7 (JSON + PNG surfaces)',
+        description='Parameter studies of seed chapter 7, computed in the frequency domain.')
+    studies = study.add_subparsers(dest='study', metavar='STUDY')
+    studies.required = True
+    bf = studies.add_parser(
+        'building-frequency', help='seed 7.1: building f1 x mass ratio, four response surfaces',
+        description='Seed 7.1: vary the building first frequency (stiffness scaling) and the '
+                    'DTM/building mass ratio; write the four 2nd-floor criteria to '
+                    'OUT/building_frequency.json and one PNG per damper.')
+    bf.add_argument('--building', default='building2story')
+    bf.add_argument('--record', default='imperial_valley', help='seed: El Centro')
+    bf.add_argument('--scale', type=float, default=0.10)
+    bf.add_argument('--fs-hz', type=float, default=200.0)
+    bf.add_argument('--f1-min', type=float, default=1.96)
+    bf.add_argument('--f1-max', type=float, default=5.0)
+    bf.add_argument('--n-freq', type=int, default=40)
+    bf.add_argument('--mu-max', type=float, default=0.05)
+    bf.add_argument('--n-ratio', type=int, default=26)
+    bf.add_argument('--dampers', nargs='+', default=['valve4', 'novalve'], choices=list(TABLE4))
+    bf.add_argument('--out', default='out/study')
+    bf.set_defaults(func=cmd_study_building_frequency)
+    dt_ = studies.add_parser(
+        'dtm-tuning', help='seed 7.2: DTM f_n x zeta for a 2.81 Hz building, mu = 1 %',
+        description='Seed 7.2: DTM natural frequency 0.1-10 Hz x damping 0.5-15 %, mass 1 % of '
+                    'the building, BLWN 0-10 Hz with 1 g peak; print the optima next to the '
+                    "seed's and Den Hartog's; write OUT/dtm_tuning.json and dtm_tuning.png.")
+    dt_.add_argument('--n-fn', type=int, default=199, help='grid points in f_n')
+    dt_.add_argument('--n-zeta', type=int, default=30, help='grid points in zeta')
+    dt_.add_argument('--duration-s', type=float, default=60.0, help='BLWN length (s)')
+    dt_.add_argument('--fs-hz', type=float, default=256.0)
+    dt_.add_argument('--seed', type=int, default=0)
+    dt_.add_argument('--mass-ratio', type=float, default=0.01)
+    dt_.add_argument('--f1-hz', type=float, default=2.81, help='building first frequency')
+    dt_.add_argument('--out', default='out/study')
+    dt_.set_defaults(func=cmd_study_dtm_tuning)
+
+    bn = benches.add_parser(
+        'numerical', help='integrator step times (16/240 DOF) and dtm-tuning run time',
+        description='Measure one CR/KR-alpha/Newmark step of the 16- and 240-DOF building, the '
+                    'x frequencies, and the dtm-tuning study time; print and write JSON with '
+                    'f1_hz, f2_hz, step_us_16dof, step_us_240dof, dtm_tuning_s.')
+    bn.add_argument('--out', default='out/bench_numerical.json')
+    bn.add_argument('--fs-hz', type=float, default=1024.0)
+    bn.add_argument('--n-fn', type=int, default=40)
+    bn.add_argument('--n-zeta', type=int, default=30)
+    bn.set_defaults(func=cmd_bench_numerical)

@@ -1,0 +1,30 @@
+# rths: the two commands a user needs are `make demo` and `make test`.
+SHELL := /bin/bash
+.SHELLFLAGS := -eo pipefail -c
+.DEFAULT_GOAL := help
+OUT ?= out/demo
+
+help:  ## list the targets
+	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
+
+setup:  ## create .venv, install pinned ROS 2 Jazzy + deps, repair paths, colcon build (idempotent)
+	@tools/setup.sh
+
+demo: setup  ## run the main job and print where the results are
+	@source env.sh && rths demo --out $(OUT)
+
+test: setup  ## build and run every test through colcon test; non-zero on any failure
+	@source env.sh && rm -rf build/*/test_results log/latest_test && \
+	  colcon test --base-paths src test --event-handlers console_cohesion+ \
+	    --return-code-on-test-failure --pytest-args -p no:cacheprovider ; rc=$$? ; \
+	  colcon test-result --verbose ; rc2=$$? ; \
+	  if [ $$rc -ne 0 ] || [ $$rc2 -ne 0 ]; then echo "make test: FAILED"; exit 1; fi; \
+	  echo "make test: all tests passed"
+
+clean:  ## remove build products (keeps .venv)
+	rm -rf build install log
+
+distclean: clean  ## remove build products and the venv
+	rm -rf .venv
+
+.PHONY: help setup demo test clean distclean

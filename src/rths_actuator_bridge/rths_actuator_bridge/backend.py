@@ -1,0 +1,140 @@
+"""One backend interface for the simulated plant and the real servo controller.
+
+In the spirit of ros2_control's hardware interface: a backend is created
+UNCONFIGURED, :meth:`Backend.configure` (params) makes it INACTIVE,
+:meth:`Backend.activate` makes it ACTIVE, and only then may
+:meth:`Backend.write` / :meth:`Backend.read` be called; :meth:`Backend.deactivate`
+returns it to INACTIVE.  :attr:`Backend.limits` declares the
+:class:`~rths_actuator_bridge.safety.SafetyLimits` the bridge enforces.
+
+Timing convention (shared with rths_compensator): at step k the bridge writes
+command ``u_k`` [m]; it is held (ZOH) for one sample period and ``read()``
+returns the measurement at the END of that period, labelled step k.  The
+simulated backend advances its plant by exactly one sample per ``write()``
+(deterministic lock-step); with the UDP backend the controller does it.
+
+Parameters (flat, as ROS parameters) accepted by :func:`make_backend`:
+
+``backend``
+    ``'simulated'`` (default) or ``'udp'``.
+Simulated backend
+    see :data:`rths_actuator_bridge.simulated.SIM_PARAMS` (``fs_hz``,
+    ``actuator_model``, ``dtm``, ``frame_mass_kg``, noise, ADC, ``seed``, friction).
+UDP backend
+    see :data:`rths_actuator_bridge.udp.UDP_PARAMS` (``host``, ``port``,
+    ``timeout_s``, ``n_channels``, ``fs_hz``).
+Safety limits (both)
+    see :data:`rths_actuator_bridge.safety.SAFETY_PARAMS`.
+"""
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from .safety import SafetyLimits
+
+UNCONFIGURED = 'unconfigured'
+INACTIVE = 'inactive'
+ACTIVE = 'active'
+
+BACKENDS = ('simulated', 'udp')
+
+
+class Backend(ABC):
+    """Abstract actuator backend: configure, activate, write, read, deactivate, limits."""
+
+    def __init__(self):
+        """Create an unconfigured backend."""
+        self.lifecycle = UNCONFIGURED
+        self._limits = SafetyLimits()
+        self.n_channels = 1
+        self.step = -1
+
+    @property
+    def limits(self) -> SafetyLimits:
+        """Declared safety limits (from the configure parameters)."""
+        return self._limits
+
+    def configure(self, params: dict):
+        """Validate ``params`` and prepare the hardware/plant; UNCONFIGURED/INACTIVE -> INACTIVE."""
+        if self.lifecycle == ACTIVE:
+            raise RuntimeError('deactivate the backend before configuring it again')
+        self._limits = SafetyLimits.from_params(params)
+        self._configure(dict(params))
+        self.lifecycle = INACTIVE
+
+    def activate(self):
+        """Start: INACTIVE -> ACTIVE.  Returns nothing; the actuator is at rest."""
+        if self.lifecycle != INACTIVE:
+            raise RuntimeError(f'activate() needs a configured, inactive backend '
+                               f'(state: {self.lifecycle})')
+        self._activate()
+        self.step = -1
+        self.lifecycle = ACTIVE
+
+    def deactivate(self):
+        """Stop: ACTIVE -> INACTIVE (no-op otherwise)."""
+        if self.lifecycle == ACTIVE:
+            self._deactivate()
+            self.lifecycle = INACTIVE
+
+    def write(self, command) -> None:
+        """Send the command [m] (one value per channel) of the next step."""
+        if self.lifecycle != ACTIVE:
+            raise RuntimeError(f'write() on a backend that is not active (state: {self.lifecycle})')
+        u = np.atleast_1d(np.asarray(command, float))
+        if u.shape != (self.n_channels,):
+            raise ValueError(f'command has {u.size} values; this backend has {self.n_channels} '
+                             'channel(s)')
+        if not np.all(np.isfinite(u)):
+            raise ValueError(f'refusing non-finite command {u}')
+        self.step += 1
+        self._write(u)
+
+    def read(self):
+        """Return ``(displacement [m], force [N])`` arrays measured at the end of this step."""
+        if self.lifecycle != ACTIVE:
+            raise RuntimeError(f'read() on a backend that is not active (state: {self.lifecycle})')
+        return self._read()
+
+    def channels(self) -> dict:
+        """Extra channels of the latest reading (e.g. 'rel_disp', 'table_accel'); may be empty."""
+        return {}
+
+    def close(self):
+        """Release resources (sockets); deactivates first."""
+        self.deactivate()
+
+    @abstractmethod
+    def _configure(self, params: dict):
+        """Backend-specific configuration."""
+
+    def _activate(self):
+        """Backend-specific activation."""
+
+    def _deactivate(self):
+        """Backend-specific deactivation."""
+
+    @abstractmethod
+    def _write(self, command: np.ndarray):
+        """Backend-specific write of a validated command."""
+
+    @abstractmethod
+    def _read(self):
+        """Backend-specific read."""
+
+
+def make_backend(params: dict) -> Backend:
+    """Create and configure the backend named by ``params['backend']`` (default 'simulated')."""
+    name = params.get('backend', 'simulated')
+    if name == 'simulated':
+        from .simulated import SimulatedBackend
+        backend = SimulatedBackend()
+    elif name == 'udp':
+        from .udp import UdpBackend
+        backend = UdpBackend()
+    else:
+        raise ValueError(f"parameter 'backend' = {name!r} is unknown; use one of "
+                         f"{', '.join(repr(b) for b in BACKENDS)}")
+    backend.configure(params)
+    return backend

@@ -1,0 +1,364 @@
+"""Safety limits and the supervisor state machine of the actuator bridge.
+
+The bridge enforces these rules whatever the other nodes send (issue 4):
+
+* Command limits, checked on every command before it may reach the plant
+  (``fs`` = sampling frequency, ``u_k`` the command of step k, ``p`` the last
+  command sent)::
+
+      |u_k| <= stroke_m                                   (seed: +-0.254 m, section 4.3.1)
+      |u_k - p_{k-1}| fs <= velocity_m_s
+      |u_k - 2 p_{k-1} + p_{k-2}| fs^2 <= acceleration_m_s2
+      |u_k| + v_out^2 / (2 acceleration_m_s2) <= stroke_m  (room to brake inside the stroke)
+
+  and ``u_k`` finite.  A violating command is never sent.
+* Measurement limits: ``|force| <= force_n`` (seed section 5.1.2: four load
+  cells x 2000 N = 8000 N), ``|DTM relative displacement| <= dtm_rel_disp_m``,
+  finite readings (``max_invalid_measurements`` consecutive non-finite ones,
+  e.g. lost UDP replies, trip the supervisor).
+* Watchdog: ``watchdog_steps`` consecutive steps without a new command.  While
+  fewer steps are missing the supervisor extrapolates the last command at
+  constant velocity (zero acceleration; still checked against every limit).
+* Instability detector, over windows of ``instability_window_steps`` samples:
+  RMS tracking error ``e_k = y_k - p_k`` above ``instability_tracking_m``, or
+  the RMS of the force oscillation (force minus its window mean) above
+  ``instability_force_n``, or either RMS growing by more than the factor
+  ``instability_growth`` for ``instability_growth_windows`` consecutive
+  windows (while above a tenth of its threshold): an uncompensated RTHS loop
+  with ~15 ms delay (seed section 6.1: 15.64 ms) can go unstable.
+* Emergency stop (topic or service of the node) -> :meth:`SafetySupervisor.emergency_stop`.
+
+After any fault: HOLD (brake to standstill at ``acceleration_m_s2``, then keep
+the position for ``hold_time_s``), RAMP (move to ``safe_position_m`` within the
+velocity and acceleration limits, taking about ``ramp_time_s``), STOPPED (the
+owner deactivates the backend).  State numbers are those of
+``rths_msgs/LoopStatus``: OK/ACTIVE = 0, HOLD = 1, RAMP = 2, STOPPED = 3, INACTIVE = 4.
+"""
+
+from dataclasses import dataclass, fields
+import math
+
+import numpy as np
+
+ACTIVE = OK = 0
+HOLD = 1
+RAMP = 2
+STOPPED = 3
+INACTIVE = 4
+STATE_NAMES = {ACTIVE: 'ACTIVE', HOLD: 'HOLD', RAMP: 'RAMP', STOPPED: 'STOPPED',
+               INACTIVE: 'INACTIVE'}
+
+#: Safety parameters: key -> (default, meaning with unit).
+SAFETY_PARAMS = {
+    'fs_hz': (1024.0, '[Hz] loop sampling frequency'),
+    'stroke_m': (0.254, '[m] actuator stroke +- (seed: +-10 in = +-0.254 m)'),
+    'velocity_m_s': (1.0, '[m/s] largest command velocity'),
+    'acceleration_m_s2': (100.0, '[m/s^2] largest command acceleration'),
+    'force_n': (8000.0, '[N] largest measured force (seed: 4 load cells x 2000 N)'),
+    'dtm_rel_disp_m': (0.1, '[m] DTM relative-displacement safe range +-'),
+    'safe_position_m': (0.0, '[m] position the actuator ramps to after a fault'),
+    'ramp_time_s': (2.0, '[s] nominal duration of the ramp to the safe position'),
+    'hold_time_s': (0.25, '[s] time the position is held before ramping'),
+    'watchdog_steps': (10, '[steps] missing commands in a row that trip the watchdog'),
+    'max_invalid_measurements': (3, '[steps] non-finite/lost measurements in a row that trip'),
+    'instability_window_steps': (256, '[steps] window of the instability detector'),
+    'instability_tracking_m': (0.02, '[m] RMS tracking error (measured - command) that aborts'),
+    'instability_force_n': (3000.0, '[N] RMS force oscillation that aborts'),
+    'instability_growth': (1.5, '[-] window-to-window RMS growth factor counted as growing'),
+    'instability_growth_windows': (4, '[windows] consecutive growing windows that abort'),
+}
+_INT_KEYS = {'watchdog_steps', 'max_invalid_measurements', 'instability_window_steps',
+             'instability_growth_windows'}
+
+
+@dataclass(frozen=True)
+class SafetyLimits:
+    """Limits the bridge enforces (SI units; meanings in :data:`SAFETY_PARAMS`)."""
+
+    fs_hz: float = 1024.0
+    stroke_m: float = 0.254
+    velocity_m_s: float = 1.0
+    acceleration_m_s2: float = 100.0
+    force_n: float = 8000.0
+    dtm_rel_disp_m: float = 0.1
+    safe_position_m: float = 0.0
+    ramp_time_s: float = 2.0
+    hold_time_s: float = 0.25
+    watchdog_steps: int = 10
+    max_invalid_measurements: int = 3
+    instability_window_steps: int = 256
+    instability_tracking_m: float = 0.02
+    instability_force_n: float = 3000.0
+    instability_growth: float = 1.5
+    instability_growth_windows: int = 4
+
+    @classmethod
+    def from_params(cls, params: dict) -> 'SafetyLimits':
+        """Build from flat parameters (missing keys take defaults); ValueError names bad keys."""
+        values = {}
+        for f in fields(cls):
+            default, meaning = SAFETY_PARAMS[f.name]
+            raw = params.get(f.name, default)
+            try:
+                val = float(raw)
+            except (TypeError, ValueError):
+                raise ValueError(f'safety parameter {f.name!r} = {raw!r} is not a number; '
+                                 f'set it to {meaning}') from None
+            if not math.isfinite(val):
+                raise ValueError(f'safety parameter {f.name!r} = {raw!r} must be finite ({meaning})')
+            if f.name in _INT_KEYS:
+                if val != int(val) or val < 1:
+                    raise ValueError(f'safety parameter {f.name!r} = {raw!r} must be an integer '
+                                     f'>= 1 ({meaning})')
+                val = int(val)
+            elif f.name != 'safe_position_m' and val <= 0:
+                raise ValueError(f'safety parameter {f.name!r} = {raw!r} must be > 0 ({meaning})')
+            values[f.name] = val
+        lim = cls(**values)
+        if abs(lim.safe_position_m) > lim.stroke_m:
+            raise ValueError(f"safety parameter 'safe_position_m' = {lim.safe_position_m} m is "
+                             f'outside the stroke +-{lim.stroke_m} m; choose a position inside it')
+        if lim.instability_growth <= 1:
+            raise ValueError("safety parameter 'instability_growth' must be > 1 (e.g. 1.5)")
+        return lim
+
+
+class SafetySupervisor:
+    """State machine INACTIVE -> ACTIVE -> HOLD -> RAMP -> STOPPED guarding one or more channels.
+
+    Call :meth:`filter` once per loop step with the new command (or None), write
+    what it returns (unless None), then call :meth:`check_measurement` with the
+    reading of that step.
+    """
+
+    def __init__(self, limits: SafetyLimits = None):
+        """Create an INACTIVE supervisor with ``limits`` (default :class:`SafetyLimits`)."""
+        self.limits = limits or SafetyLimits()
+        self.state = INACTIVE
+        self.fault = ''
+        self.faults = []
+        self.configured = False
+        self.n = 1
+        self._reset_motion(np.zeros(1))
+
+    # ------------------------------------------------------------ lifecycle
+    def configure(self, limits: SafetyLimits = None):
+        """Accept (new) limits; stays INACTIVE."""
+        if limits is not None:
+            self.limits = limits
+        self.configured = True
+        self.state = INACTIVE
+        self.fault = ''
+        self.faults = []
+
+    def activate(self, position=0.0):
+        """Arm at the current actuator ``position`` [m] (at rest); state ACTIVE."""
+        if not self.configured:
+            self.configure()
+        pos = np.atleast_1d(np.asarray(position, float)).copy()
+        if not np.all(np.isfinite(pos)) or np.any(np.abs(pos) > self.limits.stroke_m):
+            raise ValueError(f'cannot activate: actuator position {pos} m is not finite or '
+                             f'outside the stroke +-{self.limits.stroke_m} m')
+        self.n = pos.size
+        self._reset_motion(pos)
+        self.state = ACTIVE
+        self.fault = ''
+        self.faults = []
+
+    def deactivate(self):
+        """Back to INACTIVE: nothing is sent any more."""
+        self.state = INACTIVE
+
+    def _reset_motion(self, pos):
+        self.pos = pos.copy()              # last command sent
+        self.vel = np.zeros_like(pos)      # its velocity [m/s]
+        self.missing = 0
+        self.invalid = 0
+        self.hold_left = 0
+        self._win_e, self._win_f = [], []
+        self._rms_prev = {'tracking': None, 'force': None}
+        self._growing = {'tracking': 0, 'force': 0}
+        self.last_sent = None
+
+    # ------------------------------------------------------------ faults
+    def _trip(self, text: str):
+        """Record a fault; from ACTIVE go to HOLD (braking)."""
+        self.faults.append(text)
+        if not self.fault:
+            self.fault = text
+        if self.state == ACTIVE:
+            self.state = HOLD
+            self.hold_left = max(1, int(round(self.limits.hold_time_s * self.limits.fs_hz)))
+
+    def emergency_stop(self, reason: str = ''):
+        """Stop the run now: HOLD, RAMP to the safe position, STOPPED."""
+        text = f'emergency stop: {reason}' if reason else 'emergency stop'
+        if self.state == INACTIVE:
+            self.faults.append(text)
+            self.fault = self.fault or text
+            self.state = STOPPED
+            return
+        self._trip(text)
+
+    # ------------------------------------------------------------ commands
+    def check_command(self, command) -> str:
+        """Return '' if ``command`` may be sent after the last one, else the fault text."""
+        lim = self.limits
+        u = np.atleast_1d(np.asarray(command, float))
+        if u.shape != self.pos.shape:
+            return f'command size {u.size} != {self.pos.size} actuator channel(s)'
+        fs = lim.fs_hz
+        tol = 1e-9
+        for i, ui in enumerate(u):
+            ch = f' (channel {i})' if u.size > 1 else ''
+            if not math.isfinite(ui):
+                return f'non-finite command {ui}{ch}'
+            if abs(ui) > lim.stroke_m * (1 + tol):
+                return f'stroke limit: command {ui:.6g} m > {lim.stroke_m:.6g} m{ch}'
+            v = (ui - self.pos[i]) * fs
+            if abs(v) > lim.velocity_m_s * (1 + tol):
+                return (f'velocity limit: command velocity {v:.6g} m/s > '
+                        f'{lim.velocity_m_s:.6g} m/s{ch}')
+            a = (v - self.vel[i]) * fs
+            if abs(a) > lim.acceleration_m_s2 * (1 + tol):
+                return (f'acceleration limit: command acceleration {a:.6g} m/s^2 > '
+                        f'{lim.acceleration_m_s2:.6g} m/s^2{ch}')
+            if v * ui > 0:
+                reach = abs(ui) + v * v / (2 * lim.acceleration_m_s2)
+                if reach > lim.stroke_m * (1 + tol):
+                    return (f'stroke limit: command {ui:.6g} m at {v:.6g} m/s cannot brake '
+                            f'before {lim.stroke_m:.6g} m (would reach {reach:.6g} m){ch}')
+        return ''
+
+    def _accept(self, u):
+        u = np.asarray(u, float)
+        fs = self.limits.fs_hz
+        self.vel = (u - self.pos) * fs
+        self.pos = u.copy()
+        self.last_sent = u.copy()
+        return u.copy()
+
+    def _brake(self):
+        """One step of maximum deceleration towards standstill."""
+        dv = self.limits.acceleration_m_s2 / self.limits.fs_hz
+        vel = np.sign(self.vel) * np.maximum(np.abs(self.vel) - dv, 0.0)
+        return self._accept(self.pos + vel / self.limits.fs_hz)
+
+    def _ramp(self):
+        """One step towards the safe position within velocity/acceleration limits."""
+        lim = self.limits
+        fs = lim.fs_hz
+        err = lim.safe_position_m - self.pos
+        v_cap = np.minimum(lim.velocity_m_s,
+                           np.maximum(np.abs(self._ramp_dist) / lim.ramp_time_s, 1e-6))
+        v_des = np.sign(err) * np.minimum.reduce([
+            v_cap, 0.9 * np.sqrt(2 * lim.acceleration_m_s2 * np.abs(err)), np.abs(err) * fs])
+        dv = np.clip(v_des - self.vel, -lim.acceleration_m_s2 / fs, lim.acceleration_m_s2 / fs)
+        return self._accept(self.pos + (self.vel + dv) / fs)
+
+    def filter(self, step: int, command=None):
+        """Return ``(command_to_send or None, state, fault_text)`` for loop step ``step``.
+
+        ``command`` None means no new command arrived this step (watchdog
+        counting).  The returned command always respects every command limit.
+        """
+        lim = self.limits
+        if self.state == INACTIVE:
+            return None, INACTIVE, self.fault or 'not active'
+        if self.state == ACTIVE:
+            if command is None:
+                self.missing += 1
+                if self.missing >= lim.watchdog_steps:
+                    self._trip(f'watchdog: no command for {self.missing} steps '
+                               f'(limit {lim.watchdog_steps}) at step {step}')
+                else:
+                    guess = self.pos + self.vel / lim.fs_hz
+                    text = self.check_command(guess)
+                    if not text:
+                        return self._accept(guess), ACTIVE, ''
+                    self._trip(f'{text} (extrapolating a missing command)')
+            else:
+                self.missing = 0
+                text = self.check_command(command)
+                if not text:
+                    return self._accept(np.atleast_1d(np.asarray(command, float))), ACTIVE, ''
+                self._trip(f'{text} at step {step}')
+        if self.state == HOLD:
+            if np.any(self.vel != 0):
+                out = self._brake()
+            else:
+                self.hold_left -= 1
+                out = self._accept(self.pos)
+                if self.hold_left <= 0:
+                    self.state = RAMP
+                    self._ramp_dist = lim.safe_position_m - self.pos
+            return out, HOLD, self.fault
+        if self.state == RAMP:
+            out = self._ramp()
+            if np.all(np.abs(self.pos - lim.safe_position_m) < 1e-9) and np.all(self.vel == 0):
+                self.state = STOPPED
+                return out, STOPPED, self.fault
+            if np.all(np.abs(self.pos - lim.safe_position_m) < 1e-9):
+                self.vel[:] = 0.0
+            return out, RAMP, self.fault
+        # STOPPED: keep the safe position (the owner deactivates the backend)
+        return self._accept(self.pos) if self.last_sent is not None else None, STOPPED, self.fault
+
+    # ------------------------------------------------------------ measurements
+    def check_measurement(self, displacement, force, rel_disp=None) -> str:
+        """Check one step's readings; trip on force/DTM range/instability; return fault text."""
+        if self.state == INACTIVE:
+            return ''
+        lim = self.limits
+        y = np.atleast_1d(np.asarray(displacement, float))
+        f = np.atleast_1d(np.asarray(force, float))
+        r = None if rel_disp is None else np.atleast_1d(np.asarray(rel_disp, float))
+        text = ''
+        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(f))):
+            self.invalid += 1
+            if self.invalid >= lim.max_invalid_measurements:
+                text = (f'measurement lost: {self.invalid} non-finite readings in a row '
+                        f'(limit {lim.max_invalid_measurements})')
+        else:
+            self.invalid = 0
+            if np.any(np.abs(f) > lim.force_n):
+                text = f'force limit: measured force {f[np.argmax(np.abs(f))]:.6g} N > ' \
+                       f'{lim.force_n:.6g} N'
+            elif r is not None and np.any(np.abs(r) > lim.dtm_rel_disp_m):
+                text = (f'DTM relative displacement limit: {r[np.argmax(np.abs(r))]:.6g} m > '
+                        f'{lim.dtm_rel_disp_m:.6g} m')
+            elif self.state == ACTIVE and self.last_sent is not None:
+                text = self._instability(y - self.last_sent, f)
+        if text and text not in self.faults:
+            self._trip(text)
+        return text
+
+    def _instability(self, err, force) -> str:
+        lim = self.limits
+        self._win_e.append(err)
+        self._win_f.append(force)
+        if len(self._win_e) < lim.instability_window_steps:
+            return ''
+        e = np.array(self._win_e)
+        f = np.array(self._win_f)
+        self._win_e, self._win_f = [], []
+        rms = {'tracking': float(np.max(np.sqrt(np.mean(e ** 2, axis=0)))),
+               'force': float(np.max(np.sqrt(np.mean((f - f.mean(axis=0)) ** 2, axis=0))))}
+        thresholds = {'tracking': (lim.instability_tracking_m, 'm'),
+                      'force': (lim.instability_force_n, 'N')}
+        for key, (thr, unit) in thresholds.items():
+            label = 'tracking error' if key == 'tracking' else 'force oscillation'
+            if rms[key] > thr:
+                return (f'instability: RMS {label} {rms[key]:.6g} {unit} > {thr:.6g} {unit} '
+                        f'over {lim.instability_window_steps} steps')
+            prev = self._rms_prev[key]
+            if prev is not None and rms[key] > lim.instability_growth * prev \
+                    and rms[key] > 0.1 * thr:
+                self._growing[key] += 1
+            else:
+                self._growing[key] = 0
+            self._rms_prev[key] = rms[key]
+            if self._growing[key] >= lim.instability_growth_windows:
+                return (f'instability: RMS {label} grew by > x{lim.instability_growth:g} for '
+                        f'{self._growing[key]} windows in a row (now {rms[key]:.6g} {unit})')
+        return ''

@@ -1,0 +1,214 @@
+"""Reading and writing the project's rosbag2 bags with ``rosbags`` (no rosbag2 needed).
+
+Bags use the rosbag2 sqlite3 storage, format version 9, so ``ros2 bag info``
+and ``ros2 bag play`` read them in a lab.  The custom types are registered in
+a ``rosbags`` typestore from the installed ``rths_msgs`` .msg files.
+
+Crash safety: :class:`BagWriter` commits the sqlite3 transaction every
+``commit_period_s``; if the recording process is killed (SIGKILL) the
+messages committed so far are on disk but ``metadata.yaml`` is missing.
+:func:`reindex` rebuilds it from the database (like ``ros2 bag reindex``),
+and :func:`open_reader` does so automatically, so a crashed run's bag stays
+readable.
+"""
+
+from functools import lru_cache
+import os
+from pathlib import Path
+import sqlite3
+import time
+
+from rths_common import topics
+
+def _msg_dir() -> Path:
+    """Directory holding the rths_msgs .msg files (installed share dir, else the source tree)."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        path = Path(get_package_share_directory('rths_msgs')) / 'msg'
+        if path.is_dir():
+            return path
+    except Exception:  # noqa: BLE001 - ament index not available: fall back to the source tree
+        pass
+    root = Path(os.environ.get('RTHS_ROOT', Path(__file__).resolve().parents[3]))
+    path = root / 'src' / 'rths_msgs' / 'msg'
+    if not path.is_dir():
+        raise OSError(f'cannot find the rths_msgs .msg files (looked in the ament index and {path}); '
+                      "run 'make setup' and 'source env.sh'")
+    return path
+
+
+@lru_cache(maxsize=1)
+def typestore():
+    """Return a ROS 2 Jazzy typestore with the rths_msgs types registered."""
+    from rosbags.typesys import get_types_from_msg, get_typestore, Stores
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    types = {}
+    for path in sorted(_msg_dir().glob('*.msg')):
+        types.update(get_types_from_msg(path.read_text(), f'rths_msgs/msg/{path.stem}'))
+    store.register(types)
+    return store
+
+
+class BagWriter:
+    """Write serialized (CDR) messages to a new rosbag2 bag, committing periodically.
+
+    ``topic_types`` maps topic name to message type (e.g. ``topics.LOOP_TOPICS``).
+    Messages are written with :meth:`write` as raw CDR bytes (what an rclpy
+    subscription with ``raw=True`` delivers) or with :meth:`write_msg` as
+    rosbags message objects.
+    """
+
+    def __init__(self, path, topic_types=None, commit_period_s: float = 0.25):
+        from rosbags.rosbag2 import Writer
+
+        self.path = Path(path)
+        if self.path.exists():
+            raise OSError(f'bag {self.path} already exists; choose a new --bag directory '
+                          'or delete the old one')
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._writer = Writer(self.path, version=9)
+        self._writer.open()
+        self._connections = {}
+        self._commit_period_s = commit_period_s
+        self._last_commit = time.monotonic()
+        self.count = 0
+        for topic, msgtype in (topic_types or topics.LOOP_TOPICS).items():
+            self.add_topic(topic, msgtype)
+        self.commit()
+
+    def add_topic(self, topic: str, msgtype: str):
+        """Register ``topic`` with ``msgtype`` (must be known to :func:`typestore`)."""
+        self._connections[topic] = self._writer.add_connection(
+            topic, msgtype, typestore=typestore())
+
+    def write(self, topic: str, timestamp_ns: int, cdr: bytes):
+        """Append one serialized message; commit if the commit period has passed."""
+        self._writer.write(self._connections[topic], int(timestamp_ns), cdr)
+        self.count += 1
+        now = time.monotonic()
+        if now - self._last_commit >= self._commit_period_s:
+            self.commit()
+            self._last_commit = now
+
+    def write_msg(self, topic: str, timestamp_ns: int, msg):
+        """Serialize a rosbags message object and append it."""
+        conn = self._connections[topic]
+        self.write(topic, timestamp_ns, typestore().serialize_cdr(msg, conn.msgtype))
+
+    def commit(self):
+        """Make everything written so far durable (survives a SIGKILL of this process)."""
+        # rosbags' sqlite3 storage commits only on close; committing its connection
+        # early is what makes a killed recording recoverable by reindex().
+        self._writer.storage.conn.commit()
+
+    def close(self):
+        """Finish the bag: commit and write metadata.yaml."""
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def _db_path(bag: Path) -> Path:
+    files = sorted(bag.glob('*.db3'))
+    if not files:
+        raise OSError(f'{bag} is not a rosbag2 sqlite3 bag (no .db3 file inside)')
+    return files[0]
+
+
+def reindex(bag) -> Path:
+    """Rebuild ``metadata.yaml`` of a sqlite3 bag from its database; return its path."""
+    import yaml
+
+    bag = Path(bag)
+    db = _db_path(bag)
+    conn = sqlite3.connect(f'file:{db}?mode=ro', uri=True)
+    try:
+        rows = conn.execute('SELECT id, name, type, serialization_format, offered_qos_profiles, '
+                            'type_description_hash FROM topics ORDER BY id').fetchall()
+        counts = dict(conn.execute('SELECT topic_id, COUNT(*) FROM messages GROUP BY topic_id'))
+        t0, t1 = conn.execute('SELECT MIN(timestamp), MAX(timestamp) FROM messages').fetchone()
+    finally:
+        conn.close()
+    t0 = t0 or 0
+    t1 = t1 or t0
+    total = sum(counts.values())
+    info = {
+        'version': 9,
+        'storage_identifier': 'sqlite3',
+        'relative_file_paths': [db.name],
+        'duration': {'nanoseconds': t1 - t0},
+        'starting_time': {'nanoseconds_since_epoch': t0},
+        'message_count': total,
+        'topics_with_message_count': [
+            {'topic_metadata': {'name': name, 'type': msgtype,
+                                'serialization_format': fmt,
+                                'offered_qos_profiles': qos,
+                                'type_description_hash': digest},
+             'message_count': counts.get(tid, 0)}
+            for tid, name, msgtype, fmt, qos, digest in rows],
+        'compression_format': '',
+        'compression_mode': '',
+        'files': [{'path': db.name, 'starting_time': {'nanoseconds_since_epoch': t0},
+                   'duration': {'nanoseconds': t1 - t0}, 'message_count': total}],
+        'custom_data': {'reindexed': 'true'},
+        'ros_distro': 'rosbags',
+    }
+    meta = bag / 'metadata.yaml'
+    tmp = meta.with_suffix('.yaml.tmp')
+    tmp.write_text(yaml.safe_dump({'rosbag2_bagfile_information': info}, sort_keys=False))
+    tmp.replace(meta)
+    return meta
+
+
+def open_reader(bag):
+    """Open a bag for reading with rosbags, reindexing it first if a crash left no metadata."""
+    from rosbags.rosbag2 import Reader
+
+    bag = Path(bag)
+    if not bag.is_dir():
+        raise OSError(f'bag directory {bag} does not exist')
+    if not (bag / 'metadata.yaml').exists():
+        reindex(bag)
+    reader = Reader(bag)
+    reader.open()
+    return reader
+
+
+def info(bag) -> dict:
+    """Topics (type, count), total count, start time and duration of a bag."""
+    reader = open_reader(bag)
+    try:
+        return {
+            'path': str(bag),
+            'duration_s': reader.duration * 1e-9 if reader.message_count else 0.0,
+            'start_time_s': reader.start_time * 1e-9 if reader.message_count else 0.0,
+            'message_count': reader.message_count,
+            'topics': {c.topic: {'type': c.msgtype, 'count': c.msgcount}
+                       for c in reader.connections},
+        }
+    finally:
+        reader.close()
+
+
+def read_messages(bag, topic_names=None):
+    """Yield ``(topic, timestamp_ns, msg)`` in time order, deserialized with :func:`typestore`."""
+    store = typestore()
+    reader = open_reader(bag)
+    try:
+        conns = [c for c in reader.connections if topic_names is None or c.topic in topic_names]
+        for conn, timestamp, raw in reader.messages(connections=conns):
+            yield conn.topic, timestamp, store.deserialize_cdr(raw, conn.msgtype)
+    finally:
+        reader.close()
+
+
+def read_topic(bag, topic: str) -> list:
+    """All messages of one topic, in order, as ``(timestamp_ns, msg)`` pairs."""
+    return [(t, m) for _, t, m in read_messages(bag, [topic])]

@@ -1,0 +1,150 @@
+"""The orchestration sub-commands of ``rths``: launch, bag, demo."""
+
+import datetime
+import json
+from pathlib import Path
+import sys
+
+
+def register(commands, benches):
+    """Add ``rths launch``, ``rths bag info|reindex`` and ``rths demo``."""
+    p = commands.add_parser(
+        'launch', help='start the node graph (one process per node) and supervise it',
+        description='Start the actuator bridge, compensator and numerical node as separate '
+                    'processes (as ros2 run would), each with its params file from --config; '
+                    'stream their logs prefixed with the node name; record every loop topic to '
+                    '--bag. Ends when the numerical node finishes the run, on Ctrl-C/SIGTERM, or '
+                    'when a node dies (exit code 1, naming the node).')
+    add_launch_args(p)
+    p.set_defaults(func=cmd_launch)
+
+    bag = commands.add_parser('bag', help='inspect or repair a recorded bag',
+                              description='Inspect or repair a rosbag2 bag recorded by rths.')
+    bag_cmds = bag.add_subparsers(dest='bag_command', metavar='ACTION')
+    bag_cmds.required = True
+    b = bag_cmds.add_parser('info', help='print topics, message counts and duration',
+                            description='Print the topics, types, message counts, start time '
+                                        'and duration of a bag (reindexing it first if a crash '
+                                        'left it without metadata.yaml).')
+    b.add_argument('bag', help='bag directory')
+    b.add_argument('--json', action='store_true', help='print JSON instead of a table')
+    b.set_defaults(func=cmd_bag_info)
+    b = bag_cmds.add_parser('reindex', help='rebuild metadata.yaml of a crashed recording',
+                            description='Rebuild metadata.yaml from the bag database '
+                                        '(like ros2 bag reindex).')
+    b.add_argument('bag', help='bag directory')
+    b.set_defaults(func=cmd_bag_reindex)
+
+    p = commands.add_parser(
+        'demo', help='the main job with defaults (what make demo runs)',
+        description='Run the main job with the default configuration: a closed-loop run of the '
+                    'three nodes in lock-step, recorded to a bag, then print a run summary and '
+                    'where the results are.')
+    p.add_argument('--config', default=None, help='config directory (default: the repo config/)')
+    p.add_argument('--out', default='out/demo', help='results directory (default: out/demo); '
+                   'each run gets a new time-stamped sub-directory')
+    p.add_argument('--duration', type=float, default=5.0, help='simulated seconds (default 5)')
+    p.set_defaults(func=cmd_demo)
+
+
+def add_launch_args(p):
+    """Arguments shared by launch-like commands."""
+    p.add_argument('--config', default=None,
+                   help='directory with bridge.yaml, compensator.yaml, numerical.yaml '
+                        '(default: the repo config/)')
+    p.add_argument('--duration', type=float, default=None,
+                   help='simulated duration of the run [s] (overrides numerical duration_s)')
+    p.add_argument('--bag', default=None, help='record every loop topic to this new bag directory')
+    p.add_argument('--timeout', type=float, default=600.0,
+                   help='wall-clock limit [s] after which the run is stopped as failed '
+                        '(default 600)')
+
+
+def default_config_dir() -> Path:
+    """The repo's config/ (RTHS_ROOT is set by env.sh), else ./config."""
+    import os
+    root = os.environ.get('RTHS_ROOT')
+    return Path(root) / 'config' if root else Path('config')
+
+
+def launch(config, duration=None, bag=None, timeout=600.0, overrides=None):
+    """Run the graph; return the launcher's exit code."""
+    from rths_bringup.launcher import Launcher
+
+    overrides = overrides or {}
+    if duration is not None:
+        if not duration > 0:
+            raise ValueError(f'--duration must be > 0 s, got {duration}')
+        overrides.setdefault('numerical', {})['duration_s'] = float(duration)
+    launcher = Launcher(config or default_config_dir(), bag=bag, overrides=overrides,
+                        timeout_s=timeout)
+    return launcher.run()
+
+
+def cmd_launch(args) -> int:
+    code = launch(args.config, args.duration, args.bag, args.timeout)
+    if code == 0 and args.bag:
+        print_bag_info(args.bag)
+    return code
+
+
+def print_bag_info(bag, as_json=False):
+    """Print a bag's topics and counts."""
+    from rths_bringup.bagio import info
+
+    data = info(bag)
+    if as_json:
+        print(json.dumps(data, indent=2))
+        return data
+    print(f"bag: {data['path']}")
+    print(f"duration: {data['duration_s']:.3f} s   messages: {data['message_count']}")
+    print(f"{'topic':<32} {'type':<40} {'count':>8}")
+    for topic, t in data['topics'].items():
+        print(f"{topic:<32} {t['type']:<40} {t['count']:>8}")
+    return data
+
+
+def cmd_bag_info(args) -> int:
+    print_bag_info(args.bag, args.json)
+    return 0
+
+
+def cmd_bag_reindex(args) -> int:
+    from rths_bringup.bagio import reindex
+    print(f'wrote {reindex(args.bag)}')
+    return 0
+
+
+def cmd_demo(args) -> int:
+    from rths_bringup.review import loop_summary
+
+    stamp = datetime.datetime.now().strftime('%Y%m%d-%H%M%S')
+    run_dir = Path(args.out) / f'run-{stamp}'
+    run_dir.mkdir(parents=True, exist_ok=False)
+    bag = run_dir / 'bag'
+    history = run_dir / 'numerical_history.npz'
+    print(f'rths demo: closed-loop lock-step run of {args.duration:g} s, results in {run_dir}',
+          flush=True)
+    code = launch(args.config, args.duration, bag,
+                  overrides={'numerical': {'history_out': str(history.resolve())}})
+    if code != 0:
+        print(f'rths demo: the run failed (exit {code}); partial bag in {bag}', file=sys.stderr)
+        return code
+    summary = loop_summary(bag)
+    (run_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
+    print_summary(summary)
+    print(f'\nresults: {run_dir}/ (bag/, summary.json, numerical_history.npz)')
+    print(f'inspect the bag: rths bag info {bag}')
+    return 0
+
+
+def print_summary(summary: dict):
+    """Print the run summary of :func:`rths_bringup.review.loop_summary`."""
+    print('\nrun summary')
+    for key, value in summary.items():
+        if isinstance(value, dict):
+            print(f'  {key}:')
+            for k, v in value.items():
+                print(f'    {k}: {v}')
+        else:
+            print(f'  {key}: {value}')

@@ -1,0 +1,221 @@
+"""Bring up the rths node graph: each node its own OS process, as ``ros2 run`` would start it.
+
+The launcher starts the recorder (if a bag is requested), the actuator bridge,
+the compensator and the numerical node, each with ``--ros-args --params-file``
+from the config directory, streams their output prefixed with the node name,
+and supervises them:
+
+* the numerical node owns the run: when it exits with code 0 the run is over,
+  and the others are stopped in loop order (SIGINT), the recorder last so it
+  keeps every message;
+* if any node dies first (non-zero exit or a signal such as SIGKILL), the
+  launcher stops the rest and exits non-zero, naming the node;
+* Ctrl-C / SIGTERM to the launcher stops every node cleanly;
+* if the recorder died, the bag is reindexed so it stays readable.
+
+``ros2 launch`` is not available in this environment; this module is the
+project's equivalent and needs only the built workspace (``source env.sh``).
+"""
+
+from dataclasses import dataclass, field
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+#: (name, package, executable, params file) in start order; the recorder comes first.
+NODES = (
+    ('bridge', 'rths_actuator_bridge', 'bridge_node', 'bridge.yaml'),
+    ('compensator', 'rths_compensator', 'compensator_node', 'compensator.yaml'),
+    ('numerical', 'rths_numerical', 'numerical_node', 'numerical.yaml'),
+)
+RECORDER = ('recorder', 'rths_bringup', 'recorder', None)
+OWNER = 'numerical'  # the node whose clean exit ends the run
+
+
+def executable(package: str, name: str) -> Path:
+    """Path of an installed node executable, found through the ament index like ``ros2 run``."""
+    from ament_index_python.packages import get_package_prefix, PackageNotFoundError
+
+    try:
+        path = Path(get_package_prefix(package)) / 'lib' / package / name
+    except PackageNotFoundError:
+        raise OSError(f"package {package!r} is not installed; run 'make setup' and "
+                      "'source env.sh'") from None
+    if not os.access(path, os.X_OK):
+        raise OSError(f'{path} is missing or not executable; rebuild with make setup')
+    return path
+
+
+@dataclass
+class Child:
+    """One supervised node process."""
+
+    name: str
+    argv: list
+    proc: subprocess.Popen = None
+    reader: threading.Thread = None
+    stopping: bool = False
+    lines: list = field(default_factory=list)
+
+    @property
+    def returncode(self):
+        return self.proc.poll()
+
+
+def describe_exit(code: int) -> str:
+    """Human description of a Popen return code."""
+    if code is None:
+        return 'running'
+    if code < 0:
+        try:
+            return f'killed by {signal.Signals(-code).name}'
+        except ValueError:
+            return f'killed by signal {-code}'
+    return f'exit code {code}'
+
+
+class Launcher:
+    """Start, watch and stop the node processes of one run."""
+
+    def __init__(self, config_dir, bag=None, overrides=None, mode='lockstep', out=sys.stdout,
+                 timeout_s=None):
+        self.config_dir = Path(config_dir)
+        self.bag = Path(bag) if bag else None
+        self.overrides = overrides or {}
+        self.mode = mode
+        self.out = out
+        self.timeout_s = timeout_s
+        self.children = []
+        self._print_lock = threading.Lock()
+        self._signal = None
+
+    def say(self, text: str, name: str = 'launch'):
+        with self._print_lock:
+            print(f'[{name}] {text}', file=self.out, flush=True)
+
+    def _argv(self, name, package, exe, params_file):
+        argv = [str(executable(package, exe)), '--ros-args', '-r', f'__node:={name}']
+        if params_file:
+            path = self.config_dir / params_file
+            if not path.is_file():
+                raise OSError(f'params file {path} not found; give --config a directory '
+                              f'holding {", ".join(n[3] for n in NODES)}')
+            argv += ['--params-file', str(path)]
+        for key, value in self.overrides.get(name, {}).items():
+            argv += ['-p', f'{key}:={value}']
+        return argv
+
+    def _stream(self, child: Child):
+        for raw in child.proc.stdout:
+            line = raw.rstrip('\n')
+            child.lines.append(line)
+            del child.lines[:-200]
+            self.say(line, child.name)
+
+    def _spawn(self, name, argv):
+        child = Child(name, argv)
+        env = dict(os.environ, PYTHONUNBUFFERED='1', RCUTILS_COLORIZED_OUTPUT='0')
+        child.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                      text=True, env=env, start_new_session=True)
+        child.reader = threading.Thread(target=self._stream, args=(child,), daemon=True)
+        child.reader.start()
+        self.children.append(child)
+        self.say(f'started {name} (pid {child.proc.pid})')
+        return child
+
+    def _on_signal(self, signum, _frame):
+        self._signal = signum
+
+    def stop(self, child: Child, grace_s: float = 5.0):
+        """SIGINT, then SIGTERM, then SIGKILL until ``child`` is gone."""
+        if child.returncode is not None:
+            return
+        child.stopping = True
+        for sig, wait in ((signal.SIGINT, grace_s), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
+            try:
+                os.killpg(child.proc.pid, sig)
+            except ProcessLookupError:
+                break
+            try:
+                child.proc.wait(wait)
+                break
+            except subprocess.TimeoutExpired:
+                self.say(f'{child.name} did not stop on {sig.name}')
+
+    def run(self) -> int:
+        """Run the graph until the owner finishes, a node dies or a signal arrives."""
+        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        failed = None
+        try:
+            specs = []
+            if self.bag:
+                recorder_over = self.overrides.setdefault('recorder', {})
+                recorder_over.setdefault('bag', str(self.bag))
+                recorder_over.setdefault('mode', self.mode)
+                specs.append(RECORDER)
+                self.overrides.setdefault(OWNER, {}).setdefault('wait_for_subscribers', 2)
+            specs += list(NODES)
+            argvs = [(s[0], self._argv(*s)) for s in specs]
+            for name, argv in argvs:
+                child = self._spawn(name, argv)
+                if name == 'recorder':
+                    self._wait_for_line(child, 'recording', 20.0)
+            t0 = time.monotonic()
+            while True:
+                if self._signal is not None:
+                    self.say(f'{signal.Signals(self._signal).name} received: stopping all nodes')
+                    break
+                owner = self._child(OWNER)
+                if owner.returncode == 0:
+                    self.say('run finished')
+                    break
+                dead = [c for c in self.children if c.returncode is not None and not c.stopping]
+                if dead:
+                    failed = dead[0]
+                    self.say(f'node {failed.name} died ({describe_exit(failed.returncode)}); '
+                             'stopping the others')
+                    break
+                if self.timeout_s and time.monotonic() - t0 > self.timeout_s:
+                    failed = owner
+                    self.say(f'timeout: the run did not finish within {self.timeout_s:g} s')
+                    break
+                time.sleep(0.02)
+        finally:
+            # Loop order, recorder last, so the bag keeps everything that was published.
+            for child in sorted(self.children, key=lambda c: c.name == 'recorder'):
+                self.stop(child)
+            for child in self.children:
+                child.reader.join(timeout=2.0)
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+        recorder = self._child('recorder')
+        if recorder is not None and recorder.returncode != 0 and self.bag is not None:
+            from rths_bringup.bagio import reindex
+            if self.bag.exists():
+                reindex(self.bag)
+                self.say(f'recorder ended with {describe_exit(recorder.returncode)}: '
+                         f'bag {self.bag} reindexed')
+        if failed is not None:
+            self.say(f'FAILED: node {failed.name} ({describe_exit(failed.returncode)})')
+            return 1
+        if self._signal is not None:
+            return 128 + self._signal
+        return 0
+
+    def _child(self, name):
+        return next((c for c in self.children if c.name == name), None)
+
+    def _wait_for_line(self, child: Child, text: str, timeout_s: float):
+        t_end = time.monotonic() + timeout_s
+        while time.monotonic() < t_end:
+            if any(text in line for line in child.lines):
+                return
+            if child.returncode is not None:
+                raise OSError(f'{child.name} exited during start-up '
+                              f'({describe_exit(child.returncode)})')
+            time.sleep(0.02)
+        raise OSError(f'{child.name} did not report {text!r} within {timeout_s:g} s')

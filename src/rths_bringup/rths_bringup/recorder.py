@@ -1,0 +1,110 @@
+"""Recorder node: writes every loop topic of a run to a rosbag2 bag.
+
+``ros2 run rths_bringup recorder --ros-args -p bag:=out/run/bag -p mode:=lockstep``
+
+Subscriptions take the serialized (CDR) bytes (``raw=True``), so recording
+costs no deserialization; a writer thread drains a queue into the bag and
+commits every 0.25 s, so a crash of any process loses at most that much.
+This node never sits in the 1 kHz path of the loop.
+"""
+
+from collections import deque
+import sys
+import threading
+import time
+
+import rclpy
+
+from rths_bringup.bagio import BagWriter
+from rths_common import node_support as ns
+from rths_common import topics
+from rths_common.qos import recorder_qos, status_qos
+
+
+class Recorder:
+    """Subscribe to the loop topics and hand the messages to a writer thread."""
+
+    def __init__(self):
+        self.node = ns.make_node('recorder')
+        params = ns.parameters(self.node)
+        bag = params.get('bag', '')
+        if not bag:
+            raise ValueError("parameter 'bag' (output directory of the bag) is required: "
+                             'pass -p bag:=PATH')
+        mode = params.get('mode', 'lockstep')
+        self.queue = deque()
+        self.wake = threading.Event()
+        self.running = True
+        self.count = 0
+        # sqlite objects must stay in the thread that made them: the writer thread opens the bag.
+        opened = threading.Event()
+        self.open_error = None
+        self.thread = threading.Thread(target=self._drain, args=(bag, opened), daemon=True)
+        self.thread.start()
+        opened.wait()
+        if self.open_error is not None:
+            raise self.open_error
+        for topic, msgtype in topics.LOOP_TOPICS.items():
+            qos = status_qos() if topic == topics.STATUS else recorder_qos(mode)
+            self.node.create_subscription(ns.message_class(msgtype), topic,
+                                          self._callback(topic), qos, raw=True)
+        self.node.get_logger().info(f'recording {len(topics.LOOP_TOPICS)} topics to {bag}')
+
+    def _callback(self, topic):
+        def on_message(raw: bytes):
+            self.queue.append((topic, ns.now_ns(), raw))
+            self.wake.set()
+        return on_message
+
+    def _drain(self, bag, opened):
+        try:
+            writer = BagWriter(bag, topics.LOOP_TOPICS)
+        except (OSError, ValueError) as err:
+            self.open_error = err
+            return
+        finally:
+            opened.set()
+        with writer:
+            while self.running or self.queue:
+                self.wake.wait(0.1)
+                self.wake.clear()
+                while self.queue:
+                    writer.write(*self.queue.popleft())
+                writer.commit()
+            self.count = writer.count
+
+    def close(self):
+        """Write what is queued, close the bag; return the number of messages written."""
+        self.running = False
+        self.wake.set()
+        self.thread.join()
+        return self.count
+
+
+def main(argv=None):
+    """Entry point of ``ros2 run rths_bringup recorder``."""
+    rclpy.init(args=argv if argv is not None else sys.argv)
+    try:
+        rec = Recorder()
+    except (ValueError, OSError) as err:
+        print(f'recorder: error: {err}', file=sys.stderr)
+        rclpy.shutdown()
+        return 2
+    t0 = time.monotonic()
+    # The events executor has the least per-message overhead: the recorder takes every
+    # message of every node and must keep up with the loop.
+    ns.spin_until_done(rec.node, ns.make_executor('events'))
+    # Collect what is still in flight after the stop request.
+    end = time.monotonic() + 0.2
+    executor = ns.make_executor('events')
+    executor.add_node(rec.node)
+    while time.monotonic() < end:
+        executor.spin_once(timeout_sec=0.02)
+    count = rec.close()
+    print(f'recorder: {count} messages written in {time.monotonic() - t0:.1f} s', flush=True)
+    rclpy.shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,46 @@
+"""QoS profiles of the loop topics, per timing mode.
+
+lockstep: every message matters and a node acts on step k only when it has step
+k's input, so topics are RELIABLE; TRANSIENT_LOCAL lets a subscriber that
+matched late (DDS discovery is asynchronous) still get the step that was
+published before it matched, so a run can never dead-lock at start-up.  The
+history is deep (1000 samples, ~1 s of steps) because a reliable KEEP_LAST
+writer drops unacknowledged samples once its history is full: a reader that
+lags (the recorder, on a busy machine) must not lose steps.
+
+realtime: the newest sample is the only useful one; BEST_EFFORT, KEEP_LAST 1,
+VOLATILE avoids retransmissions and queues in the 1 kHz path.
+"""
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+
+def loop_qos(mode: str) -> QoSProfile:
+    """QoS of the interface-displacement, command and measurement topics for ``mode``."""
+    if mode == 'lockstep':
+        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    if mode == 'realtime':
+        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                          reliability=ReliabilityPolicy.BEST_EFFORT,
+                          durability=DurabilityPolicy.VOLATILE)
+    raise ValueError(f"unknown timing mode {mode!r}; use 'lockstep' or 'realtime'")
+
+
+def status_qos() -> QoSProfile:
+    """QoS of the status topic: reliable, volatile, deep enough for a recorder to keep up."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+def recorder_qos(mode: str) -> QoSProfile:
+    """QoS the recorder subscribes with: compatible with the publishers, deep history."""
+    if mode == 'lockstep':
+        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                      reliability=ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.VOLATILE)

@@ -1,0 +1,23 @@
+"""Topic, service and type names of the rths node graph: one place, used by every node and tool."""
+
+#: numerical node -> compensator node (rths_msgs/msg/InterfaceDisplacement)
+INTERFACE_DISPLACEMENT = '/rths/interface_displacement'
+#: compensator node -> actuator bridge (rths_msgs/msg/Command)
+COMMAND = '/rths/command'
+#: actuator bridge -> numerical node (rths_msgs/msg/Measurement)
+MEASUREMENT = '/rths/measurement'
+#: every node -> anyone (rths_msgs/msg/LoopStatus)
+STATUS = '/rths/status'
+#: anyone -> actuator bridge: emergency stop (std_msgs/msg/String, the reason)
+EMERGENCY_STOP = '/rths/emergency_stop'
+#: service of the actuator bridge (rths_msgs/srv/EmergencyStop)
+EMERGENCY_STOP_SERVICE = '/rths/emergency_stop_service'
+
+#: Every topic a run records, with its message type (rosbag2 type names).
+LOOP_TOPICS = {
+    INTERFACE_DISPLACEMENT: 'rths_msgs/msg/InterfaceDisplacement',
+    COMMAND: 'rths_msgs/msg/Command',
+    MEASUREMENT: 'rths_msgs/msg/Measurement',
+    STATUS: 'rths_msgs/msg/LoopStatus',
+    EMERGENCY_STOP: 'std_msgs/msg/String',
+}

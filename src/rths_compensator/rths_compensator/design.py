@@ -1,0 +1,381 @@
+"""Compensator design: the FIR compensator (seed ch. 4) and the comparison compensators (ch. 2).
+
+Plant (eq. 5-7): ``T(z^-1) = z^-d B*(z^-1)/A*(z^-1)``, ``B* = B+* B-*`` (stable / unstable
+zeros, :func:`rths_compensator.identification.factor_zeros`).  Every design returns a
+causal rational filter ``G = taps(z^-1)/denominator(z^-1)`` (a :class:`Design`).
+
+FIR compensator (eq. 28-36)
+    ``G_FIR = A*/B+* . H``, ``H = h1 + h2 z^-1 + ... + hn z^-(n-1)`` (eq. 28-29), so the
+    compensated system is ``T_com = z^-d B-* H`` (eq. 30), LINEAR in h.  On a grid
+    ``f_i`` (0 .. Nyquist) let ``M_i = e^{-j w_i d} B-*(f_i) [1, e^{-j w_i}, ...]``; then
+    ``T_com(f_i) - 1 = M_i h - 1``.
+
+    * LS / WLS (eq. 32): ``min_h sum_i w_i |M_i h - 1|^2`` (real/imaginary parts stacked:
+      a linear least-squares problem), w_i = 1 everywhere (LS) or 1000 in the passband
+      ``f <= fc`` and 1 in the stopband (WLS).
+    * MM (eq. 33): ``min_h max_i |M_i h - 1|`` over the whole grid, posed as a linear
+      programme (HiGHS): ``min t`` s.t. ``Re(e^{-j theta_m} (M_i h - 1)) <= t`` for
+      ``theta_m = 2 pi m / S`` (a regular S-gon around the complex error; exact to
+      ``1/cos(pi/S)``).
+    * Constraints (all schemes).  Eq. 34 (unit DC gain) is imposed exactly as the linear
+      equality ``B-*(1) sum(h) = 1``.  Eq. 35-36 (unit magnitude and zero phase over the
+      passband, within a tolerance epsilon) are non-convex as written; we impose the
+      convex per-frequency bound ``|T_com(f_i) - 1| <= epsilon`` for every passband
+      point, which implies ``| |T_com| - 1 | <= epsilon`` and
+      ``|arg T_com| <= asin(epsilon)``.  The disc is replaced by the inscribed S-gon
+      ``Re(e^{-j theta_m}(M_i h - 1)) <= epsilon cos(pi/S)`` (linear inequalities,
+      conservative by at most 1 - cos(pi/S)).
+    * Solvers: LS/WLS first solve the equality-constrained problem (null-space least
+      squares); if the passband bound already holds, that is the optimum of the convex
+      problem.  Otherwise the inequality-constrained least squares (LSI) is solved exactly
+      by the Lawson-Hanson reduction LSI -> least-distance programme -> non-negative
+      least squares (``scipy.optimize.nnls``).  MM is one LP.  No generic NLP is used.
+    * The unknown is scaled by B-*(1) (``g = B-*(1) h``) so it is O(1).
+
+Comparison compensators
+    * inverse (eq. 2): ``G = a - (a - 1) z^-1``, ``a = tau + 1``, tau the delay in samples.
+    * mff (eq. 4, Carrion & Spencer): ``G(s) = alpha^k prod(s - p_i)/prod(s - alpha p_i)``
+      from the continuous-time poles (Table 1), discretised by the bilinear (Tustin) map.
+    * npz (eq. 8): ``A*/(B+* B-*(1))``.
+    * zpetc (eq. 12, modified causal ZPETC): ``A* B-(z^-1)/(B+* B-*(1)^2)`` with
+      ``B-(z^-1)`` the coefficient-reversed B-* (``B-*(z) = z^q B-(z^-1)``).
+    * zmetc (eq. 14): ``A*/(B+* B-(z^-1))``.
+    Dead time d (if any) is not inverted by these; the FIR design includes it in T_com.
+"""
+
+import dataclasses
+import time
+
+import numpy as np
+from scipy import linalg, optimize, signal
+
+from .identification import ArxModel, factor_zeros
+from .indicators import time_delay_ms
+
+FIR_SCHEMES = ('ls', 'wls', 'mm')
+ALL_SCHEMES = FIR_SCHEMES + ('inverse', 'mff', 'npz', 'zpetc', 'zmetc')
+
+#: Default passband tolerance epsilon on |T_com - 1| (eq. 35-36); the seed gives no value.
+DEFAULT_EPSILON = 0.02
+
+
+@dataclasses.dataclass
+class Design:
+    """A designed compensator ``G = taps/denominator`` with its provenance."""
+
+    scheme: str
+    taps: np.ndarray
+    denominator: np.ndarray
+    fs_hz: float
+    info: dict = dataclasses.field(default_factory=dict)
+
+    def check(self) -> 'Design':
+        """Raise ValueError if the filter is non-finite or unstable; return self."""
+        if not (np.all(np.isfinite(self.taps)) and np.all(np.isfinite(self.denominator))):
+            raise ValueError(f'{self.scheme} design has non-finite coefficients')
+        if self.denominator.size > 1:
+            rho = float(np.max(np.abs(np.roots(self.denominator))))
+            if rho >= 1.0:
+                raise ValueError(f'{self.scheme} design is unstable (pole modulus {rho:.6g})')
+        return self
+
+
+def plant_polynomials(plant, fs_hz: float = None):
+    """Return ``(b_star, a_star, d, fs_hz)`` for an ArxModel or a ``(b, a)`` pair in z^-1."""
+    if isinstance(plant, ArxModel):
+        return plant.b.copy(), plant.a.copy(), plant.d, plant.fs_hz
+    b, a = plant
+    b = np.atleast_1d(np.asarray(b, dtype=float)).ravel()
+    a = np.atleast_1d(np.asarray(a, dtype=float)).ravel()
+    nz = np.flatnonzero(b)
+    if nz.size == 0:
+        raise ValueError('plant numerator is all zeros')
+    d = int(nz[0])
+    if fs_hz is None:
+        raise ValueError('fs_hz is required when the plant is given as (b, a)')
+    return b[d:] / a[0], a / a[0], d, float(fs_hz)
+
+
+def _freq_grid(fs_hz, n_grid):
+    return np.linspace(0.0, fs_hz / 2, n_grid)
+
+
+def _polygon(n_sides):
+    theta = 2 * np.pi * np.arange(n_sides) / n_sides
+    return np.exp(-1j * theta)
+
+
+def _fir_matrix(b_minus_unit, d, n_taps, freqs, fs_hz):
+    w = 2 * np.pi * freqs / fs_hz
+    _, bm = signal.freqz(b_minus_unit, [1.0], worN=w)
+    k = np.arange(n_taps)
+    return (bm * np.exp(-1j * w * d))[:, None] * np.exp(-1j * np.outer(w, k))
+
+
+def _null_space_of_ones(n):
+    """Particular solution and orthonormal null-space basis of ``sum(g) = 1``."""
+    q, _ = np.linalg.qr(np.ones((n, 1)), mode='complete')
+    return np.full(n, 1.0 / n), q[:, 1:]
+
+
+def _lsi(a, rhs, g_ineq, h_ineq):
+    """``min ||a y - rhs||`` s.t. ``g_ineq y >= h_ineq`` (Lawson & Hanson LSI via LDP/NNLS)."""
+    q, r = np.linalg.qr(a)
+    qtb = q.T @ rhs
+    e = linalg.solve_triangular(r, g_ineq.T, trans='T').T       # g R^-1
+    f = h_ineq - e @ qtb
+    n = e.shape[1]
+    mat = np.vstack([e.T, f[None, :]])
+    target = np.zeros(n + 1)
+    target[-1] = 1.0
+    u, _ = optimize.nnls(mat, target, maxiter=50 * mat.shape[1])
+    res = mat @ u - target
+    if np.linalg.norm(res) < 1e-12 or abs(res[-1]) < 1e-12:
+        raise ValueError('passband constraints infeasible')
+    z = -res[:n] / res[-1]
+    return linalg.solve_triangular(r, z + qtb)
+
+
+def min_passband_error(plant, n_taps: int, fc_hz: float, fs_hz: float = None,
+                       n_grid: int = 513, n_sides: int = 16) -> float:
+    """Smallest achievable ``max |T_com - 1|`` over the passband with unit DC gain (an LP).
+
+    The FIR design with tolerance epsilon is feasible iff epsilon exceeds this value
+    (up to the polygon factor ``1/cos(pi/S)``).
+    """
+    b_star, _, d, fs = plant_polynomials(plant, fs_hz)
+    _, b_minus = factor_zeros(b_star)
+    bmu = b_minus / np.sum(b_minus)
+    freqs = _freq_grid(fs, n_grid)
+    pb = freqs <= fc_hz
+    m = _fir_matrix(bmu, d, n_taps, freqs[pb], fs)
+    rot = _polygon(n_sides)
+    rows = (rot[:, None, None] * m[None]).reshape(-1, n_taps)
+    c0 = np.tile(np.real(rot)[:, None], (1, m.shape[0])).ravel()
+    a_ub = np.hstack([np.real(rows), -np.ones((rows.shape[0], 1))])
+    res = optimize.linprog(np.r_[np.zeros(n_taps), 1.0], A_ub=a_ub, b_ub=c0,
+                           A_eq=np.r_[np.ones(n_taps), 0.0][None, :], b_eq=[1.0],
+                           bounds=[(None, None)] * n_taps + [(0, None)], method='highs')
+    if res.status != 0:
+        raise ValueError(f'minimum passband error LP failed: {res.message}')
+    return float(res.x[-1])
+
+
+def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls',
+               epsilon: float = DEFAULT_EPSILON, fs_hz: float = None, n_grid: int = None,
+               passband_weight: float = 1000.0, n_sides: int = 16,
+               zero_tol: float = 1.0) -> Design:
+    """Design the FIR compensator ``G = A*/B+* . H`` (eq. 28) by LS, WLS or MM (eq. 32-36).
+
+    ``plant`` is an :class:`ArxModel` or ``(b, a)`` in z^-1 (with ``fs_hz``).  ``n_taps`` is
+    n (length of H), ``fc_hz`` the passband edge, ``epsilon`` the passband tolerance on
+    ``|T_com - 1|`` (see module docstring), ``n_grid`` the number of frequency points
+    from 0 to Nyquist (default 513 for LS/WLS, 257 for MM), ``zero_tol`` the modulus from
+    which a zero counts as unstable (goes to B-*).  Raises ValueError if the constraints
+    cannot be met (the message gives the smallest feasible epsilon).
+    """
+    scheme = scheme.lower()
+    if scheme not in FIR_SCHEMES:
+        raise ValueError(f'FIR scheme {scheme!r} unknown; use ls, wls or mm')
+    n_taps = int(n_taps)
+    if n_taps < 1:
+        raise ValueError(f'--taps must be >= 1, got {n_taps}')
+    b_star, a_star, d, fs = plant_polynomials(plant, fs_hz)
+    if not 0 < fc_hz < fs / 2:
+        raise ValueError(f'--fc {fc_hz} Hz must lie in (0, {fs / 2}) Hz')
+    if not epsilon > 0:
+        raise ValueError(f'--epsilon must be > 0, got {epsilon}')
+    t0 = time.perf_counter()
+    b_plus, b_minus = factor_zeros(b_star, zero_tol)
+    c = float(np.sum(b_minus))
+    if abs(c) < 1e-300:
+        raise ValueError('plant has a zero at z = 1 (B-*(1) = 0): no unit-DC-gain compensator')
+    bmu = b_minus / c
+    if n_grid is None:
+        n_grid = 257 if scheme == 'mm' else 513
+    freqs = _freq_grid(fs, n_grid)
+    pb = freqs <= fc_hz
+    m = _fir_matrix(bmu, d, n_taps, freqs, fs)
+    rot = _polygon(n_sides)
+    bound = epsilon * np.cos(np.pi / n_sides)
+    mp = m[pb]
+    pass_rows = np.real((rot[:, None, None] * mp[None]).reshape(-1, n_taps))
+    pass_c0 = np.tile(np.real(rot)[:, None], (1, mp.shape[0])).ravel()
+    solver = ''
+    if scheme in ('ls', 'wls'):
+        w = np.ones(n_grid)
+        if scheme == 'wls':
+            w[pb] = passband_weight
+        sw = np.sqrt(w)[:, None]
+        a_ls = np.vstack([sw * np.real(m), sw * np.imag(m)])
+        rhs = np.r_[np.sqrt(w), np.zeros(n_grid)]
+        g0, z = _null_space_of_ones(n_taps)
+        az = a_ls @ z
+        r0 = rhs - a_ls @ g0
+        y, *_ = np.linalg.lstsq(az, r0, rcond=None)
+        g = g0 + z @ y
+        solver = 'equality-constrained least squares (constraints inactive)'
+        if np.max(np.abs(mp @ g - 1.0)) > epsilon:
+            # pass_rows g <= bound + pass_c0  <=>  -(pass_rows z) y >= -(bound + c0 - rows g0)
+            g_in = -(pass_rows @ z)
+            h_in = -(bound + pass_c0 - pass_rows @ g0)
+            try:
+                y = _lsi(az, r0, g_in, h_in)
+            except ValueError:
+                eps_min = min_passband_error(plant, n_taps, fc_hz, fs, n_grid, n_sides)
+                raise ValueError(
+                    f'{scheme} n={n_taps} fc={fc_hz} Hz: passband tolerance epsilon={epsilon} '
+                    f'is infeasible (smallest achievable ~{eps_min / np.cos(np.pi / n_sides):.4g});'
+                    ' raise --epsilon, add taps or lower --fc') from None
+            g = g0 + z @ y
+            solver = 'inequality-constrained least squares (LSI -> LDP -> NNLS)'
+    else:
+        rows = np.real((rot[:, None, None] * m[None]).reshape(-1, n_taps))
+        c0 = np.tile(np.real(rot)[:, None], (1, n_grid)).ravel()
+        a_ub = np.vstack([np.hstack([rows, -np.ones((rows.shape[0], 1))]),
+                          np.hstack([pass_rows, np.zeros((pass_rows.shape[0], 1))])])
+        b_ub = np.r_[c0, bound + pass_c0]
+        res = optimize.linprog(np.r_[np.zeros(n_taps), 1.0], A_ub=a_ub, b_ub=b_ub,
+                               A_eq=np.r_[np.ones(n_taps), 0.0][None, :], b_eq=[1.0],
+                               bounds=[(None, None)] * n_taps + [(0, None)], method='highs')
+        if res.status == 2:
+            eps_min = min_passband_error(plant, n_taps, fc_hz, fs, n_grid, n_sides)
+            raise ValueError(
+                f'mm n={n_taps} fc={fc_hz} Hz: passband tolerance epsilon={epsilon} is '
+                f'infeasible (smallest achievable ~{eps_min / np.cos(np.pi / n_sides):.4g}); '
+                'raise --epsilon, add taps or lower --fc')
+        if res.status != 0:
+            raise ValueError(f'mm design LP failed: {res.message}')
+        g = res.x[:n_taps]
+        solver = 'linear programme (HiGHS), S-gon minimax'
+    h = g / c
+    taps = np.convolve(a_star, h)
+    design_s = time.perf_counter() - t0
+    tcom = m @ g
+    info = {
+        'n_taps': n_taps, 'fc_hz': float(fc_hz), 'epsilon': float(epsilon),
+        'solver': solver, 'design_s': design_s,
+        'passband_max_error': float(np.max(np.abs(tcom[pb] - 1.0))),
+        'max_error_all': float(np.max(np.abs(tcom - 1.0))),
+        'dc_gain_error': float(abs(np.sum(g) - 1.0)),
+        'n_unstable_zeros': int(b_minus.size - 1),
+        'dead_time': int(d),
+    }
+    if info['passband_max_error'] > epsilon * (1 + 1e-6) or info['dc_gain_error'] > 1e-8:
+        raise ValueError(f'{scheme} n={n_taps} fc={fc_hz} Hz violates its constraints '
+                         f'(passband error {info["passband_max_error"]:.3g} > {epsilon})')
+    return Design(scheme, taps, np.asarray(b_plus, dtype=float), fs, info).check()
+
+
+def design_inverse(fs_hz: float, delay_ms: float) -> Design:
+    """Inverse compensation (eq. 1-2): ``G = a - (a - 1) z^-1`` with ``a = tau + 1``."""
+    tau = float(delay_ms) * 1e-3 * float(fs_hz)
+    a_t = tau + 1.0
+    return Design('inverse', np.array([a_t, -(a_t - 1.0)]), np.array([1.0]), float(fs_hz),
+                  {'delay_ms': float(delay_ms), 'a_tilde': a_t}).check()
+
+
+def design_mff(poles, alpha: float, fs_hz: float, method: str = 'bilinear') -> Design:
+    """Model-based feed-forward (eq. 4) from continuous-time ``poles`` [rad/s] or a Table 1 name.
+
+    ``G(s) = alpha^k prod(s - p_i)/prod(s - alpha p_i)`` (unit DC gain), discretised at
+    ``fs_hz`` with ``scipy.signal.cont2discrete`` (``method``, default Tustin).
+    """
+    if isinstance(poles, str):
+        from .plants import actuator_poles
+        kind = poles
+        poles = actuator_poles(poles)
+    else:
+        kind = 'custom'
+        poles = np.asarray(poles, dtype=complex)
+    k = poles.size
+    num = np.real(alpha ** k * np.poly(poles))
+    den = np.real(np.poly(alpha * poles))
+    bz, az, _ = signal.cont2discrete((num, den), 1.0 / fs_hz, method=method)
+    bz = np.asarray(bz, dtype=float).ravel()
+    az = np.asarray(az, dtype=float).ravel()
+    return Design('mff', bz / az[0], az / az[0], float(fs_hz),
+                  {'alpha': float(alpha), 'model': kind, 'discretisation': method}).check()
+
+
+def _factored(plant, fs_hz, zero_tol=1.0):
+    b_star, a_star, d, fs = plant_polynomials(plant, fs_hz)
+    b_plus, b_minus = factor_zeros(b_star, zero_tol)
+    return a_star, b_plus, b_minus, d, fs
+
+
+def design_npz(plant, fs_hz: float = None) -> Design:
+    """NPZ-Ignore (eq. 8): ``A*/(B+* B-*(1))``."""
+    a_star, b_plus, b_minus, d, fs = _factored(plant, fs_hz)
+    return Design('npz', a_star.copy(), b_plus * np.sum(b_minus), fs, {'dead_time': d}).check()
+
+
+def design_zpetc(plant, fs_hz: float = None) -> Design:
+    """Modified causal ZPETC (eq. 12): ``A* B-(z^-1)/(B+* B-*(1)^2)``; adds q samples delay."""
+    a_star, b_plus, b_minus, d, fs = _factored(plant, fs_hz)
+    taps = np.convolve(a_star, b_minus[::-1]) / np.sum(b_minus) ** 2
+    return Design('zpetc', taps, b_plus.copy(), fs,
+                  {'q': int(b_minus.size - 1), 'dead_time': d}).check()
+
+
+def design_zmetc(plant, fs_hz: float = None) -> Design:
+    """ZMETC (eq. 14): ``A*/(B+* B-(z^-1))``."""
+    a_star, b_plus, b_minus, d, fs = _factored(plant, fs_hz)
+    return Design('zmetc', a_star.copy(), np.convolve(b_plus, b_minus[::-1]), fs,
+                  {'dead_time': d}).check()
+
+
+def design(plant, scheme: str, fs_hz: float = None, **options) -> Design:
+    """Design the compensator ``scheme`` (ls, wls, mm, inverse, mff, npz, zpetc, zmetc).
+
+    Options: FIR -> ``n_taps, fc_hz, epsilon, ...`` (:func:`design_fir`); inverse ->
+    ``delay_ms`` (default: the plant's delay over ``band_hz``, default 20 Hz); mff ->
+    ``alpha`` (default 7), ``poles`` (default '3pole').
+    """
+    scheme = scheme.lower()
+    if scheme in FIR_SCHEMES:
+        return design_fir(plant, scheme=scheme, fs_hz=fs_hz, **options)
+    if scheme == 'inverse':
+        _, a_star, d, fs = plant_polynomials(plant, fs_hz)
+        delay = options.get('delay_ms')
+        if delay is None:
+            b_star = plant_polynomials(plant, fs_hz)[0]
+            band = float(options.get('band_hz', 20.0))
+            delay = time_delay_ms(np.r_[np.zeros(d), b_star], a_star, fs, band)
+        return design_inverse(fs, delay)
+    if scheme == 'mff':
+        fs = plant_polynomials(plant, fs_hz)[3]
+        return design_mff(options.get('poles', '3pole'), float(options.get('alpha', 7.0)), fs)
+    if scheme == 'npz':
+        return design_npz(plant, fs_hz)
+    if scheme == 'zpetc':
+        return design_zpetc(plant, fs_hz)
+    if scheme == 'zmetc':
+        return design_zmetc(plant, fs_hz)
+    raise ValueError(f'scheme {scheme!r} unknown; use one of {", ".join(ALL_SCHEMES)}')
+
+
+def compensated(plant, comp: Design, fs_hz: float = None):
+    """``(num, den)`` of the compensated system ``T . G`` in z^-1."""
+    b_star, a_star, d, _ = plant_polynomials(plant, fs_hz or comp.fs_hz)
+    return (np.convolve(np.r_[np.zeros(d), b_star], comp.taps),
+            np.convolve(a_star, comp.denominator))
+
+
+def predict(plant, comp: Design, band_hz: float, fs_hz: float = None,
+            n_points: int = 512) -> dict:
+    """Predicted indicators of ``T . G`` from the plant model over ``0 < f <= band_hz``.
+
+    Returns delay_ms (eq. 42 averaged), gain_error_db (max | 20 log10 |T_com| |) and
+    highpass_gain_db (max 20 log10 |T_com| above the band, up to Nyquist).
+    """
+    num, den = compensated(plant, comp, fs_hz)
+    fs = comp.fs_hz
+    delay = time_delay_ms(num, den, fs, band_hz, n_points)
+    f_in = np.linspace(band_hz / n_points, band_hz, n_points)
+    f_out = np.linspace(band_hz, fs / 2, 2 * n_points)
+    _, h_in = signal.freqz(num, den, worN=f_in, fs=fs)
+    _, h_out = signal.freqz(num, den, worN=f_out, fs=fs)
+    return {'delay_ms': float(delay),
+            'gain_error_db': float(np.max(np.abs(20 * np.log10(np.abs(h_in))))),
+            'highpass_gain_db': float(np.max(20 * np.log10(np.abs(h_out))))}

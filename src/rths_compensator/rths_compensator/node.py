@@ -1,0 +1,100 @@
+"""Compensator node: applies the designed taps to the interface displacement, step by step.
+
+``ros2 run rths_compensator compensator_node --ros-args --params-file config/compensator.yaml``
+
+Subscribes ``/rths/interface_displacement``, publishes ``/rths/command``: the
+command of step k is ``G(z^-1)`` applied causally to the interface
+displacements up to step k (one independent filter per interface DOF), with
+``G = taps / denominator`` from the parameters file written by ``rths design``
+(layout: :mod:`rths_compensator.params`).  The math is in
+:class:`rths_compensator.filters.MultiChannelFilter`; this node only moves messages.
+"""
+
+import sys
+import time
+
+import numpy as np
+import rclpy
+
+from rths_common import node_support as ns
+from rths_common import topics
+from rths_common.qos import loop_qos, status_qos
+from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus
+
+NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events'}
+
+
+class CompensatorNode:
+    """ROS shell around a :class:`~rths_compensator.filters.MultiChannelFilter`."""
+
+    def __init__(self):
+        from rths_compensator.params import _check
+
+        self.node = ns.make_node('compensator')
+        params = ns.parameters(self.node)
+        self.own = {k: ns.param(params, k, v) for k, v in NODE_PARAMS.items()}
+        for key in NODE_PARAMS:
+            params.pop(key, None)
+        taps, denominator, fs = _check('compensator node parameters', params.get('taps', []),
+                                       params.get('denominator', [1.0]),
+                                       params.get('fs_hz', 1024.0), params.get('scheme', ''))
+        self.params = dict(params, taps=taps, denominator=denominator, fs_hz=fs)
+        self.filter = None  # built on the first message, when the number of DOFs is known
+        self.log = self.node.get_logger()
+        qos = loop_qos(self.own['mode'])
+        self.pub = self.node.create_publisher(Command, topics.COMMAND, qos)
+        self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
+        self.node.create_subscription(InterfaceDisplacement, topics.INTERFACE_DISPLACEMENT,
+                                      self.on_displacement, qos)
+        self.clock = ns.StepClock()
+        self.expected = 0
+        self.rejected = 0
+        self.log.info(f"compensator ready: scheme {self.params['scheme']}, "
+                      f"{len(self.params['taps'])} taps, "
+                      f"{len(self.params['denominator']) - 1} denominator order")
+
+    def on_displacement(self, msg: InterfaceDisplacement):
+        """Filter the interface displacement of step k and publish the command of step k."""
+        from rths_compensator.filters import MultiChannelFilter
+
+        t_in = ns.now_ns()
+        if msg.step != self.expected:
+            self.rejected += 1
+            self.log.warning(f'interface displacement of step {msg.step} ignored: expected '
+                             f'step {self.expected} (duplicate or out of order)')
+            return
+        t0 = time.perf_counter_ns()
+        x = np.asarray(msg.displacement, dtype=float)
+        if self.filter is None:
+            self.filter = MultiChannelFilter(self.params['taps'], self.params['denominator'],
+                                             n_channels=max(x.size, 1))
+        command = self.filter.step(x)
+        out = Command(step=msg.step, command=command.tolist())
+        ns.stamp(out.header, ns.now_ns())
+        self.pub.publish(out)
+        compute_us = (time.perf_counter_ns() - t0) * 1e-3
+        self.status_pub.publish(ns.status_msg(
+            'compensator', msg.step, period_us=self.clock.period_us(t_in), compute_us=compute_us,
+            latency_us=(t_in - ns.stamp_ns(msg.header)) * 1e-3, misses=self.clock.misses))
+        self.expected += 1
+
+
+def main(argv=None):
+    """Entry point of ``ros2 run rths_compensator compensator_node``."""
+    rclpy.init(args=argv if argv is not None else sys.argv)
+    code = 0
+    try:
+        shell = CompensatorNode()
+        ns.spin_until_done(shell.node, ns.make_executor(shell.own['executor']))
+        shell.log.info(f'compensator: {shell.expected} steps, {shell.rejected} rejected')
+    except ValueError as err:
+        print(f'compensator_node: error: {err}', file=sys.stderr)
+        code = 2
+    finally:
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

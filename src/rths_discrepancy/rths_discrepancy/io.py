@@ -1,0 +1,111 @@
+"""Input of the discrepancy workflow: CSV loading and validation of the column contract.
+
+Columns (SI units):
+
+* specimen: ``time`` [s], ``base_accel`` [m/s^2] (absolute acceleration of
+  the DTM frame, input of eq. 46-47), ``rel_disp`` [m] (x_d2s), ``force`` [N]
+  (force the damper exerts on its frame, ``c_d xd + k_d x = -m_d xdd_d``,
+  eq. 45);
+* actuator: ``time`` [s], ``command`` [m] (input), ``measured`` [m] (output).
+
+Sampling must be uniform (any rate).  Every problem raises ``ValueError``
+naming the file/column and the fix.
+"""
+
+import numpy as np
+
+#: Required columns per scenario: (input, output channels...).
+COLUMNS = {
+    'specimen': ('time', 'base_accel', 'rel_disp', 'force'),
+    'actuator': ('time', 'command', 'measured'),
+}
+
+#: Fewest samples the workflow accepts (train/held-out split into blocks).
+MIN_SAMPLES = 512
+#: Shortest record [s] (several periods of the DTM, f_n = 2.81 Hz, Table 4).
+MIN_DURATION_S = 4.0
+
+
+def validate(scenario: str, data: dict, source: str = 'data') -> dict:
+    """Check ``data`` (column name -> array) against the contract; return float arrays.
+
+    Raises ValueError for an unknown scenario, a missing column, unequal
+    lengths, NaN/inf, non-increasing or non-uniform time, or a record too
+    short to split into training and held-out parts.
+    """
+    if scenario not in COLUMNS:
+        raise ValueError(f'unknown scenario {scenario!r}; use one of {", ".join(COLUMNS)}')
+    need = COLUMNS[scenario]
+    missing = [c for c in need if c not in data]
+    if missing:
+        raise ValueError(f'{source}: missing column(s) {", ".join(missing)} for scenario '
+                         f'{scenario}; the columns must be {", ".join(need)}')
+    out = {c: np.asarray(data[c], dtype=float).ravel() for c in need}
+    n = out['time'].size
+    for c in need:
+        if out[c].size != n:
+            raise ValueError(f'{source}: column {c} has {out[c].size} values, time has {n}')
+        bad = ~np.isfinite(out[c])
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ValueError(f'{source}: column {c} has {int(bad.sum())} NaN/inf value(s), first '
+                             f'at row {i}; remove or interpolate them')
+    t = out['time']
+    if n < 3:
+        raise ValueError(f'{source}: only {n} rows; need at least {MIN_SAMPLES}')
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        i = int(np.argmax(dt <= 0))
+        raise ValueError(f'{source}: column time is not increasing at row {i + 1} '
+                         f'({t[i]:g} -> {t[i + 1]:g} s)')
+    step = np.median(dt)
+    dev = np.max(np.abs(dt - step))
+    if dev > 1e-3 * step:
+        i = int(np.argmax(np.abs(dt - step)))
+        raise ValueError(f'{source}: column time is not uniformly sampled (step {dt[i]:g} s at row '
+                         f'{i + 1}, median {step:g} s); resample to a uniform rate first')
+    if n < MIN_SAMPLES or t[-1] - t[0] < MIN_DURATION_S:
+        raise ValueError(f'{source}: record too short to split into training and held-out parts '
+                         f'({n} samples, {t[-1] - t[0]:.3g} s); need >= {MIN_SAMPLES} samples and '
+                         f'>= {MIN_DURATION_S:g} s')
+    return out
+
+
+def sample_rate(data: dict) -> float:
+    """Sampling rate [Hz] of validated ``data``."""
+    t = data['time']
+    return float((t.size - 1) / (t[-1] - t[0]))
+
+
+def load_csv(path, scenario: str) -> dict:
+    """Read a CSV with a header row and return the validated columns of ``scenario``."""
+    import csv
+    with open(path, newline='') as fh:
+        reader = csv.reader(fh)
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration:
+            raise ValueError(f'{path}: empty file; expected a header row '
+                             f'{",".join(COLUMNS.get(scenario, ()))}') from None
+        rows = [r for r in reader if r and any(c.strip() for c in r)]
+    cols = {}
+    for j, name in enumerate(header):
+        vals = []
+        for i, r in enumerate(rows):
+            cell = r[j].strip() if j < len(r) else ''
+            try:
+                vals.append(float(cell) if cell else np.nan)
+            except ValueError:
+                raise ValueError(f'{path}: row {i + 2}, column {name}: {cell!r} is not a '
+                                 f'number') from None
+        cols[name] = np.array(vals)
+    return validate(scenario, cols, source=str(path))
+
+
+def write_csv(path, data: dict, columns) -> None:
+    """Write ``columns`` of ``data`` as CSV with a header row (atomic rename)."""
+    import os
+    tmp = f'{path}.tmp'
+    arr = np.column_stack([np.asarray(data[c], float) for c in columns])
+    np.savetxt(tmp, arr, delimiter=',', header=','.join(columns), comments='', fmt='%.10g')
+    os.replace(tmp, path)

@@ -1,0 +1,178 @@
+"""Linear MDOF models ``M u'' + C u' + K u = -M Gamma a_g + F`` and their substructure split.
+
+Seed chapter 3 (eq. 16-21): ``u`` is relative to the ground, ``Gamma`` the
+influence vector, ``P = -M Gamma a_g + F`` (eq. 21).  DOFs are split into the
+numerical ones (N, NB), the interface DOFs I (where the specimen is attached,
+eq. 22-25) and the experimental ones (E, EB) that are not modelled here at all:
+the specimen's restoring force ``R^E`` enters the interface rows (eq. 23, 25).
+
+A model YAML file (``load_model_yaml``)::
+
+    name: my-frame               # optional
+    M: [[m11, m12], [m21, m22]]  # kg  (or 'masses: [m1, m2]' for a diagonal M)
+    K: [[...], [...]]            # N/m
+    C: [[...], [...]]            # N s/m, or instead:
+    damping: {type: rayleigh, zeta: [0.042, 0.10], modes: [0, 1]}     # modes by index
+    # damping: {type: modal, zeta: [0.02, 0.02]}   (one ratio per mode, or one for all)
+    influence: [1, 1]            # Gamma, default all ones
+    interface_dofs: [1]          # default: last DOF
+    output_dof: 1                # DOF reported as "2nd floor", default: last DOF
+    dof_names: [floor1, floor2]  # optional
+"""
+
+from dataclasses import dataclass, field
+import math
+
+import numpy as np
+import scipy.linalg as sla
+
+
+@dataclass
+class LinearModel:
+    """Mass [kg], damping [N s/m], stiffness [N/m], influence vector and interface DOFs."""
+
+    M: np.ndarray
+    C: np.ndarray
+    K: np.ndarray
+    gamma: np.ndarray
+    interface_dofs: list
+    output_dof: int
+    name: str = 'model'
+    dof_names: list = field(default_factory=list)
+
+    def __post_init__(self):
+        """Validate shapes and indices."""
+        self.M = np.atleast_2d(np.asarray(self.M, dtype=float))
+        self.K = np.atleast_2d(np.asarray(self.K, dtype=float))
+        self.C = np.atleast_2d(np.asarray(self.C, dtype=float))
+        n = self.M.shape[0]
+        self.gamma = np.asarray(self.gamma, dtype=float).reshape(-1)
+        for label, mat in (('M', self.M), ('K', self.K), ('C', self.C)):
+            if mat.shape != (n, n):
+                raise ValueError(f'model {self.name}: {label} is {mat.shape}, expected ({n}, {n})')
+        if self.gamma.shape != (n,):
+            raise ValueError(f'model {self.name}: influence has {self.gamma.size} entries, '
+                             f'expected {n}')
+        self.interface_dofs = [int(i) for i in self.interface_dofs]
+        for i in self.interface_dofs + [self.output_dof]:
+            if not 0 <= i < n:
+                raise ValueError(f'model {self.name}: DOF index {i} is outside 0..{n - 1}')
+        if not self.dof_names:
+            self.dof_names = [f'dof{i}' for i in range(n)]
+
+    @property
+    def n(self) -> int:
+        """Number of DOFs."""
+        return self.M.shape[0]
+
+    def modes(self):
+        """Return natural frequencies [Hz] (ascending) and mass-normalised mode shapes (columns)."""
+        w2, phi = sla.eigh(self.K, self.M)
+        return np.sqrt(np.clip(w2, 0.0, None)) / (2 * math.pi), phi
+
+    def effective_mass(self, direction=None):
+        """Return the effective modal mass fraction of every mode for influence ``direction``."""
+        g = self.gamma if direction is None else np.asarray(direction, dtype=float)
+        _, phi = self.modes()
+        part = phi.T @ self.M @ g
+        return part ** 2 / (g @ self.M @ g)
+
+    def dominant_frequencies(self, count=2, direction=None):
+        """Frequencies [Hz] of the ``count`` modes with most effective mass, ascending."""
+        f, _ = self.modes()
+        eff = self.effective_mass(direction)
+        idx = np.sort(np.argsort(eff)[::-1][:count])
+        return f[idx], idx
+
+    def with_added(self, dof, mass=0.0, stiffness=0.0, damping=0.0):
+        """Return a copy with lumped mass/spring/dashpot (to ground) added at ``dof``."""
+        M, C, K = self.M.copy(), self.C.copy(), self.K.copy()
+        M[dof, dof] += mass
+        C[dof, dof] += damping
+        K[dof, dof] += stiffness
+        return LinearModel(M, C, K, self.gamma.copy(), list(self.interface_dofs),
+                           self.output_dof, self.name, list(self.dof_names))
+
+
+def rayleigh_coefficients(f1_hz, f2_hz, zeta1, zeta2):
+    """Return ``(a0, a1)`` with ``C = a0 M + a1 K`` giving ``zeta1``, ``zeta2`` at two frequencies.
+
+    ``zeta_i = a0 / (2 w_i) + a1 w_i / 2``.
+    """
+    w1, w2 = 2 * math.pi * f1_hz, 2 * math.pi * f2_hz
+    A = np.array([[1 / (2 * w1), w1 / 2], [1 / (2 * w2), w2 / 2]])
+    a0, a1 = np.linalg.solve(A, [zeta1, zeta2])
+    return float(a0), float(a1)
+
+
+def modal_damping(M, K, zetas):
+    """Return ``C = M Phi diag(2 zeta_i w_i) Phi^T M`` (mass-normalised modes)."""
+    w2, phi = sla.eigh(K, M)
+    w = np.sqrt(np.clip(w2, 0.0, None))
+    z = np.broadcast_to(np.asarray(zetas, dtype=float), w.shape)
+    mp = M @ phi
+    return mp @ np.diag(2 * z * w) @ mp.T
+
+
+def sdof_model(mass_kg, freq_hz, zeta):
+    """Return a single-DOF model; the DOF is both interface and output."""
+    for key, val in (('sdof_mass_kg', mass_kg), ('sdof_freq_hz', freq_hz)):
+        if not val > 0:
+            raise ValueError(f'{key} = {val} must be positive')
+    if not 0 <= zeta < 1:
+        raise ValueError(f'sdof_zeta = {zeta} must lie in [0, 1)')
+    w = 2 * math.pi * freq_hz
+    return LinearModel([[mass_kg]], [[2 * zeta * mass_kg * w]], [[mass_kg * w * w]], [1.0],
+                       [0], 0, name='sdof', dof_names=['mass'])
+
+
+def model_from_dict(data, source='model'):
+    """Build a :class:`LinearModel` from the YAML layout of the module docstring."""
+    if not isinstance(data, dict):
+        raise ValueError(f'{source}: expected a mapping with keys M/masses, K, C or damping')
+    if 'M' in data:
+        M = np.atleast_2d(np.asarray(data['M'], dtype=float))
+    elif 'masses' in data:
+        M = np.diag(np.asarray(data['masses'], dtype=float))
+    else:
+        raise ValueError(f'{source}: missing M (kg matrix) or masses (diagonal list)')
+    if 'K' not in data:
+        raise ValueError(f'{source}: missing K (stiffness matrix, N/m)')
+    K = np.atleast_2d(np.asarray(data['K'], dtype=float))
+    if K.shape != M.shape:
+        raise ValueError(f'{source}: K is {K.shape} but M is {M.shape}; make them equal')
+    n = M.shape[0]
+    if 'C' in data:
+        C = np.atleast_2d(np.asarray(data['C'], dtype=float))
+    else:
+        damp = data.get('damping', {'type': 'modal', 'zeta': 0.0})
+        kind = damp.get('type', 'rayleigh')
+        if kind == 'rayleigh':
+            zeta = damp.get('zeta')
+            if zeta is None or len(zeta) != 2:
+                raise ValueError(f'{source}: damping.zeta must list two ratios for rayleigh')
+            if 'freqs_hz' in damp:
+                f1, f2 = damp['freqs_hz']
+            else:
+                modes = damp.get('modes', [0, 1])
+                f = np.sqrt(np.clip(sla.eigh(K, M, eigvals_only=True), 0, None)) / (2 * math.pi)
+                f1, f2 = f[modes[0]], f[modes[1]]
+            a0, a1 = rayleigh_coefficients(f1, f2, zeta[0], zeta[1])
+            C = a0 * M + a1 * K
+        elif kind == 'modal':
+            C = modal_damping(M, K, damp.get('zeta', 0.0))
+        else:
+            raise ValueError(f'{source}: damping.type {kind!r} unknown; use rayleigh or modal')
+    gamma = data.get('influence', [1.0] * n)
+    interface = data.get('interface_dofs', [n - 1])
+    output = int(data.get('output_dof', n - 1))
+    return LinearModel(M, C, K, gamma, interface, output, name=str(data.get('name', source)),
+                       dof_names=list(data.get('dof_names', [])))
+
+
+def load_model_yaml(path):
+    """Read a model YAML file (see the module docstring)."""
+    import yaml
+    with open(path) as fh:
+        data = yaml.safe_load(fh)
+    return model_from_dict(data, source=str(path))

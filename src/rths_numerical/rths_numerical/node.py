@@ -1,0 +1,149 @@
+"""Numerical-substructure node: integrates the building and closes the RTHS loop.
+
+``ros2 run rths_numerical numerical_node --ros-args --params-file config/numerical.yaml``
+
+Publishes the interface displacement of each step on ``/rths/interface_displacement``
+and consumes the measured force of that step from ``/rths/measurement``; all
+physics is in :mod:`rths_numerical.substructure` (no ROS there).
+
+Lock-step mode (``mode: lockstep``): step k+1 is computed only when the
+measurement of step k has arrived, so a run is deterministic and as fast as
+the machine allows.  The node waits until ``wait_for_subscribers`` readers
+(compensator, recorder) have matched its publisher, publishes step 0, and
+exits with code 0 after the last step.  With ``history_out`` set it saves the
+substructure's history (``NumericalSubstructure.history()``) as .npz.
+"""
+
+import sys
+import time
+
+import numpy as np
+import rclpy
+
+from rths_common import node_support as ns
+from rths_common import topics
+from rths_common.qos import loop_qos, status_qos
+from rths_msgs.msg import InterfaceDisplacement, LoopStatus, Measurement
+
+#: Parameters of the node itself; every other parameter goes to make_substructure().
+NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
+               'history_out': ''}
+
+
+class NumericalNode:
+    """ROS shell around a :class:`~rths_numerical.substructure.NumericalSubstructure`."""
+
+    def __init__(self):
+        from rths_numerical.substructure import make_substructure
+
+        self.node = ns.make_node('numerical')
+        params = ns.parameters(self.node)
+        own = {k: ns.param(params, k, v) for k, v in NODE_PARAMS.items()}
+        for key in NODE_PARAMS:
+            params.pop(key, None)
+        if own['mode'] != 'lockstep':
+            raise ValueError(f"numerical node: mode {own['mode']!r} is not available yet; "
+                             "use mode: lockstep")
+        self.own = own
+        self.sub = make_substructure(params)
+        self.log = self.node.get_logger()
+        qos = loop_qos(own['mode'])
+        self.pub = self.node.create_publisher(InterfaceDisplacement, topics.INTERFACE_DISPLACEMENT, qos)
+        self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
+        self.node.create_subscription(Measurement, topics.MEASUREMENT, self.on_measurement, qos)
+        self.clock = ns.StepClock()
+        self.expected = 0
+        self.started = False
+        self.finished = False
+        self.rejected = 0
+        self.failed = False
+        self.t_start = None
+        self.start_timer = self.node.create_timer(0.05, self.try_start)
+        self.log.info(f'numerical substructure ready: {self.sub.n_steps} steps at '
+                      f'{1.0 / self.sub.dt:g} Hz, {self.sub.n_interface} interface DOF(s); '
+                      f"waiting for {own['wait_for_subscribers']} subscriber(s)")
+
+    def publish(self, step: int, displacement):
+        msg = InterfaceDisplacement(step=step, displacement=[float(x) for x in displacement])
+        ns.stamp(msg.header, ns.now_ns())
+        self.pub.publish(msg)
+
+    def try_start(self):
+        """Publish step 0 once the graph is connected."""
+        if self.started:
+            return
+        if (self.pub.get_subscription_count() < self.own['wait_for_subscribers']
+                or self.node.count_publishers(topics.MEASUREMENT) < 1):
+            return
+        self.started = True
+        self.start_timer.cancel()
+        self.t_start = time.monotonic()
+        self.log.info('graph connected: publishing step 0')
+        self.publish(0, self.sub.first_displacement())
+
+    def on_measurement(self, msg: Measurement):
+        """Finish step k with its measured force and publish step k+1."""
+        t_in = ns.now_ns()
+        if msg.step != self.expected:
+            self.rejected += 1
+            self.log.warning(f'measurement of step {msg.step} ignored: expected step '
+                             f'{self.expected} (duplicate or out of order)')
+            return
+        force = np.asarray(msg.force, dtype=float)
+        if force.shape != (self.sub.n_interface,) or not np.all(np.isfinite(force)):
+            self.log.error(f'step {msg.step}: measured force {list(msg.force)} is not '
+                           f'{self.sub.n_interface} finite value(s); stopping the run')
+            self.finished = True
+            self.failed = True
+            return
+        t0 = time.perf_counter_ns()
+        displacement = self.sub.advance(force)
+        compute_us = (time.perf_counter_ns() - t0) * 1e-3
+        latency_us = (t_in - ns.stamp_ns(msg.header)) * 1e-3
+        self.status_pub.publish(ns.status_msg(
+            'numerical', msg.step, period_us=self.clock.period_us(t_in),
+            compute_us=compute_us, latency_us=latency_us, misses=self.clock.misses))
+        self.expected += 1
+        if self.sub.done():
+            self.finished = True
+            return
+        self.publish(self.expected, displacement)
+
+    def summary(self) -> str:
+        wall = time.monotonic() - self.t_start if self.t_start else 0.0
+        rate = self.expected / wall if wall > 0 else 0.0
+        return (f'numerical: {self.expected} of {self.sub.n_steps} steps in {wall:.2f} s '
+                f'({rate:.0f} steps/s), {self.rejected} measurement(s) rejected')
+
+    def save_history(self):
+        path = self.own['history_out']
+        if path:
+            np.savez(path, **self.sub.history())
+            self.log.info(f'history written to {path}')
+
+
+def main(argv=None):
+    """Entry point of ``ros2 run rths_numerical numerical_node``."""
+    rclpy.init(args=argv if argv is not None else sys.argv)
+    code = 0
+    try:
+        shell = NumericalNode()
+        executor = ns.make_executor(shell.own['executor'])
+        done = ns.spin_until_done(shell.node, executor, lambda: shell.finished)
+        shell.log.info(shell.summary())
+        shell.save_history()
+        if shell.failed:
+            code = 1
+        elif not done:
+            code = 130  # stopped by a signal before the run ended
+    except ValueError as err:
+        print(f'numerical_node: error: {err}', file=sys.stderr)
+        code = 2
+    finally:
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,167 @@
+"""Whole-numerical reference simulations (seed 6.3.4), a DTM specimen model and offline RTHS.
+
+Reference model (building + ``n`` DTMs on the interface DOF, all numerical)::
+
+    [M + n m_f e e^T   0    ] [u''  ]   [C + n c_d e e^T  -n c_d e] [u' ]
+    [0                 n m_d] [u_d''] + [-n c_d e^T        n c_d  ] [u_d'] + (same with k) = -[M Gamma + n m_f e; n m_d] a_g
+
+``u_d`` is the DTM moving mass's displacement relative to the ground, ``e``
+selects the interface DOF, ``m_f`` the DTM frame mass (seed 5.1, 250 lbm),
+``m_d, c_d, k_d`` Table 4 (seed eq. 44-46).  Every mass is excited by the
+ground.  Metrics of tables 6-8: max and RMS of the 2nd-floor displacement
+(relative to the ground) and their reduction against the uncontrolled
+building (no DTMs, no frames).
+
+:class:`DTMSpecimen` stands in for the lab: given the table displacement of
+each step it returns the measured force ``m_f a_table + m_d a_moving_mass``
+(the project's convention, see :mod:`.substructure`).  :func:`coupled_rths`
+runs a :class:`.substructure.NumericalSubstructure` against any such callable
+exactly as the ROS lock-step loop does.
+"""
+
+import numpy as np
+
+from .dtm import FRAME_MASS_KG, DTMParameters, dtm_configuration
+from .integrators import make_integrator
+from .model import LinearModel
+
+INCH = 0.0254
+
+
+def coupled_model(model: LinearModel, dtm: DTMParameters, n_dtm=5, frame_mass_kg=FRAME_MASS_KG,
+                  dof=None) -> LinearModel:
+    """Return ``model`` with ``n_dtm`` DTMs (moving mass + frame) attached at ``dof``."""
+    dof = model.interface_dofs[0] if dof is None else dof
+    n = model.n
+    M = np.zeros((n + 1, n + 1))
+    C = np.zeros_like(M)
+    K = np.zeros_like(M)
+    M[:n, :n], C[:n, :n], K[:n, :n] = model.M, model.C, model.K
+    M[dof, dof] += n_dtm * frame_mass_kg
+    M[n, n] = n_dtm * dtm.m_d
+    for mat, val in ((C, n_dtm * dtm.c_d), (K, n_dtm * dtm.k_d)):
+        mat[dof, dof] += val
+        mat[n, n] += val
+        mat[dof, n] -= val
+        mat[n, dof] -= val
+    gamma = np.concatenate([model.gamma, [1.0]])
+    return LinearModel(M, C, K, gamma, [dof], model.output_dof, model.name + '+dtm',
+                       list(model.dof_names) + ['dtm'])
+
+
+def integrate_model(model: LinearModel, ag, dt, integrator='cr', rho_inf=0.5):
+    """Integrate ``M u'' + C u' + K u = -M Gamma a_g`` from rest; return (d, a) histories."""
+    ag = np.asarray(ag, dtype=float)
+    integ = make_integrator(integrator, model.M, model.C, model.K, dt, rho_inf)
+    mg = model.M @ model.gamma
+    n = ag.size
+    d = np.zeros((n, model.n))
+    a = np.zeros((n, model.n))
+    integ.set_state(np.zeros(model.n), np.zeros(model.n), p=-mg * ag[0])
+    a[0] = integ.a
+    for k in range(1, n):
+        p = -mg * ag[k]
+        integ.predict(p)
+        integ.correct(p, np.zeros(model.n))
+        d[k] = integ.d
+        a[k] = integ.a
+    return d, a
+
+
+def metrics(disp, reference=None):
+    """Table 6-8 metrics of a displacement history [m]; reductions [%] against ``reference``."""
+    disp = np.asarray(disp, dtype=float)
+    out = {'max_disp_m': float(np.max(np.abs(disp))), 'rms_disp_m': float(np.sqrt(np.mean(disp ** 2)))}
+    out['max_disp_in'] = out['max_disp_m'] / INCH
+    out['rms_disp_in'] = out['rms_disp_m'] / INCH
+    if reference is not None:
+        out['max_reduction_pct'] = 100 * (1 - out['max_disp_m'] / reference['max_disp_m'])
+        out['rms_reduction_pct'] = 100 * (1 - out['rms_disp_m'] / reference['rms_disp_m'])
+    return out
+
+
+def simulate_uncontrolled(model: LinearModel, ag, dt, integrator='cr'):
+    """Building alone; return ``{'time', 'disp', 'accel_abs', 'metrics'}`` of the output DOF."""
+    d, a = integrate_model(model, ag, dt, integrator)
+    out = model.output_dof
+    disp = d[:, out]
+    return {'time': np.arange(len(ag)) * dt, 'disp': disp,
+            'accel_abs': a[:, out] + model.gamma[out] * np.asarray(ag), 'metrics': metrics(disp)}
+
+
+def simulate_reference(model: LinearModel, ag, dt, damper='valve4', n_dtm=5,
+                       frame_mass_kg=FRAME_MASS_KG, integrator='cr', uncontrolled=None):
+    """Building + ``n_dtm`` DTMs (Table 4 ``damper``) all numerical (seed 6.3.4).
+
+    Returns ``{'time', 'disp', 'accel_abs', 'dtm_stroke', 'metrics'}``; the
+    metrics include reductions against ``uncontrolled`` (computed if None).
+    """
+    dtm = damper if isinstance(damper, DTMParameters) else dtm_configuration(damper)
+    full = coupled_model(model, dtm, n_dtm, frame_mass_kg)
+    d, a = integrate_model(full, ag, dt, integrator)
+    out = model.output_dof
+    if uncontrolled is None:
+        uncontrolled = simulate_uncontrolled(model, ag, dt, integrator)
+    disp = d[:, out]
+    return {'time': np.arange(len(ag)) * dt, 'disp': disp,
+            'accel_abs': a[:, out] + model.gamma[out] * np.asarray(ag),
+            'dtm_stroke': d[:, -1] - d[:, full.interface_dofs[0]],
+            'metrics': metrics(disp, uncontrolled['metrics'])}
+
+
+class DTMSpecimen:
+    """A DTM (Table 4) on its frame on a perfect shake table: table displacement -> measured force.
+
+    Table velocity and acceleration are backward differences of the commanded
+    displacements (what a lab derives from its LVDT); the moving mass obeys
+    seed eq. 46, ``m_d z'' + c_d z' + k_d z = -m_d a_table`` (``z`` relative to
+    the frame), integrated exactly for piecewise-constant ``a_table``.  Returns
+    ``[m_f a_table + m_d (a_table + z'')]`` [N].
+    """
+
+    def __init__(self, dtm='valve4', dt=1 / 1024, frame_mass_kg=FRAME_MASS_KG):
+        """Store the parameters and the exact one-step matrices (scipy expm)."""
+        from scipy.linalg import expm
+        self.dtm = dtm if isinstance(dtm, DTMParameters) else dtm_configuration(dtm)
+        self.dt = float(dt)
+        self.frame_mass = float(frame_mass_kg)
+        m, c, k = self.dtm.m_d, self.dtm.c_d, self.dtm.k_d
+        A = np.array([[0.0, 1.0], [-k / m, -c / m]])
+        B = np.array([[0.0], [-1.0]])
+        big = np.zeros((3, 3))
+        big[:2, :2], big[:2, 2:] = A, B
+        E = expm(big * self.dt)
+        self._Ad, self._Bd = E[:2, :2], E[:2, 2]
+        self._x = [None, None]
+        self._z = np.zeros(2)
+
+    def __call__(self, table_disp):
+        """Return the measured force [N] for this step's table displacement [m]."""
+        x = float(np.asarray(table_disp).reshape(-1)[0])
+        x1, x2 = self._x
+        x1 = x if x1 is None else x1
+        x2 = x1 if x2 is None else x2
+        acc = (x - 2 * x1 + x2) / self.dt ** 2
+        self._x = [x, x1]
+        self._z = self._Ad @ self._z + self._Bd * acc
+        m, c, k = self.dtm.m_d, self.dtm.c_d, self.dtm.k_d
+        zdd = (-c * self._z[1] - k * self._z[0]) / m - acc
+        return np.array([self.frame_mass * acc + m * (acc + zdd)])
+
+
+def coupled_rths(substructure, specimen):
+    """Run the lock-step RTHS loop offline: ``force = specimen(command)`` every step.
+
+    Returns ``substructure.history()``; the ROS run with the same substructure
+    and a perfect plant must equal it to round-off.
+    """
+    command = substructure.first_displacement()
+    while not substructure.done():
+        command = substructure.advance(specimen(command))
+    return substructure.history()
+
+
+def relative_rms_error(x, ref):
+    """Relative RMS error [%] of ``x`` with respect to ``ref`` (seed Table 9 metric)."""
+    x, ref = np.asarray(x, dtype=float), np.asarray(ref, dtype=float)
+    return float(100 * np.sqrt(np.mean((x - ref) ** 2) / np.mean(ref ** 2)))

@@ -1,0 +1,275 @@
+"""The numerical substructure the ROS node drives one loop step at a time (seed eq. 22-25).
+
+Equation of the numerical substructure (seed eq. 25)::
+
+    M^N u'' + C^N u' + K^N u + L (force_scale * R^E) = -M^N Gamma a_g + L P_I^E
+
+``L`` places the interface entries (``interface_dofs``) into the full vector,
+``R^E`` is the measured force [N] per interface DOF, ``force_scale`` the
+number of identical specimens it represents (seed 6.2: one DTM in the lab
+stands for five, so 5.0).
+
+Lock-step cycle (one loop step k; see :meth:`NumericalSubstructure.advance`)::
+
+    command_0 = sub.first_displacement()
+    repeat: measured_k = lab(command_k); command_{k+1} = sub.advance(measured_k)
+
+Physics note: the interface frame
+---------------------------------
+The project's measured force is ``R^E = m_frame * (table accel) + m_d * (moving
+mass absolute accel)`` (load cells between table and specimen).  In the real
+building, the DTM frame moves with the floor and the DTM's moving mass is
+excited by the ABSOLUTE floor acceleration ``u_I'' + a_g``.
+
+* ``interface_frame: relative`` (seed eq. 24 literally): the table follows
+  the relative interface displacement ``u_I``; the ground term of the
+  specimen is added numerically, ``P_I^E = -force_scale * specimen_mass_kg *
+  a_g``.  For a rigid specimen this is exact, but the DTM's relative motion
+  is then driven by ``u_I''`` only: the part of its response caused by
+  ``a_g`` (the moving mass's own ``-m_d a_g`` load, a DOF of the experimental
+  substructure E, eq. 21) is missing from the lab, and adding ``m_d a_g`` as
+  if the mass were rigid does not restore it.
+* ``interface_frame: absolute`` (DEFAULT): the table follows ``u_I + u_g``,
+  so the specimen sees the true absolute floor motion, the measured force
+  contains the whole specimen inertia including the ground term, and
+  ``P_I^E = 0``.  This needs ``u_g`` consistent with ``a_g``: records are
+  baseline-corrected (:func:`.ground_motion.baseline_correct`) and ``u_g`` is
+  the trapezoidal double integral of the ``a_g`` used in the equation.
+
+``test_substructure.py::test_absolute_frame_reproduces_reference`` runs both
+against the whole-numerical reference (building + 5 DTMs + 5 frames, every
+mass excited by the ground, :func:`.reference.simulate_reference`): the
+absolute frame agrees to a fraction of a percent, the relative frame is off by
+several percent (numbers in the test and the report), hence the default.
+
+Parameters of :func:`make_substructure` (flat dict, as ROS parameters)
+---------------------------------------------------------------------
+=================  ========================================================  ==============
+key                meaning                                                   default
+=================  ========================================================  ==============
+model              'sdof', 'building2story' (16-DOF) or a model YAML path    'sdof'
+integrator         'cr', 'kr_alpha' or 'newmark'                             'cr'
+rho_inf            KR-alpha spectral radius at infinity, 0..1                0.5
+fs_hz              loop rate [Hz] (time step 1/fs_hz)                        1024.0
+duration_s         simulated time [s]; 0 = whole record                      10.0 / record
+record             'kobe', 'northridge', 'imperial_valley', 'none', 'blwn',  'harmonic'
+                   'harmonic' or a PEER .AT2 path
+scale              record scale factor; BLWN/harmonic peak in g              0.1
+harmonic_freq_hz   frequency of the 'harmonic' ground acceleration [Hz]      sdof_freq_hz
+blwn_band_hz       BLWN band 0..f [Hz]                                       10.0
+seed               random seed of BLWN                                       0
+interface_dofs     list of model DOF indices at the interface                model's
+force_scale        specimens represented by the one in the lab [-]           5 (building), 1
+interface_frame    'absolute' or 'relative' (see above)                      'absolute'
+specimen_mass_kg   mass of ONE specimen moving with the table [kg], used     DTM frame +
+                   for P_I^E in the relative frame                           moving mass
+sdof_mass_kg       SDOF mass [kg]                                            1000.0
+sdof_freq_hz       SDOF natural frequency [Hz]                               2.81
+sdof_zeta          SDOF damping ratio [-]                                    0.042
+building_mass_kg   total building mass [kg] of 'building2story'              62 706
+=================  ========================================================  ==============
+"""
+
+import math
+
+import numpy as np
+
+from .dtm import FRAME_MASS_KG, TABLE4
+from .ground_motion import G, baseline_correct, integrate, ground_motion
+from .integrators import INTEGRATORS, make_integrator
+from .model import LinearModel, load_model_yaml, sdof_model
+
+FRAMES = ('absolute', 'relative')
+DEFAULTS = {
+    'model': 'sdof', 'integrator': 'cr', 'rho_inf': 0.5, 'fs_hz': 1024.0, 'duration_s': None,
+    'record': 'harmonic', 'scale': 0.1, 'harmonic_freq_hz': None, 'blwn_band_hz': 10.0,
+    'seed': 0, 'interface_dofs': None, 'force_scale': None, 'interface_frame': 'absolute',
+    'specimen_mass_kg': FRAME_MASS_KG + TABLE4['valve4'].m_d, 'sdof_mass_kg': 1000.0,
+    'sdof_freq_hz': 2.81, 'sdof_zeta': 0.042, 'building_mass_kg': None,
+}
+
+
+class NumericalSubstructure:
+    """Numerical part of an RTHS (seed eq. 25) advanced one loop step per measured force."""
+
+    def __init__(self, model: LinearModel, ground_accel, dt, integrator='cr', rho_inf=0.5,
+                 interface_dofs=None, force_scale=1.0, interface_frame='absolute',
+                 specimen_mass_kg=0.0, ground_disp=None):
+        """Set up the model, the ground acceleration [m/s^2] per step, and the integrator.
+
+        ``ground_disp`` [m] is needed in the absolute frame; by default it is
+        the trapezoidal double integral of ``ground_accel``.
+        """
+        if interface_frame not in FRAMES:
+            raise ValueError(f'interface_frame {interface_frame!r}: use absolute or relative')
+        self.model = model
+        self.dt = float(dt)
+        self.ag = np.asarray(ground_accel, dtype=float)
+        self.n_steps = int(self.ag.size)
+        if self.n_steps < 2:
+            raise ValueError('the ground motion has fewer than 2 steps; check duration_s')
+        self.ug = (integrate(self.ag, self.dt)[1] if ground_disp is None
+                   else np.asarray(ground_disp, dtype=float))
+        self.iface = list(model.interface_dofs if interface_dofs is None else interface_dofs)
+        for i in self.iface:
+            if not 0 <= int(i) < model.n:
+                raise ValueError(f'interface_dofs: {i} is outside 0..{model.n - 1}')
+        self.n_interface = len(self.iface)
+        self.force_scale = float(force_scale)
+        self.frame = interface_frame
+        self.specimen_mass = float(specimen_mass_kg)
+        self.integ = make_integrator(integrator, model.M, model.C, model.K, self.dt, rho_inf)
+        self._mg = model.M @ model.gamma
+        self._gi = model.gamma[self.iface]
+        n, ns = model.n, self.n_steps
+        self._k = 0
+        self._r = np.zeros(n)
+        self._d = np.zeros((ns, n))
+        self._a_out = np.zeros(ns)
+        self._cmd = np.zeros((ns, self.n_interface))
+        self._force = np.zeros((ns, self.n_interface))
+        self._cmd[0] = self._command(np.zeros(n), 0)
+
+    def load(self, k):
+        """External load vector ``p_k`` [N]: ``-M Gamma a_g`` plus ``P_I^E`` (relative frame)."""
+        a = self.ag[k] if k < self.n_steps else 0.0
+        p = -self._mg * a
+        if self.frame == 'relative' and self.specimen_mass:
+            p[self.iface] -= self.force_scale * self.specimen_mass * self._gi * a
+        return p
+
+    def _command(self, d, k):
+        u = d[self.iface]
+        if self.frame == 'absolute':
+            u = u + self._gi * (self.ug[k] if k < self.n_steps else self.ug[-1])
+        return u
+
+    def first_displacement(self) -> np.ndarray:
+        """Interface displacement command of step 0 [m] (structure at rest)."""
+        return self._cmd[0].copy()
+
+    def advance(self, measured_force) -> np.ndarray:
+        """Finish step k with its measured force [N]; return the command of step k+1 [m]."""
+        if self.done():
+            raise RuntimeError(f'all {self.n_steps} steps are finished')
+        f = np.asarray(measured_force, dtype=float).reshape(self.n_interface)
+        k = self._k
+        r = np.zeros(self.model.n)
+        r[self.iface] = self.force_scale * f
+        p = self.load(k)
+        if k == 0:
+            self.integ.set_state(np.zeros(self.model.n), np.zeros(self.model.n), p=p, r=r)
+        else:
+            self.integ.correct(p, r)
+        self._force[k] = f
+        self._d[k] = self.integ.d
+        self._a_out[k] = self.integ.a[self.model.output_dof]
+        self._k = k + 1
+        d_next = self.integ.predict(self.load(k + 1))
+        cmd = self._command(d_next, k + 1)
+        if k + 1 < self.n_steps:
+            self._cmd[k + 1] = cmd
+        return cmd
+
+    def done(self) -> bool:
+        """True once ``n_steps`` steps are finished."""
+        return self._k >= self.n_steps
+
+    def history(self) -> dict:
+        """Arrays of the finished steps (SI units) for the review and the reference comparison."""
+        k = self._k
+        out = self.model.output_dof
+        return {
+            'time': np.arange(k) * self.dt,
+            'ground_accel': self.ag[:k].copy(),
+            'ground_disp': self.ug[:k].copy(),
+            'displacements': self._d[:k].copy(),
+            'output_disp': self._d[:k, out].copy(),
+            'output_accel_abs': self._a_out[:k] + self.model.gamma[out] * self.ag[:k],
+            'interface_disp': self._d[:k][:, self.iface].copy(),
+            'command': self._cmd[:k].copy(),
+            'measured_force': self._force[:k].copy(),
+        }
+
+
+def _num(params, key, positive=True, allow_zero=False):
+    val = params.get(key, DEFAULTS.get(key))
+    try:
+        val = float(val)
+    except (TypeError, ValueError):
+        raise ValueError(f'parameter {key} = {val!r} must be a number') from None
+    if not math.isfinite(val) or (positive and (val < 0 or (val == 0 and not allow_zero))):
+        raise ValueError(f'parameter {key} = {val} must be a positive finite number')
+    return val
+
+
+def build_model(params) -> LinearModel:
+    """Model named by ``params['model']`` ('sdof', 'building2story' or a YAML path)."""
+    name = str(params.get('model', DEFAULTS['model']))
+    if name == 'sdof':
+        return sdof_model(_num(params, 'sdof_mass_kg'), _num(params, 'sdof_freq_hz'),
+                          _num(params, 'sdof_zeta', allow_zero=True))
+    if name == 'building2story':
+        from .building import BUILDING_MASS_KG, building_16dof
+        mass = params.get('building_mass_kg') or BUILDING_MASS_KG
+        return building_16dof(float(mass))
+    if name.endswith(('.yaml', '.yml')):
+        try:
+            return load_model_yaml(name)
+        except FileNotFoundError:
+            raise ValueError(f'parameter model = {name!r}: file not found; give an existing '
+                             'model YAML path, or sdof / building2story') from None
+    raise ValueError(f'parameter model = {name!r}: use sdof, building2story or a .yaml path')
+
+
+def make_substructure(params: dict) -> NumericalSubstructure:
+    """Build a :class:`NumericalSubstructure` from the flat parameter dict (module docstring)."""
+    params = {k: v for k, v in dict(params).items() if v is not None}
+    unknown = set(params) - set(DEFAULTS)
+    if unknown:
+        raise ValueError(f'unknown parameter(s) {", ".join(sorted(unknown))}; '
+                         f'known: {", ".join(DEFAULTS)}')
+    model = build_model(params)
+    integ = str(params.get('integrator', 'cr'))
+    if integ not in INTEGRATORS:
+        raise ValueError(f'parameter integrator = {integ!r}: use one of {", ".join(INTEGRATORS)}')
+    rho = _num(params, 'rho_inf', allow_zero=True)
+    if rho > 1:
+        raise ValueError(f'parameter rho_inf = {rho} must lie in [0, 1]')
+    fs = _num(params, 'fs_hz')
+    frame = str(params.get('interface_frame', 'absolute'))
+    if frame not in FRAMES:
+        raise ValueError(f'parameter interface_frame = {frame!r}: use absolute or relative')
+    record = str(params.get('record', DEFAULTS['record']))
+    scale = _num(params, 'scale', positive=False)
+    duration = params.get('duration_s')
+    duration = None if duration in (None, 0, 0.0) else _num(params, 'duration_s')
+    dt = 1.0 / fs
+    if record == 'harmonic':
+        f_h = float(params.get('harmonic_freq_hz') or model.modes()[0][0])
+        if not 0 < f_h < fs / 2:
+            raise ValueError(f'parameter harmonic_freq_hz = {f_h} must lie in (0, fs_hz/2)')
+        t = np.arange(int(round((duration or 10.0) * fs))) * dt
+        ag = scale * G * np.sin(2 * math.pi * f_h * t)
+    elif record == 'blwn':
+        ag = ground_motion('blwn', fs, scale, duration or 10.0, rng=int(params.get('seed', 0)),
+                           blwn_band_hz=_num(params, 'blwn_band_hz'))
+    elif record == 'none':
+        ag = np.zeros(int(round((duration or 10.0) * fs)))
+    else:
+        try:
+            ag = ground_motion(record, fs, scale, duration)
+        except ValueError as err:
+            raise ValueError(f'parameter record: {err}') from None
+    ag, _, ug = baseline_correct(ag, dt) if record not in ('none',) else (ag, None, ag * 0)
+    iface = params.get('interface_dofs')
+    if iface is not None:
+        iface = [int(i) for i in np.atleast_1d(iface)]
+        if not iface or any(not 0 <= i < model.n for i in iface):
+            raise ValueError(f'parameter interface_dofs = {iface}: give DOF indices in '
+                             f'0..{model.n - 1} (model {model.name})')
+    fscale = params.get('force_scale')
+    fscale = (5.0 if params.get('model') == 'building2story' else 1.0) if fscale is None \
+        else _num(params, 'force_scale', allow_zero=True)
+    return NumericalSubstructure(model, ag, dt, integ, rho, iface, fscale, frame,
+                                 _num(params, 'specimen_mass_kg', allow_zero=True), ug)
