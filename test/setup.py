@@ -18,4 +18,5 @@ setup(
     maintainer_email='maintainers@rths.dev',
     description='System tests of rths.',
     license='Apache-2.0',
+    tests_require=['pytest'],
 )

@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from rths_system_tests import REPO, rths, rths_executable, started_pids, test_env
+from rths_system_tests import REPO, rths, rths_executable, started_pids, graph_env
 
 CONFIG = REPO / 'config'
 FS_HZ = 1024.0
@@ -56,7 +56,7 @@ def launch_background(bag, duration):
     return subprocess.Popen(
         [rths_executable(), 'launch', '--config', str(CONFIG), '--duration', str(duration),
          '--bag', str(bag)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        env=test_env())
+        env=graph_env())
 
 
 def wait_for(proc, text, timeout=60.0):
@@ -79,7 +79,7 @@ def test_sigkill_of_a_node_fails_the_run_names_it_and_keeps_the_bag(tmp_path, vi
     proc = launch_background(bag, duration=600.0)
     try:
         head = wait_for(proc, 'graph connected')
-        time.sleep(1.5)  # let the loop run
+        head += wait_for(proc, 'progress: step 1024 ')  # one simulated second is done
         pid = started_pids(head)[victim]
         os.kill(pid, signal.SIGKILL)
         rest, _ = proc.communicate(timeout=60)

@@ -6,7 +6,19 @@ import re
 import subprocess
 import sys
 
-REPO = Path(__file__).resolve().parents[1]
+
+
+def _repo_root() -> Path:
+    """The checkout (RTHS_ROOT from env.sh, else the first parent holding config/ and Makefile)."""
+    if os.environ.get('RTHS_ROOT'):
+        return Path(os.environ['RTHS_ROOT'])
+    for parent in Path(__file__).resolve().parents:
+        if (parent / 'config').is_dir() and (parent / 'Makefile').is_file():
+            return parent
+    raise RuntimeError('cannot find the rths checkout; source env.sh first')
+
+
+REPO = _repo_root()
 
 
 def rths_executable() -> str:
@@ -19,14 +31,14 @@ def rths_executable() -> str:
 def rths(*args, timeout=300, check=True, **kwargs) -> subprocess.CompletedProcess:
     """Run ``rths ARGS`` and return the completed process (text output)."""
     proc = subprocess.run([rths_executable(), *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout, env=test_env(), **kwargs)
+                          timeout=timeout, env=graph_env(), **kwargs)
     if check and proc.returncode != 0:
         sys.stderr.write(proc.stdout[-4000:] + proc.stderr[-4000:])
         raise AssertionError(f'rths {" ".join(map(str, args))} exited {proc.returncode}')
     return proc
 
 
-def test_env() -> dict:
+def graph_env() -> dict:
     """Environment of a test run: a private ROS domain per pytest process, localhost only."""
     env = dict(os.environ)
     env.setdefault('ROS_DOMAIN_ID', str(20 + os.getpid() % 80))

@@ -56,7 +56,7 @@ class Backend(ABC):
         return self._limits
 
     def configure(self, params: dict):
-        """Validate ``params`` and prepare the hardware/plant; UNCONFIGURED/INACTIVE -> INACTIVE."""
+        """Validate ``params``, prepare the hardware/plant; UNCONFIGURED/INACTIVE -> INACTIVE."""
         if self.lifecycle == ACTIVE:
             raise RuntimeError('deactivate the backend before configuring it again')
         self._limits = SafetyLimits.from_params(params)
@@ -81,7 +81,8 @@ class Backend(ABC):
     def write(self, command) -> None:
         """Send the command [m] (one value per channel) of the next step."""
         if self.lifecycle != ACTIVE:
-            raise RuntimeError(f'write() on a backend that is not active (state: {self.lifecycle})')
+            raise RuntimeError(f'write() on a backend that is not active '
+                               f'(state: {self.lifecycle})')
         u = np.atleast_1d(np.asarray(command, float))
         if u.shape != (self.n_channels,):
             raise ValueError(f'command has {u.size} values; this backend has {self.n_channels} '

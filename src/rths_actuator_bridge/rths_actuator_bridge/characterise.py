@@ -244,8 +244,11 @@ def plot_fit(records, fit: DTMFit, path, title: str = '', f_max_hz: float = 10.0
     ax1.legend()
     ax1.set_title(title or f'DTM: c_d = {fit.c_d:.4g} N s/m, k_d = {fit.k_d:.5g} N/m, '
                   f'zeta = {100 * fit.zeta:.3g} %, f_n = {fit.f_n:.3g} Hz')
-    ax2.plot(f[sel], np.degrees(np.unwrap(np.angle(h[sel]))), 'b-')
-    ax2.plot(f[sel], np.degrees(np.unwrap(np.angle(model))), 'r--')
+    ph_model = np.degrees(np.unwrap(np.angle(model)))
+    ph_exp = np.degrees(np.unwrap(np.angle(np.nan_to_num(h[sel]))))
+    ph_exp -= 360.0 * np.round((ph_exp[0] - ph_model[0]) / 360.0)
+    ax2.plot(f[sel], ph_exp, 'b-')
+    ax2.plot(f[sel], ph_model, 'r--')
     ax2.set_ylabel('phase [deg]')
     ax2.set_xlabel('frequency [Hz]')
     for ax in (ax1, ax2):
@@ -257,7 +260,7 @@ def plot_fit(records, fit: DTMFit, path, title: str = '', f_max_hz: float = 10.0
 
 # --------------------------------------------------------------------- data input
 def read_csv(path, name: str = None) -> DTMRecord:
-    """Read a CSV with columns ``time`` [s], ``base_accel`` [m/s^2], ``rel_disp`` [m] (``force``)."""
+    """Read a CSV: columns ``time`` [s], ``base_accel`` [m/s^2], ``rel_disp`` [m], opt. force."""
     import csv
     with open(path, newline='') as fh:
         reader = csv.reader(fh)

@@ -2,11 +2,11 @@
 
 ``ros2 run rths_actuator_bridge bridge_node --ros-args --params-file config/bridge.yaml``
 
-Subscribes ``/rths/command``, writes each command through the
-:class:`~rths_actuator_bridge.safety.SafetySupervisor` to the backend
-(simulated plant or UDP servo controller, :func:`~rths_actuator_bridge.backend.make_backend`),
-reads the measured displacement and force and publishes them on
-``/rths/measurement``, with a ``/rths/status`` message per step.
+Subscribes ``/rths/command`` and hands each command to
+:class:`rths_actuator_bridge.bridge.Bridge` (the ROS-free logic: the backend,
+simulated plant or UDP servo controller, guarded by the safety supervisor);
+publishes the measured displacement and force on ``/rths/measurement`` and a
+``/rths/status`` message per step.
 
 Lifecycle: the node behaves like a managed node.  It configures the backend
 and the supervisor from its parameters (INACTIVE: nothing moves), then
@@ -25,7 +25,6 @@ emergency stop, a timer at the loop rate drives the stop sequence alone.
 import sys
 import time
 
-import numpy as np
 import rclpy
 from std_msgs.msg import String
 
@@ -44,8 +43,7 @@ class BridgeNode:
     """ROS shell around a backend and its safety supervisor."""
 
     def __init__(self):
-        from rths_actuator_bridge.backend import make_backend
-        from rths_actuator_bridge.safety import SafetySupervisor
+        from rths_actuator_bridge.bridge import Bridge
 
         self.node = ns.make_node('bridge')
         params = ns.parameters(self.node)
@@ -53,9 +51,9 @@ class BridgeNode:
         for key in NODE_PARAMS:
             params.pop(key, None)
         self.log = self.node.get_logger()
-        self.backend = make_backend(params)          # configured: INACTIVE
-        self.supervisor = SafetySupervisor(self.backend.limits)
-        self.supervisor.configure()
+        self.bridge = Bridge()
+        self.bridge.configure(params)                 # configured: INACTIVE, nothing moves
+        self.backend = self.bridge.backend
         self.fs_hz = self.backend.limits.fs_hz
         qos = loop_qos(self.own['mode'])
         self.pub = self.node.create_publisher(Measurement, topics.MEASUREMENT, qos)
@@ -79,8 +77,7 @@ class BridgeNode:
 
     def activate(self):
         """INACTIVE -> ACTIVE: from now on commands may move the actuator."""
-        self.backend.activate()
-        self.supervisor.activate(np.zeros(self.backend.n_channels))
+        self.bridge.activate()
         self.log.info('bridge active')
 
     # ---------------------------------------------------------------- loop
@@ -98,7 +95,7 @@ class BridgeNode:
         self.last_command_t = time.monotonic()
         if self.stop_timer is not None:
             return  # an autonomous safe stop is running; commands are ignored
-        self.apply(msg.step, np.asarray(msg.command, dtype=float), t_in,
+        self.apply(msg.step, list(msg.command), t_in,
                    latency_us=(t_in - ns.stamp_ns(msg.header)) * 1e-3)
 
     def apply(self, step, command, t_in, latency_us=-1.0):
@@ -106,19 +103,12 @@ class BridgeNode:
         from rths_actuator_bridge.safety import STOPPED
 
         t0 = time.perf_counter_ns()
-        to_send, state, fault = self.supervisor.filter(step, command)
-        applied = displacement = force = []
-        if to_send is not None and self.backend.lifecycle == 'active':
-            self.backend.write(to_send)
-            displacement, force = self.backend.read()
-            rel = self.backend.channels().get('rel_disp')
-            self.supervisor.check_measurement(displacement, force, rel)
-            state, fault = self.supervisor.state, self.supervisor.fault
-            applied = to_send
+        result = self.bridge.step(step, command)
+        state, fault = result.state, result.fault
         self.step = step
-        out = Measurement(step=step, applied=[float(v) for v in applied],
-                          displacement=[float(v) for v in displacement],
-                          force=[float(v) for v in force])
+        out = Measurement(step=step, applied=result.applied.tolist(),
+                          displacement=result.displacement.tolist(),
+                          force=result.force.tolist())
         ns.stamp(out.header, ns.now_ns())
         self.pub.publish(out)
         self.status_pub.publish(ns.status_msg(
@@ -126,8 +116,7 @@ class BridgeNode:
             compute_us=(time.perf_counter_ns() - t0) * 1e-3, latency_us=latency_us,
             misses=self.clock.misses, safety_state=state, fault=fault))
         if state == STOPPED and not self.stopped:
-            self.stopped = True
-            self.backend.deactivate()
+            self.stopped = True  # Bridge.step has deactivated the backend
             self.log.error(f'safety stop at step {step}: {fault}; backend deactivated')
 
     # ---------------------------------------------------------------- stops
@@ -135,7 +124,7 @@ class BridgeNode:
         """Trip the supervisor and drive hold/ramp/stop from a timer at the loop rate."""
         if self.stopped:
             return
-        self.supervisor.emergency_stop(reason)
+        self.bridge.emergency_stop(reason)
         self.log.warning(f'safe stop: {reason}')
         if self.stop_timer is None:
             self.stop_timer = self.node.create_timer(1.0 / self.fs_hz, self._stop_tick)
@@ -175,14 +164,15 @@ def main(argv=None):
         ns.spin_until_done(shell.node, ns.make_executor(shell.own['executor']),
                            lambda: shell.stopped)
         code = EXIT_SAFETY_STOP if shell.stopped else 0
+        ns.flush([shell.pub, shell.status_pub])
         shell.log.info(f'bridge: {shell.step + 1} steps applied, {shell.rejected} rejected, '
-                       f'final state {shell.supervisor.state}')
+                       f'final state {shell.bridge.state}')
     except ValueError as err:
         print(f'bridge_node: error: {err}', file=sys.stderr)
         code = 2
     finally:
         if shell is not None:
-            shell.backend.close()
+            shell.bridge.close()
         if rclpy.ok():
             rclpy.shutdown()
     return code

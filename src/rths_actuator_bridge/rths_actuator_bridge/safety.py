@@ -105,7 +105,8 @@ class SafetyLimits:
                 raise ValueError(f'safety parameter {f.name!r} = {raw!r} is not a number; '
                                  f'set it to {meaning}') from None
             if not math.isfinite(val):
-                raise ValueError(f'safety parameter {f.name!r} = {raw!r} must be finite ({meaning})')
+                raise ValueError(f'safety parameter {f.name!r} = {raw!r} must be finite '
+                                 f'({meaning})')
             if f.name in _INT_KEYS:
                 if val != int(val) or val < 1:
                     raise ValueError(f'safety parameter {f.name!r} = {raw!r} must be an integer '

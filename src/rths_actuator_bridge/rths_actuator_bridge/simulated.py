@@ -48,6 +48,14 @@ hold), the DTM is discretised exactly in absolute coordinates for that input,
 and the table acceleration is the backward second difference of ``x_s``
 (an approximation: an ARX model carries no continuous acceleration).
 
+DAQ: the specimen channels (table acceleration, DTM relative displacement and
+velocity) pass identical 2nd-order Butterworth anti-alias filters at
+``daq_filter_hz`` (continuous states in the same ZOH model), as a data
+acquisition system would; identical filters keep eq. 47 between them, and
+they remove the sample-synchronous acceleration ripple of the ZOH command
+staircase that a raw sample of ``xdd_s`` would alias into the record.  The
+actuator displacement and the force are not filtered (no extra loop delay).
+
 Sensors: Gaussian noise of standard deviation ``displacement_noise_m``,
 ``force_noise_n``, ``rel_disp_noise_m``, ``accel_noise_m_s2`` from a seeded
 ``numpy.random.Generator``; ADC quantisation with ``adc_bits`` over
@@ -106,6 +114,7 @@ class PlantConfig:
     friction_n: float = 0.0
     friction_v_m_s: float = 1e-3
     friction_substeps: int = 16
+    daq_filter_hz: float = 200.0
 
 
 #: Simulated-backend parameters: key -> (type, default, unit/meaning).
@@ -128,7 +137,12 @@ SIM_PARAMS = {
     'friction_n': (float, 0.0, '[N] Coulomb friction force on the DTM moving mass; 0 = linear'),
     'friction_v_m_s': (float, 1e-3, '[m/s] velocity scale of the tanh-regularised friction sign'),
     'friction_substeps': (int, 16, '[-] sub-steps per sample when friction_n > 0'),
+    'daq_filter_hz': (float, 200.0, '[Hz] cut-off of the 2nd-order Butterworth anti-alias '
+                      'filter of the specimen channels (table_accel, rel_disp, rel_vel); 0 = off'),
 }
+
+#: Specimen instrumentation channels that pass the DAQ anti-alias filter.
+DAQ_FILTERED = ('table_accel', 'rel_disp', 'rel_vel')
 
 
 def plant_config(params: dict) -> PlantConfig:
@@ -146,7 +160,8 @@ def plant_config(params: dict) -> PlantConfig:
     if not (math.isfinite(cfg.fs_hz) and cfg.fs_hz > 0):
         raise ValueError(f"parameter 'fs_hz' = {cfg.fs_hz} must be a positive number of Hz "
                          '(e.g. 1024)')
-    for key in ('displacement_noise_m', 'force_noise_n', 'rel_disp_noise_m', 'accel_noise_m_s2',
+    for key in ('daq_filter_hz', 'displacement_noise_m', 'force_noise_n', 'rel_disp_noise_m',
+                'accel_noise_m_s2',
                 'displacement_range_m', 'force_range_n', 'rel_disp_range_m', 'accel_range_m_s2',
                 'friction_n'):
         if not (getattr(cfg, key) >= 0 and math.isfinite(getattr(cfg, key))):
@@ -249,12 +264,42 @@ class SimulatedPlant:
         c[5, n + 1] -= c_d
         d[5, 0] = self.frame_mass * d_acc
         d[5, 1] = -1.0 if self.dtm is not None else 0.0
+        self._i_rel_vel = n + 1
+        a, b, c, d = self._add_daq_filter(a, b, c, d)
         self.a_c, self.b_c, self.c, self.d = a, b, c, d
-        self.n_states = n + 2
+        self.n_states = a.shape[0]
         self._ad, self._bd = _zoh(a, b, self.dt)
         if self.config.friction_n > 0 and self.dtm is not None:
             h = self.dt / self.config.friction_substeps
             self._ad_h, self._bd_h = _zoh(a, b, h)
+
+    def _add_daq_filter(self, a, b, c, d):
+        """Append 2nd-order Butterworth anti-alias filters on the specimen channels."""
+        fc = self.config.daq_filter_hz
+        if fc <= 0:
+            return a, b, c, d
+        w = 2 * np.pi * fc
+        rows = [CHANNELS.index(k) for k in DAQ_FILTERED]
+        n0 = a.shape[0]
+        n = n0 + 2 * len(rows)
+        a2 = np.zeros((n, n))
+        a2[:n0, :n0] = a
+        b2 = np.zeros((n, b.shape[1]))
+        b2[:n0] = b
+        c2 = np.zeros((c.shape[0], n))
+        c2[:, :n0] = c
+        d2 = d.copy()
+        for j, r in enumerate(rows):
+            i = n0 + 2 * j            # z' = v, v' = w^2 (y_in - z) - sqrt(2) w v
+            a2[i, i + 1] = 1.0
+            a2[i + 1, :n0] = w * w * c[r]
+            a2[i + 1, i] = -w * w
+            a2[i + 1, i + 1] = -np.sqrt(2) * w
+            b2[i + 1] = w * w * d[r]
+            c2[r] = 0.0
+            c2[r, i] = 1.0
+            d2[r] = 0.0
+        return a2, b2, c2, d2
 
     def _build_arx(self, path: str):
         try:
@@ -305,9 +350,9 @@ class SimulatedPlant:
         if self.config.friction_n > 0 and self.dtm is not None:
             fc = 0.0
             for _ in range(self.config.friction_substeps):
-                fc = self._friction(self.x[-1])
+                fc = self._friction(self.x[self._i_rel_vel])
                 self.x = self._ad_h @ self.x + self._bd_h @ np.array([u, fc])
-            fc = self._friction(self.x[-1])
+            fc = self._friction(self.x[self._i_rel_vel])
             y = self.c @ self.x + self.d @ np.array([u, fc])
         else:
             self.x = self._ad @ self.x + self._bd[:, 0] * u

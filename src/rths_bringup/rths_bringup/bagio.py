@@ -128,7 +128,8 @@ def reindex(bag) -> Path:
 
     bag = Path(bag)
     db = _db_path(bag)
-    conn = sqlite3.connect(f'file:{db}?mode=ro', uri=True)
+    # Not read-only: a killed writer leaves a hot journal that sqlite must roll back first.
+    conn = sqlite3.connect(db)
     try:
         rows = conn.execute('SELECT id, name, type, serialization_format, offered_qos_profiles, '
                             'type_description_hash FROM topics ORDER BY id').fetchall()

@@ -66,10 +66,16 @@ class Child:
         return self.proc.poll()
 
 
+#: Exit codes of the rths nodes that mean something specific.
+EXIT_MEANINGS = {2: 'bad parameters or input', 3: 'safety stop'}
+
+
 def describe_exit(code: int) -> str:
     """Human description of a Popen return code."""
     if code is None:
         return 'running'
+    if code in EXIT_MEANINGS:
+        return f'exit code {code}: {EXIT_MEANINGS[code]}'
     if code < 0:
         try:
             return f'killed by {signal.Signals(-code).name}'

@@ -131,3 +131,18 @@ def message_class(msgtype: str):
 
     package, kind, name = msgtype.split('/')
     return getattr(importlib.import_module(f'{package}.{kind}'), name)
+
+
+def flush(publishers, timeout_s: float = 2.0) -> bool:
+    """Wait until every reliable reader acknowledged what ``publishers`` sent.
+
+    Call before a node exits: a process that ends with unacknowledged samples
+    takes them (and its transient-local history) with it, so a lagging
+    recorder would lose the last steps of a run.
+    """
+    from rclpy.duration import Duration
+
+    ok = True
+    for pub in publishers:
+        ok = pub.wait_for_all_acked(Duration(nanoseconds=int(timeout_s * 1e9))) and ok
+    return ok

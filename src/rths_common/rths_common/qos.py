@@ -29,10 +29,15 @@ def loop_qos(mode: str) -> QoSProfile:
 
 
 def status_qos() -> QoSProfile:
-    """QoS of the status topic: reliable, volatile, deep enough for a recorder to keep up."""
+    """QoS of the status topic (publishers and the recorder alike).
+
+    Reliable and transient-local with a deep history, for the same reason as the
+    lock-step loop topics: a recorder that matches a node's status publisher late
+    still gets the first steps.  KEEP_LAST never blocks the publisher.
+    """
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                       reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def recorder_qos(mode: str) -> QoSProfile:

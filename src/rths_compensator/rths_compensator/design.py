@@ -56,7 +56,7 @@ FIR_SCHEMES = ('ls', 'wls', 'mm')
 ALL_SCHEMES = FIR_SCHEMES + ('inverse', 'mff', 'npz', 'zpetc', 'zmetc')
 
 #: Default passband tolerance epsilon on |T_com - 1| (eq. 35-36); the seed gives no value.
-DEFAULT_EPSILON = 0.02
+DEFAULT_EPSILON = 0.002
 
 
 @dataclasses.dataclass
@@ -118,9 +118,12 @@ def _null_space_of_ones(n):
     return np.full(n, 1.0 / n), q[:, 1:]
 
 
-def _lsi(a, rhs, g_ineq, h_ineq):
-    """``min ||a y - rhs||`` s.t. ``g_ineq y >= h_ineq`` (Lawson & Hanson LSI via LDP/NNLS)."""
-    q, r = np.linalg.qr(a)
+def _lsi(qr, rhs, g_ineq, h_ineq):
+    """``min ||a y - rhs||`` s.t. ``g_ineq y >= h_ineq`` (Lawson & Hanson LSI via LDP/NNLS).
+
+    ``qr`` is the thin QR factorisation ``(q, r)`` of ``a`` (full column rank).
+    """
+    q, r = qr
     qtb = q.T @ rhs
     e = linalg.solve_triangular(r, g_ineq.T, trans='T').T       # g R^-1
     f = h_ineq - e @ qtb
@@ -197,7 +200,8 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
     pb = freqs <= fc_hz
     m = _fir_matrix(bmu, d, n_taps, freqs, fs)
     rot = _polygon(n_sides)
-    bound = epsilon * np.cos(np.pi / n_sides)
+    # 3 % design margin: the LDP/NNLS and LP solutions hold their rows to ~1e-3 relative.
+    bound = 0.97 * epsilon * np.cos(np.pi / n_sides)
     mp = m[pb]
     pass_rows = np.real((rot[:, None, None] * mp[None]).reshape(-1, n_taps))
     pass_c0 = np.tile(np.real(rot)[:, None], (1, mp.shape[0])).ravel()
@@ -215,23 +219,40 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
         y, *_ = np.linalg.lstsq(az, r0, rcond=None)
         g = g0 + z @ y
         solver = 'equality-constrained least squares (constraints inactive)'
-        if np.max(np.abs(mp @ g - 1.0)) > epsilon:
-            # pass_rows g <= bound + pass_c0  <=>  -(pass_rows z) y >= -(bound + c0 - rows g0)
-            g_in = -(pass_rows @ z)
-            h_in = -(bound + pass_c0 - pass_rows @ g0)
-            try:
-                y = _lsi(az, r0, g_in, h_in)
-            except ValueError:
-                eps_min = min_passband_error(plant, n_taps, fc_hz, fs, n_grid, n_sides)
-                raise ValueError(
-                    f'{scheme} n={n_taps} fc={fc_hz} Hz: passband tolerance epsilon={epsilon} '
-                    f'is infeasible (smallest achievable ~{eps_min / np.cos(np.pi / n_sides):.4g});'
-                    ' raise --epsilon, add taps or lower --fc') from None
-            g = g0 + z @ y
-            solver = 'inequality-constrained least squares (LSI -> LDP -> NNLS)'
+        if np.max(pass_rows @ g - pass_c0) > bound * (1 + 1e-9):
+            # Constraint generation: the LSI is solved with the polygon rows of the passband
+            # points violated so far; points are added until every passband row holds, at
+            # which point the solution is the optimum of the full problem.
+            n_pass = mp.shape[0]
+            qr = np.linalg.qr(az)
+            active = np.zeros(n_pass, dtype=bool)
+            for _ in range(50):
+                viol = (pass_rows @ g - pass_c0 - bound).reshape(n_sides, n_pass).max(axis=0)
+                new = (viol > bound * 1e-9) & ~active
+                if not new.any():
+                    break
+                active |= new
+                sel = np.tile(active, n_sides)
+                g_in = -(pass_rows[sel] @ z)
+                h_in = -(bound + pass_c0[sel] - pass_rows[sel] @ g0)
+                try:
+                    y = _lsi(qr, r0, g_in, h_in)
+                except ValueError:
+                    eps_min = min_passband_error(plant, n_taps, fc_hz, fs, n_grid, n_sides)
+                    raise ValueError(
+                        f'{scheme} n={n_taps} fc={fc_hz} Hz: passband tolerance '
+                        f'epsilon={epsilon} is infeasible (smallest achievable '
+                        f'~{eps_min / np.cos(np.pi / n_sides):.4g}); raise --epsilon, add taps '
+                        'or lower --fc') from None
+                g = g0 + z @ y
+            solver = ('inequality-constrained least squares (LSI -> LDP -> NNLS, '
+                      f'{int(active.sum())} active passband points)')
     else:
-        rows = np.real((rot[:, None, None] * m[None]).reshape(-1, n_taps))
-        c0 = np.tile(np.real(rot)[:, None], (1, n_grid)).ravel()
+        # One LP: objective S-gon rows (8 sides: outer approximation, exact to 1/cos(pi/8)
+        # of |error|) at every grid point plus the passband S-gon constraints.
+        rot_obj = _polygon(8)
+        rows = np.real((rot_obj[:, None, None] * m[None]).reshape(-1, n_taps))
+        c0 = np.tile(np.real(rot_obj)[:, None], (1, n_grid)).ravel()
         a_ub = np.vstack([np.hstack([rows, -np.ones((rows.shape[0], 1))]),
                           np.hstack([pass_rows, np.zeros((pass_rows.shape[0], 1))])])
         b_ub = np.r_[c0, bound + pass_c0]
@@ -247,7 +268,7 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
         if res.status != 0:
             raise ValueError(f'mm design LP failed: {res.message}')
         g = res.x[:n_taps]
-        solver = 'linear programme (HiGHS), S-gon minimax'
+        solver = 'linear programme (HiGHS), polygon minimax'
     h = g / c
     taps = np.convolve(a_star, h)
     design_s = time.perf_counter() - t0
@@ -291,7 +312,10 @@ def design_mff(poles, alpha: float, fs_hz: float, method: str = 'bilinear') -> D
     k = poles.size
     num = np.real(alpha ** k * np.poly(poles))
     den = np.real(np.poly(alpha * poles))
-    bz, az, _ = signal.cont2discrete((num, den), 1.0 / fs_hz, method=method)
+    if method == 'bilinear':
+        bz, az = signal.bilinear(num, den, fs=fs_hz)
+    else:
+        bz, az, _ = signal.cont2discrete((num, den), 1.0 / fs_hz, method=method)
     bz = np.asarray(bz, dtype=float).ravel()
     az = np.asarray(az, dtype=float).ravel()
     return Design('mff', bz / az[0], az / az[0], float(fs_hz),
@@ -379,3 +403,72 @@ def predict(plant, comp: Design, band_hz: float, fs_hz: float = None,
     return {'delay_ms': float(delay),
             'gain_error_db': float(np.max(np.abs(20 * np.log10(np.abs(h_in))))),
             'highpass_gain_db': float(np.max(20 * np.log10(np.abs(h_out))))}
+
+
+#: Weights of the --auto score (all in "ms-equivalents"; lower is better).
+AUTO_WEIGHTS = {'delay_ms': 1.0, 'gain_error_db': 1.0, 'highpass_db_over_6': 0.1,
+                'per_coefficient': 1e-4}
+
+
+def auto_score(pred: dict, n_coefficients: int) -> float:
+    """Score of a candidate from its predicted indicators (see :data:`AUTO_WEIGHTS`).
+
+    ``|delay| [ms] + gain error [dB] + 0.1 * max(0, high-pass gain above the band - 6 dB)
+    + 1e-4 * (number of numerator + denominator coefficients)`` -- i.e. 1 dB of gain
+    error weighs as much as 1 ms of delay, each dB of high-pass gain beyond 6 dB (noise
+    amplification) as 0.1 ms, and 1000 coefficients (about 4 us per step) as 0.1 ms.
+    """
+    w = AUTO_WEIGHTS
+    return (w['delay_ms'] * abs(pred['delay_ms']) + w['gain_error_db'] * pred['gain_error_db']
+            + w['highpass_db_over_6'] * max(0.0, pred['highpass_gain_db'] - 6.0)
+            + w['per_coefficient'] * n_coefficients)
+
+
+def auto_design(plant, bandwidth_hz: float, fs_hz: float = None, epsilon: float = None,
+                taps=(25, 50, 100, 200), fc_factors=(1.5, 2.0, 3.0, 4.0),
+                schemes=('ls', 'wls', 'mm', 'npz', 'zpetc', 'zmetc'), log=None):
+    """Search scheme, n and fc for the operating ``bandwidth_hz``; return (best, table).
+
+    Every candidate is designed on the plant model and scored by :func:`auto_score` from
+    its predicted indicators over ``0 < f <= bandwidth_hz``.  ``table`` lists dicts
+    (scheme, n_taps, fc_hz, score, delay_ms, gain_error_db, highpass_gain_db,
+    n_coefficients, error) sorted best first.
+    """
+    _, _, _, fs = plant_polynomials(plant, fs_hz)
+    if not 0 < bandwidth_hz < fs / 2:
+        raise ValueError(f'--bandwidth {bandwidth_hz} Hz must lie in (0, {fs / 2}) Hz')
+    eps = DEFAULT_EPSILON if epsilon is None else epsilon
+    candidates = []
+    for scheme in schemes:
+        if scheme in FIR_SCHEMES:
+            for n in taps:
+                for k in fc_factors:
+                    fc = min(k * bandwidth_hz, 0.45 * fs)
+                    candidates.append((scheme, n, fc))
+        else:
+            candidates.append((scheme, None, None))
+    table, best = [], None
+    for scheme, n, fc in dict.fromkeys(candidates):
+        row = {'scheme': scheme, 'n_taps': n, 'fc_hz': fc}
+        try:
+            if scheme in FIR_SCHEMES:
+                comp = design_fir(plant, n, fc, scheme, eps, fs_hz=fs_hz)
+            else:
+                comp = design(plant, scheme, fs_hz=fs_hz, band_hz=bandwidth_hz)
+            pred = predict(plant, comp, bandwidth_hz, fs_hz)
+            ncoef = comp.taps.size + comp.denominator.size - 1
+            row.update(pred, n_coefficients=int(ncoef), score=auto_score(pred, ncoef),
+                       error='')
+            if best is None or row['score'] < best[1]['score']:
+                best = (comp, row)
+        except ValueError as exc:
+            row.update(score=float('inf'), error=str(exc))
+        table.append(row)
+        if log is not None:
+            log(f"  {scheme:6s} n={n!s:>4} fc={fc!s:>6}: "
+                + (f"score {row['score']:.3f}" if not row['error'] else 'infeasible'))
+    table.sort(key=lambda r: r['score'])
+    if best is None:
+        raise ValueError('no candidate design was feasible; raise --epsilon')
+    best[0].info.update(auto_score=best[1]['score'], bandwidth_hz=float(bandwidth_hz))
+    return best[0], table

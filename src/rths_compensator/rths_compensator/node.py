@@ -86,6 +86,7 @@ def main(argv=None):
     try:
         shell = CompensatorNode()
         ns.spin_until_done(shell.node, ns.make_executor(shell.own['executor']))
+        ns.flush([shell.pub, shell.status_pub])
         shell.log.info(f'compensator: {shell.expected} steps, {shell.rejected} rejected')
     except ValueError as err:
         print(f'compensator_node: error: {err}', file=sys.stderr)

@@ -1,5 +1,131 @@
-"""Sub-commands this package adds to the ``rths`` command (see rths_bringup.cli)."""
+"""Sub-commands this package adds to the ``rths`` command (see rths_bringup.cli).
+
+* ``rths discrepancy --scenario {specimen,actuator} --measured CSV|BAG [--model M.yaml]
+  --out DIR``: find, name and add the effect the model misses (issue 7).
+* ``rths bench discrepancy --out FILE.json [--seeds N] [--quick] [--workers W]``:
+  the self-test benchmark (confusion matrix, correct naming, false effects on
+  controls, median gap closed).
+"""
+
+import sys
+
+
+def _say(msg):
+    print(msg, file=sys.stderr, flush=True)
+
+
+def _read_measured(path, scenario):
+    """CSV path -> validated columns; a bag directory/.mcap/.db3 goes to rths_bringup.bagio."""
+    import os
+    from rths_discrepancy import io as dio
+    lower = str(path).lower()
+    if os.path.isdir(path) or lower.endswith(('.mcap', '.db3', '.bag')):
+        try:
+            from rths_bringup.bagio import read_discrepancy
+        except ImportError:
+            raise ValueError('bag input needs rths_bringup.bagio') from None
+        return dio.validate(scenario, read_discrepancy(path, scenario), source=str(path))
+    if not os.path.exists(path):
+        raise OSError(f'--measured {path}: no such file')
+    return dio.load_csv(path, scenario)
+
+
+def run_discrepancy_cmd(args) -> int:
+    """``rths discrepancy``: run the workflow and write DIR/result.json, report.md, plots."""
+    from rths_discrepancy import models
+    from rths_discrepancy.workflow import run_discrepancy
+    data = _read_measured(args.measured, args.scenario)
+    model = models.load_model(args.scenario, args.model) if args.model else None
+    _say(f'rths discrepancy: {args.scenario}, {len(data["time"])} samples from {args.measured}')
+    res = run_discrepancy(args.scenario, data, model=model, out_dir=args.out, progress=_say)
+    for line in res['localization']['summary']:
+        print(f'where: {line}')
+    print(f"effect: {res['effect']}")
+    for name, par in res['parameters'].items():
+        sym, val = [(k, v) for k, v in par.items() if k != 'unit'][0]
+        print(f"  {name}: {sym} = {val:.6g} {par['unit']}")
+    if 'unexplained_note' in res:
+        print(f"  {res['unexplained_note']}")
+    print(f"held-out NRMSE: before {res['nrmse_before']:.5f}, after {res['nrmse_after']:.5f}, "
+          f"noise {res['nrmse_noise']:.5f}; gap closed {res['gap_closed']:.3f}")
+    print('candidates (held-out NRMSE): ' + ', '.join(
+        f'{k} {v:.4f}' for k, v in sorted(res['candidates'].items(), key=lambda kv: kv[1])[:6]))
+    print(f'wrote {args.out}/result.json, updated_model.yaml, report.md and PNG plots')
+    return 0
+
+
+def bench_discrepancy_cmd(args) -> int:
+    """``rths bench discrepancy``: self-test benchmark, prints the summary, writes JSON."""
+    import json
+    import os
+    from rths_discrepancy import selftest
+    seeds = args.seeds if args.seeds is not None else (1 if args.quick else 3)
+    if seeds < 1:
+        raise ValueError('--seeds must be >= 1')
+    summary = selftest.run_bench(seeds=seeds, quick=args.quick, workers=args.workers,
+                                 progress=_say)
+    tmp = f'{args.out}.tmp'
+    with open(tmp, 'w') as fh:
+        json.dump(summary, fh, indent=1)
+    os.replace(tmp, args.out)
+    quick = ', quick' if args.quick else ''
+    print(f"cases: {summary['cases']} ({summary['seeds']} seed(s){quick})")
+    print(f"correct naming: {summary['correct_naming_percent']:.1f} % (target >= 95 %)")
+    print(f"false effects on controls: {summary['false_effects_on_controls']} of "
+          f"{summary['controls']} (target 0)")
+    print(f"median gap_closed: {summary['median_gap_closed']:.3f} (target >= 0.9)")
+    ok, n = summary['parameters_within_15_percent_full_strength']
+    print(f'parameters within 15 % (full strength, correctly named): {ok}/{n}')
+    ok, n = summary['parameters_within_15_percent_one_fifth_strength']
+    print(f'parameters within 15 % (one-fifth strength, correctly named): {ok}/{n}')
+    print('confusion matrix (expected -> named: count):')
+    for exp, row in sorted(summary['confusion_matrix'].items()):
+        print(f'  {exp:45s} ' + ', '.join(f'{k}: {v}' for k, v in sorted(row.items())))
+    print(f"targets met: {summary['targets_met']}; wall time {summary['wall_time_s']:.0f} s; "
+          f'wrote {args.out}')
+    return 0
 
 
 def register(commands, benches):
     """Add this package's ``rths <command>`` and ``rths bench <name>`` parsers."""
+    p = commands.add_parser(
+        'discrepancy',
+        help='find where a model and a measurement disagree, name the missing effect, add it',
+        description='Re-simulate the nominal model with the measured input, localise the '
+                    'residual in time, frequency and state, fit a library of physical effects '
+                    '(coulomb_friction, viscous_damping_error, stiffness_error, cubic_stiffness, '
+                    'mass_error, backlash, time_delay, velocity_saturation, sensor_bias and '
+                    'pairs) on training blocks, score them on held-out blocks and name the '
+                    'winner (or none / unexplained). Prints the localisation, the effect and '
+                    'its parameters and the held-out NRMSE before/after; writes '
+                    'DIR/result.json, DIR/updated_model.yaml (loadable with --model), '
+                    'DIR/report.md and PNG plots.')
+    p.add_argument('--scenario', required=True, choices=('specimen', 'actuator'),
+                   help='specimen: CSV columns time, base_accel, rel_disp, force (DTM, eq. 46); '
+                        'actuator: CSV columns time, command, measured')
+    p.add_argument('--measured', required=True, metavar='CSV|BAG',
+                   help='measured record: CSV with a header row (SI units, uniform sampling) '
+                        'or a bag recorded by rths')
+    p.add_argument('--model', metavar='MODEL.yaml',
+                   help='nominal model YAML (default: Table 4 valve #4 DTM / Table 1 3-pole '
+                        'actuator); layouts in rths_discrepancy.models')
+    p.add_argument('--out', required=True, metavar='DIR', help='output directory')
+    p.set_defaults(func=run_discrepancy_cmd)
+
+    b = benches.add_parser(
+        'discrepancy',
+        help='self-test of the discrepancy workflow on synthetic records with hidden effects',
+        description='Generate synthetic specimen and actuator records with each effect hidden '
+                    '(full and one-fifth strength), pairs, Stribeck friction (form mismatch), a '
+                    'first-order lag (no candidate) and clean controls, with noise and several '
+                    'seeds; run the workflow on each and print the confusion matrix, the '
+                    'percentage of correct naming, false effects on the controls and the median '
+                    'gap_closed; write everything to --out as JSON. Progress goes to stderr.')
+    b.add_argument('--out', required=True, metavar='FILE.json', help='JSON result file')
+    b.add_argument('--seeds', type=int, default=None,
+                   help='random seeds per case (default 3, with --quick 1)')
+    b.add_argument('--quick', action='store_true',
+                   help='full-strength effects only, two pairs, 8 s records, one seed '
+                        '(under a minute)')
+    b.add_argument('--workers', type=int, default=2, help='worker processes (default 2)')
+    b.set_defaults(func=bench_discrepancy_cmd)

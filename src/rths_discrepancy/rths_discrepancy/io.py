@@ -62,8 +62,8 @@ def validate(scenario: str, data: dict, source: str = 'data') -> dict:
     dev = np.max(np.abs(dt - step))
     if dev > 1e-3 * step:
         i = int(np.argmax(np.abs(dt - step)))
-        raise ValueError(f'{source}: column time is not uniformly sampled (step {dt[i]:g} s at row '
-                         f'{i + 1}, median {step:g} s); resample to a uniform rate first')
+        raise ValueError(f'{source}: column time is not uniformly sampled (step {dt[i]:g} s at '
+                         f'row {i + 1}, median {step:g} s); resample to a uniform rate first')
     if n < MIN_SAMPLES or t[-1] - t[0] < MIN_DURATION_S:
         raise ValueError(f'{source}: record too short to split into training and held-out parts '
                          f'({n} samples, {t[-1] - t[0]:.3g} s); need >= {MIN_SAMPLES} samples and '

@@ -22,6 +22,7 @@ from rths_discrepancy import effects as fx
 from rths_discrepancy import models
 
 DURATION_S = 16.0
+QUICK_DURATION_S = 8.0
 FS_HZ = 1024.0
 NOISE = 0.005
 
@@ -54,12 +55,12 @@ def effect_size(scenario, name, strength, scales, model):
         }
     else:
         table = {
-            'coulomb_friction': 0.03 * scales['y_rms'] * s,     # m
+            'coulomb_friction': 0.1 * scales['y_rms'] * s,      # m
             'viscous_damping_error': 0.002 * s,                 # s
             'stiffness_error': 0.05 * s,                        # -
-            'cubic_stiffness': 0.1 * s / scales['y_max'] ** 2,  # 1/m^2
+            'cubic_stiffness': 0.3 * s / scales['y_max'] ** 2,  # 1/m^2
             'mass_error': 2e-5 * s,                             # s^2
-            'backlash': 0.03 * scales['y_rms'] * s,             # m
+            'backlash': 0.1 * scales['y_rms'] * s,              # m
             'time_delay': 0.002 * s,                            # s
             'velocity_saturation': scales['v_max'] * (1.0 - 0.6 * s),  # m/s
             'sensor_bias': 0.1 * scales['y_rms'] * s,           # m
@@ -88,7 +89,7 @@ def make_record(scenario, hidden, seed, duration_s=DURATION_S, fs=FS_HZ, noise=N
             fc = effect_size(scenario, 'coulomb_friction', strength, scales, model)
             truth['_stribeck'] = (fc, 1.6 * fc, 0.1 * scales['v_max'])
         elif name == '_lag':
-            truth['_lag'] = 0.03 if scenario == 'specimen' else 0.006
+            truth['_lag'] = 0.06 if scenario == 'specimen' else 0.015
         else:
             truth[name] = effect_size(scenario, name, strength, scales, model)
     true_model = models.with_effects(model, {})
@@ -128,12 +129,16 @@ def bench_cases(quick=False):
 
 
 def run_case(args):
-    """Run one benchmark case; ``args`` = (scenario, label, hidden, strength, expected, seed)."""
+    """Run one benchmark case.
+
+    ``args`` = (scenario, label, hidden, strength, expected, seed[, duration_s]).
+    """
     import time
     from rths_discrepancy.workflow import run_discrepancy
-    scenario, label, hidden, strength, expected, seed = args
+    scenario, label, hidden, strength, expected, seed = args[:6]
+    duration = args[6] if len(args) > 6 else DURATION_S
     t0 = time.perf_counter()
-    data, truth = make_record(scenario, hidden, seed, strength=strength)
+    data, truth = make_record(scenario, hidden, seed, strength=strength, duration_s=duration)
     res = run_discrepancy(scenario, data, plots=False)
     errors = {}
     for name, val in truth.items():
@@ -150,3 +155,70 @@ def run_case(args):
             'best_candidate': res['best_candidate'],
             'best_closure_fast': res['best_candidate_gap_closed_fast'],
             'seconds': time.perf_counter() - t0}
+
+
+def run_bench(seeds=3, quick=False, workers=2, progress=None) -> dict:
+    """Run the self-test benchmark; return the summary (confusion matrix, rates, details).
+
+    Targets of issue 7: >= 95 % correct naming, 0 false effects on the
+    controls, median gap_closed >= 0.9 (over cases whose answer is an effect).
+    """
+    import time
+    t0 = time.perf_counter()
+    duration = QUICK_DURATION_S if quick else DURATION_S
+    jobs = [case + (seed, duration) for seed in range(seeds) for case in bench_cases(quick)]
+    rows = []
+    say = progress or (lambda msg: None)
+    if workers > 1:
+        import multiprocessing as mp
+        with mp.get_context('fork').Pool(workers) as pool:
+            for row in pool.imap_unordered(run_case, jobs):
+                rows.append(row)
+                say(_progress_line(len(rows), len(jobs), row))
+    else:
+        for job in jobs:
+            rows.append(run_case(job))
+            say(_progress_line(len(rows), len(jobs), rows[-1]))
+    rows.sort(key=lambda r: (r['scenario'], r['label'], r['seed']))
+    confusion = {}
+    for r in rows:
+        confusion.setdefault(r['expected'], {}).setdefault(r['named'], 0)
+        confusion[r['expected']][r['named']] += 1
+    controls = [r for r in rows if r['expected'] == 'none']
+    named = [r for r in rows if r['expected'] not in ('none', 'unexplained')]
+    recov = [e for r in rows if r['correct'] and r['strength'] == 1.0
+             for e in r['parameter_rel_errors'].values()]
+    recov_weak = [e for r in rows if r['correct'] and r['strength'] != 1.0
+                  for e in r['parameter_rel_errors'].values()]
+    summary = {
+        'cases': len(rows),
+        'seeds': seeds,
+        'quick': quick,
+        'record_duration_s': duration,
+        'correct_naming_percent': 100.0 * sum(r['correct'] for r in rows) / len(rows),
+        'false_effects_on_controls': sum(r['named'] != 'none' for r in controls),
+        'controls': len(controls),
+        'median_gap_closed': float(np.median([r['gap_closed'] for r in named])),
+        'parameters_within_15_percent_full_strength':
+            (sum(e <= 0.15 for e in recov), len(recov)),
+        'parameters_within_15_percent_one_fifth_strength':
+            (sum(e <= 0.15 for e in recov_weak), len(recov_weak)),
+        'max_parameter_error_full_strength': max(recov) if recov else None,
+        'confusion_matrix': confusion,
+        'wrong': [{k: r[k] for k in ('scenario', 'label', 'seed', 'named', 'best_candidate',
+                                     'best_closure_fast')} for r in rows if not r['correct']],
+        'wall_time_s': time.perf_counter() - t0,
+        'targets': {'correct_naming_percent': 95.0, 'false_effects_on_controls': 0,
+                    'median_gap_closed': 0.9},
+        'rows': rows,
+    }
+    summary['targets_met'] = bool(summary['correct_naming_percent'] >= 95.0
+                                  and summary['false_effects_on_controls'] == 0
+                                  and summary['median_gap_closed'] >= 0.9)
+    return summary
+
+
+def _progress_line(i, n, row):
+    mark = 'ok ' if row['correct'] else 'BAD'
+    return (f"[{i}/{n}] {mark} {row['scenario']:8s} {row['label']:45s} seed {row['seed']} -> "
+            f"{row['named']} (gap closed {row['gap_closed']:.3f}, {row['seconds']:.1f} s)")

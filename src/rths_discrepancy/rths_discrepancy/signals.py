@@ -1,7 +1,7 @@
 """Signal helpers of the discrepancy workflow: smoothing, derivatives, noise floor, NRMSE.
 
 * States from a measured displacement: zero-phase 4th-order Butterworth
-  low-pass (cut-off above the band holding 99.9 % of the signal power), then
+  low-pass (cut-off 3x the band holding 99.9 % of the output/input power), then
   central differences, low-passed again.
 * Noise floor: the measurement noise is taken as white; its variance is the
   mean periodogram of the nominal residual above ``fs / 4`` (where the
@@ -30,11 +30,16 @@ def lowpass(y, fs: float, fc: float):
     return signal.sosfiltfilt(sos, y)
 
 
-def states(y, fs: float, fc: float = None) -> dict:
-    """Smoothed displacement 'x', velocity 'v', acceleration 'a' and the cut-off 'fc'."""
+def states(y, fs: float, fc: float = None, u=None) -> dict:
+    """Smoothed displacement 'x', velocity 'v', acceleration 'a' and the cut-off 'fc'.
+
+    Default cut-off: 3 x the band edge (99.9 % of the power) of ``y`` and of
+    the input ``u`` (if given), within [5 Hz, fs / 6].
+    """
     y = np.asarray(y, float)
     if fc is None:
-        fc = float(np.clip(2.0 * band_edge(y, fs), 5.0, fs / 6))
+        edge = band_edge(y, fs) if u is None else max(band_edge(y, fs), band_edge(u, fs))
+        fc = float(np.clip(3.0 * edge, 5.0, fs / 6))
     x = lowpass(y, fs, fc)
     v = lowpass(np.gradient(x, 1.0 / fs), fs, fc)
     a = lowpass(np.gradient(v, 1.0 / fs), fs, fc)

@@ -12,14 +12,19 @@
    ``s = -1``), which is exact when the states are exact and linear in the
    parameters of the linear effects (variable projection: linear parameters
    by least squares, non-linear ones by a 1-D/2-D search).
-4. Decision on the held-out blocks, with the white-noise floor ``sigma^2``
-   (:func:`.signals.noise_variance`) and ``S`` the held-out mean square error:
-   no effect is named unless its gain ``S_0 - S`` exceeds ``MIN_GAIN *
-   sigma^2`` and ``MIN_REL_GAIN`` of the reducible gap ``S_0 - sigma^2``; a
-   pair replaces the best single only if it removes a further
+4. Decision on the held-out blocks.  Score ``S`` = held-out mean square
+   error of the output divided by its white-noise variance ``sigma^2``
+   (:func:`.signals.noise_variance`), plus, for the specimen, the same for the
+   restoring-force residual ``F_meas - (c_d xd + k_d x)`` (eq. 45; it separates
+   stiffness from mass errors, which the displacement alone hardly does).  The
+   floor of ``S`` is the number of channels.  No effect is named unless its
+   gain ``S_0 - S`` exceeds ``MIN_GAIN`` (noise variances) and ``MIN_REL_GAIN``
+   of the reducible gap ``S_0 - floor``; all parameters of a pair are refitted
+   jointly and the pair replaces the best single only if it removes a further
    ``PAIR_REL_GAIN`` of the gap and ``PAIR_REMAINING`` of what the single
-   left; if the winner closes less than ``NAME_CLOSURE`` of the gap, the
-   answer is ``unexplained``.
+   left; if the winner closes less than ``NAME_CLOSURE`` of the output's
+   reducible gap, the answer is ``unexplained``.  A BIC-style criterion
+   ``N ln S + p ln N`` of every candidate is reported with the evidence.
 5. The winner is added to the model and the model is re-simulated *without*
    measured states (output error); ``gap_closed = (NRMSE_before^2 -
    NRMSE_after^2) / (NRMSE_before^2 - NRMSE_noise^2)`` on the held-out blocks.
@@ -46,7 +51,7 @@ PAIR_REL_GAIN = 0.03
 #: ... and the fraction of what the single left that the pair must remove.
 PAIR_REMAINING = 0.5
 #: Fraction of the gap the winner must close to be named (else 'unexplained').
-NAME_CLOSURE = 0.8
+NAME_CLOSURE = 0.95
 #: Number of best single effects that are combined with every other effect.
 PAIR_TOP = 3
 
@@ -74,7 +79,7 @@ class Context:
         self.y_core = core.simulate(self.u, self.fs)[OUTPUT[scenario]]
         self.y_nom = fx.apply_output_ops(scenario, self.y_core, self.out_eff, self.fs)
         self.b, self.a = model.linear_filter(self.fs)
-        st = sg.states(self.y, self.fs)
+        st = sg.states(self.y, self.fs, u=self.u)
         if scenario == 'actuator':  # load held over sample k acts from the end of sample k-1
             st = {k: (np.concatenate([v[:1], v[:-1]]) if k != 'fc' else v)
                   for k, v in st.items()}
@@ -86,6 +91,13 @@ class Context:
         self.scales = {'y_rms': float(np.std(self.y)), 'v_rms': float(np.std(st['v'])),
                        'v_max': float(np.max(np.abs(st['v'])))}
         self._cols = {}
+        self.force_rows = scenario == 'specimen' and 'force' in data
+        if self.force_rows:
+            force_nl = np.vectorize(fx.specimen_force(
+                {k: v for k, v in model.effects.items() if k not in ops}, model))
+            self.e_r = data['force'] - (model.c_d * st['v'] + model.k_d * st['x']
+                                        + force_nl(st['x'], st['v']))
+            self.sigma2_f = sg.noise_variance(self.e_r, self.fs)
         self.nonlinear_out = scenario == 'actuator' and any(
             k in self.out_eff for k in ('backlash', 'velocity_saturation'))
 
@@ -113,15 +125,50 @@ class Context:
         return fx.apply_output_ops(self.scenario, y, outs, self.fs)
 
     def mse(self, pred, mask):
-        """Mean square error of ``pred`` on ``mask``."""
+        """Mean square error of the output prediction ``pred`` on ``mask``."""
         return float(np.mean((self.y[mask] - pred[mask]) ** 2))
+
+    def psi(self, name, params):
+        """Restoring-force term [N] of effect ``name`` at the measured states (eq. 45).
+
+        ``F_meas - (c_d xd + k_d x) = psi``: zero for mass_error and time_delay,
+        ``-k_d bias`` for a displacement-sensor bias.
+        """
+        st, m = self.states, self.model
+        if name in ('mass_error', 'time_delay'):
+            return np.zeros(self.n)
+        if name == 'sensor_bias':
+            return np.full(self.n, -m.k_d * params)
+        if self.lib[name].linear:
+            return params * m.m_d * fx.loop_regressor(self.scenario, name, st, m)
+        return m.m_d * fx.loop_term_nonlinear(name, params, st, m)
+
+    def score(self, pred, pred_f, mask):
+        """Noise-normalised mean square error: output (+ restoring force for the specimen)."""
+        z = self.mse(pred, mask) / self.sigma2
+        if self.force_rows:
+            z += float(np.mean((self.e_r[mask] - pred_f[mask]) ** 2)) / self.sigma2_f
+        return z
+
+    @property
+    def channels(self):
+        """Number of residual channels in :meth:`score` (its white-noise floor)."""
+        return 2 if self.force_rows else 1
 
 
 def _solve_linear(ctx, names_lin, pnl):
-    """Variable projection: linear parameters for fixed non-linear ones ``pnl``."""
+    """Variable projection: linear parameters for fixed non-linear ones ``pnl``.
+
+    Returns (params, output prediction, restoring-force prediction or None).
+    """
     base = ctx.predict(pnl)
+    base_f = None
+    if ctx.force_rows:
+        base_f = np.zeros(ctx.n)
+        for n, p in pnl.items():
+            base_f += ctx.psi(n, p)
     if not names_lin:
-        return dict(pnl), base
+        return dict(pnl), base, base_f
     cols = []
     for n in names_lin:
         if n == 'sensor_bias':
@@ -133,17 +180,26 @@ def _solve_linear(ctx, names_lin, pnl):
             cols.append(c)
     cmat = np.column_stack(cols)
     tr = ctx.train
-    theta = np.linalg.lstsq(cmat[tr], (ctx.y - base)[tr], rcond=None)[0]
+    wx = 1.0 / math.sqrt(ctx.sigma2)
+    lhs = cmat[tr] * wx
+    rhs = (ctx.y - base)[tr] * wx
+    if ctx.force_rows:
+        fmat = np.column_stack([ctx.psi(n, 1.0) for n in names_lin])
+        wf = 1.0 / math.sqrt(ctx.sigma2_f)
+        lhs = np.vstack([lhs, fmat[tr] * wf])
+        rhs = np.concatenate([rhs, (ctx.e_r - base_f)[tr] * wf])
+    theta = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
     params = {**pnl, **{n: float(t) for n, t in zip(names_lin, theta)}}
+    pred_f = base_f + fmat @ theta if ctx.force_rows else None
     nonlinear_out = ctx.nonlinear_out or any(
         n in pnl for n in ('backlash', 'velocity_saturation')) and ctx.scenario == 'actuator'
     if nonlinear_out and any(ctx.lib[n].kind == 'loop' for n in names_lin):
-        return params, ctx.predict(params)
-    return params, base + cmat @ theta
+        return params, ctx.predict(params), pred_f
+    return params, base + cmat @ theta, pred_f
 
 
 def fit_candidate(ctx, names):
-    """Fit the effects ``names`` on the training blocks; return (params, prediction)."""
+    """Fit the effects ``names`` on the training blocks; return (params, pred, pred_force)."""
     lin = [n for n in names if ctx.lib[n].linear]
     nl = [n for n in names if not ctx.lib[n].linear]
     if not nl:
@@ -154,20 +210,20 @@ def fit_candidate(ctx, names):
         return np.linspace(lo, hi, k) if n == 'time_delay' else np.geomspace(lo, hi, k)
 
     def cost(p):
-        _, pred = _solve_linear(ctx, lin, dict(zip(nl, p)))
-        return ctx.mse(pred, ctx.train)
+        _, pred, pred_f = _solve_linear(ctx, lin, dict(zip(nl, p)))
+        return ctx.score(pred, pred_f, ctx.train)
 
     if len(nl) == 1:
-        g = grid(nl[0], *bounds[0], 24)
+        g = grid(nl[0], *bounds[0], 20)
         costs = [cost([p]) for p in g]
         i = int(np.argmin(costs))
         lo, hi = g[max(i - 1, 0)], g[min(i + 1, g.size - 1)]
         res = optimize.minimize_scalar(lambda p: cost([p]), bounds=(lo, hi), method='bounded',
                                        options={'xatol': 1e-4 * (hi - lo) + 1e-12,
-                                                'maxiter': 30})
+                                                'maxiter': 20})
         best = [res.x] if res.fun <= costs[i] else [g[i]]
     else:
-        grids = [grid(n, lo, hi, 9) for n, (lo, hi) in zip(nl, bounds)]
+        grids = [grid(n, lo, hi, 7) for n, (lo, hi) in zip(nl, bounds)]
         pts = list(itertools.product(*grids))
         costs = [cost(p) for p in pts]
         p0 = np.array(pts[int(np.argmin(costs))])
@@ -177,7 +233,7 @@ def fit_candidate(ctx, names):
                                 np.zeros(len(nl)), method='Nelder-Mead',
                                 options={'initial_simplex': np.vstack([
                                     np.zeros(len(nl)), 0.06 * np.eye(len(nl))]),
-                                    'xatol': 1e-4, 'fatol': 0.0, 'maxiter': 60})
+                                    'xatol': 1e-4, 'fatol': 0.0, 'maxiter': 40})
         best = np.clip(p0 + res.x * span, [b[0] for b in bounds], [b[1] for b in bounds])
         if res.fun > min(costs):
             best = p0
@@ -189,45 +245,54 @@ def _label(names):
 
 
 def select(ctx, progress=None):
-    """Fit all candidates and decide; return a dict with the decision and the evidence."""
-    s0 = ctx.mse(ctx.y_nom, ctx.test)
-    sig2 = ctx.sigma2
-    gap = max(s0 - sig2, 0.0)
+    """Fit all candidates and decide; return a dict with the decision and the evidence.
+
+    Scores are noise-normalised held-out mean square errors (:meth:`Context.score`),
+    so the white-noise floor is ``ctx.channels`` and every threshold is in units
+    of the noise variance.
+    """
+    zero_f = np.zeros(ctx.n) if ctx.force_rows else None
+    s0 = ctx.score(ctx.y_nom, zero_f, ctx.test)
+    floor = float(ctx.channels)
+    gap = max(s0 - floor, 0.0)
     fits = {}
+
+    def add(names):
+        params, pred, pred_f = fit_candidate(ctx, names)
+        fits[_label(names)] = (params, pred, ctx.score(pred, pred_f, ctx.test))
+
     for name in fx.EFFECT_NAMES:
-        params, pred = fit_candidate(ctx, [name])
-        fits[name] = (params, pred, ctx.mse(pred, ctx.test))
+        add([name])
     singles = sorted(fx.EFFECT_NAMES, key=lambda k: fits[k][2])
     for first in singles[:PAIR_TOP]:
         for other in fx.EFFECT_NAMES:
-            label = _label([first, other])
-            if other == first or label in fits:
-                continue
-            params, pred = fit_candidate(ctx, [first, other])
-            fits[label] = (params, pred, ctx.mse(pred, ctx.test))
+            if other != first and _label([first, other]) not in fits:
+                add([first, other])
     if progress:
         progress(f'fitted {len(fits)} candidates')
     best1 = singles[0]
     s1 = fits[best1][2]
-    pairs = [k for k in fits if '+' in k and best1 in k.split('+')]
+    pairs = [k for k in fits if '+' in k]
     best2 = min(pairs, key=lambda k: fits[k][2])
     s2 = fits[best2][2]
     choice, s_c = best1, s1
-    if s1 - s2 > max(PAIR_REL_GAIN * gap, MIN_GAIN * sig2) and s1 - s2 > PAIR_REMAINING * (
-            s1 - sig2):
+    if s1 - s2 > max(PAIR_REL_GAIN * gap, MIN_GAIN) and s1 - s2 > PAIR_REMAINING * (s1 - floor):
         choice, s_c = best2, s2
     gain = s0 - s_c
-    closure = gain / gap if gap > 0 else 0.0
-    if gain < MIN_GAIN * sig2 or gain < MIN_REL_GAIN * gap:
+    # closure judged on the output alone: its floor (white noise) is known best
+    sx0 = ctx.mse(ctx.y_nom, ctx.test) / ctx.sigma2
+    sxc = ctx.mse(fits[choice][1], ctx.test) / ctx.sigma2
+    closure = (sx0 - sxc) / (sx0 - 1.0) if sx0 > 1.0 else 0.0
+    if gain < MIN_GAIN or gain < MIN_REL_GAIN * gap:
         decision = 'none'
     elif closure < NAME_CLOSURE:
         decision = 'unexplained'
     else:
         decision = choice
     n_test = int(ctx.test.sum())
-    ic = {k: n_test * math.log(max(v[2], 1e-300)) + len(k.split('+')) * math.log(n_test)
+    ic = {k: n_test * math.log(max(v[2], 1e-300)) + len(v[0]) * math.log(n_test)
           for k, v in fits.items()}
-    return {'decision': decision, 'best': choice, 'fits': fits, 's0': s0, 'sigma2': sig2,
+    return {'decision': decision, 'best': choice, 'fits': fits, 's0': s0, 'floor': floor,
             'gap': gap, 'closure_fast': closure, 'ic': ic}
 
 
@@ -287,8 +352,8 @@ def run_discrepancy(scenario, data, model=None, out_dir=None, rng=None, progress
         'nrmse_after': after,
         'nrmse_noise': noise,
         'gap_closed': float(gap_closed),
-        'candidates': {k: math.sqrt(v[2]) / float(np.std(ctx.y[te]))
-                       for k, v in sel['fits'].items()},
+        'candidates': {k: sg.nrmse(ctx.y, v[1], te) for k, v in sel['fits'].items()},
+        'candidates_score': {k: v[2] for k, v in sel['fits'].items()},
         'candidates_parameters': {k: v[0] for k, v in sel['fits'].items()},
         'best_candidate': sel['best'],
         'best_candidate_gap_closed_fast': sel['closure_fast'],

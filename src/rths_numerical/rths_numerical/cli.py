@@ -190,7 +190,8 @@ def cmd_study_dtm_tuning(args):
               f'(seed: {s[0]} Hz, {100 * s[1]:.0f} %)')
     dh, wb = res['den_hartog'], res['warburton_ground']
     print(f'Den Hartog: f_n = {dh["fn_hz"]:.2f} Hz, zeta = {100 * dh["zeta"]:.1f} %; '
-          f'Warburton (ground accel.): f_n = {wb["fn_hz"]:.2f} Hz, zeta = {100 * wb["zeta"]:.1f} %')
+          f'Warburton (ground accel.): f_n = {wb["fn_hz"]:.2f} Hz, '
+          f'zeta = {100 * wb["zeta"]:.1f} %')
     os.makedirs(args.out, exist_ok=True)
     res['seed_optima'] = {c: {'fn_hz': v[0], 'zeta': v[1]} for c, v in seed_optima.items()}
     _write_json(os.path.join(args.out, 'dtm_tuning.json'), res)

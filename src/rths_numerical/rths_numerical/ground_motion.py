@@ -23,7 +23,6 @@ ground ends at rest near zero displacement.  The absolute interface frame of
 :mod:`.substructure` needs that consistency.
 """
 
-import math
 import os
 
 import numpy as np
@@ -180,4 +179,4 @@ def peak_g(accel):
 
 
 __all__ = ['G', 'RECORDS', 'SEED_SCALES', 'load_record', 'read_at2', 'read_gmspy_dat', 'scale',
-           'resample', 'integrate', 'baseline_correct', 'ground_motion', 'peak_g', 'math']
+           'resample', 'integrate', 'baseline_correct', 'ground_motion', 'peak_g']

@@ -66,7 +66,7 @@ class LinearModel:
         return self.M.shape[0]
 
     def modes(self):
-        """Return natural frequencies [Hz] (ascending) and mass-normalised mode shapes (columns)."""
+        """Return natural frequencies [Hz] (ascending) and mass-normalised modes (columns)."""
         w2, phi = sla.eigh(self.K, self.M)
         return np.sqrt(np.clip(w2, 0.0, None)) / (2 * math.pi), phi
 

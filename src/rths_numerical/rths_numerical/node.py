@@ -58,6 +58,7 @@ class NumericalNode:
         self.rejected = 0
         self.failed = False
         self.t_start = None
+        self.progress_steps = max(1, int(round(1.0 / self.sub.dt)))  # every simulated second
         self.start_timer = self.node.create_timer(0.05, self.try_start)
         self.log.info(f'numerical substructure ready: {self.sub.n_steps} steps at '
                       f'{1.0 / self.sub.dt:g} Hz, {self.sub.n_interface} interface DOF(s); '
@@ -72,8 +73,14 @@ class NumericalNode:
         """Publish step 0 once the graph is connected."""
         if self.started:
             return
-        if (self.pub.get_subscription_count() < self.own['wait_for_subscribers']
-                or self.node.count_publishers(topics.MEASUREMENT) < 1):
+        # Every loop topic must reach its consumer (and the recorder, if any) before step 0:
+        # a reader that matches late would otherwise miss the first steps.
+        wanted = self.own['wait_for_subscribers']
+        if (self.pub.get_subscription_count() < wanted
+                or self.node.count_subscribers(topics.COMMAND) < wanted
+                or self.node.count_subscribers(topics.MEASUREMENT) < wanted
+                or self.node.count_publishers(topics.MEASUREMENT) < 1
+                or self.node.count_publishers(topics.COMMAND) < 1):
             return
         self.started = True
         self.start_timer.cancel()
@@ -104,6 +111,9 @@ class NumericalNode:
             'numerical', msg.step, period_us=self.clock.period_us(t_in),
             compute_us=compute_us, latency_us=latency_us, misses=self.clock.misses))
         self.expected += 1
+        if self.expected % self.progress_steps == 0:
+            self.log.info(f'progress: step {self.expected} of {self.sub.n_steps} '
+                          f'({self.expected * self.sub.dt:.1f} s simulated)')
         if self.sub.done():
             self.finished = True
             return
@@ -130,6 +140,7 @@ def main(argv=None):
         shell = NumericalNode()
         executor = ns.make_executor(shell.own['executor'])
         done = ns.spin_until_done(shell.node, executor, lambda: shell.finished)
+        ns.flush([shell.pub, shell.status_pub])
         shell.log.info(shell.summary())
         shell.save_history()
         if shell.failed:

@@ -3,7 +3,8 @@
 Reference model (building + ``n`` DTMs on the interface DOF, all numerical)::
 
     [M + n m_f e e^T   0    ] [u''  ]   [C + n c_d e e^T  -n c_d e] [u' ]
-    [0                 n m_d] [u_d''] + [-n c_d e^T        n c_d  ] [u_d'] + (same with k) = -[M Gamma + n m_f e; n m_d] a_g
+    [0                 n m_d] [u_d''] + [-n c_d e^T        n c_d  ] [u_d'] + (same with k)
+        = -[M Gamma + n m_f e; n m_d] a_g
 
 ``u_d`` is the DTM moving mass's displacement relative to the ground, ``e``
 selects the interface DOF, ``m_f`` the DTM frame mass (seed 5.1, 250 lbm),
@@ -71,7 +72,8 @@ def integrate_model(model: LinearModel, ag, dt, integrator='cr', rho_inf=0.5):
 def metrics(disp, reference=None):
     """Table 6-8 metrics of a displacement history [m]; reductions [%] against ``reference``."""
     disp = np.asarray(disp, dtype=float)
-    out = {'max_disp_m': float(np.max(np.abs(disp))), 'rms_disp_m': float(np.sqrt(np.mean(disp ** 2)))}
+    out = {'max_disp_m': float(np.max(np.abs(disp))),
+           'rms_disp_m': float(np.sqrt(np.mean(disp ** 2)))}
     out['max_disp_in'] = out['max_disp_m'] / INCH
     out['rms_disp_in'] = out['rms_disp_m'] / INCH
     if reference is not None:

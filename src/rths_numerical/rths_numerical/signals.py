@@ -22,7 +22,8 @@ def blwn(duration_s: float, fs_hz: float, band_hz, peak: float, rng=None,
     """
     n = int(round(duration_s * fs_hz))
     if n < 4:
-        raise ValueError(f'BLWN duration {duration_s} s at {fs_hz} Hz gives {n} samples; need >= 4')
+        raise ValueError(
+            f'BLWN duration {duration_s} s at {fs_hz} Hz gives {n} samples; need >= 4')
     f_lo, f_hi = (0.0, float(band_hz)) if np.isscalar(band_hz) else map(float, band_hz)
     if not 0.0 <= f_lo < f_hi:
         raise ValueError(f'BLWN band ({f_lo}, {f_hi}) Hz must satisfy 0 <= f_min < f_max')

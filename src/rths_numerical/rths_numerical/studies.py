@@ -82,7 +82,7 @@ class ModalBuilding:
         self.modal_mass_iface = float(1.0 / self.phi[self.iface, j] ** 2)
 
     def receptances(self, omega, stiffness_scale=1.0):
-        """Return ``H_I, H_o, h_II, h_oI`` for frequencies ``omega`` [rad/s] (broadcast with scale)."""
+        """Return ``H_I, H_o, h_II, h_oI`` at ``omega`` [rad/s] (broadcasts with the scale)."""
         s = np.asarray(stiffness_scale, dtype=float)[..., None, None]
         wj = self.w * s
         den = wj ** 2 - omega[..., None] ** 2 + 2j * self.zeta * wj * omega[..., None]
@@ -97,7 +97,11 @@ class ModalBuilding:
 def _apparent_mass(omega, m_d, c_d, k_d):
     m_d, c_d, k_d = (np.asarray(x, dtype=float)[..., None] for x in (m_d, c_d, k_d))
     iw = 1j * omega
-    return m_d * (k_d + iw * c_d) / (k_d - omega ** 2 * m_d + iw * c_d)
+    num = m_d * (k_d + iw * c_d)
+    den = k_d - omega ** 2 * m_d + iw * c_d
+    # no DTM (m_d = c_d = k_d = 0): apparent mass 0
+    return np.divide(num, den, out=np.zeros(np.broadcast(num, den).shape, complex),
+                     where=(den != 0))
 
 
 def coupled_response(building: ModalBuilding, ag, dt, m_d, c_d, k_d, stiffness_scale=1.0,

@@ -68,6 +68,10 @@ sdof_freq_hz       SDOF natural frequency [Hz]                               2.8
 sdof_zeta          SDOF damping ratio [-]                                    0.042
 building_mass_kg   total building mass [kg] of 'building2story'              62 706
 =================  ========================================================  ==============
+
+Numbers 0 for ``duration_s``, ``harmonic_freq_hz``, ``building_mass_kg`` and an
+empty ``interface_dofs`` mean "default" (ROS parameters cannot be unset);
+``use_sim_time`` and ``qos_overrides.*`` are ignored.
 """
 
 import math
@@ -80,6 +84,8 @@ from .integrators import INTEGRATORS, make_integrator
 from .model import LinearModel, load_model_yaml, sdof_model
 
 FRAMES = ('absolute', 'relative')
+#: Parameters every ROS node has; ignored here.
+ROS_KEYS = ('use_sim_time', 'start_type_description_service')
 DEFAULTS = {
     'model': 'sdof', 'integrator': 'cr', 'rho_inf': 0.5, 'fs_hz': 1024.0, 'duration_s': None,
     'record': 'harmonic', 'scale': 0.1, 'harmonic_freq_hz': None, 'blwn_band_hz': 10.0,
@@ -224,7 +230,11 @@ def build_model(params) -> LinearModel:
 
 def make_substructure(params: dict) -> NumericalSubstructure:
     """Build a :class:`NumericalSubstructure` from the flat parameter dict (module docstring)."""
-    params = {k: v for k, v in dict(params).items() if v is not None}
+    params = {k: v for k, v in dict(params).items()
+              if v is not None and k not in ROS_KEYS and not k.startswith('qos_overrides')}
+    if params.get('interface_dofs') is not None and len(np.atleast_1d(
+            params['interface_dofs'])) == 0:
+        params.pop('interface_dofs')  # ROS cannot express "unset" for a list
     unknown = set(params) - set(DEFAULTS)
     if unknown:
         raise ValueError(f'unknown parameter(s) {", ".join(sorted(unknown))}; '

@@ -1,0 +1,159 @@
+"""Tests of the discrepancy workflow (issue 7) on short synthetic records.
+
+Nominal models: Table 4 valve #4 DTM (eq. 46-47) and Table 1 3-pole actuator.
+"""
+
+import json
+import math
+import os
+
+import numpy as np
+import pytest
+import yaml
+
+from rths_discrepancy import effects as fx
+from rths_discrepancy import io as dio
+from rths_discrepancy import models
+from rths_discrepancy import selftest
+from rths_discrepancy.workflow import run_discrepancy
+
+SHORT_S = 8.0
+
+
+def _case(scenario, hidden, seed=0, strength=1.0):
+    data, truth = selftest.make_record(scenario, hidden, seed, duration_s=SHORT_S,
+                                       strength=strength)
+    return data, truth, run_discrepancy(scenario, data, plots=False)
+
+
+@pytest.mark.parametrize('scenario', fx.SCENARIOS)
+@pytest.mark.parametrize('name', fx.EFFECT_NAMES)
+def test_each_effect_is_named_and_recovered(scenario, name):
+    data, truth, res = _case(scenario, [name], seed=1)
+    assert res['effect'] == name, res['best_candidate']
+    got = res['parameters'][name][fx.LIBRARY[scenario][name].param]
+    assert abs(got - truth[name]) <= 0.15 * abs(truth[name])
+    assert res['nrmse_after'] < 0.5 * res['nrmse_before']
+    assert res['gap_closed'] > 0.9
+
+
+@pytest.mark.parametrize('scenario', fx.SCENARIOS)
+@pytest.mark.parametrize('seed', [0, 1])
+def test_controls_name_no_effect(scenario, seed):
+    _, _, res = _case(scenario, [], seed=seed)
+    assert res['effect'] == 'none'
+    assert res['parameters'] == {}
+    # the noise floor estimate matches the 0.5 % noise added by the generator
+    assert res['nrmse_noise'] == pytest.approx(selftest.NOISE, rel=0.2)
+
+
+def test_pair_is_named_jointly():
+    _, truth, res = _case('specimen', ['coulomb_friction', 'stiffness_error'], seed=2)
+    assert res['effect'] == 'coulomb_friction+stiffness_error'
+    for name in ('coulomb_friction', 'stiffness_error'):
+        got = res['parameters'][name][fx.LIBRARY['specimen'][name].param]
+        assert abs(got - truth[name]) <= 0.15 * abs(truth[name])
+
+
+def test_first_order_lag_is_unexplained():
+    _, _, res = _case('specimen', ['_lag'])
+    assert res['effect'] == 'unexplained'
+    assert 'unexplained_note' in res
+    assert res['parameters'] == {}
+
+
+def test_stribeck_friction_is_named_coulomb():
+    _, _, res = _case('specimen', ['_stribeck'])
+    assert res['effect'] == 'coulomb_friction'
+
+
+def _write(tmp_path, data, cols, name='m.csv'):
+    path = tmp_path / name
+    dio.write_csv(path, data, cols)
+    return str(path)
+
+
+def test_bad_inputs_name_the_problem(tmp_path):
+    data, _ = selftest.make_record('actuator', [], 0, duration_s=SHORT_S)
+    cols = ('time', 'command', 'measured')
+    with pytest.raises(ValueError, match='missing column.*measured'):
+        dio.load_csv(_write(tmp_path, data, ('time', 'command')), 'actuator')
+    bad = dict(data)
+    bad['measured'] = data['measured'].copy()
+    bad['measured'][10] = np.nan
+    with pytest.raises(ValueError, match='measured has 1 NaN'):
+        dio.load_csv(_write(tmp_path, bad, cols), 'actuator')
+    bad = dict(data)
+    bad['time'] = data['time'].copy()
+    bad['time'][100:] += 0.5 / 1024
+    with pytest.raises(ValueError, match='not uniformly sampled'):
+        dio.load_csv(_write(tmp_path, bad, cols), 'actuator')
+    short = {k: v[:300] for k, v in data.items()}
+    with pytest.raises(ValueError, match='too short'):
+        dio.load_csv(_write(tmp_path, short, cols), 'actuator')
+    with pytest.raises(ValueError, match='missing column'):
+        run_discrepancy('specimen', data)
+
+
+def test_seed_models_and_timing_convention():
+    spec = models.default_model('specimen')
+    assert (spec.m_d, spec.c_d, spec.k_d) == (258.35, 491.6, 80810.0)  # Table 4, valve #4
+    fs = 1024.0
+    # eq. 47 at the natural frequency: |T| = m_d / (c_d omega_n)
+    wn = math.sqrt(spec.k_d / spec.m_d)
+    t = np.arange(int(40 * fs)) / fs
+    x = spec.simulate(np.sin(wn * t), fs)['rel_disp']
+    amp = np.max(np.abs(x[-int(2 * fs):]))
+    assert amp == pytest.approx(spec.m_d / (spec.c_d * wn), rel=0.01)
+    act = models.default_model('actuator')
+    y = act.simulate(np.ones(2048), fs)['measured']
+    assert y[0] > 0.0          # d = 0: the sample labelled 0 is read at the end of sample 0
+    assert y[-1] == pytest.approx(1.0, abs=1e-3)   # eq. 3: unit DC gain
+    # the same plant as an ARX YAML (ZOH discretisation, d = 0) predicts the same output
+    b, a = act.linear_filter(fs)
+    arx = models.model_from_dict('actuator', {'kind': 'arx', 'fs_hz': fs, 'na': len(a) - 1,
+                                              'nb': len(b), 'd': 0, 'a': a.tolist(),
+                                              'b': b.tolist()})
+    u = selftest.excitation('actuator', 2.0, fs, 0)
+    np.testing.assert_allclose(arx.simulate(u, fs)['measured'], act.simulate(u, fs)['measured'],
+                               atol=1e-12)
+
+
+def test_bag_input_without_bagio(tmp_path, monkeypatch):
+    import sys
+    from rths_discrepancy import cli
+    monkeypatch.setitem(sys.modules, 'rths_bringup.bagio', None)
+    with pytest.raises(ValueError, match='bag input needs rths_bringup.bagio'):
+        cli._read_measured(str(tmp_path), 'specimen')
+
+
+def test_cli_end_to_end_and_updated_model_reloads(tmp_path):
+    from rths_bringup.cli import main
+    data, truth = selftest.make_record('specimen', ['coulomb_friction'], 3,
+                                       duration_s=SHORT_S)
+    csv = _write(tmp_path, data, dio.COLUMNS['specimen'])
+    out = tmp_path / 'out'
+    assert main(['discrepancy', '--scenario', 'specimen', '--measured', csv,
+                 '--out', str(out)]) == 0
+    res = json.loads((out / 'result.json').read_text())
+    assert res['effect'] == 'coulomb_friction'
+    for key in ('parameters', 'nrmse_before', 'nrmse_after', 'gap_closed', 'candidates'):
+        assert key in res
+    assert set(fx.EFFECT_NAMES) <= set(res['candidates'])
+    assert res['nrmse_after'] < 0.2 * res['nrmse_before']
+    report = (out / 'report.md').read_text()
+    assert 'coulomb_friction' in report
+    for png in ('residuals.png', 'residual_spectrum.png', 'residual_state.png'):
+        assert os.path.getsize(out / png) > 1000 and png in report
+    updated = yaml.safe_load((out / 'updated_model.yaml').read_text())
+    assert updated['effects']['coulomb_friction'] == pytest.approx(truth['coulomb_friction'],
+                                                                   rel=0.15)
+    out2 = tmp_path / 'out2'
+    assert main(['discrepancy', '--scenario', 'specimen', '--measured', csv,
+                 '--model', str(out / 'updated_model.yaml'), '--out', str(out2)]) == 0
+    assert json.loads((out2 / 'result.json').read_text())['effect'] == 'none'
+    # a user error exits with code 2 and writes nothing
+    out3 = tmp_path / 'out3'
+    assert main(['discrepancy', '--scenario', 'actuator', '--measured', csv,
+                 '--out', str(out3)]) == 2
+    assert not out3.exists()

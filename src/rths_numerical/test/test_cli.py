@@ -1,0 +1,35 @@
+"""CLI registration and a tiny study run."""
+
+import argparse
+import json
+
+from rths_numerical import cli
+
+
+def _parser():
+    parser = argparse.ArgumentParser(prog='rths')
+    commands = parser.add_subparsers(dest='command')
+    bench = commands.add_parser('bench')
+    benches = bench.add_subparsers(dest='bench')
+    cli.register(commands, benches)
+    return parser
+
+
+def test_register_and_dtm_tuning_tiny(tmp_path, capsys):
+    """``rths study dtm-tuning`` on a tiny grid writes JSON with optima and Den Hartog."""
+    args = _parser().parse_args(['study', 'dtm-tuning', '--n-fn', '5', '--n-zeta', '3',
+                                 '--duration-s', '10', '--fs-hz', '64', '--out', str(tmp_path)])
+    assert args.func(args) == 0
+    data = json.loads((tmp_path / 'dtm_tuning.json').read_text())
+    assert set(data['optima']) == {'max_disp', 'max_accel', 'rms_disp', 'rms_accel'}
+    assert 'den_hartog' in data and (tmp_path / 'dtm_tuning.png').exists()
+    assert 'Den Hartog' in capsys.readouterr().out
+
+
+def test_simulate_parses():
+    """``rths simulate`` options."""
+    args = _parser().parse_args(['simulate', '--damper', 'valve4', '--record', 'kobe',
+                                 '--scale', '0.135'])
+    assert args.damper == 'valve4' and args.scale == 0.135
+    args = _parser().parse_args(['bench', 'numerical', '--out', 'x.json'])
+    assert args.out == 'x.json'
