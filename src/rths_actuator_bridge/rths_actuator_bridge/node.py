@@ -20,22 +20,46 @@ or the ``rths_msgs/srv/EmergencyStop`` service ``/rths/emergency_stop_service``.
 In lock-step mode the supervisor is stepped by the incoming commands; when
 none arrive for ``watchdog_timeout_s`` wall-clock seconds, or after an
 emergency stop, a timer at the loop rate drives the stop sequence alone.
+
+Realtime mode (``mode: realtime``): the bridge is the clock, as a servo
+controller is.  The first command (step 0) starts the clock; tick k comes at
+``t0 + k / fs`` (steady clock) and writes the newest command, then publishes
+measurement k.  The command of step k must have arrived before tick k,
+otherwise step k is a *deadline miss*: counted, flagged in that step's status
+(``deadline_missed``, running ``deadline_misses``) and handled by the
+**extrapolation policy**: ``Bridge.step(k, None)``, i.e. the safety
+supervisor continues the last command at constant velocity (checked against
+every limit) and, after ``watchdog_steps`` misses in a row, trips its
+watchdog (hold, ramp to the safe position, stop).  A command that arrives
+after its tick is discarded (counted as late).  The clock is one of
+(``clock``): ``loop`` (default: the spin loop waits in ``spin_once`` until the
+tick; no second thread), ``thread`` (a dedicated clock thread sleeping to
+absolute deadlines) or ``timer`` (a steady-clock rclpy timer).  The number of
+steps comes from the numerical node on ``/rths/run_steps``; after the last
+step the clock stops and the actuator holds its last position until the
+launcher stops the node.  A tick more than one period late re-anchors the
+clock (counted as an overrun) instead of bursting.
+``timing_out`` (a .npz path) saves per-tick and per-command times for
+``rths bench loop``.
 """
 
 import sys
 import time
 
+import numpy as np
 import rclpy
-from std_msgs.msg import String
+from std_msgs.msg import String, UInt64
 
 from rths_common import node_support as ns
 from rths_common import topics
-from rths_common.qos import loop_qos, status_qos
+from rths_common.qos import loop_qos, run_info_qos, status_qos
 from rths_msgs.msg import Command, LoopStatus, Measurement
 from rths_msgs.srv import EmergencyStop
 
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'autostart': True,
-               'watchdog_timeout_s': 5.0}
+               'watchdog_timeout_s': 5.0, 'clock': 'loop', 'timing_out': '',
+               **ns.TUNING_PARAMS}
+CLOCKS = ('loop', 'thread', 'timer')
 EXIT_SAFETY_STOP = 3
 
 
@@ -51,6 +75,11 @@ class BridgeNode:
         for key in NODE_PARAMS:
             params.pop(key, None)
         self.log = self.node.get_logger()
+        self.realtime = self.own['mode'] == 'realtime'
+        if self.own['mode'] not in ('lockstep', 'realtime'):
+            raise ValueError(f"bridge node: mode {self.own['mode']!r}: use lockstep or realtime")
+        if self.own['clock'] not in CLOCKS:
+            raise ValueError(f"bridge node: clock {self.own['clock']!r}: use one of {CLOCKS}")
         self.bridge = Bridge()
         self.bridge.configure(params)                 # configured: INACTIVE, nothing moves
         self.backend = self.bridge.backend
@@ -69,6 +98,27 @@ class BridgeNode:
         self.stopped = False
         self.stop_timer = None
         self.node.create_timer(0.1, self.watchdog)
+        # realtime clock state
+        self.period_ns = int(round(1e9 / self.fs_hz))
+        self.t0_ns = None              # monotonic time of tick 0
+        self.k = 0                     # next tick's step
+        self.n_steps = None            # steps of the run (from the numerical node)
+        self.latest = None             # newest command: (step, command, receipt_ns, latency_us)
+        self.late = 0                  # commands that arrived after their tick
+        self.overruns = 0              # ticks more than a period late (clock re-anchored)
+        self.run_over = False
+        self.clock_timer = None
+        self.timing = {'tick_step': [], 'tick_wall_ns': [], 'tick_late_ns': [], 'missed': [],
+                       'recv_step': [], 'recv_wall_ns': [], 'recv_stamp_ns': []}
+        self.cpu_loop = None
+        if self.realtime:
+            self.node.create_subscription(UInt64, topics.RUN_STEPS, self.on_run_steps,
+                                          run_info_qos())
+            self.tuning = ns.tune_process(self.own['rt_priority'], self.own['cpus'],
+                                          self.own['gc'])
+            self.log.info(f"realtime: bridge is the clock at {self.fs_hz:g} Hz "
+                          f"(clock {self.own['clock']}, executor {self.own['executor']}); "
+                          f'{self.tuning}')
         self.log.info(f'bridge configured: backend {params.get("backend", "simulated")}, '
                       f'{self.backend.n_channels} channel(s), stroke '
                       f'+-{self.backend.limits.stroke_m} m')
@@ -86,6 +136,9 @@ class BridgeNode:
         t_in = ns.now_ns()
         if self.stopped:
             return
+        if self.realtime:
+            self.on_command_realtime(msg, t_in)
+            return
         if msg.step != self.expected:
             self.rejected += 1
             self.log.warning(f'command of step {msg.step} ignored: expected step '
@@ -98,7 +151,105 @@ class BridgeNode:
         self.apply(msg.step, list(msg.command), t_in,
                    latency_us=(t_in - ns.stamp_ns(msg.header)) * 1e-3)
 
-    def apply(self, step, command, t_in, latency_us=-1.0):
+    # ---------------------------------------------------------------- realtime
+    def on_run_steps(self, msg: UInt64):
+        self.n_steps = int(msg.data)
+
+    def on_command_realtime(self, msg: Command, t_in: int):
+        """Keep the newest command for its tick; the first command starts the clock."""
+        step = msg.step
+        stamp_ns = ns.stamp_ns(msg.header)
+        timing = self.timing
+        timing['recv_step'].append(step)
+        timing['recv_wall_ns'].append(t_in)
+        timing['recv_stamp_ns'].append(stamp_ns)
+        latency_us = (t_in - stamp_ns) * 1e-3
+        if self.t0_ns is None:
+            if step != 0:
+                return
+            self.latest = (0, list(msg.command), t_in, latency_us)
+            self.start_clock()
+            return
+        if step < self.k:
+            if step > 0:
+                self.late += 1  # its tick has passed: already counted as a miss
+            return
+        self.latest = (step, list(msg.command), t_in, latency_us)
+
+    def start_clock(self):
+        """Tick 0 is now; start the clock thread or timer if one is used."""
+        from rclpy.clock import Clock, ClockType
+
+        self.t0_ns = time.monotonic_ns()
+        self.tuning = ns.tune_process(self.own['rt_priority'], self.own['cpus'], 'default')
+        self.cpu_loop = [time.process_time(), None]
+        self.log.info('first command: clock started')
+        if self.own['clock'] == 'thread':
+            self.clock_thread = ns.TickThread(self.next_due_ns, self.tick).start()
+        elif self.own['clock'] == 'timer':
+            self.tick()
+            steady = Clock(clock_type=ClockType.STEADY_TIME)
+            self.clock_timer = self.node.create_timer(self.period_ns * 1e-9, self.timer_tick,
+                                                      clock=steady)
+
+    def next_due_ns(self):
+        """Monotonic time of the next tick, or None when the clock is not running."""
+        if self.t0_ns is None or self.stopped:
+            return None
+        if self.n_steps is not None and self.k >= self.n_steps:
+            from rths_actuator_bridge.safety import HOLD, RAMP
+            if self.bridge.state not in (HOLD, RAMP):
+                if not self.run_over:
+                    self.run_over = True
+                    self.cpu_loop[1] = time.process_time()
+                    self.log.info(f'run complete after {self.k} ticks: holding the last '
+                                  f'position; {self.clock.misses} deadline miss(es), '
+                                  f'{self.late} late command(s), {self.overruns} overrun(s)')
+                return None
+        return self.t0_ns + self.k * self.period_ns
+
+    def timer_tick(self):
+        if self.next_due_ns() is not None:
+            self.tick()
+
+    def tick(self):
+        """Tick k: write the newest command (or extrapolate: deadline miss), publish step k."""
+        due = self.t0_ns + self.k * self.period_ns
+        now = time.monotonic_ns()
+        late_ns = now - due
+        if late_ns > self.period_ns:   # a stall: re-anchor instead of bursting to catch up
+            self.overruns += 1
+            self.t0_ns = now - self.k * self.period_ns
+        k = self.k
+        latest = self.latest
+        t_in = ns.now_ns()
+        in_run = self.n_steps is None or k < self.n_steps
+        if latest is not None and latest[0] == k:
+            command, latency_us, missed = latest[1], latest[3], False
+        else:
+            command, latency_us, missed = None, -1.0, in_run
+            if missed:
+                self.clock.misses += 1
+        timing = self.timing
+        timing['tick_step'].append(k)
+        timing['tick_wall_ns'].append(t_in)
+        timing['tick_late_ns'].append(late_ns)
+        timing['missed'].append(missed)
+        self.k = k + 1
+        self.apply(k, command, t_in, latency_us=latency_us, missed=missed)
+
+    def save_timing(self):
+        """Write the per-tick/per-command times (``timing_out``) for the loop benchmark."""
+        path = self.own['timing_out']
+        if not path:
+            return
+        data = {key: np.asarray(val, dtype=np.int64) for key, val in self.timing.items()}
+        cpu = self.cpu_loop or [0.0, 0.0]
+        np.savez(path, **data, misses=self.clock.misses, late=self.late,
+                 overruns=self.overruns, period_ns=self.period_ns,
+                 cpu_loop_s=(cpu[1] or time.process_time()) - cpu[0])
+
+    def apply(self, step, command, t_in, latency_us=-1.0, missed=False):
         """One step through the supervisor and the backend; publish measurement and status."""
         from rths_actuator_bridge.safety import STOPPED
 
@@ -114,7 +265,7 @@ class BridgeNode:
         self.status_pub.publish(ns.status_msg(
             'bridge', step, period_us=self.clock.period_us(t_in),
             compute_us=(time.perf_counter_ns() - t0) * 1e-3, latency_us=latency_us,
-            misses=self.clock.misses, safety_state=state, fault=fault))
+            missed=missed, misses=self.clock.misses, safety_state=state, fault=fault))
         if state == STOPPED and not self.stopped:
             self.stopped = True  # Bridge.step has deactivated the backend
             self.log.error(f'safety stop at step {step}: {fault}; backend deactivated')
@@ -126,6 +277,8 @@ class BridgeNode:
             return
         self.bridge.emergency_stop(reason)
         self.log.warning(f'safe stop: {reason}')
+        if self.realtime and self.t0_ns is not None and not self.run_over:
+            return  # the clock's ticks drive hold, ramp and stop
         if self.stop_timer is None:
             self.stop_timer = self.node.create_timer(1.0 / self.fs_hz, self._stop_tick)
 
@@ -137,6 +290,8 @@ class BridgeNode:
 
     def watchdog(self):
         """Lock-step watchdog: no command for watchdog_timeout_s once the run has started."""
+        if self.realtime:
+            return  # the supervisor's watchdog_steps watch every tick
         if (self.last_command_t is not None and not self.stopped and self.stop_timer is None
                 and time.monotonic() - self.last_command_t > self.own['watchdog_timeout_s']):
             self.start_safe_stop(f"watchdog: no command for {self.own['watchdog_timeout_s']:g} s")
@@ -161,12 +316,22 @@ def main(argv=None):
     shell = None
     try:
         shell = BridgeNode()
-        ns.spin_until_done(shell.node, ns.make_executor(shell.own['executor']),
-                           lambda: shell.stopped)
+        executor = ns.make_executor(shell.own['executor'])
+        if shell.realtime and shell.own['clock'] == 'loop':
+            ns.spin_clocked(shell.node, executor, shell.next_due_ns, shell.tick,
+                            lambda: shell.stopped)
+        else:
+            ns.spin_until_done(shell.node, executor, lambda: shell.stopped)
+        thread = getattr(shell, 'clock_thread', None)
+        if thread is not None:
+            thread.stop()
+            if thread.error is not None:
+                raise thread.error
         code = EXIT_SAFETY_STOP if shell.stopped else 0
+        shell.save_timing()
         ns.flush([shell.pub, shell.status_pub])
         shell.log.info(f'bridge: {shell.step + 1} steps applied, {shell.rejected} rejected, '
-                       f'final state {shell.bridge.state}')
+                       f'{shell.clock.misses} deadline miss(es), final state {shell.bridge.state}')
     except ValueError as err:
         print(f'bridge_node: error: {err}', file=sys.stderr)
         code = 2

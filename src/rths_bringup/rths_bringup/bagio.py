@@ -59,7 +59,7 @@ class BagWriter:
     rosbags message objects.
     """
 
-    def __init__(self, path, topic_types=None, commit_period_s: float = 0.25):
+    def __init__(self, path, topic_types=None, commit_period_s: float = 0.25, run_info=None):
         from rosbags.rosbag2 import Writer
 
         self.path = Path(path)
@@ -69,6 +69,12 @@ class BagWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._writer = Writer(self.path, version=9)
         self._writer.open()
+        self.run_info = {str(k): str(v) for k, v in (run_info or {}).items()}
+        for key, value in self.run_info.items():
+            self._writer.set_custom_data(key, value)
+        if self.run_info:  # also beside the database, so a crashed recording keeps it
+            import yaml
+            (self.path / RUN_INFO_FILE).write_text(yaml.safe_dump(self.run_info))
         self._connections = {}
         self._commit_period_s = commit_period_s
         self._last_commit = time.monotonic()
@@ -115,6 +121,24 @@ class BagWriter:
         self.close()
 
 
+#: Side file of a bag holding its run information (also in metadata custom_data).
+RUN_INFO_FILE = 'rths_run.yaml'
+
+
+def run_info(bag) -> dict:
+    """Run information of a bag (``fs_hz``, ``mode``, ...): custom_data, else the side file."""
+    import yaml
+
+    bag = Path(bag)
+    meta = bag / 'metadata.yaml'
+    if meta.exists():
+        info = yaml.safe_load(meta.read_text())['rosbag2_bagfile_information']
+        if info.get('custom_data'):
+            return dict(info['custom_data'])
+    side = bag / RUN_INFO_FILE
+    return yaml.safe_load(side.read_text()) if side.exists() else {}
+
+
 def _db_path(bag: Path) -> Path:
     files = sorted(bag.glob('*.db3'))
     if not files:
@@ -158,7 +182,7 @@ def reindex(bag) -> Path:
         'compression_mode': '',
         'files': [{'path': db.name, 'starting_time': {'nanoseconds_since_epoch': t0},
                    'duration': {'nanoseconds': t1 - t0}, 'message_count': total}],
-        'custom_data': {'reindexed': 'true'},
+        'custom_data': dict(run_info(bag), reindexed='true'),
         'ros_distro': 'rosbags',
     }
     meta = bag / 'metadata.yaml'
@@ -213,3 +237,55 @@ def read_messages(bag, topic_names=None):
 def read_topic(bag, topic: str) -> list:
     """All messages of one topic, in order, as ``(timestamp_ns, msg)`` pairs."""
     return [(t, m) for _, t, m in read_messages(bag, [topic])]
+
+
+def step_arrays(bag, topic: str, fields) -> dict:
+    """``{'step': int array, field: 2-D float array (steps x channels), ...}`` of one topic.
+
+    A message whose array is shorter than the widest one (e.g. a bridge step
+    that applied nothing) is padded with NaN.
+    """
+    import numpy as np
+
+    steps, values = [], {f: [] for f in fields}
+    for _, msg in read_topic(bag, topic):
+        steps.append(msg.step)
+        for f in fields:
+            values[f].append(np.asarray(getattr(msg, f), dtype=float))
+    out = {'step': np.asarray(steps, dtype=np.int64)}
+    for f in fields:
+        width = max((v.size for v in values[f]), default=0)
+        table = np.full((len(values[f]), width), np.nan)
+        for i, v in enumerate(values[f]):
+            table[i, :v.size] = v
+        out[f] = table
+    return out
+
+
+def sampling_rate(bag) -> float:
+    """The loop rate ``fs_hz`` a bag was recorded at (from its run information)."""
+    info = run_info(bag)
+    try:
+        return float(info['fs_hz'])
+    except (KeyError, ValueError):
+        raise ValueError(f'{bag}: the bag has no fs_hz in its run information '
+                         f'(metadata custom_data or {RUN_INFO_FILE}); record it with '
+                         "'rths launch' or 'rths run'") from None
+
+
+def read_identification(bag):
+    """``(time [s], command [m], measured [m])`` of channel 0 from a bag's measurements.
+
+    ``command`` is what the bridge wrote to the actuator (``Measurement.applied``),
+    ``measured`` the measured actuator displacement; time is ``step / fs_hz``.
+    Steps the bridge did not apply (empty arrays) are dropped.
+    """
+    import numpy as np
+
+    fs = sampling_rate(bag)
+    data = step_arrays(bag, topics.MEASUREMENT, ('applied', 'displacement'))
+    if data['step'].size == 0:
+        raise ValueError(f'{bag}: no {topics.MEASUREMENT} messages; is this an rths run bag?')
+    command, measured = data['applied'][:, 0], data['displacement'][:, 0]
+    ok = np.isfinite(command) & np.isfinite(measured)
+    return data['step'][ok] / fs, command[ok], measured[ok]

@@ -20,6 +20,8 @@ import sys
 #: Packages whose ``<package>.cli`` module adds sub-commands, in --help order.
 CLI_MODULES = (
     'rths_bringup.commands',
+    'rths_bringup.bench_loop',
+    'rths_bringup.run',
     'rths_numerical.cli',
     'rths_compensator.cli',
     'rths_actuator_bridge.cli',

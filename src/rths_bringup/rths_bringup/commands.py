@@ -71,12 +71,18 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None):
     """Run the graph; return the launcher's exit code."""
     from rths_bringup.launcher import Launcher
 
+    from rths_bringup import runinfo
+
+    config = Path(config) if config else default_config_dir()
     overrides = overrides or {}
+    if bag:  # the loop rate goes into the bag's run information
+        fs = runinfo.load_params(config / 'numerical.yaml', 'numerical').get('fs_hz', 1024.0)
+        overrides.setdefault('recorder', {}).setdefault('fs_hz', float(fs))
     if duration is not None:
         if not duration > 0:
             raise ValueError(f'--duration must be > 0 s, got {duration}')
         overrides.setdefault('numerical', {})['duration_s'] = float(duration)
-    launcher = Launcher(config or default_config_dir(), bag=bag, overrides=overrides,
+    launcher = Launcher(config, bag=bag, overrides=overrides,
                         timeout_s=timeout)
     return launcher.run()
 

@@ -13,6 +13,12 @@ and supervises them:
 * Ctrl-C / SIGTERM to the launcher stops every node cleanly;
 * if the recorder died, the bag is reindexed so it stays readable.
 
+Timing mode: ``mode`` None (the default) takes the numerical node's ``mode``
+from the config (or its override), so the recorder subscribes with matching
+QoS; an explicit ``mode`` is also passed to every node as an override.
+While the graph runs, the CPU time of every child is sampled
+(:attr:`Launcher.cpu_samples`, from /proc) for ``rths bench loop``.
+
 ``ros2 launch`` is not available in this environment; this module is the
 project's equivalent and needs only the built workspace (``source env.sh``).
 """
@@ -48,6 +54,36 @@ def executable(package: str, name: str) -> Path:
     if not os.access(path, os.X_OK):
         raise OSError(f'{path} is missing or not executable; rebuild with make setup')
     return path
+
+
+def config_mode(config_dir: Path, overrides: dict) -> str:
+    """Timing mode of a run: the numerical node's override, else its params file, else lockstep."""
+    mode = overrides.get(OWNER, {}).get('mode')
+    if mode:
+        return str(mode)
+    path = Path(config_dir) / 'numerical.yaml'
+    try:
+        import yaml
+        data = yaml.safe_load(path.read_text()) or {}
+    except (OSError, ValueError):
+        return 'lockstep'
+    for section in data.values():
+        if isinstance(section, dict) and 'mode' in section.get('ros__parameters', {}):
+            return str(section['ros__parameters']['mode'])
+    return 'lockstep'
+
+
+_CLK_TCK = os.sysconf('SC_CLK_TCK')
+
+
+def cpu_seconds(pid: int):
+    """User + system CPU seconds of process ``pid`` (all its threads), None if it is gone."""
+    try:
+        with open(f'/proc/{pid}/stat', 'rb') as f:
+            fields = f.read().rsplit(b')', 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / _CLK_TCK
 
 
 @dataclass
@@ -87,12 +123,18 @@ def describe_exit(code: int) -> str:
 class Launcher:
     """Start, watch and stop the node processes of one run."""
 
-    def __init__(self, config_dir, bag=None, overrides=None, mode='lockstep', out=sys.stdout,
-                 timeout_s=None):
+    def __init__(self, config_dir, bag=None, overrides=None, mode=None, out=sys.stdout,
+                 timeout_s=None, cpu_sample_s: float = 0.25):
         self.config_dir = Path(config_dir)
         self.bag = Path(bag) if bag else None
         self.overrides = overrides or {}
-        self.mode = mode
+        if mode is not None:
+            for name, *_ in NODES:
+                self.overrides.setdefault(name, {})['mode'] = mode
+        self.mode = mode or config_mode(self.config_dir, self.overrides)
+        self.cpu_sample_s = cpu_sample_s
+        #: [(wall time ns, {node: CPU seconds so far})], sampled while the graph runs
+        self.cpu_samples = []
         self.out = out
         self.timeout_s = timeout_s
         self.children = []
@@ -171,7 +213,13 @@ class Launcher:
                 if name == 'recorder':
                     self._wait_for_line(child, 'recording', 20.0)
             t0 = time.monotonic()
+            next_sample = t0
             while True:
+                if self.cpu_sample_s and time.monotonic() >= next_sample:
+                    next_sample += self.cpu_sample_s
+                    self.cpu_samples.append((time.time_ns(), {
+                        c.name: cpu_seconds(c.proc.pid) for c in self.children
+                        if c.returncode is None}))
                 if self._signal is not None:
                     self.say(f'{signal.Signals(self._signal).name} received: stopping all nodes')
                     break

@@ -32,6 +32,8 @@ class Recorder:
             raise ValueError("parameter 'bag' (output directory of the bag) is required: "
                              'pass -p bag:=PATH')
         mode = params.get('mode', 'lockstep')
+        # Everything else given to the recorder (fs_hz, ...) is run information kept in the bag.
+        self.run_info = {k: v for k, v in params.items() if k not in ('bag',)}
         self.queue = deque()
         self.wake = threading.Event()
         self.running = True
@@ -58,7 +60,7 @@ class Recorder:
 
     def _drain(self, bag, opened):
         try:
-            writer = BagWriter(bag, topics.LOOP_TOPICS)
+            writer = BagWriter(bag, topics.LOOP_TOPICS, run_info=self.run_info)
         except (OSError, ValueError) as err:
             self.open_error = err
             return

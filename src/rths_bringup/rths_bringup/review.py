@@ -80,3 +80,221 @@ def loop_summary(bag) -> dict:
             'faults': s['faults'][:5],
         }
     return summary
+
+
+# ---------------------------------------------------------------------------------------------
+# The RTHS review (step 4 of rths run; rths review BAG)
+
+#: Upper edge [Hz] of the band over which delays are averaged (the seed's RTHS design band).
+DELAY_BAND_HZ = 10.0
+ZOOM_S = 3.0
+
+
+def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
+    """Eq. 42 delay from time series, averaged over ``0 < f <= band_hz`` weighted by the PSD.
+
+    The seed averages eq. 42 over the input bandwidth of a BLWN (flat spectrum).
+    An RTHS response is narrow-band (most energy near the building's first
+    mode), where the H1 estimate is reliable; far from it the estimate is noise.
+    Weighting each Welch bin by the desired signal's power gives the delay the
+    loop actually experiences and equals the plain average for a flat spectrum.
+    """
+    from scipy import signal
+    from rths_compensator.indicators import frf_h1
+
+    d = np.asarray(desired, dtype=float)
+    nperseg = int(min(d.size, 4 * round(fs_hz)))
+    f, h = frf_h1(d, measured, fs_hz, nperseg)
+    _, pdd = signal.welch(d, fs=fs_hz, nperseg=nperseg)
+    sel = (f > 0) & (f <= band_hz) & np.isfinite(h)
+    if np.count_nonzero(sel) < 2:
+        raise ValueError(f'too few frequency bins in 0-{band_hz} Hz to estimate a delay')
+    phase = np.angle(h[sel])  # the delay is far below half a period here: no unwrapping
+    tau = -phase / (2 * np.pi * f[sel])
+    return float(np.sum(tau * pdd[sel]) / np.sum(pdd[sel]) * 1e3)
+
+
+def _numerical_params(info: dict) -> dict:
+    from rths_bringup import runinfo
+    params = runinfo.section(info, 'numerical')
+    for key in ('mode',):
+        params.pop(key, None)
+    return params
+
+
+def review_rths(bag, out_dir) -> dict:
+    """Tables 5-9 of an RTHS bag: JSON summary, text report and PNG plots in ``out_dir``."""
+    import json
+    from pathlib import Path
+
+    from rths_bringup import runinfo
+    from rths_compensator.indicators import relative_rms_pct
+    from rths_numerical.reference import (relative_rms_error, simulate_reference,
+                                          simulate_uncontrolled)
+    from rths_numerical.substructure import make_substructure
+
+    bag, out_dir = Path(bag), Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    info = bagio.run_info(bag)
+    if info.get('kind') != 'rths':
+        raise ValueError(f'{bag}: not an RTHS run bag (run information kind = '
+                         f'{info.get("kind")!r}); record it with rths run')
+    fs = bagio.sampling_rate(bag)
+    numerical = _numerical_params(info)
+    bridge = runinfo.section(info, 'bridge')
+    compensator = runinfo.section(info, 'compensator')
+    sub = make_substructure(numerical)
+    model = sub.model
+    if sub.iface != [model.output_dof]:
+        raise ValueError('the review needs the output DOF to be the interface DOF')
+
+    disp = bagio.step_arrays(bag, topics.INTERFACE_DISPLACEMENT, ('displacement',))
+    meas = bagio.step_arrays(bag, topics.MEASUREMENT, ('applied', 'displacement', 'force'))
+    n = int(min(disp['step'].size, meas['step'].size))
+    if n < 2 * fs:
+        raise ValueError(f'{bag}: only {n} steps recorded; the review needs at least 2 s')
+    if not (np.array_equal(disp['step'][:n], np.arange(n))
+            and np.array_equal(meas['step'][:n], np.arange(n))):
+        raise ValueError(f'{bag}: steps are missing or out of order; cannot align the run')
+    desired = disp['displacement'][:n, 0]
+    applied = meas['applied'][:n, 0]
+    measured = meas['displacement'][:n, 0]
+    ok = np.isfinite(applied) & np.isfinite(measured)
+    if not ok.all():  # a safety stop: review what ran before it
+        n = int(np.argmin(ok))
+        desired, applied, measured = desired[:n], applied[:n], measured[:n]
+
+    # Table 5: the plant (applied -> measured) and the compensated actuator (desired -> measured)
+    table5 = {
+        'delay_ms_before': weighted_delay_ms(applied, measured, fs),
+        'delay_ms_after': weighted_delay_ms(desired, measured, fs),
+        'tracking_rel_rms_pct_before': relative_rms_pct(applied, measured),
+        'tracking_rel_rms_pct_after': relative_rms_pct(desired, measured),
+    }
+    # Tables 6-9: the 2nd floor relative to the ground
+    ug = sub.ug[:n] if sub.frame == 'absolute' else 0.0
+    floor2 = desired - ug
+    dt = 1.0 / fs
+    damper = bridge.get('dtm', 'valve4')
+    uncontrolled = simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
+    reference = simulate_reference(model, sub.ag, dt, damper=damper, n_dtm=sub.force_scale,
+                                   integrator=numerical.get('integrator', 'cr'),
+                                   uncontrolled=uncontrolled) if damper != 'none' else None
+    ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
+    unc = uncontrolled['metrics']
+    max_d, rms_d = float(np.max(np.abs(floor2))), float(np.sqrt(np.mean(floor2 ** 2)))
+    status = read_loop(bag)['status'].get('bridge', {})
+    bridge_steps = max(len(status.get('step', [])), 1)
+    summary = {
+        'record': numerical.get('record'), 'scale': numerical.get('scale'), 'damper': damper,
+        'mode': info.get('mode'), 'fs_hz': fs, 'steps': n, 'duration_s': n * dt,
+        'compensator': compensator,
+        **table5,
+        'max_disp_2nd_m': max_d, 'rms_disp_2nd_m': rms_d,
+        'uncontrolled_max_disp_2nd_m': unc['max_disp_m'],
+        'uncontrolled_rms_disp_2nd_m': unc['rms_disp_m'],
+        'reduction_max_pct': 100 * (1 - max_d / unc['max_disp_m']),
+        'reduction_rms_pct': 100 * (1 - rms_d / unc['rms_disp_m']),
+        'reference_max_disp_2nd_m': float(np.max(np.abs(ref_disp))),
+        'reference_rms_disp_2nd_m': float(np.sqrt(np.mean(ref_disp ** 2))),
+        'rths_vs_reference_rel_rms_pct': relative_rms_error(floor2, ref_disp),
+        'deadline_misses': int(status.get('misses', 0)),
+        'deadline_miss_pct': 100.0 * status.get('misses', 0) / bridge_steps,
+        'safety_faults': status.get('faults', []),
+    }
+    (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
+    (out_dir / 'review.txt').write_text(review_text(summary))
+    _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp,
+           uncontrolled['disp'][:n])
+    return summary
+
+
+def review_text(s: dict) -> str:
+    """The review as text, in the layout of the seed's tables 5-9."""
+    inch = 0.0254
+    lines = [
+        f"RTHS review: {s['record']} x {s['scale']}, DTM {s['damper']}, {s['mode']}, "
+        f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)",
+        '',
+        'Table 5 layout: actuator time delay and relative RMS tracking error',
+        '                      before compensation   after compensation',
+        f"  time delay [ms]     {s['delay_ms_before']:>19.3f}   {s['delay_ms_after']:>18.3f}",
+        f"  rel. RMS error [%]  {s['tracking_rel_rms_pct_before']:>19.2f}   "
+        f"{s['tracking_rel_rms_pct_after']:>18.2f}",
+        '  (before: plant input -> output; after: interface displacement -> output)',
+        '',
+        'Tables 6-8 layout: 2nd-floor displacement',
+        '  model            max [m]      max [in]   red. [%]   RMS [m]      RMS [in]   red. [%]',
+        f"  uncontrolled     {s['uncontrolled_max_disp_2nd_m']:.4e}  "
+        f"{s['uncontrolled_max_disp_2nd_m'] / inch:8.4f}        -     "
+        f"{s['uncontrolled_rms_disp_2nd_m']:.4e}  {s['uncontrolled_rms_disp_2nd_m'] / inch:8.4f}"
+        '        -',
+        f"  RTHS ({s['damper']})".ljust(19) + f"{s['max_disp_2nd_m']:.4e}  "
+        f"{s['max_disp_2nd_m'] / inch:8.4f}   {s['reduction_max_pct']:7.1f}   "
+        f"{s['rms_disp_2nd_m']:.4e}  {s['rms_disp_2nd_m'] / inch:8.4f}   "
+        f"{s['reduction_rms_pct']:7.1f}",
+        '',
+        'Table 9 layout: RTHS vs whole-numerical reference',
+        f"  actuator time delay {s['delay_ms_after']:.3f} ms, relative RMS error "
+        f"{s['rths_vs_reference_rel_rms_pct']:.2f} %",
+        '',
+        f"deadline misses: {s['deadline_misses']} ({s['deadline_miss_pct']:.3f} %)",
+    ]
+    if s['safety_faults']:
+        lines.append('safety faults: ' + '; '.join(s['safety_faults']))
+    return '\n'.join(lines) + '\n'
+
+
+def print_review(summary: dict):
+    """Print the review text."""
+    print(review_text(summary), end='')
+
+
+def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from rths_compensator.indicators import frf_h1
+
+    t = np.arange(desired.size) / fs
+    fig, ax = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
+    ax[0].plot(t, unc_disp * 1e3, color='0.6', lw=0.8, label='uncontrolled (numerical)')
+    ax[0].plot(t, ref_disp * 1e3, lw=1.0, label='reference: building + DTMs (numerical)')
+    ax[0].plot(t, floor2 * 1e3, '--', lw=1.0, label='RTHS')
+    ax[0].set_ylabel('2nd-floor displacement [mm]')
+    ax[0].legend(loc='upper right', fontsize=8)
+    ax[1].plot(t, (floor2 - ref_disp) * 1e3, lw=0.8)
+    ax[1].set_ylabel('RTHS - reference [mm]')
+    ax[1].set_xlabel('time [s]')
+    fig.tight_layout()
+    fig.savefig(out_dir / 'time_history.png', dpi=110)
+    plt.close(fig)
+
+    k = int(np.argmax(np.abs(desired)))
+    lo, hi = max(0, k - int(ZOOM_S * fs / 2)), min(desired.size, k + int(ZOOM_S * fs / 2))
+    fig, ax = plt.subplots(figsize=(10, 4))
+    ax.plot(t[lo:hi], desired[lo:hi] * 1e3, label='interface displacement (desired)')
+    ax.plot(t[lo:hi], applied[lo:hi] * 1e3, lw=0.8, label='command (compensated)')
+    ax.plot(t[lo:hi], measured[lo:hi] * 1e3, '--', label='measured')
+    ax.set_xlabel('time [s]')
+    ax.set_ylabel('actuator displacement [mm]')
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out_dir / 'tracking_zoom.png', dpi=110)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    for x, label in ((applied, 'plant: command -> measured'),
+                     (desired, 'compensated: desired -> measured')):
+        f, h = frf_h1(x, measured, fs, int(min(x.size, 4 * round(fs))))
+        sel = (f > 0) & (f <= 30)
+        ax[0].plot(f[sel], 20 * np.log10(np.abs(h[sel])), label=label)
+        ax[1].plot(f[sel], np.degrees(np.angle(h[sel])), label=label)
+    ax[0].set_ylabel('magnitude [dB]')
+    ax[1].set_ylabel('phase [deg]')
+    ax[1].set_xlabel('frequency [Hz]')
+    ax[0].legend(fontsize=8)
+    ax[0].set_title('Measured FRF of the actuator (H1) during the RTHS')
+    fig.tight_layout()
+    fig.savefig(out_dir / 'bode_actuator.png', dpi=110)
+    plt.close(fig)

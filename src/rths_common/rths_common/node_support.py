@@ -7,7 +7,10 @@ reads them as one flat dict and hands it to the plain-Python core
 validates every key and reports bad ones by name.
 """
 
+import gc
+import os
 import signal
+import threading
 import time
 
 import rclpy
@@ -80,6 +83,70 @@ class StepClock:
         return period
 
 
+def parse_cpus(spec: str) -> set:
+    """CPU set of an affinity spec such as ``'1'``, ``'0,1'`` or ``'0-1'`` ('' = all CPUs)."""
+    cpus = set()
+    for part in str(spec).replace(' ', '').split(','):
+        if not part:
+            continue
+        lo, _, hi = part.partition('-')
+        try:
+            cpus.update(range(int(lo), int(hi or lo) + 1))
+        except ValueError:
+            raise ValueError(f'parameter cpus = {spec!r} is not a CPU list such as "1" or '
+                             '"0,1"') from None
+    return cpus
+
+
+#: Latency settings every loop node takes (realtime mode); see :func:`tune_process`.
+TUNING_PARAMS = {'rt_priority': 0, 'cpus': '', 'gc': 'default'}
+
+
+def tune_process(rt_priority: int = 0, cpus: str = '', gc_mode: str = 'default') -> str:
+    """Apply the latency settings of a loop process to every thread it has; describe them.
+
+    * ``rt_priority`` > 0: SCHED_FIFO at that priority for every thread of the
+      process (the DDS receive threads included: they deliver the messages).
+      Refused (no CAP_SYS_NICE, container without RT budget): the threads stay
+      SCHED_OTHER and the description says so; the run goes on.
+    * ``cpus``: CPU affinity (``'1'``, ``'0,1'``; '' = leave as is).
+    * ``gc_mode``: 'default' (leave the collector alone), 'freeze' (collect once,
+      then move every object created so far out of the collector's sight so
+      collections are short) or 'disable' (freeze and switch automatic
+      collection off: no collection pause can hit a step; the loop code creates
+      no reference cycles, so memory stays flat).
+
+    Call it after the node and its publishers/subscriptions exist (their threads
+    are created then) and again when the loop starts.
+    """
+    parts = []
+    tids = [int(t) for t in os.listdir('/proc/self/task')]
+    if cpus:
+        cpuset = parse_cpus(cpus)
+        try:
+            for tid in tids:
+                os.sched_setaffinity(tid, cpuset)
+            parts.append(f'cpus {sorted(cpuset)}')
+        except OSError as err:
+            parts.append(f'affinity {sorted(cpuset)} refused ({err})')
+    if rt_priority > 0:
+        try:
+            for tid in tids:
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(int(rt_priority)))
+            parts.append(f'SCHED_FIFO {int(rt_priority)} ({len(tids)} threads)')
+        except OSError as err:
+            parts.append(f'SCHED_OTHER (SCHED_FIFO {rt_priority} refused: {err})')
+    if gc_mode not in ('default', 'freeze', 'disable'):
+        raise ValueError(f"parameter gc = {gc_mode!r}: use 'default', 'freeze' or 'disable'")
+    if gc_mode in ('freeze', 'disable'):
+        gc.collect()
+        gc.freeze()
+        if gc_mode == 'disable':
+            gc.disable()
+    parts.append(f'gc {gc_mode}')
+    return ', '.join(parts)
+
+
 def status_msg(node_name: str, step: int, *, period_us=0.0, compute_us=0.0, latency_us=-1.0,
                missed=False, misses=0, safety_state=LoopStatus.SAFETY_OK, fault='') -> LoopStatus:
     """Build a LoopStatus message (arrays/strings set through the constructor, as is fastest)."""
@@ -123,6 +190,84 @@ def spin_until_done(node, executor, is_done=lambda: False, poll_s: float = 0.05)
             signal.signal(s, handler)
         executor.remove_node(node)
     return is_done()
+
+
+def spin_clocked(node, executor, next_due_ns, tick, is_done=lambda: False,
+                 poll_s: float = 0.05) -> bool:
+    """Spin ``node`` and call ``tick()`` whenever ``next_due_ns()`` (monotonic ns) is reached.
+
+    The realtime clock of the actuator bridge without a second thread: between
+    ticks the loop sits in ``executor.spin_once`` with a timeout that ends at the
+    next tick (callbacks, i.e. arriving commands, run meanwhile); when the tick
+    is due, events already queued are handled first (``spin_once(0)``) so a
+    command that arrived just before its tick is used.  ``next_due_ns()`` returns
+    None while there is nothing to tick.  Ends like :func:`spin_until_done`.
+    """
+    stop = {'signal': None}
+
+    def on_signal(signum, _frame):
+        stop['signal'] = signum
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+    executor.add_node(node)
+    try:
+        while stop['signal'] is None and rclpy.ok() and not is_done():
+            due = next_due_ns()
+            if due is None:
+                executor.spin_once(timeout_sec=poll_s)
+                continue
+            wait_ns = due - time.monotonic_ns()
+            if wait_ns > 0:
+                executor.spin_once(timeout_sec=min(wait_ns * 1e-9, poll_s))
+                continue
+            executor.spin_once(timeout_sec=0.0)
+            tick()
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        executor.remove_node(node)
+    return is_done()
+
+
+class TickThread:
+    """A dedicated clock thread: calls ``tick()`` at ``next_due_ns()`` (monotonic ns).
+
+    Sleeps with ``time.sleep`` (clock_nanosleep; no timer slack under
+    SCHED_FIFO) up to the due time; ``next_due_ns()`` None means idle (polls
+    every ``poll_s``).  ``tick`` runs in this thread, so it must only touch
+    state the executor thread hands over atomically (one attribute assignment).
+    """
+
+    def __init__(self, next_due_ns, tick, poll_s: float = 0.01):
+        self.next_due_ns = next_due_ns
+        self.tick = tick
+        self.poll_s = poll_s
+        self.running = True
+        self.error = None
+        self.thread = threading.Thread(target=self._run, name='rths-clock', daemon=True)
+
+    def start(self):
+        self.thread.start()
+        return self
+
+    def _run(self):
+        try:
+            while self.running:
+                due = self.next_due_ns()
+                if due is None:
+                    time.sleep(self.poll_s)
+                    continue
+                wait_ns = due - time.monotonic_ns()
+                if wait_ns > 0:
+                    time.sleep(wait_ns * 1e-9)
+                    continue
+                self.tick()
+        except Exception as err:  # noqa: BLE001 - reported by the owner after join()
+            self.error = err
+
+    def stop(self):
+        self.running = False
+        self.thread.join(timeout=2.0)
 
 
 def message_class(msgtype: str):

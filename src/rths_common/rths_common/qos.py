@@ -9,7 +9,11 @@ writer drops unacknowledged samples once its history is full: a reader that
 lags (the recorder, on a busy machine) must not lose steps.
 
 realtime: the newest sample is the only useful one; BEST_EFFORT, KEEP_LAST 1,
-VOLATILE avoids retransmissions and queues in the 1 kHz path.
+VOLATILE avoids retransmissions and queues in the 1 kHz path.  A sample that is
+lost or late is a deadline miss at the bridge (it extrapolates; see the bridge
+node); the recorder subscribes best-effort too and may lose samples when the
+machine is loaded (``rths bench loop`` measures that loss).  The status topic
+stays reliable in both modes: it is how misses are accounted for.
 """
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -49,3 +53,10 @@ def recorder_qos(mode: str) -> QoSProfile:
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                       reliability=ReliabilityPolicy.BEST_EFFORT,
                       durability=DurabilityPolicy.VOLATILE)
+
+
+def run_info_qos() -> QoSProfile:
+    """QoS of once-per-run facts (``/rths/run_steps``): reliable, latched for late joiners."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -8,6 +8,9 @@ COMMAND = '/rths/command'
 MEASUREMENT = '/rths/measurement'
 #: every node -> anyone (rths_msgs/msg/LoopStatus)
 STATUS = '/rths/status'
+#: numerical node -> actuator bridge: number of steps of the run (std_msgs/msg/UInt64,
+#: reliable, transient local); in realtime the bridge stops its clock after the last step
+RUN_STEPS = '/rths/run_steps'
 #: anyone -> actuator bridge: emergency stop (std_msgs/msg/String, the reason)
 EMERGENCY_STOP = '/rths/emergency_stop'
 #: service of the actuator bridge (rths_msgs/srv/EmergencyStop)

@@ -292,6 +292,11 @@ def cmd_bench_compensators(args) -> int:
     print(f'identified plant: ARX na={model.na} nb={model.nb} d={model.d}')
     print(f'wrote {args.out}')
     if args.plots:
+        import os
+        from .identification import save_plant
         for path in bench.make_plots(result, args.plots):
             print(f'wrote {path}')
+        path = save_plant(os.path.join(args.plots, 'plant.yaml'), model,
+                          result['_extra']['selection'])
+        print(f'wrote {path} (the identified plant, for rths design)')
     return 0

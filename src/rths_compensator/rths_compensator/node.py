@@ -8,6 +8,16 @@ displacements up to step k (one independent filter per interface DOF), with
 ``G = taps / denominator`` from the parameters file written by ``rths design``
 (layout: :mod:`rths_compensator.params`).  The math is in
 :class:`rths_compensator.filters.MultiChannelFilter`; this node only moves messages.
+
+Realtime mode (``mode: realtime``): best-effort KEEP_LAST 1 topics.  A lost
+interface displacement (step j arrives while k < j was expected) is a miss
+here: the filter is fed the last displacement (hold) for the missing steps so
+its delay line stays aligned with the step index, and the command of step j
+is published.  A repeated step 0 (the numerical node re-sends it until the
+loop runs) re-publishes command 0.  ``inject_drop_every`` = N > 0 drops the
+command of every N-th step (fault injection for tests of the bridge's
+deadline-miss policy).  Latency settings: ``rt_priority``, ``cpus``, ``gc``
+(:func:`rths_common.node_support.tune_process`).
 """
 
 import sys
@@ -21,7 +31,8 @@ from rths_common import topics
 from rths_common.qos import loop_qos, status_qos
 from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus
 
-NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events'}
+NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'inject_drop_every': 0,
+               **ns.TUNING_PARAMS}
 
 
 class CompensatorNode:
@@ -49,6 +60,13 @@ class CompensatorNode:
         self.clock = ns.StepClock()
         self.expected = 0
         self.rejected = 0
+        self.realtime = self.own['mode'] == 'realtime'
+        self.last_x = None
+        self.last_out = None
+        self.misses = 0
+        if self.realtime:
+            tuning = ns.tune_process(self.own['rt_priority'], self.own['cpus'], self.own['gc'])
+            self.log.info(f'realtime: {tuning}')
         self.log.info(f"compensator ready: scheme {self.params['scheme']}, "
                       f"{len(self.params['taps'])} taps, "
                       f"{len(self.params['denominator']) - 1} denominator order")
@@ -58,6 +76,9 @@ class CompensatorNode:
         from rths_compensator.filters import MultiChannelFilter
 
         t_in = ns.now_ns()
+        if self.realtime:
+            self.on_displacement_realtime(msg, t_in)
+            return
         if msg.step != self.expected:
             self.rejected += 1
             self.log.warning(f'interface displacement of step {msg.step} ignored: expected '
@@ -77,6 +98,43 @@ class CompensatorNode:
             'compensator', msg.step, period_us=self.clock.period_us(t_in), compute_us=compute_us,
             latency_us=(t_in - ns.stamp_ns(msg.header)) * 1e-3, misses=self.clock.misses))
         self.expected += 1
+
+
+    def on_displacement_realtime(self, msg: InterfaceDisplacement, t_in: int):
+        """Realtime: filter step j (holding over lost steps) and publish its command first."""
+        from rths_compensator.filters import MultiChannelFilter
+
+        step = msg.step
+        if step < self.expected:
+            if step == 0 and self.expected == 1 and self.last_out is not None:
+                self.pub.publish(self.last_out)  # step 0 re-sent: the loop has not started
+            else:
+                self.rejected += 1
+            return
+        t0 = time.perf_counter_ns()
+        x = np.asarray(msg.displacement, dtype=float)
+        if self.filter is None:
+            self.filter = MultiChannelFilter(self.params['taps'], self.params['denominator'],
+                                             n_channels=max(x.size, 1))
+        missed = step > self.expected
+        while self.expected < step:   # lost displacement(s): hold the last one
+            self.filter.step(x if self.last_x is None else self.last_x)
+            self.misses += 1
+            self.expected += 1
+        command = self.filter.step(x)
+        self.last_x = x
+        out = Command(step=step, command=command.tolist())
+        ns.stamp(out.header, ns.now_ns())
+        drop = self.own['inject_drop_every']
+        if not (drop > 0 and step > 0 and step % drop == 0):
+            self.pub.publish(out)
+        self.last_out = out
+        compute_us = (time.perf_counter_ns() - t0) * 1e-3
+        self.status_pub.publish(ns.status_msg(
+            'compensator', step, period_us=self.clock.period_us(t_in), compute_us=compute_us,
+            latency_us=(t_in - ns.stamp_ns(msg.header)) * 1e-3, missed=missed,
+            misses=self.misses))
+        self.expected = step + 1
 
 
 def main(argv=None):

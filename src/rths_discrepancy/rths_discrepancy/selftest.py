@@ -10,8 +10,10 @@ then white Gaussian noise is added to every measured channel (``noise`` x its
 standard deviation).
 
 Effect sizes at strength 1 (``strength=0.2`` divides them by five; for the
-velocity saturation the limit moves towards the peak velocity instead):
-see :func:`effect_size`.  Extra effects that are *not* in the library:
+velocity saturation the velocity deficit ``1 - v_sat / v_peak`` = 0.6 at full
+strength scales with ``sqrt(strength)``, 0.27 at one fifth, because with a
+deficit of 0.12 only one or two peaks per record reach the limit): see
+:func:`effect_size`.  Extra effects that are *not* in the library:
 ``_stribeck`` (Stribeck friction, the library has Coulomb only) and ``_lag``
 (a first-order lag of the measurement chain).
 """
@@ -50,7 +52,7 @@ def effect_size(scenario, name, strength, scales, model):
             'mass_error': 0.05 * model.m_d * s,                 # kg
             'backlash': 0.05 * scales['y_rms'] * s,             # m
             'time_delay': 0.005 * s,                            # s
-            'velocity_saturation': scales['v_max'] * (1.0 - 0.6 * s),  # m/s
+            'velocity_saturation': scales['v_max'] * (1.0 - 0.6 * s ** 0.5),  # m/s
             'sensor_bias': 0.1 * scales['y_rms'] * s,           # m
         }
     else:
@@ -62,7 +64,7 @@ def effect_size(scenario, name, strength, scales, model):
             'mass_error': 2e-5 * s,                             # s^2
             'backlash': 0.1 * scales['y_rms'] * s,              # m
             'time_delay': 0.002 * s,                            # s
-            'velocity_saturation': scales['v_max'] * (1.0 - 0.6 * s),  # m/s
+            'velocity_saturation': scales['v_max'] * (1.0 - 0.6 * s ** 0.5),  # m/s
             'sensor_bias': 0.1 * scales['y_rms'] * s,           # m
         }
     return table[name]
@@ -73,7 +75,8 @@ def make_record(scenario, hidden, seed, duration_s=DURATION_S, fs=FS_HZ, noise=N
     """Synthetic record with the ``hidden`` effects; return (data, true_params).
 
     ``hidden`` is a list of effect names (library names, '_stribeck', '_lag');
-    their sizes follow :func:`effect_size` at ``strength``.
+    their sizes follow :func:`effect_size` at ``strength``; an entry
+    '_noise:0.02' sets the relative noise level instead.
     """
     rng = np.random.default_rng(seed)
     model = model or models.default_model(scenario)
@@ -85,7 +88,9 @@ def make_record(scenario, hidden, seed, duration_s=DURATION_S, fs=FS_HZ, noise=N
               'v_max': float(np.max(np.abs(vel)))}
     truth = {}
     for name in hidden:
-        if name == '_stribeck':
+        if name.startswith('_noise:'):
+            noise = float(name.split(':')[1])
+        elif name == '_stribeck':
             fc = effect_size(scenario, 'coulomb_friction', strength, scales, model)
             truth['_stribeck'] = (fc, 1.6 * fc, 0.1 * scales['v_max'])
         elif name == '_lag':
@@ -116,6 +121,7 @@ def bench_cases(quick=False):
              ('viscous_damping_error', 'cubic_stiffness'), ('backlash', 'mass_error')]
     for sc in fx.SCENARIOS:
         cases.append((sc, 'control', [], 1.0, 'none'))
+        cases.append((sc, 'control(2% noise)', ['_noise:0.02'], 1.0, 'none'))
         for name in fx.EFFECT_NAMES:
             cases.append((sc, name, [name], 1.0, name))
             if not quick:

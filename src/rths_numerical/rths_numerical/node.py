@@ -12,6 +12,19 @@ the machine allows.  The node waits until ``wait_for_subscribers`` readers
 (compensator, recorder) have matched its publisher, publishes step 0, and
 exits with code 0 after the last step.  With ``history_out`` set it saves the
 substructure's history (``NumericalSubstructure.history()``) as .npz.
+
+Realtime mode (``mode: realtime``): the actuator bridge is the clock.  The node
+publishes the number of steps on ``/rths/run_steps`` (latched) and step 0 once
+the graph is connected (again every 0.1 s until the first measurement comes
+back: best-effort samples sent before discovery settles can be lost); then it
+computes step k+1 as soon as measurement k arrives.  A measurement that never
+arrives (best-effort loss) is a deadline miss here: when measurement j > k
+arrives the node advances the missing steps with the newest force (hold),
+flags them in its status and goes on.  Stale measurements (j < k) are
+dropped.  After the last step it exits 0 as in lock-step, which ends the run.
+Latency settings (``rt_priority``, ``cpus``, ``gc``) are those of
+:func:`rths_common.node_support.tune_process`; ``timing_out`` saves per-step
+publish/receipt times for ``rths bench loop``.
 """
 
 import sys
@@ -19,15 +32,16 @@ import time
 
 import numpy as np
 import rclpy
+from std_msgs.msg import UInt64
 
 from rths_common import node_support as ns
 from rths_common import topics
-from rths_common.qos import loop_qos, status_qos
+from rths_common.qos import loop_qos, run_info_qos, status_qos
 from rths_msgs.msg import InterfaceDisplacement, LoopStatus, Measurement
 
 #: Parameters of the node itself; every other parameter goes to make_substructure().
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
-               'history_out': ''}
+               'history_out': '', 'timing_out': '', **ns.TUNING_PARAMS}
 
 
 class NumericalNode:
@@ -41,10 +55,10 @@ class NumericalNode:
         own = {k: ns.param(params, k, v) for k, v in NODE_PARAMS.items()}
         for key in NODE_PARAMS:
             params.pop(key, None)
-        if own['mode'] != 'lockstep':
-            raise ValueError(f"numerical node: mode {own['mode']!r} is not available yet; "
-                             "use mode: lockstep")
+        if own['mode'] not in ('lockstep', 'realtime'):
+            raise ValueError(f"numerical node: mode {own['mode']!r}: use lockstep or realtime")
         self.own = own
+        self.realtime = own['mode'] == 'realtime'
         self.sub = make_substructure(params)
         self.log = self.node.get_logger()
         qos = loop_qos(own['mode'])
@@ -59,6 +73,16 @@ class NumericalNode:
         self.failed = False
         self.t_start = None
         self.progress_steps = max(1, int(round(1.0 / self.sub.dt)))  # every simulated second
+        self.stale = 0
+        self.last_force = None
+        self.last_publish = 0.0
+        self.timing = {'pub_step': [], 'pub_wall_ns': [], 'recv_step': [], 'recv_wall_ns': []}
+        self.cpu_loop = None
+        if self.realtime:
+            self.steps_pub = self.node.create_publisher(UInt64, topics.RUN_STEPS, run_info_qos())
+            self.steps_pub.publish(UInt64(data=self.sub.n_steps))
+            tuning = ns.tune_process(own['rt_priority'], own['cpus'], own['gc'])
+            self.log.info(f'realtime: {tuning}')
         self.start_timer = self.node.create_timer(0.05, self.try_start)
         self.log.info(f'numerical substructure ready: {self.sub.n_steps} steps at '
                       f'{1.0 / self.sub.dt:g} Hz, {self.sub.n_interface} interface DOF(s); '
@@ -66,12 +90,21 @@ class NumericalNode:
 
     def publish(self, step: int, displacement):
         msg = InterfaceDisplacement(step=step, displacement=[float(x) for x in displacement])
-        ns.stamp(msg.header, ns.now_ns())
+        t_ns = ns.now_ns()
+        ns.stamp(msg.header, t_ns)
         self.pub.publish(msg)
+        if self.realtime:
+            self.timing['pub_step'].append(step)
+            self.timing['pub_wall_ns'].append(t_ns)
 
     def try_start(self):
-        """Publish step 0 once the graph is connected."""
+        """Publish step 0 once the graph is connected (realtime: until the loop runs)."""
         if self.started:
+            if self.realtime and self.expected == 0 and time.monotonic() - self.last_publish > 0.1:
+                self.last_publish = time.monotonic()
+                self.publish(0, self.first)
+            elif self.expected > 0:
+                self.start_timer.cancel()
             return
         # Every loop topic must reach its consumer (and the recorder, if any) before step 0:
         # a reader that matches late would otherwise miss the first steps.
@@ -82,15 +115,23 @@ class NumericalNode:
                 or self.node.count_publishers(topics.MEASUREMENT) < 1
                 or self.node.count_publishers(topics.COMMAND) < 1):
             return
+        if self.realtime and self.node.count_subscribers(topics.RUN_STEPS) < 1:
+            return
         self.started = True
-        self.start_timer.cancel()
+        if not self.realtime:
+            self.start_timer.cancel()
         self.t_start = time.monotonic()
         self.log.info('graph connected: publishing step 0')
-        self.publish(0, self.sub.first_displacement())
+        self.first = self.sub.first_displacement()
+        self.last_publish = time.monotonic()
+        self.publish(0, self.first)
 
     def on_measurement(self, msg: Measurement):
         """Finish step k with its measured force and publish step k+1."""
         t_in = ns.now_ns()
+        if self.realtime:
+            self.on_measurement_realtime(msg, t_in)
+            return
         if msg.step != self.expected:
             self.rejected += 1
             self.log.warning(f'measurement of step {msg.step} ignored: expected step '
@@ -119,11 +160,76 @@ class NumericalNode:
             return
         self.publish(self.expected, displacement)
 
+    def on_measurement_realtime(self, msg: Measurement, t_in: int):
+        """Realtime: finish step k (holding the force over lost measurements), publish k+1."""
+        if self.finished:
+            return
+        if msg.step < self.expected:
+            self.stale += 1
+            return
+        if self.cpu_loop is None:
+            self.cpu_loop = [time.process_time(), None]
+        self.timing['recv_step'].append(msg.step)
+        self.timing['recv_wall_ns'].append(t_in)
+        force = np.asarray(msg.force, dtype=float)
+        if force.shape != (self.sub.n_interface,) or not np.all(np.isfinite(force)):
+            self.log.error(f'step {msg.step}: measured force {list(msg.force)} is not '
+                           f'{self.sub.n_interface} finite value(s); stopping the run')
+            self.finished = True
+            self.failed = True
+            return
+        period_us = self.clock.period_us(t_in)
+        latency_us = (t_in - ns.stamp_ns(msg.header)) * 1e-3
+        while self.expected < msg.step and not self.sub.done():
+            # measurement lost: hold the newest force over the missing step
+            self.clock.misses += 1
+            self.sub.advance(force if self.last_force is None else self.last_force)
+            self.status_pub.publish(ns.status_msg(
+                'numerical', self.expected, period_us=period_us, missed=True,
+                misses=self.clock.misses))
+            self.expected += 1
+        if self.sub.done():
+            self.finish()
+            return
+        t0 = time.perf_counter_ns()
+        displacement = self.sub.advance(force)
+        compute_us = (time.perf_counter_ns() - t0) * 1e-3
+        self.last_force = force
+        self.expected += 1
+        if not self.sub.done():
+            self.publish(self.expected, displacement)
+        self.status_pub.publish(ns.status_msg(
+            'numerical', msg.step, period_us=period_us, compute_us=compute_us,
+            latency_us=latency_us, misses=self.clock.misses))
+        if self.expected % self.progress_steps == 0:
+            self.log.info(f'progress: step {self.expected} of {self.sub.n_steps} '
+                          f'({self.expected * self.sub.dt:.1f} s simulated)')
+        if self.sub.done():
+            self.finish()
+
+    def finish(self):
+        self.finished = True
+        if self.cpu_loop is not None:
+            self.cpu_loop[1] = time.process_time()
+
+    def save_timing(self):
+        """Write per-step publish/receipt times (``timing_out``) for the loop benchmark."""
+        path = self.own['timing_out']
+        if path:
+            cpu = self.cpu_loop or [0.0, 0.0]
+            np.savez(path, **{k: np.asarray(v, dtype=np.int64) for k, v in self.timing.items()},
+                     misses=self.clock.misses, stale=self.stale,
+                     cpu_loop_s=(cpu[1] or time.process_time()) - cpu[0])
+
     def summary(self) -> str:
         wall = time.monotonic() - self.t_start if self.t_start else 0.0
         rate = self.expected / wall if wall > 0 else 0.0
-        return (f'numerical: {self.expected} of {self.sub.n_steps} steps in {wall:.2f} s '
+        text = (f'numerical: {self.expected} of {self.sub.n_steps} steps in {wall:.2f} s '
                 f'({rate:.0f} steps/s), {self.rejected} measurement(s) rejected')
+        if self.realtime:
+            text += (f', {self.clock.misses} measurement(s) missed (force held), '
+                     f'{self.stale} stale')
+        return text
 
     def save_history(self):
         path = self.own['history_out']
@@ -143,6 +249,7 @@ def main(argv=None):
         ns.flush([shell.pub, shell.status_pub])
         shell.log.info(shell.summary())
         shell.save_history()
+        shell.save_timing()
         if shell.failed:
             code = 1
         elif not done:

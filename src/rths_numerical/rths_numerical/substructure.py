@@ -229,9 +229,16 @@ def build_model(params) -> LinearModel:
 
 
 def make_substructure(params: dict) -> NumericalSubstructure:
-    """Build a :class:`NumericalSubstructure` from the flat parameter dict (module docstring)."""
+    """Build a :class:`NumericalSubstructure` from the flat parameter dict (module docstring).
+
+    ``model: excitation`` returns a :class:`~.excitation.PrescribedExcitation`
+    instead (the identification run: a BLWN interface displacement).
+    """
     params = {k: v for k, v in dict(params).items()
               if v is not None and k not in ROS_KEYS and not k.startswith('qos_overrides')}
+    if params.get('model') == 'excitation':
+        from .excitation import make_excitation
+        return make_excitation(params)
     if params.get('interface_dofs') is not None and len(np.atleast_1d(
             params['interface_dofs'])) == 0:
         params.pop('interface_dofs')  # ROS cannot express "unset" for a list

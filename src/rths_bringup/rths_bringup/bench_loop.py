@@ -1,0 +1,310 @@
+"""``rths bench loop``: the realtime loop of the three node processes, measured.
+
+Runs the numerical node, the compensator and the actuator bridge (simulated
+plant) as separate processes through the launcher, in realtime mode at
+``--rate`` Hz for ``--duration`` s, from a config generated into a temporary
+directory, recording a bag; then reads the nodes' timing files and the bag
+and writes JSON:
+
+* ``rate_hz``, ``steps`` (bridge ticks of the run), ``deadline_miss_pct``
+  (ticks whose command had not arrived, per the bridge);
+* ``latency_us_p50/p99/max``: numerical-command-to-bridge latency, from the
+  numerical node's publish stamp of step k (InterfaceDisplacement) to the
+  bridge's receipt of command k (late commands included, lost ones counted
+  apart); ``use_latency_us_*`` to the tick that used it; ``loop_us_*`` the
+  round trip from tick k's measurement to the receipt of command k+1 (must be
+  below one period); ``tick_late_us_*`` the clock's jitter;
+* ``cpu_pct``: CPU time of the three node processes over the run's wall time
+  (100 = one core; the machine has ``nproc`` cores), per node in
+  ``cpu_pct_per_node`` (recorder included);
+* ``recorder_loss``: per loop topic, steps of the run missing from the bag
+  (the recorder subscribes best-effort in realtime), and the consistency of
+  the bridge's status accounting with the bag;
+* machine info: ``nproc``, ``cpu_model``, load average before and after.
+
+``--find-max`` steps the rate up (1024, 1536, 2048, ...) and reports the
+highest rate with at most 0.1 % deadline misses.
+"""
+
+import json
+import os
+from pathlib import Path
+import platform
+import tempfile
+import time
+
+import numpy as np
+
+MISS_TARGET_PCT = 0.1
+FIND_MAX_RATES = (1024, 1536, 2048, 2560, 3072, 4096)
+
+
+def register(commands, benches):
+    """Add ``rths bench loop``."""
+    p = benches.add_parser(
+        'loop', help='realtime loop of the three node processes: deadline misses, latency, CPU',
+        description='Run the three nodes (simulated plant) in realtime mode through the '
+                    'launcher and measure deadline misses, numerical-to-bridge latency, clock '
+                    'jitter, CPU and recorder loss; write JSON to --out.')
+    p.add_argument('--rate', type=float, default=1024.0, help='loop rate [Hz] (default 1024)')
+    p.add_argument('--duration', type=float, default=10.0, help='run length [s] (default 10)')
+    p.add_argument('--out', default=None, help='JSON file to write')
+    p.add_argument('--taps', type=int, default=400, help='FIR taps of the compensator '
+                   '(default 400, as designed in section 6.1)')
+    p.add_argument('--model', default='building2story', help='numerical model: sdof or '
+                   'building2story (default)')
+    p.add_argument('--clock', default='loop', choices=('loop', 'thread', 'timer'),
+                   help="the bridge's clock (default loop)")
+    p.add_argument('--executor', default='events', choices=('events', 'single'),
+                   help='executor of the three nodes (default events)')
+    p.add_argument('--priority', type=int, default=80, help='SCHED_FIFO priority of the '
+                   'bridge; the compensator and numerical node get 1 less (0 = normal '
+                   'scheduling; default 80)')
+    p.add_argument('--cpus', default='', help="CPU affinity of the loop nodes: '' (none, "
+                   "default), one list for all ('1') or three 'bridge/compensator/numerical' "
+                   "('1/0/0')")
+    p.add_argument('--gc', default='freeze', choices=('default', 'freeze', 'disable'),
+                   help='garbage-collector handling in the loop nodes (default freeze)')
+    p.add_argument('--no-bag', action='store_true', help='do not record (no recorder process)')
+    p.add_argument('--find-max', action='store_true', help='step the rate up from 1024 Hz '
+                   'and report the highest with <= 0.1 %% deadline misses')
+    p.add_argument('--keep', default=None, help='keep config, bag and timing files here')
+    p.set_defaults(func=cmd_bench_loop)
+
+
+def write_config(directory, rate_hz=1024.0, duration_s=10.0, taps=400, model='building2story',
+                 clock='loop', executor='events', priority=0, cpus='', gc_mode='default',
+                 drop_every=0, record='harmonic') -> Path:
+    """Write bridge/compensator/numerical.yaml of a realtime run (simulated plant) to ``directory``.
+
+    The compensator is a ``taps``-tap FIR with the cost of a designed one and
+    the effect of a pure gain of 1 (first tap 1, the others 0), so every rate
+    runs the same stable loop.  ``cpus`` is one affinity list for all nodes or
+    three separated by '/' (bridge/compensator/numerical).
+    """
+    import yaml
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    parts = str(cpus).split('/') if cpus else ['']
+    if len(parts) not in (1, 3):
+        raise ValueError(f"--cpus {cpus!r}: give one CPU list or three separated by '/'")
+    cpu_of = dict(zip(('bridge', 'compensator', 'numerical'), parts * 3 if len(parts) == 1
+                      else parts))
+    prio_of = {'bridge': priority, 'compensator': max(priority - 1, 0) if priority else 0,
+               'numerical': max(priority - 1, 0) if priority else 0}
+
+    def tuning(name):
+        return {'mode': 'realtime', 'executor': executor, 'rt_priority': int(prio_of[name]),
+                'cpus': cpu_of[name], 'gc': gc_mode}
+
+    bridge = dict(tuning('bridge'), clock=clock, backend='simulated', fs_hz=float(rate_hz),
+                  actuator_model='3pole', dtm='valve4', seed=1)
+    compensator = dict(tuning('compensator'), scheme='wls', fs_hz=float(rate_hz),
+                       taps=[1.0] + [0.0] * (int(taps) - 1), denominator=[1.0],
+                       inject_drop_every=int(drop_every))
+    numerical = dict(tuning('numerical'), model=model, integrator='cr', fs_hz=float(rate_hz),
+                     duration_s=float(duration_s), record=record, scale=0.05)
+    if model == 'sdof':
+        numerical.update(sdof_mass_kg=1000.0, sdof_freq_hz=2.81, sdof_zeta=0.042)
+    for name, params in (('bridge', bridge), ('compensator', compensator),
+                         ('numerical', numerical)):
+        (directory / f'{name}.yaml').write_text(
+            yaml.safe_dump({name: {'ros__parameters': params}}, sort_keys=False))
+    return directory
+
+
+def _pct(values, q):
+    values = np.asarray(values, dtype=float)
+    return round(float(np.percentile(values, q)), 1) if values.size else None
+
+
+def _stats(prefix, values_us) -> dict:
+    values = np.asarray(values_us, dtype=float)
+    return {f'{prefix}_p50': _pct(values, 50), f'{prefix}_p99': _pct(values, 99),
+            f'{prefix}_max': round(float(values.max()), 1) if values.size else None}
+
+
+def machine_info() -> dict:
+    """nproc, CPU model, kernel and load average."""
+    model = platform.processor() or ''
+    try:
+        for line in Path('/proc/cpuinfo').read_text().splitlines():
+            if line.startswith('model name'):
+                model = line.split(':', 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {'nproc': os.cpu_count(), 'cpu_model': model, 'kernel': platform.release(),
+            'loadavg': [round(x, 2) for x in os.getloadavg()]}
+
+
+def analyse(bridge_npz, numerical_npz, cpu_samples=(), bag=None, rate_hz=None) -> dict:
+    """The benchmark's numbers from the nodes' timing files, the CPU samples and the bag."""
+    br = np.load(bridge_npz)
+    nu = np.load(numerical_npz)
+    period_ns = int(br['period_ns'])
+    ticks = br['tick_step']
+    missed = br['missed'].astype(bool)
+    steps = int(ticks.size)
+    misses = int(missed.sum())
+    # numerical publish stamp of step k -> bridge receipt of command k (first receipt)
+    pub = dict(zip(nu['pub_step'].tolist(), nu['pub_wall_ns'].tolist()))
+    recv = {}
+    for step, t_ns in zip(br['recv_step'].tolist(), br['recv_wall_ns'].tolist()):
+        recv.setdefault(step, t_ns)
+    tick_wall = dict(zip(ticks.tolist(), br['tick_wall_ns'].tolist()))
+    latency = [(recv[k] - pub[k]) * 1e-3 for k in pub if k in recv and k > 0]
+    lost = sum(1 for k in pub if k not in recv and k < steps)
+    use = [(tick_wall[k] - pub[k]) * 1e-3 for k, m in zip(ticks.tolist(), missed.tolist())
+           if not m and k in pub and k > 0]
+    loop = [(recv[k + 1] - tick_wall[k]) * 1e-3 for k in tick_wall if k + 1 in recv]
+    out = {
+        'rate_hz': float(rate_hz) if rate_hz else 1e9 / period_ns,
+        'steps': steps,
+        'deadline_misses': misses,
+        'deadline_miss_pct': round(100.0 * misses / steps, 4) if steps else None,
+        **_stats('latency_us', latency),
+        'commands_lost': lost,
+        'commands_late': int(br['late']),
+        'clock_overruns': int(br['overruns']),
+        **_stats('use_latency_us', use),
+        **_stats('loop_us', loop),
+        'period_us': period_ns * 1e-3,
+        **_stats('tick_late_us', br['tick_late_ns'] * 1e-3),
+        'numerical_measurements_missed': int(nu['misses']),
+    }
+    out.update(_cpu(cpu_samples, tick_wall))
+    if bag is not None:
+        out['bag'] = bag_check(bag, steps, missed)
+    return out
+
+
+def _cpu(samples, tick_wall) -> dict:
+    """CPU % of each process between the first and last CPU sample inside the run."""
+    if not tick_wall:
+        return {}
+    t_first, t_last = min(tick_wall.values()), max(tick_wall.values())
+    inside = [(t, cpu) for t, cpu in samples if t_first <= t <= t_last]
+    if len(inside) < 2:
+        return {'cpu_pct': None}
+    (ta, a), (tb, b) = inside[0], inside[-1]
+    wall = (tb - ta) * 1e-9
+    per = {name: round(100.0 * (b[name] - a[name]) / wall, 1) for name in b
+           if a.get(name) is not None and b[name] is not None}
+    loop_nodes = [per[n] for n in ('bridge', 'compensator', 'numerical') if n in per]
+    return {'cpu_pct': round(sum(loop_nodes), 1), 'cpu_pct_per_node': per,
+            'cpu_window_s': round(wall, 2)}
+
+
+def bag_check(bag, steps, missed) -> dict:
+    """Recorder loss per loop topic and the bridge status accounting against the bag."""
+    from rths_bringup import bagio
+    from rths_common import topics
+
+    seen = {topics.INTERFACE_DISPLACEMENT: set(), topics.COMMAND: set(),
+            topics.MEASUREMENT: set()}
+    bridge_status = {}
+    for topic, _, msg in bagio.read_messages(bag, list(seen) + [topics.STATUS]):
+        if topic == topics.STATUS:
+            if msg.node == 'bridge':
+                bridge_status[msg.step] = (bool(msg.deadline_missed), int(msg.deadline_misses))
+            continue
+        seen[topic].add(int(msg.step))
+    run = set(range(steps))
+    loss = {topic: len(run - got) for topic, got in seen.items()}
+    # the compensator publishes every step the numerical node publishes; missed commands are
+    # not in the bag either: the recorder loss of /rths/command counts only steps that were sent
+    flags = [bridge_status[k][0] for k in sorted(bridge_status) if k < steps]
+    final = max((v[1] for v in bridge_status.values()), default=0)
+    return {'recorder_loss': loss,
+            'recorder_loss_pct': {t: round(100.0 * n / steps, 3) if steps else None
+                                  for t, n in loss.items()},
+            'bridge_status_steps': len(flags),
+            'bridge_status_missed_flags': int(sum(flags)),
+            'bridge_status_final_misses': final,
+            'status_matches_bridge': bool(sum(flags) == final == int(np.sum(missed)))}
+
+
+def run_once(rate_hz, duration_s, args, workdir: Path, log) -> dict:
+    """One benchmark run at ``rate_hz``; return its result dict."""
+    from rths_bringup.launcher import Launcher
+
+    workdir.mkdir(parents=True, exist_ok=True)
+    config = write_config(workdir / 'config', rate_hz, duration_s, args.taps, args.model,
+                          args.clock, args.executor, args.priority, args.cpus, args.gc)
+    bag = None if args.no_bag else workdir / 'bag'
+    timing = {name: (workdir / f'{name}_timing.npz').resolve()
+              for name in ('bridge', 'numerical')}
+    overrides = {name: {'timing_out': str(path)} for name, path in timing.items()}
+    load_before = [round(x, 2) for x in os.getloadavg()]
+    launcher = Launcher(config, bag=bag, overrides=overrides, out=log,
+                        timeout_s=duration_s * 3 + 120)
+    t0 = time.monotonic()
+    code = launcher.run()
+    wall = time.monotonic() - t0
+    if code != 0 or not all(p.exists() for p in timing.values()):
+        raise OSError(f'the {rate_hz:g} Hz run failed (launcher exit {code}); '
+                      f'see {getattr(log, "name", "the log")}')
+    result = analyse(timing['bridge'], timing['numerical'], launcher.cpu_samples, bag, rate_hz)
+    result.update(duration_s=duration_s, taps=args.taps, model=args.model, clock=args.clock,
+                  executor=args.executor, rt_priority=args.priority, cpus=args.cpus,
+                  gc=args.gc, recorded=bag is not None, wall_s=round(wall, 1),
+                  loadavg_before=load_before,
+                  loadavg_after=[round(x, 2) for x in os.getloadavg()])
+    result['meets_targets'] = bool(result['deadline_miss_pct'] is not None
+                                   and result['deadline_miss_pct'] <= MISS_TARGET_PCT
+                                   and result['latency_us_p99'] is not None
+                                   and result['latency_us_p99'] < 1e6 / rate_hz)
+    return result
+
+
+def print_result(r: dict):
+    print(f"{r['rate_hz']:g} Hz x {r['duration_s']:g} s: {r['steps']} steps, "
+          f"deadline misses {r['deadline_misses']} ({r['deadline_miss_pct']} %), latency "
+          f"p50/p99/max {r['latency_us_p50']}/{r['latency_us_p99']}/{r['latency_us_max']} us, "
+          f"loop p99 {r['loop_us_p99']} us, tick late p99 {r['tick_late_us_p99']} us, "
+          f"cpu {r.get('cpu_pct')} %, load {r['loadavg_before']}", flush=True)
+    if 'bag' in r:
+        print(f"  recorder loss {r['bag']['recorder_loss']}, status accounting "
+              f"{'consistent' if r['bag']['status_matches_bridge'] else 'INCONSISTENT'}",
+              flush=True)
+
+
+def cmd_bench_loop(args) -> int:
+    if not args.rate > 0 or not args.duration > 0:
+        raise ValueError('--rate and --duration must be > 0')
+    keep = Path(args.keep) if args.keep else None
+    with tempfile.TemporaryDirectory(prefix='rths-bench-loop-') as tmp:
+        base = keep or Path(tmp)
+        base.mkdir(parents=True, exist_ok=True)
+        log_path = base / 'launch.log'
+        print(f'rths bench loop: node logs in {log_path}' if keep else
+              'rths bench loop: (use --keep DIR to keep logs, bag and timing files)', flush=True)
+        report = {'machine': machine_info()}
+        with open(log_path, 'w') as log:
+            if args.find_max:
+                runs = []
+                best = None
+                for rate in FIND_MAX_RATES:
+                    r = run_once(rate, args.duration, args, base / f'rate{rate}', log)
+                    print_result(r)
+                    runs.append(r)
+                    if r['deadline_miss_pct'] > MISS_TARGET_PCT:
+                        break
+                    best = rate
+                report.update(runs[0] if runs else {})
+                report['runs'] = runs
+                report['max_rate_hz'] = best
+                print(f'highest rate with <= {MISS_TARGET_PCT} % deadline misses: {best} Hz')
+            else:
+                r = run_once(args.rate, args.duration, args, base / 'run', log)
+                print_result(r)
+                report.update(r)
+        report['machine']['loadavg_end'] = [round(x, 2) for x in os.getloadavg()]
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps(report, indent=2))
+        print(f'wrote {args.out}')
+    return 0
+

@@ -1,0 +1,64 @@
+"""Run information: the parameters of a run, kept in its bag so the review needs only the bag.
+
+The recorder stores every parameter it is given as the bag's run information
+(rosbag2 ``custom_data`` and a side file, :mod:`.bagio`).  Keys are
+``fs_hz``, ``mode``, ``kind`` (``identification`` or ``rths``) and the
+numerical and bridge parameters prefixed with ``numerical.`` / ``bridge.``.
+Values are strings in the bag; :func:`section` parses them back with YAML.
+"""
+
+from pathlib import Path
+
+import yaml
+
+#: Parameters that are not worth keeping in run information (long arrays, node plumbing).
+SKIP = {'taps', 'denominator', 'history_out', 'executor', 'wait_for_subscribers'}
+
+
+def load_params(path, node: str) -> dict:
+    """The ``ros__parameters`` of ``node`` in a ROS 2 params file (ValueError names the file)."""
+    path = Path(path)
+    if not path.is_file():
+        raise OSError(f'params file {path} not found')
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as err:
+        raise ValueError(f'{path}: not valid YAML ({err})') from None
+    try:
+        params = doc[node]['ros__parameters']
+    except (TypeError, KeyError):
+        raise ValueError(f"{path}: expected '{node}:' then 'ros__parameters:' at the top") from None
+    if not isinstance(params, dict):
+        raise ValueError(f'{path}: {node}.ros__parameters must be a mapping')
+    return dict(params)
+
+
+def write_params(path, node: str, params: dict) -> Path:
+    """Write a ROS 2 params file for ``node`` (floats stay floats, lists stay flow-style)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = yaml.safe_dump({node: {'ros__parameters': params}}, default_flow_style=None,
+                          sort_keys=False, width=100)
+    path.write_text(text)
+    return path
+
+
+def flatten(kind: str, fs_hz: float, mode: str, sections: dict) -> dict:
+    """Run information for the recorder: ``{'numerical.model': 'sdof', ...}`` as strings."""
+    info = {'kind': kind, 'fs_hz': repr(float(fs_hz)), 'mode': mode}
+    for name, params in sections.items():
+        for key, value in params.items():
+            if key not in SKIP:
+                text = yaml.safe_dump(value, default_flow_style=True).strip()
+                info[f'{name}.{key}'] = text.removesuffix('\n...')  # scalar document end
+    return info
+
+
+def section(info: dict, name: str) -> dict:
+    """Parameters of one node back from run information (values parsed with YAML)."""
+    prefix = f'{name}.'
+    out = {}
+    for key, value in info.items():
+        if key.startswith(prefix):
+            out[key[len(prefix):]] = yaml.safe_load(value) if isinstance(value, str) else value
+    return out

@@ -1,0 +1,103 @@
+"""CausalFilter / MultiChannelFilter against scipy.signal.lfilter; the parameters file."""
+
+import numpy as np
+import pytest
+import yaml
+from scipy import signal
+
+from rths_compensator.filters import CausalFilter, MultiChannelFilter
+from rths_compensator.params import (identity_params, load_compensator_params,
+                                     write_compensator_params)
+
+
+@pytest.mark.parametrize('nb, den', [(1, [1.0]), (400, [1.0]), (7, [2.0, -0.9, 0.2]),
+                                     (3, [1.0, -1.2, 0.5, -0.1])])
+def test_causal_filter_equals_lfilter(nb, den):
+    rng = np.random.default_rng(nb)
+    taps = rng.standard_normal(nb)
+    x = rng.standard_normal(3000)
+    ref = signal.lfilter(taps, den, x)
+    filt = CausalFilter(taps, den)
+    out = filt.apply(x)
+    assert np.max(np.abs(out - ref)) <= 1e-12 * max(1.0, np.max(np.abs(ref)))
+    filt.reset()
+    step = np.array([filt.step(v) for v in x[:50]])
+    np.testing.assert_allclose(step, ref[:50], rtol=0, atol=1e-12 * np.max(np.abs(ref)))
+
+
+def test_multichannel_equals_lfilter_per_channel():
+    rng = np.random.default_rng(3)
+    taps, den = rng.standard_normal(9), [1.0, -0.5, 0.06]
+    x = rng.standard_normal((500, 3))
+    filt = MultiChannelFilter(taps, den, 3)
+    out = np.array([filt.step(row) for row in x])
+    np.testing.assert_allclose(out, signal.lfilter(taps, den, x, axis=0), atol=1e-12)
+    with pytest.raises(ValueError):
+        filt.step(np.zeros(2))
+
+
+def test_filter_rejects_bad_coefficients():
+    with pytest.raises(ValueError):
+        CausalFilter([])
+    with pytest.raises(ValueError):
+        CausalFilter([1.0, np.nan])
+    with pytest.raises(ValueError):
+        CausalFilter([1.0], [0.0, 1.0])
+
+
+def test_params_roundtrip_and_float_format(tmp_path):
+    path = tmp_path / 'compensator.yaml'
+    write_compensator_params(path, [1, 2, 3], [1, -0.5], 1024, 'wls',
+                             {'plant': 'plant.yaml', 'n_taps': 3, 'fc_hz': 64.0})
+    text = path.read_text()
+    doc = yaml.safe_load(text)
+    taps_line = [ln for ln in text.splitlines() if ln.strip().startswith('taps:')][0]
+    assert all(('.' in v or 'e' in v) for v in taps_line.split('[')[1].rstrip(']').split(','))
+    params = doc['compensator']['ros__parameters']
+    assert params['scheme'] == 'wls' and params['n_taps'] == 3
+    loaded = load_compensator_params(path)
+    assert loaded['taps'] == [1.0, 2.0, 3.0] and loaded['denominator'] == [1.0, -0.5]
+    assert 'created' in loaded
+
+
+@pytest.mark.parametrize('taps, den, fs, scheme, field', [
+    ([], [1.0], 1024, 'ls', 'taps'), ([np.inf], [1.0], 1024, 'ls', 'taps'),
+    ([1.0], [1.0, -1.5], 1024, 'ls', 'unstable'), ([1.0], [0.0], 1024, 'ls', 'a0'),
+    ([1.0], [1.0], 0.0, 'ls', 'fs_hz'), ([1.0], [1.0], 1024, 'magic', 'scheme')])
+def test_params_write_refuses_invalid(tmp_path, taps, den, fs, scheme, field):
+    path = tmp_path / 'c.yaml'
+    with pytest.raises(ValueError, match=field):
+        write_compensator_params(path, taps, den, fs, scheme, {})
+    assert not path.exists()
+
+
+def test_params_load_errors_name_the_problem(tmp_path):
+    with pytest.raises(OSError):
+        load_compensator_params(tmp_path / 'missing.yaml')
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('other: {}\n')
+    with pytest.raises(ValueError, match='compensator'):
+        load_compensator_params(bad)
+    bad.write_text('compensator:\n  ros__parameters:\n    scheme: ls\n    fs_hz: 1024.0\n')
+    with pytest.raises(ValueError, match='taps'):
+        load_compensator_params(bad)
+
+
+def test_identity_params_is_unit_filter():
+    p = identity_params(512.0)
+    assert p['taps'] == [1.0] and p['fs_hz'] == 512.0
+    filt = CausalFilter(p['taps'], p['denominator'])
+    assert filt.step(0.25) == 0.25
+
+
+def test_node_filter_from_yaml_equals_offline_filter(tmp_path):
+    """The node path (load YAML -> CausalFilter.step) equals the offline lfilter design."""
+    rng = np.random.default_rng(5)
+    taps, den = rng.standard_normal(120) * 1e-2, [1.0, -0.3]
+    path = tmp_path / 'comp.yaml'
+    write_compensator_params(path, taps, den, 1024.0, 'ls', {'n_taps': 120})
+    params = load_compensator_params(path)
+    filt = MultiChannelFilter(params['taps'], params['denominator'], 1)
+    x = rng.standard_normal(2000)
+    out = np.array([filt.step(np.array([v]))[0] for v in x])
+    np.testing.assert_allclose(out, signal.lfilter(taps, den, x), rtol=0, atol=1e-13)

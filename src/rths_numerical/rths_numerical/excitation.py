@@ -1,0 +1,81 @@
+"""A prescribed interface displacement in place of the building: the identification run.
+
+Before an RTHS the lab identifies the plant (actuator + table + specimen) by
+driving it with band-limited white noise (seed section 4.3.1: BLWNs of 0~64 and
+0~128 Hz, 2.54-38.1 mm peak; section 6.1 for the actuator with the DTM).
+:class:`PrescribedExcitation` has the interface of
+:class:`~rths_numerical.substructure.NumericalSubstructure`, so the numerical
+node runs it unchanged (``model: excitation``): it ignores the measured force
+and plays the signal, and its history keeps both for the identification.
+"""
+
+import math
+
+import numpy as np
+
+from .signals import blwn
+
+#: Parameters of ``model: excitation`` and their defaults (SI units).
+EXCITATION_DEFAULTS = {
+    'model': 'excitation',
+    'fs_hz': 1024.0,            # [Hz]
+    'duration_s': 20.0,         # [s]
+    'excitation_band_hz': 64.0,  # [Hz] BLWN band 0..f (seed 4.3.1: 0~64 Hz)
+    'excitation_peak_m': 0.00254,  # [m] peak (seed 4.3.1: 0.1 in = 2.54 mm)
+    'taper_s': 0.5,             # [s] fade in/out so the actuator starts and ends at rest
+    'seed': 0,
+}
+
+
+class PrescribedExcitation:
+    """Plays a prescribed interface displacement; records the measured force."""
+
+    def __init__(self, displacement, dt: float):
+        """``displacement`` [m] per step (1-D: one interface DOF, or steps x DOFs)."""
+        d = np.asarray(displacement, dtype=float)
+        self._d = d.reshape(d.shape[0], -1)
+        if not np.all(np.isfinite(self._d)):
+            raise ValueError('the prescribed displacement holds nan/inf')
+        self.dt = float(dt)
+        self.n_steps, self.n_interface = self._d.shape
+        self._force = np.zeros_like(self._d)
+        self._k = 0
+
+    def first_displacement(self) -> np.ndarray:
+        """Interface displacement command of step 0 [m]."""
+        return self._d[0].copy()
+
+    def advance(self, measured_force) -> np.ndarray:
+        """Record the measured force of step k; return the displacement of step k+1."""
+        if self.done():
+            raise RuntimeError(f'all {self.n_steps} steps are finished')
+        self._force[self._k] = np.asarray(measured_force, dtype=float).reshape(self.n_interface)
+        self._k += 1
+        return self._d[min(self._k, self.n_steps - 1)].copy()
+
+    def done(self) -> bool:
+        """True once every step has its measurement."""
+        return self._k >= self.n_steps
+
+    def history(self) -> dict:
+        """Time, prescribed interface displacement and measured force of the finished steps."""
+        k = self._k
+        return {'time': np.arange(k) * self.dt, 'interface_disp': self._d[:k].copy(),
+                'measured_force': self._force[:k].copy()}
+
+
+def make_excitation(params: dict) -> PrescribedExcitation:
+    """Build the BLWN excitation of ``model: excitation`` from flat parameters."""
+    unknown = set(params) - set(EXCITATION_DEFAULTS)
+    if unknown:
+        raise ValueError(f'unknown parameter(s) {", ".join(sorted(unknown))} for model '
+                         f'excitation; known: {", ".join(EXCITATION_DEFAULTS)}')
+    p = dict(EXCITATION_DEFAULTS, **params)
+    for key in ('fs_hz', 'duration_s', 'excitation_band_hz', 'excitation_peak_m'):
+        value = p[key]
+        if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+            raise ValueError(f'parameter {key} = {value!r} must be a positive number')
+    fs = float(p['fs_hz'])
+    x = blwn(float(p['duration_s']), fs, float(p['excitation_band_hz']),
+             float(p['excitation_peak_m']), rng=int(p['seed']), taper_s=float(p['taper_s']))
+    return PrescribedExcitation(x, 1.0 / fs)
