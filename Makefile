@@ -2,7 +2,6 @@
 SHELL := /bin/bash
 .SHELLFLAGS := -eo pipefail -c
 .DEFAULT_GOAL := help
-OUT ?= out/demo
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
@@ -10,8 +9,8 @@ help:  ## list the targets
 setup:  ## create .venv, install pinned ROS 2 Jazzy + deps, repair paths, colcon build (idempotent)
 	@tools/setup.sh
 
-demo: setup  ## run the main job and print where the results are
-	@source env.sh && rths demo --out $(OUT)
+demo: setup  ## run the main job (rths run: identify, design, RTHS of the building, review)
+	@source env.sh && rths run
 
 test: setup  ## build and run every test through colcon test; non-zero on any failure
 	@source env.sh && rm -rf build/*/test_results log/latest_test && \

@@ -51,8 +51,8 @@ def register(commands, benches):
     p.add_argument('--out', default=None, help='JSON file to write')
     p.add_argument('--taps', type=int, default=400, help='FIR taps of the compensator '
                    '(default 400, as designed in section 6.1)')
-    p.add_argument('--model', default='building2story', help='numerical model: sdof or '
-                   'building2story (default)')
+    p.add_argument('--model', default='sdof', help='numerical model: sdof (default) or '
+                   'building2story (uncompensated it can go unstable: the bridge aborts)')
     p.add_argument('--clock', default='loop', choices=('loop', 'thread', 'timer'),
                    help="the bridge's clock (default loop)")
     p.add_argument('--executor', default='events', choices=('events', 'single'),
@@ -72,7 +72,7 @@ def register(commands, benches):
     p.set_defaults(func=cmd_bench_loop)
 
 
-def write_config(directory, rate_hz=1024.0, duration_s=10.0, taps=400, model='building2story',
+def write_config(directory, rate_hz=1024.0, duration_s=10.0, taps=400, model='sdof',
                  clock='loop', executor='events', priority=0, cpus='', gc_mode='default',
                  drop_every=0, record='harmonic') -> Path:
     """Write bridge/compensator/numerical.yaml of a realtime run (simulated plant) to ``directory``.

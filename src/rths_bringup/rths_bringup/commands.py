@@ -1,13 +1,11 @@
-"""The orchestration sub-commands of ``rths``: launch, bag, demo."""
+"""The orchestration sub-commands of ``rths``: launch and bag."""
 
-import datetime
 import json
 from pathlib import Path
-import sys
 
 
 def register(commands, benches):
-    """Add ``rths launch``, ``rths bag info|reindex`` and ``rths demo``."""
+    """Add ``rths launch`` and ``rths bag info|reindex``."""
     p = commands.add_parser(
         'launch', help='start the node graph (one process per node) and supervise it',
         description='Start the actuator bridge, compensator and numerical node as separate '
@@ -34,17 +32,6 @@ def register(commands, benches):
                                         '(like ros2 bag reindex).')
     b.add_argument('bag', help='bag directory')
     b.set_defaults(func=cmd_bag_reindex)
-
-    p = commands.add_parser(
-        'demo', help='the main job with defaults (what make demo runs)',
-        description='Run the main job with the default configuration: a closed-loop run of the '
-                    'three nodes in lock-step, recorded to a bag, then print a run summary and '
-                    'where the results are.')
-    p.add_argument('--config', default=None, help='config directory (default: the repo config/)')
-    p.add_argument('--out', default='out/demo', help='results directory (default: out/demo); '
-                   'each run gets a new time-stamped sub-directory')
-    p.add_argument('--duration', type=float, default=5.0, help='simulated seconds (default 5)')
-    p.set_defaults(func=cmd_demo)
 
 
 def add_launch_args(p):
@@ -89,8 +76,10 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None):
 
 def cmd_launch(args) -> int:
     code = launch(args.config, args.duration, args.bag, args.timeout)
-    if code == 0 and args.bag:
+    if args.bag and Path(args.bag).exists():
+        from rths_bringup.review import loop_summary
         print_bag_info(args.bag)
+        print_summary(loop_summary(args.bag))
     return code
 
 
@@ -118,29 +107,6 @@ def cmd_bag_info(args) -> int:
 def cmd_bag_reindex(args) -> int:
     from rths_bringup.bagio import reindex
     print(f'wrote {reindex(args.bag)}')
-    return 0
-
-
-def cmd_demo(args) -> int:
-    from rths_bringup.review import loop_summary
-
-    stamp = datetime.datetime.now().strftime('%Y%m%d-%H%M%S')
-    run_dir = Path(args.out) / f'run-{stamp}'
-    run_dir.mkdir(parents=True, exist_ok=False)
-    bag = run_dir / 'bag'
-    history = run_dir / 'numerical_history.npz'
-    print(f'rths demo: closed-loop lock-step run of {args.duration:g} s, results in {run_dir}',
-          flush=True)
-    code = launch(args.config, args.duration, bag,
-                  overrides={'numerical': {'history_out': str(history.resolve())}})
-    if code != 0:
-        print(f'rths demo: the run failed (exit {code}); partial bag in {bag}', file=sys.stderr)
-        return code
-    summary = loop_summary(bag)
-    (run_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
-    print_summary(summary)
-    print(f'\nresults: {run_dir}/ (bag/, summary.json, numerical_history.npz)')
-    print(f'inspect the bag: rths bag info {bag}')
     return 0
 
 

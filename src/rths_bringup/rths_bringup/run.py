@@ -49,9 +49,8 @@ def register(commands, benches):
                    help='DTM configuration of Table 4: valve1..valve4, novalve (default valve4)')
     p.add_argument('--mode', choices=('lockstep', 'realtime'), default='lockstep',
                    help='timing mode (default lockstep: deterministic, as fast as possible)')
-    p.add_argument('--duration', type=float, default=None,
-                   help='simulated seconds of the RTHS run (default: the numerical config, '
-                        '0 = the whole record)')
+    p.add_argument('--duration', type=float, default=0.0,
+                   help='simulated seconds of the RTHS run (default 0: the whole record)')
     p.add_argument('--scheme', default='wls', help='compensator scheme (default wls)')
     p.add_argument('--fc', type=float, default=10.0, help='FIR cut-off [Hz] (default 10)')
     p.add_argument('--taps', type=int, default=400, help='FIR taps n (default 400)')
@@ -152,6 +151,7 @@ def _run(args) -> int:
             code = rths_main(['identify', '--bag', str(ident / 'bag'), '--out', str(plant)])
             if code:
                 raise RuntimeError('identification failed')
+            shutil.copyfile(plant, config / 'plant.yaml')
         _say(f'step 2: design {args.scheme} n={args.taps} fc={args.fc} Hz (rths design)')
         code = rths_main(['design', '--plant', str(plant), '--scheme', args.scheme,
                           '--taps', str(args.taps), '--fc', str(args.fc),
@@ -159,7 +159,8 @@ def _run(args) -> int:
         if code:
             raise RuntimeError('compensator design failed')
         shutil.copyfile(comp_file, config / 'compensator.yaml')
-        _say(f'compensator written to {config / "compensator.yaml"}')
+        _say(f'compensator written to {config / "compensator.yaml"}'
+             + ('' if args.plant else f' (its plant: {config / "plant.yaml"})'))
     comp = runinfo.load_params(comp_file, 'compensator')
     comp.update({k: base['compensator'][k] for k in ('executor',) if k in base['compensator']})
 
@@ -168,8 +169,7 @@ def _run(args) -> int:
                      scale=float(args.scale), force_scale=5.0, interface_frame='absolute')
     for key in ('sdof_mass_kg', 'sdof_freq_hz', 'sdof_zeta', 'harmonic_freq_hz'):
         numerical.pop(key, None)
-    if args.duration is not None:
-        numerical['duration_s'] = float(args.duration)
+    numerical['duration_s'] = float(args.duration)
     rths_dir = out / 'rths'
     cfg = _phase_config(rths_dir, base, {'numerical': numerical, 'compensator': comp})
     _launch_phase('RTHS', cfg, rths_dir / 'bag', 'rths', fs, args.mode,

@@ -229,7 +229,7 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
             n_pass = mp.shape[0]
             qr = np.linalg.qr(az)
             active = np.zeros(n_pass, dtype=bool)
-            for _ in range(50):
+            for _ in range(200):
                 viol = (pass_rows @ g - pass_c0 - bound).reshape(n_sides, n_pass).max(axis=0)
                 new = (viol > bound * 1e-9) & ~active
                 if not new.any():
@@ -259,11 +259,15 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
         c0 = np.tile(np.real(rot_obj)[:, None], (1, n_grid)).ravel()
         a_obj = np.hstack([rows, -np.ones((rows.shape[0], 1))])
         n_pass = mp.shape[0]
-        prow = pass_rows.reshape(n_sides, n_pass, n_taps)
-        pc0 = pass_c0.reshape(n_sides, n_pass)
+        # 8-gon in the passband too for the LP (fewer rows), inscribed in the epsilon disc.
+        rot8 = _polygon(8)
+        bound = 0.97 * epsilon * np.cos(np.pi / 8)
+        prow = np.real(rot8[:, None, None] * mp[None])
+        pc0 = np.real(rot8)[:, None] * np.ones(n_pass)
         active = np.zeros(n_pass, dtype=bool)
-        active[::4] = True
-        for _ in range(30):
+        active[::2] = True
+        active[-1] = True
+        for _ in range(10):
             a_p = prow[:, active].reshape(-1, n_taps)
             a_ub = np.vstack([a_obj, np.hstack([a_p, np.zeros((a_p.shape[0], 1))])])
             b_ub = np.r_[c0, bound + pc0[:, active].ravel()]

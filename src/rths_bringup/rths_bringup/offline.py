@@ -1,0 +1,58 @@
+"""The RTHS loop without ROS: the same cores, called in the same order as the lock-step nodes.
+
+Each loop step k, exactly as the three nodes do it in lock-step mode:
+
+    command_k      = compensator.step(interface_displacement_k)        (compensator node)
+    measurement_k  = bridge.step(k, command_k)                         (bridge node)
+    interface_displacement_{k+1} = substructure.advance(force_k)       (numerical node)
+
+so a lock-step run of the node graph with a simulated plant must reproduce
+:func:`offline_rths` to floating-point round-off (``test_lockstep_equivalence``).
+Anyone can run a coupled simulation with it, without ROS.
+"""
+
+import numpy as np
+
+#: Parameters that configure a node itself, not its core (see each node's NODE_PARAMS).
+NODE_KEYS = {'mode', 'executor', 'wait_for_subscribers', 'history_out', 'autostart',
+             'watchdog_timeout_s'}
+
+
+def core_params(params: dict) -> dict:
+    """``params`` without the node-level keys."""
+    return {k: v for k, v in params.items() if k not in NODE_KEYS}
+
+
+def offline_rths(numerical: dict, compensator: dict, bridge: dict) -> dict:
+    """Run the coupled loop for every step of the substructure; return per-step arrays."""
+    from rths_actuator_bridge.bridge import Bridge
+    from rths_compensator.filters import MultiChannelFilter
+    from rths_numerical.substructure import make_substructure
+
+    sub = make_substructure(core_params(numerical))
+    comp = MultiChannelFilter(compensator['taps'], compensator.get('denominator', [1.0]),
+                              n_channels=sub.n_interface)
+    lab = Bridge()
+    lab.configure(core_params(bridge))
+    lab.activate()
+    n = sub.n_steps
+    out = {name: np.full((n, sub.n_interface), np.nan)
+           for name in ('interface_displacement', 'command', 'applied', 'displacement', 'force')}
+    state = np.zeros(n, dtype=int)
+    displacement = sub.first_displacement()
+    k = 0
+    while not sub.done():
+        command = comp.step(np.asarray(displacement, dtype=float))
+        result = lab.step(k, command)
+        out['interface_displacement'][k] = displacement
+        out['command'][k] = command
+        out['applied'][k, :result.applied.size] = result.applied
+        out['displacement'][k] = result.displacement
+        out['force'][k] = result.force
+        state[k] = result.state
+        displacement = sub.advance(np.asarray(result.force, dtype=float))
+        k += 1
+    lab.close()
+    out['safety_state'] = state
+    out['history'] = sub.history()
+    return out
