@@ -65,6 +65,10 @@ class CompensatorNode:
         self.last_out = None
         self.misses = 0
         if self.realtime:
+            from rths_compensator.filters import MultiChannelFilter
+            # warm-up: the first call of every code path is slow (imports, numpy dispatch)
+            MultiChannelFilter(taps, denominator, n_channels=1).step(np.zeros(1))
+            Command(step=0, command=[0.0])
             tuning = ns.tune_process(self.own['rt_priority'], self.own['cpus'], self.own['gc'])
             self.log.info(f'realtime: {tuning}')
         self.log.info(f"compensator ready: scheme {self.params['scheme']}, "

@@ -81,6 +81,9 @@ class NumericalNode:
         if self.realtime:
             self.steps_pub = self.node.create_publisher(UInt64, topics.RUN_STEPS, run_info_qos())
             self.steps_pub.publish(UInt64(data=self.sub.n_steps))
+            # warm-up: the first call of every code path is slow (numpy dispatch, caches)
+            import copy
+            copy.deepcopy(self.sub).advance(np.zeros(self.sub.n_interface))
             tuning = ns.tune_process(own['rt_priority'], own['cpus'], own['gc'])
             self.log.info(f'realtime: {tuning}')
         self.start_timer = self.node.create_timer(0.05, self.try_start)

@@ -1,0 +1,34 @@
+"""The rths command line: every package's commands are registered, errors are clean."""
+
+import pytest
+
+from rths_bringup import cli
+
+EXPECTED = {'launch', 'bag', 'run', 'review', 'bench', 'identify', 'design', 'compensate',
+            'simulate', 'study', 'characterise-dtm', 'controller-emulator', 'discrepancy'}
+BENCHES = {'compensators', 'dtm', 'numerical', 'loop', 'discrepancy'}
+
+
+def _choices(parser):
+    action = next(a for a in parser._actions if a.dest in ('command', 'bench'))
+    return action.choices
+
+
+def test_every_command_and_benchmark_is_registered():
+    parser = cli.build_parser()
+    commands = _choices(parser)
+    assert EXPECTED <= set(commands)
+    assert BENCHES <= set(_choices(commands['bench']))
+
+
+def test_user_error_exits_2_with_a_message(tmp_path, capsys):
+    code = cli.main(['bag', 'info', str(tmp_path / 'nope')])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err.startswith('rths bag: error:') and 'does not exist' in err
+
+
+def test_help_exits_cleanly():
+    with pytest.raises(SystemExit) as exc:
+        cli.main(['--help'])
+    assert exc.value.code == 0
