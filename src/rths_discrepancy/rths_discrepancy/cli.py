@@ -23,7 +23,9 @@ def _read_measured(path, scenario):
         try:
             from rths_bringup.bagio import read_discrepancy
         except ImportError:
-            raise ValueError('bag input needs rths_bringup.bagio') from None
+            raise ValueError('bag input needs rths_bringup.bagio (read_discrepancy is not '
+                             'available); export the bag to a CSV with the columns '
+                             f'{", ".join(dio.COLUMNS[scenario])}') from None
         return dio.validate(scenario, read_discrepancy(path, scenario), source=str(path))
     if not os.path.exists(path):
         raise OSError(f'--measured {path}: no such file')

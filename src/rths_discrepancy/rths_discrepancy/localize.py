@@ -59,14 +59,12 @@ def localize(ctx, data) -> dict:
     if ctx.scenario == 'specimen':
         m = ctx.model
         force = data['force']
-        state['force'] = force
         e_r = force - (m.c_d * st['v'] + m.k_d * st['x'])
         e_i = force + m.m_d * (st['a'] + ctx.u)
         state['restoring_force_residual'] = {k: _corr(e_r, v) for k, v in feats.items()}
         state['inertia_residual'] = {k: _corr(e_i, v) for k, v in feats.items()}
         state['restoring_force_residual_rms_N'] = float(np.std(e_r))
         state['inertia_residual_rms_N'] = float(np.std(e_i))
-        del state['force']
     mean = float(r.mean())
     se = sigma / np.sqrt(n) if sigma > 0 else 0.0
     summary = [

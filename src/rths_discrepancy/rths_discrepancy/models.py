@@ -138,7 +138,9 @@ class ActuatorModel:
 
     def to_dict(self) -> dict:
         """YAML-ready dictionary (same layout as it was loaded from)."""
-        out = dict(self.source) if self.source else {
+        src = {k: (v.tolist() if isinstance(v, np.ndarray) else v)
+               for k, v in (self.source or {}).items()}
+        out = src if src else {
             'kind': 'continuous', 'num': [float(v) for v in self.num],
             'den': [float(v) for v in self.den]}
         out.pop('effects', None)
@@ -175,9 +177,9 @@ def _loop_filter(b, a, u, load, fs):
 
     ``q_k`` uses the outputs up to ``y_{k-1}`` (backward differences).
     """
-    b = [float(v) for v in b]
-    a = [float(v) / float(a[0]) for v in a]
-    b = [v / 1.0 for v in b]
+    a0 = float(a[0])
+    b = [float(v) / a0 for v in b]
+    a = [float(v) / a0 for v in a]
     nb, na = len(b), len(a)
     n = u.size
     ul = u.tolist()

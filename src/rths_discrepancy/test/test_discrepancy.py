@@ -157,3 +157,60 @@ def test_cli_end_to_end_and_updated_model_reloads(tmp_path):
     assert main(['discrepancy', '--scenario', 'actuator', '--measured', csv,
                  '--out', str(out3)]) == 2
     assert not out3.exists()
+
+
+@pytest.mark.parametrize('name, feature', [('coulomb_friction', 'sign(velocity)'),
+                                           ('stiffness_error', 'displacement'),
+                                           ('cubic_stiffness', 'displacement^3')])
+def test_localisation_points_at_the_state(name, feature):
+    _, _, res = _case('specimen', [name], seed=4)
+    corr = res['localization']['state']['restoring_force_residual']
+    assert max(corr, key=lambda k: abs(corr[k])) == feature
+
+
+def test_sensor_bias_shows_in_the_residual_mean():
+    _, _, res = _case('actuator', ['sensor_bias'], seed=5)
+    assert res['localization']['residual_mean_z'] > 10.0
+    assert res['effect'] == 'sensor_bias'
+
+
+def test_arx_and_pole_model_layouts():
+    fs = 1024.0
+    act = models.default_model('actuator')
+    b, a = act.linear_filter(fs)
+    arx = {'kind': 'arx', 'fs_hz': fs, 'na': len(a) - 1, 'nb': len(b), 'd': 0,
+           'a': a.tolist(), 'b': b.tolist()}
+    data, truth = selftest.make_record('actuator', ['stiffness_error'], 6, duration_s=SHORT_S)
+    res = run_discrepancy('actuator', data, model=arx)
+    assert res['effect'] == 'stiffness_error'
+    assert res['parameters']['stiffness_error']['kappa'] == pytest.approx(
+        truth['stiffness_error'], rel=0.15)
+    assert res['updated_model']['kind'] == 'arx'
+    # Table 1 poles written out as [re, im] pairs give the same model as table1: 3pole
+    from rths_compensator.plants import actuator_poles
+    poles = [[p.real, p.imag] for p in actuator_poles('3pole')]
+    pm = models.model_from_dict('actuator', {'kind': 'continuous', 'poles': poles})
+    np.testing.assert_allclose(pm.linear_filter(fs)[0], b, rtol=1e-9)
+    with pytest.raises(ValueError, match='fs_hz=512'):
+        models.model_from_dict('actuator', {**arx, 'fs_hz': 512.0}).linear_filter(fs)
+    with pytest.raises(ValueError, match='unknown effect'):
+        models.model_from_dict('specimen', {'kind': 'dtm', 'm_d': 1, 'c_d': 1, 'k_d': 1,
+                                            'effects': {'warp_drive': 1.0}})
+
+
+def test_bench_cli_summary(tmp_path, monkeypatch):
+    from rths_bringup.cli import main
+    cases = [('specimen', 'control', [], 1.0, 'none'),
+             ('specimen', 'coulomb_friction', ['coulomb_friction'], 1.0, 'coulomb_friction'),
+             ('specimen', 'first_order_lag', ['_lag'], 1.0, 'coulomb_friction')]
+    monkeypatch.setattr(selftest, 'bench_cases', lambda quick=False: cases)
+    out = tmp_path / 'bench.json'
+    assert main(['bench', 'discrepancy', '--quick', '--workers', '1', '--out', str(out)]) == 0
+    summary = json.loads(out.read_text())
+    assert summary['cases'] == 3
+    # the lag case is deliberately mislabelled: 2 of 3 correct
+    assert summary['correct_naming_percent'] == pytest.approx(200.0 / 3)
+    assert summary['confusion_matrix']['coulomb_friction'] == {'coulomb_friction': 1,
+                                                                'unexplained': 1}
+    assert summary['false_effects_on_controls'] == 0
+    assert not summary['targets_met']
