@@ -1,1 +1,1 @@
-"""Shared ROS-side helpers of the rths nodes: topic names, QoS profiles, parameters, status, spin loop."""
+"""Shared ROS-side helpers of the rths nodes: topics, QoS, parameters, status, spin loops, CDR."""

@@ -172,8 +172,8 @@ def cmd_design(args) -> int:
         _log(f'design --auto: searching for 0-{args.bandwidth} Hz')
         comp, table = dsg.auto_design(plant, args.bandwidth, epsilon=eps, log=_log)
         band = args.bandwidth
-        print(f'score = |delay| [ms] + gain error [dB] + 0.1 x (high-pass gain - 6 dB)+ '
-              '+ 1e-4 x coefficients; lower is better. Top candidates:')
+        print('score = |delay| [ms] + gain error [dB] + 0.1 x max(0, high-pass gain above the '
+              'band - 6 dB) + 1e-4 x coefficients (lower is better); top candidates:')
         for row in table[:8]:
             if row['error']:
                 continue
@@ -254,7 +254,7 @@ def cmd_unstable_zeros(args) -> int:
         import matplotlib
         matplotlib.use('Agg')
         import matplotlib.pyplot as plt
-        fss = np.linspace(1.0, args.fs_max, 1500)
+        fss = np.logspace(0.0, np.log10(args.fs_max), 300)
         fig, axes = plt.subplots(1, 2, figsize=(11, 4))
         for ax, kind in zip(axes, ('3pole', '4pole')):
             mods = [np.sort(np.abs(discrete_zeros(kind, f)))[::-1] for f in fss]

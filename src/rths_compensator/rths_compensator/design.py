@@ -139,6 +139,20 @@ def _lsi(qr, rhs, g_ineq, h_ineq):
     return linalg.solve_triangular(r, z + qtb)
 
 
+def _linprog_free(c, a_ub, b_ub, a_eq, b_eq, method='highs'):
+    """``min c x`` s.t. ``a_ub x <= b_ub``, ``a_eq x = b_eq``, x free (HiGHS).
+
+    Returns ``(x, status)`` with status 0 = optimal, 2 = infeasible, other = failure.
+    (Passing the explicit dual to HiGHS was measured 5-30x slower, so the primal is used.)
+    """
+    n = len(c)
+    res = optimize.linprog(c, A_ub=a_ub, b_ub=b_ub, A_eq=a_eq, b_eq=b_eq,
+                           bounds=[(None, None)] * n, method=method)
+    if res.status == 0:
+        return res.x, 0
+    return None, res.status
+
+
 def min_passband_error(plant, n_taps: int, fc_hz: float, fs_hz: float = None,
                        n_grid: int = 513, n_sides: int = 16) -> float:
     """Smallest achievable ``max |T_com - 1|`` over the passband with unit DC gain (an LP).
@@ -156,25 +170,25 @@ def min_passband_error(plant, n_taps: int, fc_hz: float, fs_hz: float = None,
     rows = (rot[:, None, None] * m[None]).reshape(-1, n_taps)
     c0 = np.tile(np.real(rot)[:, None], (1, m.shape[0])).ravel()
     a_ub = np.hstack([np.real(rows), -np.ones((rows.shape[0], 1))])
-    res = optimize.linprog(np.r_[np.zeros(n_taps), 1.0], A_ub=a_ub, b_ub=c0,
-                           A_eq=np.r_[np.ones(n_taps), 0.0][None, :], b_eq=[1.0],
-                           bounds=[(None, None)] * n_taps + [(0, None)], method='highs')
-    if res.status != 0:
-        raise ValueError(f'minimum passband error LP failed: {res.message}')
-    return float(res.x[-1])
+    x, status = _linprog_free(np.r_[np.zeros(n_taps), 1.0], a_ub, c0,
+                              np.r_[np.ones(n_taps), 0.0][None, :], [1.0])
+    if status != 0:
+        raise ValueError(f'minimum passband error LP failed (status {status})')
+    return float(x[-1])
 
 
 def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls',
                epsilon: float = DEFAULT_EPSILON, fs_hz: float = None, n_grid: int = None,
                passband_weight: float = 1000.0, n_sides: int = 16,
-               zero_tol: float = 1.0) -> Design:
+               zero_tol: float = 1.0, lp_method: str = 'highs') -> Design:
     """Design the FIR compensator ``G = A*/B+* . H`` (eq. 28) by LS, WLS or MM (eq. 32-36).
 
     ``plant`` is an :class:`ArxModel` or ``(b, a)`` in z^-1 (with ``fs_hz``).  ``n_taps`` is
     n (length of H), ``fc_hz`` the passband edge, ``epsilon`` the passband tolerance on
     ``|T_com - 1|`` (see module docstring), ``n_grid`` the number of frequency points
     from 0 to Nyquist (default 513 for LS/WLS, 257 for MM), ``zero_tol`` the modulus from
-    which a zero counts as unstable (goes to B-*).  Raises ValueError if the constraints
+    which a zero counts as unstable (goes to B-*), ``lp_method`` the HiGHS variant for MM
+    ('highs', 'highs-ds' or 'highs-ipm').  Raises ValueError if the constraints
     cannot be met (the message gives the smallest feasible epsilon).
     """
     scheme = scheme.lower()
@@ -229,15 +243,20 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
             n_pass = mp.shape[0]
             qr = np.linalg.qr(az)
             active = np.zeros(n_pass, dtype=bool)
+            lsi_bound = bound
             for _ in range(200):
-                viol = (pass_rows @ g - pass_c0 - bound).reshape(n_sides, n_pass).max(axis=0)
-                new = (viol > bound * 1e-9) & ~active
+                viol = (pass_rows @ g - pass_c0 - lsi_bound).reshape(n_sides, n_pass).max(axis=0)
+                new = (viol > lsi_bound * 1e-9) & ~active
+                err_max = np.max(np.abs(mp @ g - 1.0))
                 if not new.any():
-                    break
+                    if err_max <= epsilon or not active.any():
+                        break
+                    # NNLS round-off on a large active set: tighten the bound and re-solve.
+                    lsi_bound *= 0.98 * epsilon / err_max
                 active |= new
                 sel = np.tile(active, n_sides)
                 g_in = -(pass_rows[sel] @ z)
-                h_in = -(bound + pass_c0[sel] - pass_rows[sel] @ g0)
+                h_in = -(lsi_bound + pass_c0[sel] - pass_rows[sel] @ g0)
                 try:
                     y = _lsi(qr, r0, g_in, h_in)
                 except ValueError:
@@ -271,19 +290,17 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
             a_p = prow[:, active].reshape(-1, n_taps)
             a_ub = np.vstack([a_obj, np.hstack([a_p, np.zeros((a_p.shape[0], 1))])])
             b_ub = np.r_[c0, bound + pc0[:, active].ravel()]
-            res = optimize.linprog(np.r_[np.zeros(n_taps), 1.0], A_ub=a_ub, b_ub=b_ub,
-                                   A_eq=np.r_[np.ones(n_taps), 0.0][None, :], b_eq=[1.0],
-                                   bounds=[(None, None)] * n_taps + [(0, None)],
-                                   method='highs')
-            if res.status == 2:
+            x, status = _linprog_free(np.r_[np.zeros(n_taps), 1.0], a_ub, b_ub,
+                                      np.r_[np.ones(n_taps), 0.0][None, :], [1.0], lp_method)
+            if status == 2:
                 eps_min = min_passband_error(plant, n_taps, fc_hz, fs, n_grid, n_sides)
                 raise ValueError(
                     f'mm n={n_taps} fc={fc_hz} Hz: passband tolerance epsilon={epsilon} is '
                     f'infeasible (smallest achievable ~{eps_min / np.cos(np.pi / n_sides):.4g});'
                     ' raise --epsilon, add taps or lower --fc')
-            if res.status != 0:
-                raise ValueError(f'mm design LP failed: {res.message}')
-            g = res.x[:n_taps]
+            if status != 0:
+                raise ValueError(f'mm design LP failed (HiGHS status {status})')
+            g = x[:n_taps]
             viol = (np.einsum('spk,k->sp', prow, g) - pc0).max(axis=0) > bound * (1 + 1e-6)
             new = viol & ~active
             if not new.any():

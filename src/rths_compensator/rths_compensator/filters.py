@@ -39,7 +39,8 @@ class CausalFilter:
         b = _as_coefficients(taps, 'taps')
         a = _as_coefficients(denominator, 'denominator')
         if a[0] == 0.0:
-            raise ValueError('filter denominator a0 is 0; the leading coefficient must be non-zero')
+            raise ValueError('filter denominator a0 is 0; the leading coefficient must be '
+                             'non-zero')
         self.taps = b / a[0]
         self.denominator = a / a[0]
         self._nb = b.size

@@ -16,8 +16,10 @@ its delay line stays aligned with the step index, and the command of step j
 is published.  A repeated step 0 (the numerical node re-sends it until the
 loop runs) re-publishes command 0.  ``inject_drop_every`` = N > 0 drops the
 command of every N-th step (fault injection for tests of the bridge's
-deadline-miss policy).  Latency settings: ``rt_priority``, ``cpus``, ``gc``
-(:func:`rths_common.node_support.tune_process`).
+deadline-miss policy).  ``status_every`` = N > 1 publishes the status of
+every N-th step only (and of every step after a miss).  Latency settings:
+``rt_priority``, ``cpus``, ``gc`` (:func:`rths_common.node_support.tuning`).  In
+realtime the loop messages travel as CDR bytes (:mod:`rths_common.cdr`).
 """
 
 import sys
@@ -26,12 +28,14 @@ import time
 import numpy as np
 import rclpy
 
+from rths_common import cdr
 from rths_common import node_support as ns
 from rths_common import topics
 from rths_common.qos import loop_qos, status_qos
 from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus
 
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'inject_drop_every': 0,
+               'status_every': 1,
                **ns.TUNING_PARAMS}
 
 
@@ -55,8 +59,12 @@ class CompensatorNode:
         qos = loop_qos(self.own['mode'])
         self.pub = self.node.create_publisher(Command, topics.COMMAND, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
-        self.node.create_subscription(InterfaceDisplacement, topics.INTERFACE_DISPLACEMENT,
-                                      self.on_displacement, qos)
+        if self.own['mode'] == 'realtime':  # lean messages: CDR bytes (rths_common.cdr)
+            self.node.create_subscription(InterfaceDisplacement, topics.INTERFACE_DISPLACEMENT,
+                                          self.on_displacement_raw, qos, raw=True)
+        else:
+            self.node.create_subscription(InterfaceDisplacement, topics.INTERFACE_DISPLACEMENT,
+                                          self.on_displacement, qos)
         self.clock = ns.StepClock()
         self.expected = 0
         self.rejected = 0
@@ -68,8 +76,8 @@ class CompensatorNode:
             from rths_compensator.filters import MultiChannelFilter
             # warm-up: the first call of every code path is slow (imports, numpy dispatch)
             MultiChannelFilter(taps, denominator, n_channels=1).step(np.zeros(1))
-            Command(step=0, command=[0.0])
-            tuning = ns.tune_process(self.own['rt_priority'], self.own['cpus'], self.own['gc'])
+            cdr.unpack_step_arrays(cdr.pack_step_arrays(0, 0, [0.0]))
+            tuning = ns.tune_process(*ns.tuning(self.own, 'compensator'))
             self.log.info(f'realtime: {tuning}')
         self.log.info(f"compensator ready: scheme {self.params['scheme']}, "
                       f"{len(self.params['taps'])} taps, "
@@ -80,9 +88,6 @@ class CompensatorNode:
         from rths_compensator.filters import MultiChannelFilter
 
         t_in = ns.now_ns()
-        if self.realtime:
-            self.on_displacement_realtime(msg, t_in)
-            return
         if msg.step != self.expected:
             self.rejected += 1
             self.log.warning(f'interface displacement of step {msg.step} ignored: expected '
@@ -104,11 +109,12 @@ class CompensatorNode:
         self.expected += 1
 
 
-    def on_displacement_realtime(self, msg: InterfaceDisplacement, t_in: int):
+    def on_displacement_raw(self, data: bytes):
         """Realtime: filter step j (holding over lost steps) and publish its command first."""
         from rths_compensator.filters import MultiChannelFilter
 
-        step = msg.step
+        t_in = ns.now_ns()
+        stamp_ns, step, values = cdr.unpack_step_arrays(data)
         if step < self.expected:
             if step == 0 and self.expected == 1 and self.last_out is not None:
                 self.pub.publish(self.last_out)  # step 0 re-sent: the loop has not started
@@ -116,7 +122,7 @@ class CompensatorNode:
                 self.rejected += 1
             return
         t0 = time.perf_counter_ns()
-        x = np.asarray(msg.displacement, dtype=float)
+        x = np.array(values, dtype=float)
         if self.filter is None:
             self.filter = MultiChannelFilter(self.params['taps'], self.params['denominator'],
                                              n_channels=max(x.size, 1))
@@ -127,17 +133,17 @@ class CompensatorNode:
             self.expected += 1
         command = self.filter.step(x)
         self.last_x = x
-        out = Command(step=step, command=command.tolist())
-        ns.stamp(out.header, ns.now_ns())
+        out = cdr.pack_step_arrays(ns.now_ns(), step, command.tolist())
         drop = self.own['inject_drop_every']
         if not (drop > 0 and step > 0 and step % drop == 0):
             self.pub.publish(out)
         self.last_out = out
         compute_us = (time.perf_counter_ns() - t0) * 1e-3
-        self.status_pub.publish(ns.status_msg(
-            'compensator', step, period_us=self.clock.period_us(t_in), compute_us=compute_us,
-            latency_us=(t_in - ns.stamp_ns(msg.header)) * 1e-3, missed=missed,
-            misses=self.misses))
+        period_us = self.clock.period_us(t_in)
+        if missed or step % self.own['status_every'] == 0:
+            self.status_pub.publish(cdr.pack_status(
+                ns.now_ns(), 'compensator', step, period_us=period_us, compute_us=compute_us,
+                latency_us=(t_in - stamp_ns) * 1e-3, missed=missed, misses=self.misses))
         self.expected = step + 1
 
 

@@ -64,6 +64,14 @@ def _check(where, taps, denominator, fs_hz, scheme):
     return b, a, fs
 
 
+def validate_filter(where, taps, denominator, fs_hz, scheme):
+    """Public form of the filter validation: return (taps, denominator, fs_hz) or raise.
+
+    ``where`` names the source (file or node) in the ValueError message.
+    """
+    return _check(where, taps, denominator, fs_hz, scheme)
+
+
 def _scalar(value):
     """Convert a provenance value to a YAML/ROS-friendly scalar."""
     if isinstance(value, (bool, np.bool_)):

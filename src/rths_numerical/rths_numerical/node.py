@@ -22,9 +22,12 @@ arrives (best-effort loss) is a deadline miss here: when measurement j > k
 arrives the node advances the missing steps with the newest force (hold),
 flags them in its status and goes on.  Stale measurements (j < k) are
 dropped.  After the last step it exits 0 as in lock-step, which ends the run.
+``status_every`` = N > 1 publishes the status of every N-th step only (missed
+steps always), to lighten the status traffic.
 Latency settings (``rt_priority``, ``cpus``, ``gc``) are those of
-:func:`rths_common.node_support.tune_process`; ``timing_out`` saves per-step
-publish/receipt times for ``rths bench loop``.
+:func:`rths_common.node_support.tuning`; the loop messages travel as CDR bytes
+(:mod:`rths_common.cdr`); ``timing_out`` saves per-step publish/receipt times
+for ``rths bench loop``.
 """
 
 import sys
@@ -34,6 +37,7 @@ import numpy as np
 import rclpy
 from std_msgs.msg import UInt64
 
+from rths_common import cdr
 from rths_common import node_support as ns
 from rths_common import topics
 from rths_common.qos import loop_qos, run_info_qos, status_qos
@@ -41,7 +45,7 @@ from rths_msgs.msg import InterfaceDisplacement, LoopStatus, Measurement
 
 #: Parameters of the node itself; every other parameter goes to make_substructure().
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
-               'history_out': '', 'timing_out': '', **ns.TUNING_PARAMS}
+               'history_out': '', 'timing_out': '', 'status_every': 1, **ns.TUNING_PARAMS}
 
 
 class NumericalNode:
@@ -62,9 +66,15 @@ class NumericalNode:
         self.sub = make_substructure(params)
         self.log = self.node.get_logger()
         qos = loop_qos(own['mode'])
-        self.pub = self.node.create_publisher(InterfaceDisplacement, topics.INTERFACE_DISPLACEMENT, qos)
+        self.pub = self.node.create_publisher(InterfaceDisplacement,
+                                              topics.INTERFACE_DISPLACEMENT, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
-        self.node.create_subscription(Measurement, topics.MEASUREMENT, self.on_measurement, qos)
+        if self.realtime:  # lean messages: CDR bytes in and out (rths_common.cdr)
+            self.node.create_subscription(Measurement, topics.MEASUREMENT,
+                                          self.on_measurement_raw, qos, raw=True)
+        else:
+            self.node.create_subscription(Measurement, topics.MEASUREMENT, self.on_measurement,
+                                          qos)
         self.clock = ns.StepClock()
         self.expected = 0
         self.started = False
@@ -84,7 +94,7 @@ class NumericalNode:
             # warm-up: the first call of every code path is slow (numpy dispatch, caches)
             import copy
             copy.deepcopy(self.sub).advance(np.zeros(self.sub.n_interface))
-            tuning = ns.tune_process(own['rt_priority'], own['cpus'], own['gc'])
+            tuning = ns.tune_process(*ns.tuning(own, 'numerical'))
             self.log.info(f'realtime: {tuning}')
         self.start_timer = self.node.create_timer(0.05, self.try_start)
         self.log.info(f'numerical substructure ready: {self.sub.n_steps} steps at '
@@ -92,13 +102,15 @@ class NumericalNode:
                       f"waiting for {own['wait_for_subscribers']} subscriber(s)")
 
     def publish(self, step: int, displacement):
-        msg = InterfaceDisplacement(step=step, displacement=[float(x) for x in displacement])
-        t_ns = ns.now_ns()
-        ns.stamp(msg.header, t_ns)
-        self.pub.publish(msg)
         if self.realtime:
+            t_ns = ns.now_ns()
+            self.pub.publish(cdr.pack_step_arrays(t_ns, step, displacement))
             self.timing['pub_step'].append(step)
             self.timing['pub_wall_ns'].append(t_ns)
+            return
+        msg = InterfaceDisplacement(step=step, displacement=[float(x) for x in displacement])
+        ns.stamp(msg.header, ns.now_ns())
+        self.pub.publish(msg)
 
     def try_start(self):
         """Publish step 0 once the graph is connected (realtime: until the loop runs)."""
@@ -132,9 +144,6 @@ class NumericalNode:
     def on_measurement(self, msg: Measurement):
         """Finish step k with its measured force and publish step k+1."""
         t_in = ns.now_ns()
-        if self.realtime:
-            self.on_measurement_realtime(msg, t_in)
-            return
         if msg.step != self.expected:
             self.rejected += 1
             self.log.warning(f'measurement of step {msg.step} ignored: expected step '
@@ -163,32 +172,34 @@ class NumericalNode:
             return
         self.publish(self.expected, displacement)
 
-    def on_measurement_realtime(self, msg: Measurement, t_in: int):
+    def on_measurement_raw(self, data: bytes):
         """Realtime: finish step k (holding the force over lost measurements), publish k+1."""
+        t_in = ns.now_ns()
         if self.finished:
             return
-        if msg.step < self.expected:
+        stamp_ns, step, _, _, force_values = cdr.unpack_step_arrays(data, 3)
+        if step < self.expected:
             self.stale += 1
             return
         if self.cpu_loop is None:
             self.cpu_loop = [time.process_time(), None]
-        self.timing['recv_step'].append(msg.step)
+        self.timing['recv_step'].append(step)
         self.timing['recv_wall_ns'].append(t_in)
-        force = np.asarray(msg.force, dtype=float)
+        force = np.array(force_values, dtype=float)
         if force.shape != (self.sub.n_interface,) or not np.all(np.isfinite(force)):
-            self.log.error(f'step {msg.step}: measured force {list(msg.force)} is not '
+            self.log.error(f'step {step}: measured force {list(force_values)} is not '
                            f'{self.sub.n_interface} finite value(s); stopping the run')
             self.finished = True
             self.failed = True
             return
         period_us = self.clock.period_us(t_in)
-        latency_us = (t_in - ns.stamp_ns(msg.header)) * 1e-3
-        while self.expected < msg.step and not self.sub.done():
+        latency_us = (t_in - stamp_ns) * 1e-3
+        while self.expected < step and not self.sub.done():
             # measurement lost: hold the newest force over the missing step
             self.clock.misses += 1
             self.sub.advance(force if self.last_force is None else self.last_force)
-            self.status_pub.publish(ns.status_msg(
-                'numerical', self.expected, period_us=period_us, missed=True,
+            self.status_pub.publish(cdr.pack_status(
+                ns.now_ns(), 'numerical', self.expected, period_us=period_us, missed=True,
                 misses=self.clock.misses))
             self.expected += 1
         if self.sub.done():
@@ -201,9 +212,10 @@ class NumericalNode:
         self.expected += 1
         if not self.sub.done():
             self.publish(self.expected, displacement)
-        self.status_pub.publish(ns.status_msg(
-            'numerical', msg.step, period_us=period_us, compute_us=compute_us,
-            latency_us=latency_us, misses=self.clock.misses))
+        if step % self.own['status_every'] == 0:
+            self.status_pub.publish(cdr.pack_status(
+                ns.now_ns(), 'numerical', step, period_us=period_us, compute_us=compute_us,
+                latency_us=latency_us, misses=self.clock.misses))
         if self.expected % self.progress_steps == 0:
             self.log.info(f'progress: step {self.expected} of {self.sub.n_steps} '
                           f'({self.expected * self.sub.dt:.1f} s simulated)')
