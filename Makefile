@@ -14,7 +14,7 @@ demo: setup  ## run the main job (rths run: identify, design, RTHS of the buildi
 
 test: setup  ## build and run every test through colcon test; non-zero on any failure
 	@source env.sh && rm -rf build/*/test_results log/latest_test && \
-	  colcon test --base-paths src test --event-handlers console_cohesion+ \
+	  colcon test --base-paths src test --executor sequential --event-handlers console_cohesion+ \
 	    --return-code-on-test-failure --pytest-args -p no:cacheprovider ; rc=$$? ; \
 	  colcon test-result --verbose ; rc2=$$? ; \
 	  if [ $$rc -ne 0 ] || [ $$rc2 -ne 0 ]; then echo "make test: FAILED"; exit 1; fi; \

@@ -55,3 +55,13 @@ def test_lockstep_run_equals_offline_coupled_simulation(tmp_path):
     # and the loop did something physical: the building moved and the DTM pushed back
     assert np.max(np.abs(offline['interface_displacement'])) > 1e-4
     assert np.max(np.abs(offline['force'])) > 10.0
+
+
+def test_offline_node_keys_cover_every_node_parameter():
+    """The offline loop strips exactly the node-level keys the nodes take for themselves."""
+    from rths_actuator_bridge.node import NODE_PARAMS as bridge
+    from rths_bringup.offline import NODE_KEYS
+    from rths_compensator.node import NODE_PARAMS as compensator
+    from rths_numerical.node import NODE_PARAMS as numerical
+
+    assert set(bridge) | set(compensator) | set(numerical) == NODE_KEYS

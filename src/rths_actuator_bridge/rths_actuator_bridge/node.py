@@ -57,12 +57,13 @@ from rths_common import cdr
 from rths_common import node_support as ns
 from rths_common import topics
 from rths_common.qos import loop_qos, run_info_qos, status_qos
-from rths_msgs.msg import Command, LoopStatus, Measurement
+from rths_msgs.msg import Command, LoopStatus, Measurement, Specimen
 from rths_msgs.srv import EmergencyStop
 
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'autostart': True,
+               'wait_for_subscribers': 1,
                'watchdog_timeout_s': 5.0, 'clock': 'loop', 'spin_margin_us': 0.0,
-               'timing_out': '',
+               'timing_out': '', 'publish_specimen': 'auto',
                **ns.TUNING_PARAMS}
 CLOCKS = ('loop', 'thread', 'timer')
 EXIT_SAFETY_STOP = 3
@@ -92,6 +93,13 @@ class BridgeNode:
         qos = loop_qos(self.own['mode'])
         self.pub = self.node.create_publisher(Measurement, topics.MEASUREMENT, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
+        # Table/DTM sensor channels for the review and the discrepancy workflow (off the loop path;
+        # in realtime only when asked for, each publish costs tens of microseconds).
+        self.specimen_pub = None
+        publish = self.own['publish_specimen']  # 'auto': in lock-step only
+        if publish is True or publish == 'true' or (publish == 'auto' and not self.realtime):
+            self.specimen_pub = self.node.create_publisher(Specimen, topics.SPECIMEN, status_qos())
+        ns.wait_for_readers(self.node, self.pub, self.own['wait_for_subscribers'])
         if self.realtime:  # lean messages: CDR bytes in and out (rths_common.cdr)
             self.node.create_subscription(Command, topics.COMMAND, self.on_command_raw, qos,
                                           raw=True)
@@ -285,6 +293,13 @@ class BridgeNode:
                 'bridge', step, period_us=self.clock.period_us(t_in),
                 compute_us=(time.perf_counter_ns() - t0) * 1e-3, latency_us=latency_us,
                 missed=missed, misses=self.clock.misses, safety_state=state, fault=fault))
+        if self.specimen_pub is not None and result.channels:
+            ch = result.channels
+            spec = Specimen(step=step, table_accel=[float(ch.get('table_accel', np.nan))],
+                            rel_disp=[float(ch.get('rel_disp', np.nan))],
+                            rel_vel=[float(ch.get('rel_vel', np.nan))])
+            ns.stamp(spec.header, ns.now_ns())
+            self.specimen_pub.publish(spec)
         if fault and not self.fault_logged:
             self.fault_logged = True
             self.log.error(f'fault at step {step}: {fault}; holding, then ramping to the safe '

@@ -289,3 +289,42 @@ def read_identification(bag):
     command, measured = data['applied'][:, 0], data['displacement'][:, 0]
     ok = np.isfinite(command) & np.isfinite(measured)
     return data['step'][ok] / fs, command[ok], measured[ok]
+
+
+def read_discrepancy(bag, scenario: str) -> dict:
+    """The discrepancy workflow's columns from a run bag (rths_discrepancy.io layout).
+
+    ``actuator``: ``time``, ``command`` (what the bridge wrote), ``measured``.
+    ``specimen``: ``time``, ``base_accel`` (table = DTM frame acceleration),
+    ``rel_disp`` (from ``/rths/specimen``) and ``force``, the force the damper
+    exerts on its frame, ``m_frame * a_table - R`` with ``R`` the measured
+    restoring force (the load cells also carry the frame's inertia).
+    """
+    import numpy as np
+
+    if scenario == 'actuator':
+        t, command, measured = read_identification(bag)
+        return {'time': t, 'command': command, 'measured': measured}
+    if scenario != 'specimen':
+        raise ValueError(f"scenario {scenario!r}: use 'specimen' or 'actuator'")
+    from rths_bringup import runinfo
+    from rths_numerical.dtm import FRAME_MASS_KG
+
+    fs = sampling_rate(bag)
+    spec = step_arrays(bag, topics.SPECIMEN, ('table_accel', 'rel_disp'))
+    if spec['step'].size == 0:
+        raise ValueError(f'{bag}: no {topics.SPECIMEN} messages (the bridge publishes them in '
+                         'lock-step mode, or with publish_specimen: true)')
+    meas = step_arrays(bag, topics.MEASUREMENT, ('force',))
+    force_by_step = dict(zip(meas['step'].tolist(), meas['force'][:, 0]))
+    steps = np.array([k for k in spec['step'] if k in force_by_step], dtype=np.int64)
+    index = {k: i for i, k in enumerate(spec['step'].tolist())}
+    rows = [index[k] for k in steps]
+    frame = runinfo.section(run_info(bag), 'bridge').get('frame_mass_kg')
+    frame = FRAME_MASS_KG if frame in (None, '') or not np.isfinite(float(frame)) else float(frame)
+    accel = spec['table_accel'][rows, 0]
+    restoring = np.array([force_by_step[k] for k in steps])
+    ok = np.isfinite(accel) & np.isfinite(restoring) & np.isfinite(spec['rel_disp'][rows, 0])
+    return {'time': steps[ok] / fs, 'base_accel': accel[ok],
+            'rel_disp': spec['rel_disp'][rows, 0][ok],
+            'force': (frame * accel - restoring)[ok]}

@@ -205,7 +205,9 @@ class Launcher:
                 recorder_over.setdefault('bag', str(self.bag))
                 recorder_over.setdefault('mode', self.mode)
                 specs.append(RECORDER)
-                self.overrides.setdefault(OWNER, {}).setdefault('wait_for_subscribers', 2)
+                # each loop topic: its consumer and the recorder (see ns.wait_for_readers)
+                for name in ('numerical', 'compensator', 'bridge'):
+                    self.overrides.setdefault(name, {}).setdefault('wait_for_subscribers', 2)
             specs += list(NODES)
             argvs = [(s[0], self._argv(*s)) for s in specs]
             for name, argv in argvs:

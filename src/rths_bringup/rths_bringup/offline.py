@@ -13,9 +13,11 @@ Anyone can run a coupled simulation with it, without ROS.
 
 import numpy as np
 
-#: Parameters that configure a node itself, not its core (see each node's NODE_PARAMS).
-NODE_KEYS = {'mode', 'executor', 'wait_for_subscribers', 'history_out', 'autostart',
-             'watchdog_timeout_s'}
+#: Parameters that configure a node itself, not its core: the union of the nodes'
+#: NODE_PARAMS (test_offline_node_keys checks this list against the nodes).
+NODE_KEYS = {'mode', 'executor', 'wait_for_subscribers', 'history_out', 'timing_out',
+             'status_every', 'autostart', 'watchdog_timeout_s', 'clock', 'spin_margin_us',
+             'publish_specimen', 'inject_drop_every', 'rt_priority', 'cpus', 'gc'}
 
 
 def core_params(params: dict) -> dict:

@@ -47,7 +47,7 @@ class Recorder:
         if self.open_error is not None:
             raise self.open_error
         for topic, msgtype in topics.LOOP_TOPICS.items():
-            qos = status_qos() if topic == topics.STATUS else recorder_qos(mode)
+            qos = status_qos() if topic in (topics.STATUS, topics.SPECIMEN) else recorder_qos(mode)
             self.node.create_subscription(ns.message_class(msgtype), topic,
                                           self._callback(topic), qos, raw=True)
         self.node.get_logger().info(f'recording {len(topics.LOOP_TOPICS)} topics to {bag}')

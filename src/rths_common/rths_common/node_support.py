@@ -325,3 +325,26 @@ def flush(publishers, timeout_s: float = 2.0) -> bool:
     for pub in publishers:
         ok = pub.wait_for_all_acked(Duration(nanoseconds=int(timeout_s * 1e9))) and ok
     return ok
+
+
+def wait_for_readers(node, publisher, wanted: int, timeout_s: float = 60.0) -> None:
+    """Spin ``node`` until ``publisher`` has matched ``wanted`` readers (ValueError on timeout).
+
+    The loop nodes call this before subscribing to their input, so the chain
+    arms from its end: the bridge subscribes once the numerical node and the
+    recorder read its measurements, the compensator once the bridge and the
+    recorder read its commands, and the numerical node starts once the
+    compensator and the recorder read its interface displacement.  Graph
+    counts seen from one process (``count_subscribers``) do not prove that
+    another process's writer has matched: DDS discovery between participants
+    can take seconds, longer than a transient-local history covers.
+    """
+    if wanted <= 0:
+        return
+    t_end = time.monotonic() + timeout_s
+    while publisher.get_subscription_count() < wanted:
+        if time.monotonic() > t_end:
+            raise ValueError(f'{node.get_name()}: only {publisher.get_subscription_count()} of '
+                             f'{wanted} reader(s) of {publisher.topic_name} matched within '
+                             f'{timeout_s:g} s; is the rest of the graph running?')
+        rclpy.spin_once(node, timeout_sec=0.02)

@@ -17,10 +17,14 @@ EMERGENCY_STOP = '/rths/emergency_stop'
 EMERGENCY_STOP_SERVICE = '/rths/emergency_stop_service'
 
 #: Every topic a run records, with its message type (rosbag2 type names).
+#: actuator bridge -> recorder: table and DTM sensor channels (rths_msgs/msg/Specimen)
+SPECIMEN = '/rths/specimen'
+
 LOOP_TOPICS = {
     INTERFACE_DISPLACEMENT: 'rths_msgs/msg/InterfaceDisplacement',
     COMMAND: 'rths_msgs/msg/Command',
     MEASUREMENT: 'rths_msgs/msg/Measurement',
     STATUS: 'rths_msgs/msg/LoopStatus',
+    SPECIMEN: 'rths_msgs/msg/Specimen',
     EMERGENCY_STOP: 'std_msgs/msg/String',
 }

@@ -35,6 +35,7 @@ from rths_common.qos import loop_qos, status_qos
 from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus
 
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'inject_drop_every': 0,
+               'wait_for_subscribers': 1,
                'status_every': 1,
                **ns.TUNING_PARAMS}
 
@@ -43,22 +44,24 @@ class CompensatorNode:
     """ROS shell around a :class:`~rths_compensator.filters.MultiChannelFilter`."""
 
     def __init__(self):
-        from rths_compensator.params import _check
+        from rths_compensator.params import validate_filter
 
         self.node = ns.make_node('compensator')
         params = ns.parameters(self.node)
         self.own = {k: ns.param(params, k, v) for k, v in NODE_PARAMS.items()}
         for key in NODE_PARAMS:
             params.pop(key, None)
-        taps, denominator, fs = _check('compensator node parameters', params.get('taps', []),
-                                       params.get('denominator', [1.0]),
-                                       params.get('fs_hz', 1024.0), params.get('scheme', ''))
+        taps, denominator, fs = validate_filter(
+            'compensator node parameters', params.get('taps', []),
+            params.get('denominator', [1.0]), params.get('fs_hz', 1024.0),
+            params.get('scheme', ''))
         self.params = dict(params, taps=taps, denominator=denominator, fs_hz=fs)
         self.filter = None  # built on the first message, when the number of DOFs is known
         self.log = self.node.get_logger()
         qos = loop_qos(self.own['mode'])
         self.pub = self.node.create_publisher(Command, topics.COMMAND, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
+        ns.wait_for_readers(self.node, self.pub, self.own['wait_for_subscribers'])
         if self.own['mode'] == 'realtime':  # lean messages: CDR bytes (rths_common.cdr)
             self.node.create_subscription(InterfaceDisplacement, topics.INTERFACE_DISPLACEMENT,
                                           self.on_displacement_raw, qos, raw=True)
