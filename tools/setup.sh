@@ -11,6 +11,10 @@ python=${PYTHON:-python3}
 
 say() { printf '[setup] %s\n' "$*"; }
 
+# One setup at a time per checkout (parallel 'make test' / 'make demo' would race in build/).
+exec 9>"$root/.setup.lock"
+flock 9
+
 # 1. venv
 if [ ! -x "$venv/bin/python" ]; then
   "$python" -c 'import sys; assert sys.version_info[:2] == (3, 11), sys.version' 2>/dev/null || {
@@ -50,7 +54,7 @@ else
   # shellcheck disable=SC1091
   source "$venv/bin/activate"
   export AMENT_PREFIX_PATH="$VIRTUAL_ENV" CMAKE_PREFIX_PATH="$VIRTUAL_ENV"
-  colcon build --base-paths src test --event-handlers console_cohesion- summary+ \
+  colcon build --base-paths src test --event-handlers console_cohesion- console_stderr- summary+ \
     --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$venv/bin/python"
   touch "$stamp"
 fi
