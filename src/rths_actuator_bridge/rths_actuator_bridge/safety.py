@@ -141,12 +141,29 @@ class SafetySupervisor:
         self.configured = False
         self.n = 1
         self._reset_motion(np.zeros(1))
+        self._precompute()
+
+    def _precompute(self):
+        """Constants of the one-channel fast path of :meth:`filter` / :meth:`check_measurement`.
+
+        Each bound is the one :meth:`check_command` and :meth:`check_measurement`
+        compare against (same floating-point expression), so the fast path accepts
+        exactly what the general path accepts.
+        """
+        lim = self.limits
+        tol = 1e-9
+        self._fs = lim.fs_hz
+        self._stroke_tol = lim.stroke_m * (1 + tol)
+        self._vel_tol = lim.velocity_m_s * (1 + tol)
+        self._acc_tol = lim.acceleration_m_s2 * (1 + tol)
+        self._two_acc = 2 * lim.acceleration_m_s2
 
     # ------------------------------------------------------------ lifecycle
     def configure(self, limits: SafetyLimits = None):
         """Accept (new) limits; stays INACTIVE."""
         if limits is not None:
             self.limits = limits
+        self._precompute()
         self.configured = True
         self.state = INACTIVE
         self.fault = ''
@@ -263,6 +280,10 @@ class SafetySupervisor:
         ``command`` None means no new command arrived this step (watchdog
         counting).  The returned command always respects every command limit.
         """
+        if self.state == ACTIVE and self.n == 1 and command is not None:
+            out = self._filter_one(command)
+            if out is not None:
+                return out, ACTIVE, ''
         lim = self.limits
         if self.state == INACTIVE:
             return None, INACTIVE, self.fault or 'not active'
@@ -304,6 +325,47 @@ class SafetySupervisor:
             return out, RAMP, self.fault
         # STOPPED: keep the safe position (the owner deactivates the backend)
         return self._accept(self.pos) if self.last_sent is not None else None, STOPPED, self.fault
+
+    def _filter_one(self, command):
+        """Fast path of :meth:`filter`: one channel, ACTIVE, a command that passes every limit.
+
+        Plain floats instead of numpy on 1-element arrays; the arithmetic is that
+        of :meth:`check_command` and :meth:`_accept`, so the result is identical.
+        Returns the command to send, or None when the general path must decide
+        (any limit violated, another command type or size).
+        """
+        kind = type(command)
+        if kind is list or kind is tuple:
+            if len(command) != 1:
+                return None
+            ui = command[0]
+        elif kind is float:
+            ui = command
+        else:
+            return None
+        if type(ui) is not float:
+            if type(ui) is not int and not isinstance(ui, np.floating):
+                return None
+            ui = float(ui)
+        if not math.isfinite(ui) or abs(ui) > self._stroke_tol:
+            return None
+        fs = self._fs
+        pos, vel = self.pos, self.vel
+        v = (ui - pos.item(0)) * fs
+        if abs(v) > self._vel_tol:
+            return None
+        if abs((v - vel.item(0)) * fs) > self._acc_tol:
+            return None
+        if v * ui > 0 and abs(ui) + v * v / self._two_acc > self._stroke_tol:
+            return None
+        self.missing = 0
+        pos[0] = ui                      # pos and vel are owned by the supervisor
+        vel[0] = v
+        if self.last_sent is None:
+            self.last_sent = np.array((ui,))
+        else:
+            self.last_sent[0] = ui
+        return np.array((ui,))
 
     # ------------------------------------------------------------ measurements
     def check_measurement(self, displacement, force, rel_disp=None) -> str:
