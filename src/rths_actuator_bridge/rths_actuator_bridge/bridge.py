@@ -70,6 +70,16 @@ class Bridge:
         """Run loop step ``step`` with ``command`` [m] (None: no command arrived)."""
         sup = self.supervisor
         out, state, fault = sup.filter(step, command)
+        backend = self.backend
+        if (out is not None and backend is not None and backend.n_channels == 1
+                and backend.lifecycle == 'active' and hasattr(backend, 'write_read_one')):
+            # one channel, simulated plant: floats through backend and supervisor (same result)
+            disp, force, chans = backend.write_read_one(out.item(0))
+            sup.check_measurement_one(disp, force, chans.get('rel_disp'))
+            if sup.state == safety.STOPPED:
+                backend.deactivate()
+            return StepResult(step, out, np.array((disp,)), np.array((force,)), sup.state,
+                              sup.fault, chans)
         n = self.backend.n_channels if self.backend is not None else 1
         nan = np.full(n, np.nan)
         if out is None or self.backend is None or self.backend.lifecycle != 'active':

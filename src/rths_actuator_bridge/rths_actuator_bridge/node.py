@@ -64,9 +64,46 @@ NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'autostart': True,
                'wait_for_subscribers': 1,
                'watchdog_timeout_s': 5.0, 'clock': 'loop', 'spin_margin_us': 0.0,
                'timing_out': '', 'publish_specimen': 'auto',
+               'command_source': 'compensator',
                **ns.TUNING_PARAMS}
 CLOCKS = ('loop', 'thread', 'timer')
 EXIT_SAFETY_STOP = 3
+
+#: Plausibility bounds of the limits [SI]: a larger value is almost surely in the wrong unit
+#: (inches or mm for metres, kN for N is the other way round and passes).
+PLAUSIBLE_MAX = {'stroke_m': (1.0, 'm', 'inches or mm'),
+                 'velocity_m_s': (10.0, 'm/s', 'mm/s or in/s'),
+                 'dtm_rel_disp_m': (1.0, 'm', 'inches or mm'),
+                 'safe_position_m': (1.0, 'm', 'inches or mm')}
+
+
+def check_bridge_params(params: dict) -> dict:
+    """Validate the bridge's flat parameters; return those of the core (backend + safety).
+
+    Unknown keys (typos), non-finite or out-of-unit limits raise ValueError
+    naming the field and the fix.  Used by the node and by ``rths launch``'s
+    pre-flight check (:mod:`rths_bringup.preflight`).
+    """
+    from rths_actuator_bridge.safety import SAFETY_PARAMS, SafetyLimits
+    from rths_actuator_bridge.simulated import SIM_PARAMS
+    from rths_actuator_bridge.udp import UDP_PARAMS
+
+    core = {k: v for k, v in params.items()
+            if k not in NODE_PARAMS and k not in ns.ROS_BUILTIN_PARAMS
+            and not k.startswith('qos_overrides')}
+    backend = core.get('backend', 'simulated')
+    known = {'backend', *SAFETY_PARAMS, *(UDP_PARAMS if backend == 'udp' else SIM_PARAMS)}
+    unknown = sorted(set(core) - known)
+    if unknown:
+        raise ValueError(f'unknown parameter(s) {", ".join(unknown)} for backend {backend!r}; '
+                         f'known: {", ".join(sorted(known | set(NODE_PARAMS)))}')
+    SafetyLimits.from_params(core)
+    for key, (bound, unit, other) in PLAUSIBLE_MAX.items():
+        value = core.get(key)
+        if isinstance(value, (int, float)) and abs(value) > bound:
+            raise ValueError(f'parameter {key} = {value} {unit} is beyond any lab actuator '
+                             f'(> {bound:g} {unit}): it looks like {other}; give it in {unit}')
+    return core
 
 
 class BridgeNode:
@@ -78,8 +115,7 @@ class BridgeNode:
         self.node = ns.make_node('bridge')
         params = ns.parameters(self.node)
         self.own = {k: ns.param(params, k, v) for k, v in NODE_PARAMS.items()}
-        for key in NODE_PARAMS:
-            params.pop(key, None)
+        params = check_bridge_params(params)
         self.log = self.node.get_logger()
         self.realtime = self.own['mode'] == 'realtime'
         if self.own['mode'] not in ('lockstep', 'realtime'):
@@ -107,6 +143,10 @@ class BridgeNode:
             self.node.create_subscription(Command, topics.COMMAND, self.on_command, qos)
         self.node.create_subscription(String, topics.EMERGENCY_STOP, self.on_estop_topic, 10)
         self.node.create_service(EmergencyStop, topics.EMERGENCY_STOP_SERVICE, self.on_estop_srv)
+        # Command source guard: only the configured node's writer may command the actuator.
+        self.source_gids = set()       # writer gids of the command_source node on /rths/command
+        self.foreign = {}              # gid -> 'namespace/node' of other publishers (logged once)
+        self.foreign_rejected = 0
         self.clock = ns.StepClock()
         self.step = -1                 # last step written to the backend
         self.expected = 0
@@ -148,10 +188,41 @@ class BridgeNode:
         self.log.info('bridge active')
 
     # ---------------------------------------------------------------- loop
+    def scan_command_publishers(self):
+        """Refresh the command source's writer gids; log every foreign publisher once."""
+        source = self.own['command_source']
+        gids = set()
+        for info in self.node.get_publishers_info_by_topic(topics.COMMAND):
+            gid = ns.gid_text(info.endpoint_gid)
+            if info.node_name == source:
+                gids.add(gid)
+            elif gid not in self.foreign:
+                name = f'{info.node_namespace.rstrip("/")}/{info.node_name}'
+                self.foreign[gid] = name
+                self.log.error(f'foreign publisher {name} (gid {gid}) on {topics.COMMAND}: only '
+                               f'{source!r} may command the actuator; its commands are ignored')
+        self.source_gids = gids
+
+    def command_from_source(self, msg: Command) -> bool:
+        """True if ``msg`` carries the writer gid of the command source (lock-step messages)."""
+        sender = msg.header.frame_id
+        if sender not in self.source_gids:
+            self.scan_command_publishers()  # a new source writer may have just matched
+        if sender in self.source_gids:
+            return True
+        self.foreign_rejected += 1
+        if self.foreign_rejected <= 5 or self.foreign_rejected % 1000 == 0:
+            who = self.foreign.get(sender, 'an unknown writer')
+            self.log.warning(f'command of step {msg.step} from {who} (sender {sender!r}) '
+                             f'ignored; {self.foreign_rejected} foreign command(s) so far')
+        return False
+
     def on_command(self, msg: Command):
         """Apply the command of step k and publish the measurement of step k."""
         t_in = ns.now_ns()
         if self.stopped:
+            return
+        if not self.command_from_source(msg):
             return
         if msg.step != self.expected:
             self.rejected += 1
@@ -328,6 +399,8 @@ class BridgeNode:
 
     def watchdog(self):
         """Lock-step watchdog: no command for watchdog_timeout_s once the run has started."""
+        if self.t0_ns is None and self.last_command_t is None or not self.realtime:
+            self.scan_command_publishers()  # before and (lock-step) during the run
         if self.realtime:
             return  # the supervisor's watchdog_steps watch every tick
         if (self.last_command_t is not None and not self.stopped and self.stop_timer is None
@@ -369,9 +442,10 @@ def main(argv=None):
         shell.save_timing()
         ns.flush([shell.pub, shell.status_pub])
         shell.log.info(f'bridge: {shell.step + 1} steps applied, {shell.rejected} rejected, '
+                       f'{shell.foreign_rejected} foreign, '
                        f'{shell.clock.misses} deadline miss(es), final state {shell.bridge.state}')
     except ValueError as err:
-        print(f'bridge_node: error: {err}', file=sys.stderr)
+        print(f'bridge_node: error: {ns.params_file_of(argv)}{err}', file=sys.stderr)
         code = 2
     finally:
         if shell is not None:

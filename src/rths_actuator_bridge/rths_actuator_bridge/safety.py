@@ -396,14 +396,37 @@ class SafetySupervisor:
             self._trip(text)
         return text
 
+    def check_measurement_one(self, displacement: float, force: float, rel_disp=None) -> str:
+        """:meth:`check_measurement` of one channel given as plain floats (the bridge's fast path).
+
+        The usual case (finite readings inside the limits) is decided with
+        floats; everything else goes through :meth:`check_measurement`, so the
+        outcome is the same.
+        """
+        lim = self.limits
+        if (self.n != 1 or self.state == INACTIVE or not math.isfinite(displacement)
+                or not math.isfinite(force) or abs(force) > lim.force_n
+                or (rel_disp is not None and abs(rel_disp) > lim.dtm_rel_disp_m)):
+            return self.check_measurement(displacement, force, rel_disp)
+        self.invalid = 0
+        text = ''
+        if self.state == ACTIVE and self.last_sent is not None:
+            text = self._instability(displacement - self.last_sent.item(0), force)
+        if text and text not in self.faults:
+            self._trip(text)
+        return text
+
     def _instability(self, err, force) -> str:
         lim = self.limits
+        # one channel: windows of floats (the fast path appends floats too)
+        if np.size(err) == 1 and np.size(force) == 1:
+            err, force = float(np.ravel(err)[0]), float(np.ravel(force)[0])
         self._win_e.append(err)
         self._win_f.append(force)
         if len(self._win_e) < lim.instability_window_steps:
             return ''
-        e = np.array(self._win_e)
-        f = np.array(self._win_f)
+        e = np.array(self._win_e, dtype=float).reshape(len(self._win_e), -1)
+        f = np.array(self._win_f, dtype=float).reshape(len(self._win_f), -1)
         self._win_e, self._win_f = [], []
         rms = {'tracking': float(np.max(np.sqrt(np.mean(e ** 2, axis=0)))),
                'force': float(np.max(np.sqrt(np.mean((f - f.mean(axis=0)) ** 2, axis=0))))}

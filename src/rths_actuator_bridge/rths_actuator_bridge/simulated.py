@@ -219,6 +219,9 @@ class SimulatedPlant:
         else:
             self.frame_mass = cfg.frame_mass_kg
         self.arx = None
+        self._noiseless = (cfg.adc_bits <= 0 and cfg.displacement_noise_m <= 0
+                           and cfg.force_noise_n <= 0 and cfg.rel_disp_noise_m <= 0
+                           and cfg.accel_noise_m_s2 <= 0)
         if cfg.actuator_model in ('3pole', '4pole'):
             self._build_continuous(cfg.actuator_model)
         else:
@@ -269,6 +272,13 @@ class SimulatedPlant:
         self.a_c, self.b_c, self.c, self.d = a, b, c, d
         self.n_states = a.shape[0]
         self._ad, self._bd = _zoh(a, b, self.dt)
+        # one-sample fast path of step(): contiguous command columns, preallocated buffers
+        self._bd_u = np.ascontiguousarray(self._bd[:, 0])
+        self._d_u = np.ascontiguousarray(self.d[:, 0])
+        self._x_buf = np.zeros(self.n_states)
+        self._x_tmp = np.zeros(self.n_states)
+        self._y_buf = np.zeros(self.c.shape[0])
+        self._y_tmp = np.zeros(self.c.shape[0])
         if self.config.friction_n > 0 and self.dtm is not None:
             h = self.dt / self.config.friction_substeps
             self._ad_h, self._bd_h = _zoh(a, b, h)
@@ -355,8 +365,18 @@ class SimulatedPlant:
             fc = self._friction(self.x[self._i_rel_vel])
             y = self.c @ self.x + self.d @ np.array([u, fc])
         else:
-            self.x = self._ad @ self.x + self._bd[:, 0] * u
-            y = self.c @ self.x + self.d[:, 0] * u
+            # x' = Ad x + Bd u, y = C x' + D u: the same operations as
+            # ``self._ad @ self.x + self._bd[:, 0] * u``, into preallocated buffers
+            # (bit-identical results, no per-step allocation but the two buffers swap)
+            x_new, tmp = self._x_buf, self._x_tmp
+            np.dot(self._ad, self.x, out=x_new)
+            np.multiply(self._bd_u, u, out=tmp)
+            np.add(x_new, tmp, out=x_new)
+            self._x_buf, self.x = self.x, x_new
+            y, tmp = self._y_buf, self._y_tmp
+            np.dot(self.c, x_new, out=y)
+            np.multiply(self._d_u, u, out=tmp)
+            np.add(y, tmp, out=y)
         self.k += 1
         self.true = dict(zip(CHANNELS, y.tolist()))
         return self.true
@@ -386,6 +406,8 @@ class SimulatedPlant:
         cfg = self.config
         t = self.true if true is None else true
         out = dict(t)
+        if self._noiseless:
+            return out      # no noise, no ADC: the true values (as floats for one sample)
         spec = (('table_disp', cfg.displacement_noise_m, cfg.displacement_range_m),
                 ('force', cfg.force_noise_n, cfg.force_range_n),
                 ('rel_disp', cfg.rel_disp_noise_m, cfg.rel_disp_range_m),
@@ -450,6 +472,20 @@ class SimulatedBackend(Backend):
     def _write(self, command):
         self.plant.step(float(command[0]))
         self._last = self.plant.measure()
+
+    def write_read_one(self, command: float):
+        """Fast path of write + read + channels for one channel: a float in, floats out.
+
+        Same checks and effect as :meth:`write` then :meth:`read` (the caller
+        has checked that the backend is active); returns ``(displacement [m],
+        force [N], channels)``, ``channels`` being this step's own dict.
+        """
+        if not math.isfinite(command):
+            raise ValueError(f'refusing non-finite command {command}')
+        self.step += 1
+        self.plant.step(command)
+        m = self._last = self.plant.measure()
+        return float(m['table_disp']), float(m['force']), m
 
     def _read(self):
         if self._last is None:

@@ -328,3 +328,14 @@ def read_discrepancy(bag, scenario: str) -> dict:
     return {'time': steps[ok] / fs, 'base_accel': accel[ok],
             'rel_disp': spec['rel_disp'][rows, 0][ok],
             'force': (frame * accel - restoring)[ok]}
+
+
+def read_dtm_characterisation(bag):
+    """``(time [s], base_accel [m/s^2], rel_disp [m])`` of a shake-table test bag (seed 5.1.2).
+
+    The table (= DTM frame) acceleration and the DTM relative displacement come
+    from the bridge's ``/rths/specimen`` topic, e.g. of an identification run
+    (``rths run`` step 1) or any ``rths launch`` with the simulated DTM.
+    """
+    data = read_discrepancy(bag, 'specimen')
+    return data['time'], data['base_accel'], data['rel_disp']

@@ -348,3 +348,30 @@ def wait_for_readers(node, publisher, wanted: int, timeout_s: float = 60.0) -> N
                              f'{wanted} reader(s) of {publisher.topic_name} matched within '
                              f'{timeout_s:g} s; is the rest of the graph running?')
         rclpy.spin_once(node, timeout_sec=0.02)
+
+
+def gid_text(gid) -> str:
+    """Text form of a DDS endpoint gid (``TopicEndpointInfo.endpoint_gid``): dotted hex bytes."""
+    return '.'.join(format(int(x), '02x') for x in gid)
+
+
+def own_writer_gid(node, topic: str) -> str:
+    """Gid text of ``node``'s own publisher on ``topic`` ('' if the graph does not show it yet).
+
+    Sent in ``header.frame_id`` of the lock-step loop messages so the receiver can
+    check who sent each one (rclpy's message info carries no publisher gid).
+    """
+    for info in node.get_publishers_info_by_topic(topic):
+        if (info.node_name == node.get_name()
+                and info.node_namespace == node.get_namespace()):
+            return gid_text(info.endpoint_gid)
+    return ''
+
+
+def params_file_of(argv) -> str:
+    """``'PATH: '`` for the ``--params-file PATH`` of a node's argv ('' if none), for errors."""
+    import sys
+
+    args = list(sys.argv if argv is None else argv)
+    files = [args[i + 1] for i, a in enumerate(args[:-1]) if a == '--params-file']
+    return f'params file {files[-1]}: ' if files else ''

@@ -15,8 +15,12 @@ here: the filter is fed the last displacement (hold) for the missing steps so
 its delay line stays aligned with the step index, and the command of step j
 is published.  A repeated step 0 (the numerical node re-sends it until the
 loop runs) re-publishes command 0.  ``inject_drop_every`` = N > 0 drops the
-command of every N-th step (fault injection for tests of the bridge's
-deadline-miss policy).  ``status_every`` = N > 1 publishes the status of
+command of every N-th step, ``inject_delay_every`` = N > 0 holds it back
+``inject_delay_ms`` first (a delay burst; realtime), ``inject_duplicate_every``
+= N > 0 publishes it twice (lock-step): fault injection for the tests of the
+bridge's deadline-miss and step-order policies.  In lock-step the command's
+``header.frame_id`` carries this node's writer gid; the bridge accepts
+commands only from that writer (``command_source``).  ``status_every`` = N > 1 publishes the status of
 every N-th step only (and of every step after a miss).  Latency settings:
 ``rt_priority``, ``cpus``, ``gc`` (:func:`rths_common.node_support.tuning`).  In
 realtime the loop messages travel as CDR bytes (:mod:`rths_common.cdr`).
@@ -35,6 +39,7 @@ from rths_common.qos import loop_qos, status_qos
 from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus
 
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'inject_drop_every': 0,
+               'inject_duplicate_every': 0, 'inject_delay_every': 0, 'inject_delay_ms': 0.0,
                'wait_for_subscribers': 1,
                'status_every': 1,
                **ns.TUNING_PARAMS}
@@ -61,6 +66,7 @@ class CompensatorNode:
         qos = loop_qos(self.own['mode'])
         self.pub = self.node.create_publisher(Command, topics.COMMAND, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
+        self.sender = ''  # this node's writer gid, in frame_id: the bridge checks the sender
         ns.wait_for_readers(self.node, self.pub, self.own['wait_for_subscribers'])
         if self.own['mode'] == 'realtime':  # lean messages: CDR bytes (rths_common.cdr)
             self.node.create_subscription(InterfaceDisplacement, topics.INTERFACE_DISPLACEMENT,
@@ -103,8 +109,14 @@ class CompensatorNode:
                                              n_channels=max(x.size, 1))
         command = self.filter.step(x)
         out = Command(step=msg.step, command=command.tolist())
+        if not self.sender:
+            self.sender = ns.own_writer_gid(self.node, topics.COMMAND)
+        out.header.frame_id = self.sender
         ns.stamp(out.header, ns.now_ns())
         self.pub.publish(out)
+        dup = self.own['inject_duplicate_every']
+        if dup > 0 and msg.step > 0 and msg.step % dup == 0:
+            self.pub.publish(out)  # fault injection: the same step twice
         compute_us = (time.perf_counter_ns() - t0) * 1e-3
         self.status_pub.publish(ns.status_msg(
             'compensator', msg.step, period_us=self.clock.period_us(t_in), compute_us=compute_us,
@@ -136,6 +148,9 @@ class CompensatorNode:
             self.expected += 1
         command = self.filter.step(x)
         self.last_x = x
+        delay = self.own['inject_delay_every']
+        if delay > 0 and step > 0 and step % delay == 0:
+            time.sleep(self.own['inject_delay_ms'] * 1e-3)  # fault injection: a delay burst
         out = cdr.pack_step_arrays(ns.now_ns(), step, command.tolist())
         drop = self.own['inject_drop_every']
         if not (drop > 0 and step > 0 and step % drop == 0):
@@ -160,7 +175,7 @@ def main(argv=None):
         ns.flush([shell.pub, shell.status_pub])
         shell.log.info(f'compensator: {shell.expected} steps, {shell.rejected} rejected')
     except ValueError as err:
-        print(f'compensator_node: error: {err}', file=sys.stderr)
+        print(f'compensator_node: error: {ns.params_file_of(argv)}{err}', file=sys.stderr)
         code = 2
     finally:
         if rclpy.ok():

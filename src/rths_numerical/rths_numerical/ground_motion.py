@@ -23,6 +23,7 @@ ground ends at rest near zero displacement.  The absolute interface frame of
 :mod:`.substructure` needs that consistency.
 """
 
+import math
 import os
 
 import numpy as np
@@ -43,13 +44,24 @@ def _gmspy_file(name):
 
 def read_gmspy_dat(path):
     """Read a gmspy ``.dat`` record; return ``(dt [s], accel [m/s^2])``."""
-    data = np.loadtxt(path, skiprows=5)
-    if data.ndim != 2 or data.shape[1] < 2:
+    try:
+        data = np.loadtxt(path, skiprows=5, ndmin=2)
+    except ValueError as err:
+        raise ValueError(f'{path}: not two numeric columns Time[s] Accel[g] after 5 header '
+                         f'lines ({err}); the file may be truncated: restore the full '
+                         'record') from None
+    if data.shape[0] < 2 or data.shape[1] < 2:
         raise ValueError(f'{path}: expected two columns Time[s] Accel[g] after 5 header lines')
+    if not np.all(np.isfinite(data)):
+        row = int(np.argwhere(~np.isfinite(data))[0, 0])
+        raise ValueError(f'{path}: data line {row + 1} holds nan/inf; fix or remove it')
     t = data[:, 0]
     dt = float(np.median(np.diff(t)))
-    if not np.allclose(np.diff(t), dt, rtol=1e-3, atol=1e-9):
-        raise ValueError(f'{path}: time column is not equally spaced')
+    if not dt > 0 or not np.allclose(np.diff(t), dt, rtol=1e-3, atol=1e-9):
+        row = int(np.argmax(np.abs(np.diff(t) - dt))) + 1
+        raise ValueError(f'{path}: time column is not equally spaced (step {dt:g} s, but data '
+                         f'line {row + 1} is at {t[row]:g} s); resample the record to a '
+                         'constant time step')
     return dt, data[:, 1] * G
 
 
@@ -77,9 +89,18 @@ def read_at2(path):
             npts, dt = int(float(nums[0])), float(nums[1])
         else:
             raise ValueError(f'{path}: line 4 must give NPTS= and DT= (PEER AT2 header)')
-    values = np.array(' '.join(lines[4:]).split(), dtype=float)
+    try:
+        values = np.array(' '.join(lines[4:]).split(), dtype=float)
+    except ValueError as err:
+        raise ValueError(f'{path}: the data lines must hold numbers only ({err}); the file may '
+                         'be damaged: restore it from the PEER database') from None
+    if not dt > 0 or not math.isfinite(dt):
+        raise ValueError(f'{path}: header DT = {dt} must be a positive time step in seconds')
     if values.size < npts:
-        raise ValueError(f'{path}: header says NPTS={npts} but only {values.size} values follow')
+        raise ValueError(f'{path}: header says NPTS={npts} but only {values.size} values follow; '
+                         'the file is truncated: restore the full record')
+    if not np.all(np.isfinite(values[:npts])):
+        raise ValueError(f'{path}: the data hold nan/inf values; fix or restore the file')
     return dt, values[:npts] * G
 
 

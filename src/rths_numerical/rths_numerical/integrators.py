@@ -65,6 +65,8 @@ class _Integrator:
     """Shared state (d, v, a) and the precomputed equilibrium operators."""
 
     name = ''
+    #: Whether :meth:`predict` reads ``p_next`` (the explicit CR/KR-alpha do not).
+    predict_uses_load = True
 
     def __init__(self, M, C, K, dt):
         self.M = np.atleast_2d(np.asarray(M, dtype=float))
@@ -115,6 +117,8 @@ class _Integrator:
 class _ExplicitAlpha(_Integrator):
     """CR and KR-alpha: explicit v, d from a_k; equilibrium weighted by alpha_f, alpha_3."""
 
+    predict_uses_load = False
+
     def _build(self, a1, a2_factor, a3, alpha_f):
         """Precompute the one-step operators (``alpha_2 = a2_factor * alpha_1``)."""
         n, dt = self.n, self.dt
@@ -135,6 +139,11 @@ class _ExplicitAlpha(_Integrator):
         blocks = [g * inv] + ([af * inv] if af else []) + [s_d, s_v, s_a]
         self._G = np.ascontiguousarray(np.hstack(blocks))
         self._buf = np.zeros(len(blocks) * n)
+        # views of the parts of _buf (filled in place by correct())
+        parts = [self._buf[j * n:(j + 1) * n] for j in range(len(blocks))]
+        self._b_load = parts[0]
+        self._b_prev = parts[1] if af else None
+        self._b_d, self._b_v, self._b_a = parts[-3:]
         self._p = np.zeros(n)
 
     def predict(self, p_next=None):
@@ -148,17 +157,15 @@ class _ExplicitAlpha(_Integrator):
         """Acceleration and velocity of step k+1 from equilibrium; return (a, v)."""
         if self._d_next is None:
             self.predict()
-        n = self.n
         p_next = np.asarray(p_next, dtype=float)
         r_next = np.asarray(r_next, dtype=float)
-        b = self._buf
-        b[:n] = p_next - r_next
-        i = n
+        np.subtract(p_next, r_next, out=self._b_load)
         if self.alpha_f:
-            b[n:2 * n] = self._p - self.r
-            i = 2 * n
-        b[i:i + n], b[i + n:i + 2 * n], b[i + 2 * n:] = self.d, self.v, self.a
-        self.a = self._G @ b
+            np.subtract(self._p, self.r, out=self._b_prev)
+        self._b_d[:] = self.d
+        self._b_v[:] = self.v
+        self._b_a[:] = self.a
+        self.a = self._G @ self._buf
         self.d, self.v = self._d_next, self._v_next
         self._p = p_next
         self.r = r_next

@@ -126,10 +126,62 @@ def sdof_model(mass_kg, freq_hz, zeta):
                        [0], 0, name='sdof', dof_names=['mass'])
 
 
+#: Keys of a model YAML file (module docstring).
+MODEL_KEYS = ('name', 'M', 'masses', 'K', 'C', 'damping', 'influence', 'interface_dofs',
+              'output_dof', 'dof_names')
+
+
+def _matrix(data, key, source, unit):
+    """``data[key]`` as a finite float matrix (ValueError naming file, field and fix)."""
+    try:
+        mat = np.atleast_2d(np.asarray(data[key], dtype=float))
+    except (TypeError, ValueError):
+        raise ValueError(f'{source}: field {key} must be a matrix of numbers in {unit} (a list '
+                         'of rows, no unit text)') from None
+    if mat.ndim != 2 or not np.all(np.isfinite(mat)):
+        raise ValueError(f'{source}: field {key} must be a square matrix of finite numbers in '
+                         f'{unit}; remove nan/inf entries')
+    return mat
+
+
+def check_symmetric_pd(mat, key, source, semi=False):
+    """Raise ValueError unless ``mat`` is symmetric and positive (semi-)definite."""
+    scale = max(float(np.max(np.abs(mat))), 1e-300)
+    if not np.allclose(mat, mat.T, rtol=0.0, atol=1e-9 * scale):
+        i, j = np.unravel_index(np.argmax(np.abs(mat - mat.T)), mat.shape)
+        raise ValueError(f'{source}: field {key} is not symmetric ({key}[{i}][{j}] = '
+                         f'{mat[i, j]:g} but {key}[{j}][{i}] = {mat[j, i]:g}); make '
+                         f'{key}[i][j] equal {key}[j][i]')
+    low = float(np.min(np.linalg.eigvalsh(mat)))
+    if low < -1e-9 * scale if semi else low <= 1e-12 * scale:
+        kind = 'positive semi-definite' if semi else 'positive definite'
+        raise ValueError(f'{source}: field {key} is not {kind} (smallest eigenvalue {low:g}); '
+                         'check signs and units of its entries (a grounded structure has a '
+                         'positive-definite K and M)')
+
+
 def model_from_dict(data, source='model'):
-    """Build a :class:`LinearModel` from the YAML layout of the module docstring."""
+    """Build a :class:`LinearModel` from the YAML layout of the module docstring.
+
+    Every matrix must be finite and symmetric; M and K positive definite, C
+    positive semi-definite; unknown keys are errors (a typo would otherwise
+    silently drop a setting).  ValueError names the file, the field and the fix.
+    """
     if not isinstance(data, dict):
         raise ValueError(f'{source}: expected a mapping with keys M/masses, K, C or damping')
+    unknown = sorted(set(map(str, data)) - set(MODEL_KEYS))
+    if unknown:
+        raise ValueError(f'{source}: unknown key(s) {", ".join(unknown)}; the keys of a model '
+                         f'file are {", ".join(MODEL_KEYS)}')
+    if 'masses' in data and 'M' not in data:
+        try:
+            masses = np.asarray(data['masses'], dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            raise ValueError(f'{source}: field masses must be a list of numbers in kg') from None
+        data = dict(data, M=np.diag(masses).tolist())
+    for key, unit in (('M', 'kg'), ('K', 'N/m'), ('C', 'N s/m')):
+        if key in data:
+            check_symmetric_pd(_matrix(data, key, source, unit), key, source, semi=key == 'C')
     if 'M' in data:
         M = np.atleast_2d(np.asarray(data['M'], dtype=float))
     elif 'masses' in data:

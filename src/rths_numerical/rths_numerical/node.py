@@ -270,7 +270,7 @@ def main(argv=None):
         elif not done:
             code = 130  # stopped by a signal before the run ended
     except ValueError as err:
-        print(f'numerical_node: error: {err}', file=sys.stderr)
+        print(f'numerical_node: error: {ns.params_file_of(argv)}{err}', file=sys.stderr)
         code = 2
     finally:
         if rclpy.ok():

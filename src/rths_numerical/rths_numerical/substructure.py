@@ -127,6 +127,11 @@ class NumericalSubstructure:
         self.integ = make_integrator(integrator, model.M, model.C, model.K, self.dt, rho_inf)
         self._mg = model.M @ model.gamma
         self._gi = model.gamma[self.iface]
+        # per-step constants of advance(): index array, whether predict() reads the load
+        self._iface_idx = np.asarray(self.iface, dtype=np.intp)
+        self._predict_needs_load = self.integ.predict_uses_load
+        self._relative_load = self.frame == 'relative' and bool(self.specimen_mass)
+        self._absolute = self.frame == 'absolute'
         n, ns = model.n, self.n_steps
         self._k = 0
         self._r = np.zeros(n)
@@ -140,13 +145,13 @@ class NumericalSubstructure:
         """External load vector ``p_k`` [N]: ``-M Gamma a_g`` plus ``P_I^E`` (relative frame)."""
         a = self.ag[k] if k < self.n_steps else 0.0
         p = -self._mg * a
-        if self.frame == 'relative' and self.specimen_mass:
+        if self._relative_load:
             p[self.iface] -= self.force_scale * self.specimen_mass * self._gi * a
         return p
 
     def _command(self, d, k):
-        u = d[self.iface]
-        if self.frame == 'absolute':
+        u = d.take(self._iface_idx)
+        if self._absolute:
             u = u + self._gi * (self.ug[k] if k < self.n_steps else self.ug[-1])
         return u
 
@@ -160,18 +165,20 @@ class NumericalSubstructure:
             raise RuntimeError(f'all {self.n_steps} steps are finished')
         f = np.asarray(measured_force, dtype=float).reshape(self.n_interface)
         k = self._k
+        integ = self.integ
         r = np.zeros(self.model.n)
-        r[self.iface] = self.force_scale * f
+        r[self._iface_idx] = self.force_scale * f
         p = self.load(k)
         if k == 0:
-            self.integ.set_state(np.zeros(self.model.n), np.zeros(self.model.n), p=p, r=r)
+            integ.set_state(np.zeros(self.model.n), np.zeros(self.model.n), p=p, r=r)
         else:
-            self.integ.correct(p, r)
+            integ.correct(p, r)
         self._force[k] = f
-        self._d[k] = self.integ.d
-        self._a_out[k] = self.integ.a[self.model.output_dof]
+        self._d[k] = integ.d
+        self._a_out[k] = integ.a[self.model.output_dof]
         self._k = k + 1
-        d_next = self.integ.predict(self.load(k + 1))
+        # CR and KR-alpha are explicit: their predict() does not read the next load
+        d_next = integ.predict(self.load(k + 1) if self._predict_needs_load else None)
         cmd = self._command(d_next, k + 1)
         if k + 1 < self.n_steps:
             self._cmd[k + 1] = cmd

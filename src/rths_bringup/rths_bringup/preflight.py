@@ -1,0 +1,122 @@
+"""Pre-flight check of a run's params files: every error before anything starts or is written.
+
+The launcher calls :func:`check_config` before it starts a node or creates a
+bag, so a bad file stops the run with one clear message (``rths launch``
+prints it and exits 2) and leaves nothing half-written.  Each params file is
+checked by the same plain-Python core its node uses:
+
+* ``numerical.yaml`` -> :func:`rths_numerical.substructure.make_substructure`
+  (and through it the model YAML: symmetric, positive-definite matrices;
+  the ground-motion file: complete, uniform time step);
+* ``compensator.yaml`` -> :func:`rths_compensator.params.load_compensator_params`
+  (finite taps, stable denominator);
+* ``bridge.yaml`` -> :func:`rths_actuator_bridge.node.check_bridge_params`
+  (known keys, finite limits in SI units) and, for the simulated backend,
+  :func:`rths_actuator_bridge.backend.make_backend`.
+
+On top of that every file is scanned for values no node can use: ``.nan`` /
+``.inf`` and numbers written with a unit (``'0.254 m'``: the files hold SI
+numbers only).  Every ValueError names the file, the field and the fix.
+"""
+
+import math
+from pathlib import Path
+import re
+
+_NUMBER_WITH_UNIT = re.compile(r'^\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*[a-zA-Z/%\^\*]+')
+
+
+def load_params_file(path, node: str) -> dict:
+    """``ros__parameters`` of ``node`` in the params file ``path`` (ValueError/OSError)."""
+    import yaml
+
+    path = Path(path)
+    try:
+        text = path.read_text(encoding='utf-8')
+    except OSError as err:
+        raise OSError(f'{path}: cannot read the params file ({err.strerror})') from None
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ValueError(f'{path}: not valid YAML ({err}); fix the syntax') from None
+    section = doc.get(node) if isinstance(doc, dict) else None
+    if not isinstance(section, dict) or not isinstance(section.get('ros__parameters'), dict):
+        raise ValueError(f"{path}: expected '{node}:' then 'ros__parameters:' at the top; "
+                         'see the file of the same name in config/')
+    params = dict(section['ros__parameters'])
+    for key, value in params.items():
+        check_value(path, key, value)
+    return params
+
+
+def check_value(path, key: str, value):
+    """Reject non-finite numbers and numbers written with a unit (ValueError names the field)."""
+    values = value if isinstance(value, (list, tuple)) else [value]
+    for i, item in enumerate(values):
+        where = f'{key}[{i}]' if isinstance(value, (list, tuple)) else key
+        if isinstance(item, float) and not math.isfinite(item):
+            raise ValueError(f'{path}: field {where} = {item}: give a finite number')
+        if isinstance(item, str) and _NUMBER_WITH_UNIT.match(item) and not _is_path(item):
+            raise ValueError(f'{path}: field {where} = {item!r} carries a unit; write the number '
+                             'alone in the SI unit of the comment next to it (m, N, s, Hz, kg)')
+
+
+def _is_path(text: str) -> bool:
+    return '/' in text.strip().split()[0] and not text.strip().endswith(('m/s', 'm/s^2'))
+
+
+def _wrap(path, node, func, *args):
+    try:
+        return func(*args)
+    except ValueError as err:
+        text = str(err)
+        if str(path) in text:
+            raise
+        raise ValueError(f'{path}: {node}: {text}') from None
+
+
+def check_numerical(path) -> dict:
+    """Validate ``numerical.yaml`` by building the substructure it describes."""
+    from rths_numerical.node import NODE_PARAMS
+    from rths_numerical.substructure import make_substructure
+
+    params = load_params_file(path, 'numerical')
+    core = {k: v for k, v in params.items() if k not in NODE_PARAMS}
+    _wrap(path, 'numerical', make_substructure, core)
+    return params
+
+
+def check_compensator(path) -> dict:
+    """Validate ``compensator.yaml`` (taps, denominator, fs_hz)."""
+    from rths_compensator.params import load_compensator_params
+
+    load_params_file(path, 'compensator')
+    return _wrap(path, 'compensator', load_compensator_params, path)
+
+
+def check_bridge(path) -> dict:
+    """Validate ``bridge.yaml``: keys, limits, backend settings."""
+    from rths_actuator_bridge.node import check_bridge_params
+
+    params = load_params_file(path, 'bridge')
+    core = _wrap(path, 'bridge', check_bridge_params, params)
+    if core.get('backend', 'simulated') == 'simulated':
+        from rths_actuator_bridge.backend import make_backend
+        _wrap(path, 'bridge', make_backend, core).close()
+    return params
+
+
+#: params file -> checker, in loop order.
+CHECKS = (('bridge.yaml', check_bridge), ('compensator.yaml', check_compensator),
+          ('numerical.yaml', check_numerical))
+
+
+def check_config(config_dir) -> None:
+    """Check every params file of ``config_dir`` (ValueError/OSError on the first bad one)."""
+    config_dir = Path(config_dir)
+    for name, check in CHECKS:
+        path = config_dir / name
+        if not path.is_file():
+            raise OSError(f'params file {path} not found; give --config a directory holding '
+                          f'{", ".join(n for n, _ in CHECKS)}')
+        check(path)
