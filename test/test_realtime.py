@@ -24,8 +24,11 @@ def realtime_run(tmp_path_factory):
     from rths_bringup.bench_loop import write_config
 
     base = tmp_path_factory.mktemp('realtime')
+    # The watchdog is set to a whole second: this test checks the miss accounting, and a loaded
+    # CI machine can stall a process for tens of milliseconds (10 steps at 256 Hz = 39 ms).
     config = write_config(base / 'config', rate_hz=RATE_HZ, duration_s=DURATION_S, taps=50,
-                          model='sdof', priority=0, drop_every=DROP_EVERY)
+                          model='sdof', priority=0, drop_every=DROP_EVERY,
+                          watchdog_steps=int(RATE_HZ))
     bag = base / 'bag'
     proc = rths('launch', '--config', config, '--bag', bag, '--timeout', 180, timeout=300)
     return proc, bag

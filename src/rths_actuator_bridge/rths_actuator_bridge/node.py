@@ -84,6 +84,7 @@ def check_bridge_params(params: dict) -> dict:
     naming the field and the fix.  Used by the node and by ``rths launch``'s
     pre-flight check (:mod:`rths_bringup.preflight`).
     """
+    from rths_actuator_bridge.backend import BACKENDS
     from rths_actuator_bridge.safety import SAFETY_PARAMS, SafetyLimits
     from rths_actuator_bridge.simulated import SIM_PARAMS
     from rths_actuator_bridge.udp import UDP_PARAMS
@@ -92,6 +93,9 @@ def check_bridge_params(params: dict) -> dict:
             if k not in NODE_PARAMS and k not in ns.ROS_BUILTIN_PARAMS
             and not k.startswith('qos_overrides')}
     backend = core.get('backend', 'simulated')
+    if backend not in BACKENDS:
+        raise ValueError(f"parameter 'backend' = {backend!r} is unknown; use one of "
+                         f"{', '.join(repr(b) for b in BACKENDS)}")
     known = {'backend', *SAFETY_PARAMS, *(UDP_PARAMS if backend == 'udp' else SIM_PARAMS)}
     unknown = sorted(set(core) - known)
     if unknown:
@@ -206,7 +210,7 @@ class BridgeNode:
     def command_from_source(self, msg: Command) -> bool:
         """True if ``msg`` carries the writer gid of the command source (lock-step messages)."""
         sender = msg.header.frame_id
-        if sender not in self.source_gids:
+        if sender not in self.source_gids and sender not in self.foreign:
             self.scan_command_publishers()  # a new source writer may have just matched
         if sender in self.source_gids:
             return True

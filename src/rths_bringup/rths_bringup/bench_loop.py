@@ -20,7 +20,15 @@ and writes JSON:
 * ``recorder_loss``: per loop topic, steps of the run missing from the bag
   (the recorder subscribes best-effort in realtime), and the consistency of
   the bridge's status accounting with the bag;
-* machine info: ``nproc``, ``cpu_model``, load average before and after.
+* machine info: ``nproc``, ``cpu_model``, load average before and after;
+* ``platform_floor`` (``--floor S``, default 10 s, before the runs): one
+  SCHED_FIFO thread that only sleeps to absolute ``1/rate`` deadlines, as
+  cyclictest does, and its wake-up lateness; ``late_gt_period_pct`` is the
+  miss rate of an empty loop, the floor no node code can go below (on a
+  loaded VM, vCPU stalls of several ms show up here);
+* ``ros_domain_id``: the runs use a private DDS domain (``--domain-id``;
+  default: ``ROS_DOMAIN_ID`` if set, else one derived from the process id),
+  so another graph running on the machine cannot feed the bench's topics.
 
 ``--find-max`` steps the rate up (1024, 1536, 2048, ...; until a run aborts
 or misses more than 10 %) and reports the highest rate with at most 0.1 %
@@ -75,8 +83,16 @@ def register(commands, benches):
                    'publish the status of every N-th step only (default 1: every step; the '
                    'bridge always reports every step)')
     p.add_argument('--no-bag', action='store_true', help='do not record (no recorder process)')
+    p.add_argument('--recorder-nice', type=int, default=10, help='nice value of the recorder '
+                   "process's threads (normal scheduling; default 10)")
+    p.add_argument('--recorder-cpus', default='', help="CPU affinity of the recorder ('' = "
+                   "none, default; e.g. '0' with --cpus 1 keeps it off the loop's core)")
     p.add_argument('--find-max', action='store_true', help='step the rate up from 1024 Hz '
                    'and report the highest with <= 0.1 %% deadline misses')
+    p.add_argument('--floor', type=float, default=10.0, help='seconds of the platform '
+                   'wake-up floor measurement before the runs (0 = skip; default 10)')
+    p.add_argument('--domain-id', type=int, default=-1, help='ROS_DOMAIN_ID of the runs '
+                   '(default -1: $ROS_DOMAIN_ID if set, else a private one from the pid)')
     p.add_argument('--keep', default=None, help='keep config, bag and timing files here')
     p.set_defaults(func=cmd_bench_loop)
 
@@ -242,6 +258,61 @@ def bag_check(bag, steps, missed) -> dict:
             'status_matches_bridge': bool(sum(flags) == final == int(np.sum(missed)))}
 
 
+def platform_floor(rate_hz: float, duration_s: float, priority: int = 80) -> dict:
+    """Wake-up lateness of an empty SCHED_FIFO loop at ``rate_hz`` (what cyclictest measures).
+
+    This thread sleeps to absolute deadlines ``t0 + k / rate`` and records how
+    late it woke; nothing else runs in it.  Its scheduling is restored after.
+    """
+    import gc
+
+    period_ns = int(round(1e9 / rate_hz))
+    n = max(int(duration_s * rate_hz), 1)
+    late = np.zeros(n, dtype=np.int64)
+    policy = os.sched_getscheduler(0)
+    param = os.sched_getparam(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
+        sched = f'SCHED_FIFO {int(priority)}'
+    except OSError as err:
+        sched = f'SCHED_OTHER (SCHED_FIFO refused: {err})'
+    gc_was = gc.isenabled()
+    gc.disable()
+    try:
+        t0 = time.monotonic_ns() + period_ns
+        for k in range(n):
+            due = t0 + k * period_ns
+            wait = due - time.monotonic_ns()
+            if wait > 0:
+                time.sleep(wait * 1e-9)
+            late[k] = time.monotonic_ns() - due
+    finally:
+        if gc_was:
+            gc.enable()
+        try:
+            os.sched_setscheduler(0, policy, param)
+        except OSError:
+            pass
+    late_us = late * 1e-3
+    return {'rate_hz': float(rate_hz), 'samples': n, 'scheduling': sched,
+            **_stats('late_us', late_us),
+            'late_us_p999': round(float(np.percentile(late_us, 99.9)), 1),
+            'late_gt_period_pct': round(100.0 * float(np.mean(late > period_ns)), 4),
+            'loadavg': [round(x, 2) for x in os.getloadavg()]}
+
+
+def domain_id(requested: int) -> int:
+    """The ROS domain of the runs: ``requested`` if >= 0, else $ROS_DOMAIN_ID, else private."""
+    if requested >= 0:
+        if requested > 232:
+            raise ValueError(f'--domain-id {requested}: use 0..232 (Fast DDS port range)')
+        return requested
+    env = os.environ.get('ROS_DOMAIN_ID', '')
+    if env.strip():
+        return int(env)
+    return 100 + os.getpid() % 100
+
+
 def run_once(rate_hz, duration_s, args, workdir: Path, log) -> dict:
     """One benchmark run at ``rate_hz``; return its result dict."""
     from rths_bringup.launcher import Launcher
@@ -255,6 +326,10 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log) -> dict:
     timing = {name: (workdir / f'{name}_timing.npz').resolve()
               for name in ('bridge', 'numerical')}
     overrides = {name: {'timing_out': str(path)} for name, path in timing.items()}
+    if bag is not None:
+        overrides['recorder'] = {'nice': int(args.recorder_nice)}
+        if args.recorder_cpus:
+            overrides['recorder']['cpus'] = f'"{args.recorder_cpus}"'
     load_before = [round(x, 2) for x in os.getloadavg()]
     launcher = Launcher(config, bag=bag, overrides=overrides, out=log,
                         timeout_s=duration_s * 3 + 120)
@@ -271,6 +346,8 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log) -> dict:
                   spin_margin_us=args.margin, status_every=args.status_every,
                   executor=args.executor, rt_priority=args.priority, cpus=args.cpus,
                   gc=args.gc, recorded=bag is not None, wall_s=round(wall, 1),
+                  recorder_nice=args.recorder_nice if bag is not None else None,
+                  recorder_cpus=args.recorder_cpus if bag is not None else None,
                   loadavg_before=load_before,
                   loadavg_after=[round(x, 2) for x in os.getloadavg()])
     result['meets_targets'] = bool(code == 0 and result['deadline_miss_pct'] is not None
@@ -304,6 +381,17 @@ def cmd_bench_loop(args) -> int:
         print(f'rths bench loop: node logs in {log_path}' if keep else
               'rths bench loop: (use --keep DIR to keep logs, bag and timing files)', flush=True)
         report = {'machine': machine_info()}
+        domain = domain_id(args.domain_id)
+        os.environ['ROS_DOMAIN_ID'] = str(domain)   # the launcher's nodes inherit it
+        report['ros_domain_id'] = domain
+        if args.floor > 0:
+            floor = platform_floor(1024.0 if args.find_max else args.rate, args.floor,
+                                   max(args.priority, 1))
+            report['platform_floor'] = floor
+            print(f"platform floor ({args.floor:g} s empty SCHED_FIFO loop at "
+                  f"{floor['rate_hz']:g} Hz): wake-up late p50/p99/max {floor['late_us_p50']}/"
+                  f"{floor['late_us_p99']}/{floor['late_us_max']} us, "
+                  f"{floor['late_gt_period_pct']} % later than a period", flush=True)
         with open(log_path, 'w') as log:
             if args.find_max:
                 runs = []

@@ -21,6 +21,7 @@ import sys
 CLI_MODULES = (
     'rths_bringup.commands',
     'rths_bringup.bench_loop',
+    'rths_bringup.bench_distributed',
     'rths_bringup.run',
     'rths_bringup.replay',
     'rths_numerical.cli',

@@ -124,8 +124,14 @@ class Launcher:
     """Start, watch and stop the node processes of one run."""
 
     def __init__(self, config_dir, bag=None, overrides=None, mode=None, out=sys.stdout,
-                 timeout_s=None, cpu_sample_s: float = 0.25):
+                 timeout_s=None, cpu_sample_s: float = 0.25, preflight: bool = True,
+                 node_env: dict = None, node_prefix: dict = None):
         self.config_dir = Path(config_dir)
+        #: {node: {VAR: value}} environment per node (e.g. its ROS_DOMAIN_ID), and
+        #: {node: [argv prefix]} (e.g. ['ip', 'netns', 'exec', 'lab1']): distributed runs
+        self.node_env = node_env or {}
+        self.node_prefix = node_prefix or {}
+        self.preflight = preflight
         self.bag = Path(bag) if bag else None
         self.overrides = overrides or {}
         if mode is not None:
@@ -166,7 +172,9 @@ class Launcher:
 
     def _spawn(self, name, argv):
         child = Child(name, argv)
-        env = dict(os.environ, PYTHONUNBUFFERED='1', RCUTILS_COLORIZED_OUTPUT='0')
+        env = dict(os.environ, PYTHONUNBUFFERED='1', RCUTILS_COLORIZED_OUTPUT='0',
+                   **self.node_env.get(name, {}))
+        argv = list(self.node_prefix.get(name, [])) + list(argv)
         child.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                       text=True, env=env, start_new_session=True)
         child.reader = threading.Thread(target=self._stream, args=(child,), daemon=True)
@@ -196,6 +204,9 @@ class Launcher:
 
     def run(self) -> int:
         """Run the graph until the owner finishes, a node dies or a signal arrives."""
+        if self.preflight:  # every params file checked before anything starts or is written
+            from rths_bringup.preflight import check_config
+            check_config(self.config_dir)
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         failed = None
         try:
@@ -240,6 +251,8 @@ class Launcher:
                     self.say(f'timeout: the run did not finish within {self.timeout_s:g} s')
                     break
                 time.sleep(0.02)
+            if failed is not None and failed.name != 'bridge':
+                self.wait_for_bridge_safe_stop()
         finally:
             # Loop order, recorder last, so the bag keeps everything that was published.
             for child in sorted(self.children, key=lambda c: c.name == 'recorder'):
@@ -255,12 +268,134 @@ class Launcher:
                 reindex(self.bag)
                 self.say(f'recorder ended with {describe_exit(recorder.returncode)}: '
                          f'bag {self.bag} reindexed')
+        bridge = self._child('bridge')
+        if (bridge is not None and bridge.returncode is not None and bridge.returncode < 0
+                and not bridge.stopping):
+            self.safe_state_after_bridge_death(bridge)
         if failed is not None:
             self.say(f'FAILED: node {failed.name} ({describe_exit(failed.returncode)})')
             return 1
         if self._signal is not None:
             return 128 + self._signal
         return 0
+
+    def bridge_param(self, key: str, default):
+        """A bridge parameter from the overrides or bridge.yaml, else ``default``."""
+        if key in self.overrides.get('bridge', {}):
+            return self.overrides['bridge'][key]
+        try:
+            import yaml
+            data = yaml.safe_load((self.config_dir / 'bridge.yaml').read_text()) or {}
+            return data['bridge']['ros__parameters'].get(key, default)
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            return default
+
+    def safe_stop_bound_s(self) -> float:
+        """Stated time [s] within which the bridge reaches STOPPED once its input stops.
+
+        Lock-step: the command watchdog (``watchdog_timeout_s``, checked every
+        0.1 s), then HOLD (``hold_time_s``) and the RAMP (about ``ramp_time_s``,
+        within the velocity/acceleration limits), plus 2 s for braking and
+        process scheduling.  Realtime: ``watchdog_steps`` ticks instead of the
+        lock-step watchdog.
+        """
+        hold = float(self.bridge_param('hold_time_s', 0.25))
+        ramp = float(self.bridge_param('ramp_time_s', 2.0))
+        if self.mode == 'realtime':
+            detect = float(self.bridge_param('watchdog_steps', 10)) / float(
+                self.bridge_param('fs_hz', 1024.0))
+        else:
+            detect = float(self.bridge_param('watchdog_timeout_s', 5.0)) + 0.1
+        return detect + hold + ramp + 2.0
+
+    def wait_for_bridge_safe_stop(self):
+        """A loop node died: let the bridge's watchdog bring the plant to the safe state.
+
+        The bridge notices that commands stopped, holds, ramps to the safe
+        position and exits with code 3 (safety stop); the launcher waits up to
+        :meth:`safe_stop_bound_s` for that before it stops the rest.
+        """
+        bridge = self._child('bridge')
+        if bridge is None or bridge.returncode is not None:
+            return
+        bound = self.safe_stop_bound_s()
+        self.say(f'waiting up to {bound:.2f} s for the bridge to reach the safe state')
+        t0 = time.monotonic()
+        stopped = False
+        while bridge.returncode is None and time.monotonic() - t0 < bound:
+            if self._signal is not None:
+                return
+            if any('safety stop at step' in line for line in bridge.lines[-20:]):
+                stopped = True
+                break
+            time.sleep(0.02)
+        took = time.monotonic() - t0
+        if stopped or bridge.returncode == 3:
+            self.say(f'bridge reached the safe state (safety stop) {took:.2f} s after the '
+                     f'failure (bound {bound:.2f} s)')
+            try:  # it exits by itself once its last messages are acknowledged (ns.flush)
+                bridge.proc.wait(10.0)
+            except subprocess.TimeoutExpired:
+                pass
+        else:
+            self.say(f'bridge did not report a safety stop within {bound:.2f} s '
+                     f'({describe_exit(bridge.returncode)}); stopping it')
+
+    def bridge_backend(self) -> str:
+        """The bridge's backend from its params file and overrides ('simulated' by default)."""
+        backend = self.overrides.get('bridge', {}).get('backend')
+        if backend:
+            return str(backend)
+        try:
+            import yaml
+            data = yaml.safe_load((self.config_dir / 'bridge.yaml').read_text()) or {}
+            return str(data['bridge']['ros__parameters'].get('backend', 'simulated'))
+        except (OSError, ValueError, KeyError, TypeError):
+            return 'simulated'
+
+    def safe_state_after_bridge_death(self, bridge: Child):
+        """The bridge was killed: say (and, with hardware, make sure) the plant is safe.
+
+        Simulated backend: the plant lived in the bridge process and stopped with
+        it; nothing moves.  UDP backend: the bridge can no longer run its safe
+        stop, so the launcher sends the servo controller DEACTIVATE: the
+        controller stops taking commands and its own interlock holds the
+        actuator (the emulator: ``rths controller-emulator``, udp.py).
+        """
+        backend = self.bridge_backend()
+        if backend != 'udp':
+            self.say(f'bridge {describe_exit(bridge.returncode)}: the {backend} plant ran inside '
+                     'the bridge process and stopped with it: safe state (nothing moves)')
+            return
+        try:
+            self.say(self.deactivate_udp_controller())
+        except (OSError, ValueError) as err:
+            self.say(f'bridge {describe_exit(bridge.returncode)}: could not reach the servo '
+                     f'controller ({err}); its own command watchdog must stop the actuator')
+
+    def deactivate_udp_controller(self) -> str:
+        """Send DEACTIVATE to the bridge's UDP servo controller; describe the outcome."""
+        import socket
+        import yaml
+        from rths_actuator_bridge import udp
+
+        data = yaml.safe_load((self.config_dir / 'bridge.yaml').read_text()) or {}
+        params = dict(data.get('bridge', {}).get('ros__parameters', {}))
+        params.update(self.overrides.get('bridge', {}))
+        host, port = str(params.get('host', '127.0.0.1')), int(params.get('port', 0))
+        n_channels = int(params.get('n_channels', 1))
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            sock.settimeout(0.2)
+            for _ in range(5):
+                sock.sendto(udp.pack(udp.DEACTIVATE, 0, (), n_channels), (host, port))
+                try:
+                    kind, *_ = udp.unpack(sock.recvfrom(65536)[0])
+                except (socket.timeout, ValueError):
+                    continue
+                if kind == udp.ACK:
+                    return (f'bridge died: servo controller {host}:{port} acknowledged '
+                            'DEACTIVATE (actuator stopped)')
+        raise OSError(f'no ACK from {host}:{port}')
 
     def _child(self, name):
         return next((c for c in self.children if c.name == name), None)

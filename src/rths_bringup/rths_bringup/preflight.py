@@ -23,7 +23,11 @@ import math
 from pathlib import Path
 import re
 
-_NUMBER_WITH_UNIT = re.compile(r'^\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*[a-zA-Z/%\^\*]+')
+_UNITS = ('m', 'mm', 'cm', 'in', 'inch', 'inches', 'ft', 's', 'ms', 'us', 'sec', 'hz', 'khz',
+          'n', 'kn', 'kg', 'lb', 'lbm', 'lbf', 'kip', 'g', 'm/s', 'mm/s', 'in/s', 'm/s^2',
+          'm/s2', '%', 'deg', 'rad', 'kn/m', 'n/m', 'n s/m', 'ns/m')
+_NUMBER_WITH_UNIT = re.compile(
+    r'^\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*(?P<unit>[^\d\s].*?)\s*$')
 
 
 def load_params_file(path, node: str) -> dict:
@@ -56,13 +60,10 @@ def check_value(path, key: str, value):
         where = f'{key}[{i}]' if isinstance(value, (list, tuple)) else key
         if isinstance(item, float) and not math.isfinite(item):
             raise ValueError(f'{path}: field {where} = {item}: give a finite number')
-        if isinstance(item, str) and _NUMBER_WITH_UNIT.match(item) and not _is_path(item):
+        match = _NUMBER_WITH_UNIT.match(item) if isinstance(item, str) else None
+        if match and match.group('unit').lower() in _UNITS:
             raise ValueError(f'{path}: field {where} = {item!r} carries a unit; write the number '
                              'alone in the SI unit of the comment next to it (m, N, s, Hz, kg)')
-
-
-def _is_path(text: str) -> bool:
-    return '/' in text.strip().split()[0] and not text.strip().endswith(('m/s', 'm/s^2'))
 
 
 def _wrap(path, node, func, *args):

@@ -3,9 +3,15 @@
 ``ros2 run rths_bringup recorder --ros-args -p bag:=out/run/bag -p mode:=lockstep``
 
 Subscriptions take the serialized (CDR) bytes (``raw=True``), so recording
-costs no deserialization; a writer thread drains a queue into the bag and
-commits every 0.25 s, so a crash of any process loses at most that much.
-This node never sits in the 1 kHz path of the loop.
+costs no deserialization; a writer thread drains a queue into the bag in
+batches (every ``batch_s``, default 0.05 s; the callbacks only append to the
+queue) and commits every 0.25 s, so a crash of any process loses at most that
+much.  This node never sits in the 1 kHz path of the loop.
+
+Realtime mode: the recorder must not take the loop's CPU.  Its threads stay
+at normal (SCHED_OTHER) scheduling with a positive nice value (``nice``,
+default 10 in realtime, 0 in lock-step) and, if ``cpus`` is set (e.g. ``'0'``),
+are pinned to those CPUs, so the SCHED_FIFO loop nodes can have the other core.
 """
 
 from collections import deque
@@ -13,12 +19,20 @@ import sys
 import threading
 import time
 
+import os
+
 import rclpy
 
 from rths_bringup.bagio import BagWriter
 from rths_common import node_support as ns
 from rths_common import topics
 from rths_common.qos import recorder_qos, status_qos
+
+
+#: Recorder parameters that are not run information (everything else is kept in the bag).
+RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s')
+#: Longest time between two commits of the bag [s] (what a crash can lose).
+COMMIT_PERIOD_S = 0.25
 
 
 class Recorder:
@@ -32,8 +46,14 @@ class Recorder:
             raise ValueError("parameter 'bag' (output directory of the bag) is required: "
                              'pass -p bag:=PATH')
         mode = params.get('mode', 'lockstep')
+        self.nice = int(params.get('nice', 10 if mode == 'realtime' else 0))
+        self.cpus = str(params.get('cpus', '') or '')
+        self.batch_s = float(params.get('batch_s', 0.05))
+        if not 0 < self.batch_s <= 0.25:
+            raise ValueError(f"parameter 'batch_s' = {self.batch_s} must lie in (0, 0.25] s "
+                             '(the writer drains the queue this often)')
         # Everything else given to the recorder (fs_hz, ...) is run information kept in the bag.
-        self.run_info = {k: v for k, v in params.items() if k not in ('bag',)}
+        self.run_info = {k: v for k, v in params.items() if k not in RECORDER_PARAMS}
         self.queue = deque()
         self.wake = threading.Event()
         self.running = True
@@ -50,12 +70,35 @@ class Recorder:
             qos = status_qos() if topic in (topics.STATUS, topics.SPECIMEN) else recorder_qos(mode)
             self.node.create_subscription(ns.message_class(msgtype), topic,
                                           self._callback(topic), qos, raw=True)
-        self.node.get_logger().info(f'recording {len(topics.LOOP_TOPICS)} topics to {bag}')
+        tuning = self.tune()
+        self.node.get_logger().info(f'recording {len(topics.LOOP_TOPICS)} topics to {bag}'
+                                    f'{f" ({tuning})" if tuning else ""}')
+
+    def tune(self) -> str:
+        """Lower the priority (nice) of every thread and pin them to ``cpus``; describe it.
+
+        Linux nice values are per thread; threads created later inherit them
+        from their creator.
+        """
+        parts = []
+        tids = [int(t) for t in os.listdir('/proc/self/task')]
+        if self.nice:
+            try:
+                for tid in tids:
+                    os.setpriority(os.PRIO_PROCESS, tid, self.nice)
+                parts.append(f'nice {self.nice}')
+            except OSError as err:
+                parts.append(f'nice {self.nice} refused ({err})')
+        if self.cpus:
+            parts.append(ns.tune_process(0, self.cpus, 'default').replace(', gc default', ''))
+        return ', '.join(parts)
 
     def _callback(self, topic):
+        queue, now_ns = self.queue, ns.now_ns
+
         def on_message(raw: bytes):
-            self.queue.append((topic, ns.now_ns(), raw))
-            self.wake.set()
+            # only a deque append (thread-safe): the writer thread drains in batches
+            queue.append((topic, now_ns(), raw))
         return on_message
 
     def _drain(self, bag, opened):
@@ -67,12 +110,16 @@ class Recorder:
         finally:
             opened.set()
         with writer:
+            last_commit = time.monotonic()
             while self.running or self.queue:
-                self.wake.wait(0.1)
-                self.wake.clear()
-                while self.queue:
-                    writer.write(*self.queue.popleft())
-                writer.commit()
+                self.wake.wait(self.batch_s)   # set only by close()
+                queue = self.queue
+                while queue:
+                    writer.write(*queue.popleft())
+                now = time.monotonic()
+                if now - last_commit >= COMMIT_PERIOD_S or not self.running:
+                    writer.commit()
+                    last_commit = now
             self.count = writer.count
 
     def close(self):

@@ -53,12 +53,34 @@ def _f64_array(buf: bytearray, values):
         buf += struct.pack(f'<{n}d', *values)
 
 
+def _one_value_layout(n_arrays: int) -> struct.Struct:
+    """Whole message ``header (empty frame_id), uint64 step, n_arrays x float64[1]`` as a Struct.
+
+    The one-channel loop messages in one ``pack``/``unpack`` call; field
+    offsets as :func:`pack_step_arrays` writes them (encapsulation, sec,
+    nanosec, frame_id length 1 + NUL, pad to 8, step, then per array its
+    length 1, pad to 8 and the value).
+    """
+    return struct.Struct('<4siIIx3xQ' + 'I4xd' * n_arrays)
+
+
+#: Fast layouts of the one-value messages: Command/InterfaceDisplacement (1), Measurement (3).
+_ONE_VALUE = {n: _one_value_layout(n) for n in (1, 3)}
+
+
 def pack_step_arrays(stamp_ns: int, step: int, *arrays) -> bytes:
     """CDR of a message ``header, uint64 step, float64[] x len(arrays)`` (empty frame_id).
 
     One array: InterfaceDisplacement / Command; three: Measurement
     (applied, displacement, force).
     """
+    layout = _ONE_VALUE.get(len(arrays))
+    if layout is not None and all(len(values) == 1 for values in arrays):
+        sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+        fields = [_ENCAP_LE, sec, nanosec, 1, int(step)]
+        for values in arrays:
+            fields += (1, values[0])
+        return layout.pack(*fields)
     buf = bytearray(_ENCAP_LE)
     _header(buf, stamp_ns)
     _pad(buf, 8)
@@ -112,6 +134,12 @@ _TIME = struct.Struct('<iI')
 
 def unpack_step_arrays(data: bytes, n_arrays: int = 1) -> tuple:
     """``(stamp_ns, step, array, ...)`` of the CDR of :func:`pack_step_arrays` (any frame_id)."""
+    layout = _ONE_VALUE.get(n_arrays)
+    if layout is not None and len(data) == layout.size and data[:2] == b'\x00\x01':
+        fields = layout.unpack(data)   # one-value arrays and an empty frame_id?
+        if fields[3] == 1 and fields[5::2] == (1,) * n_arrays:
+            return (fields[1] * 1_000_000_000 + fields[2], fields[4]) + tuple(
+                (v,) for v in fields[6::2])
     r = _Reader(data)
     sec, nanosec = r.unpack(_TIME)
     r.string()

@@ -1,7 +1,12 @@
 """Sub-commands this package adds to the ``rths`` command (see rths_bringup.cli).
 
 * ``rths discrepancy --scenario {specimen,actuator} --measured CSV|BAG [--model M.yaml]
-  --out DIR``: find, name and add the effect the model misses (issue 7).
+  [--config DIR] --out DIR``: find, name and add the effect the model misses (issue 7).
+  Given an RTHS bag (specimen scenario), the nominal model is the run's damper and the
+  reference of the run is re-run with the updated model (:mod:`.rerun`).
+* ``rths reference BAG --specimen-model M.yaml [--config DIR] [--out DIR]``: re-run the
+  reference of an RTHS bag with a specimen model; print the RTHS-vs-reference error
+  with the nominal and with that model.
 * ``rths bench discrepancy --out FILE.json [--seeds N] [--quick] [--workers W]``:
   the self-test benchmark (confusion matrix, correct naming, false effects on
   controls, median gap closed).
@@ -14,12 +19,16 @@ def _say(msg):
     print(msg, file=sys.stderr, flush=True)
 
 
+def _is_bag(path):
+    import os
+    return os.path.isdir(path) or str(path).lower().endswith(('.mcap', '.db3', '.bag'))
+
+
 def _read_measured(path, scenario):
     """CSV path -> validated columns; a bag directory/.mcap/.db3 goes to rths_bringup.bagio."""
     import os
     from rths_discrepancy import io as dio
-    lower = str(path).lower()
-    if os.path.isdir(path) or lower.endswith(('.mcap', '.db3', '.bag')):
+    if _is_bag(path):
         try:
             from rths_bringup.bagio import read_discrepancy
         except ImportError:
@@ -34,10 +43,23 @@ def _read_measured(path, scenario):
 
 def run_discrepancy_cmd(args) -> int:
     """``rths discrepancy``: run the workflow and write DIR/result.json, report.md, plots."""
+    import os
     from rths_discrepancy import models
     from rths_discrepancy.workflow import run_discrepancy
     data = _read_measured(args.measured, args.scenario)
     model = models.load_model(args.scenario, args.model) if args.model else None
+    run = None  # (numerical, bridge) parameters of an RTHS bag, for the reference re-run
+    if args.scenario == 'specimen' and _is_bag(args.measured) and os.path.isdir(args.measured):
+        from rths_discrepancy import rerun
+        try:
+            run = rerun.run_parameters(args.measured, args.config)
+        except ValueError as err:
+            _say(f'note: {err}; the nominal model is the default valve #4 and the reference '
+                 'is not re-run')
+        if run is not None and model is None:
+            model = rerun.run_damper_model(run[1])
+            _say(f"nominal model: the run's damper {run[1].get('dtm', 'valve4')} "
+                 f'(m_d {model.m_d:g} kg, c_d {model.c_d:g} N s/m, k_d {model.k_d:g} N/m)')
     _say(f'rths discrepancy: {args.scenario}, {len(data["time"])} samples from {args.measured}')
     res = run_discrepancy(args.scenario, data, model=model, out_dir=args.out, progress=_say)
     for line in res['localization']['summary']:
@@ -53,6 +75,38 @@ def run_discrepancy_cmd(args) -> int:
     print('candidates (held-out NRMSE): ' + ', '.join(
         f'{k} {v:.4f}' for k, v in sorted(res['candidates'].items(), key=lambda kv: kv[1])[:6]))
     print(f'wrote {args.out}/result.json, updated_model.yaml, report.md and PNG plots')
+    if run is not None and res['effect'] not in ('none', 'unexplained'):
+        _say('re-running the reference of the run with the updated specimen model')
+        cmp = rerun.compare(args.measured, models.model_from_dict('specimen',
+                                                                  res['updated_model']),
+                            config=args.config, nominal_model=model)
+        _write_reference(cmp, args.out)
+    return 0
+
+
+def _write_reference(cmp, out_dir):
+    import os
+    from rths_discrepancy import rerun
+    for line in rerun.summary_lines(cmp):
+        print(line)
+    os.makedirs(out_dir, exist_ok=True)
+    rerun.write(cmp, os.path.join(out_dir, 'reference.json'))
+    rerun.plot(cmp, os.path.join(out_dir, 'reference.png'))
+    print(f'wrote {out_dir}/reference.json and reference.png')
+
+
+def reference_cmd(args) -> int:
+    """``rths reference``: RTHS-vs-reference error with the nominal and an updated specimen."""
+    import os
+    from rths_discrepancy import models, rerun
+    if not os.path.isdir(args.bag):
+        raise OSError(f'{args.bag}: no such bag directory')
+    if not os.path.isfile(args.specimen_model):
+        raise OSError(f'--specimen-model {args.specimen_model}: no such file')
+    updated = models.load_model('specimen', args.specimen_model)
+    cmp = rerun.compare(args.bag, updated, config=args.config)
+    _write_reference(cmp, args.out or os.path.join(os.path.dirname(
+        os.path.abspath(args.specimen_model)), 'reference'))
     return 0
 
 
@@ -111,8 +165,31 @@ def register(commands, benches):
     p.add_argument('--model', metavar='MODEL.yaml',
                    help='nominal model YAML (default: Table 4 valve #4 DTM / Table 1 3-pole '
                         'actuator); layouts in rths_discrepancy.models')
+    p.add_argument('--config', metavar='DIR',
+                   help='params directory the run was launched with (numerical.yaml, '
+                        'bridge.yaml), for a bag of rths launch, which has no run information')
     p.add_argument('--out', required=True, metavar='DIR', help='output directory')
     p.set_defaults(func=run_discrepancy_cmd)
+
+    r = commands.add_parser(
+        'reference',
+        help='re-run the reference of an RTHS bag with an updated specimen model',
+        description='Re-run the reference of the RTHS recorded in BAG (the same numerical '
+                    'substructure coupled to a numerical DTM on a perfect table) with the '
+                    "run's nominal Table 4 damper and with --specimen-model (e.g. the "
+                    'updated_model.yaml of rths discrepancy: its loop effects such as '
+                    'coulomb_friction are simulated), and print the relative RMS error of the '
+                    "RTHS 2nd-floor displacement against each (and against rths review's "
+                    'linear whole-numerical reference). Writes reference.json and '
+                    'reference.png to --out.')
+    r.add_argument('bag', help='RTHS bag directory (rths run, or rths launch with --config)')
+    r.add_argument('--specimen-model', required=True, metavar='MODEL.yaml',
+                   help='specimen model YAML (kind: dtm, m_d, c_d, k_d, effects)')
+    r.add_argument('--config', metavar='DIR',
+                   help='params directory of the launch, when the bag has no run information')
+    r.add_argument('--out', metavar='DIR',
+                   help='output directory (default: reference/ next to the model file)')
+    r.set_defaults(func=reference_cmd)
 
     b = benches.add_parser(
         'discrepancy',

@@ -60,6 +60,10 @@ NAME_CLOSURE = 0.95
 UNEXPLAINED_MIN = 0.5
 #: Number of best single effects that are combined with every other effect.
 PAIR_TOP = 3
+#: Floor of the noise estimates relative to the signal's standard deviation: a noise-free
+#: record (a simulated plant without sensor noise) whose model agrees to round-off has
+#: nothing to explain, so the answer is 'none', not an effect fitted to round-off.
+ROUND_OFF = 1e-9
 
 INPUT = {'specimen': 'base_accel', 'actuator': 'command'}
 OUTPUT = {'specimen': 'rel_disp', 'actuator': 'measured'}
@@ -92,7 +96,8 @@ class Context:
         st['u'] = self.u
         self.states = st
         self.sign = 1.0 if scenario == 'specimen' else -1.0
-        self.sigma2 = sg.noise_variance(self.y - self.y_nom, self.fs)
+        self.sigma2 = max(sg.noise_variance(self.y - self.y_nom, self.fs),
+                          (ROUND_OFF * float(np.std(self.y))) ** 2)
         self.train, self.test = sg.block_masks(
             self.n, max(10, 2 * int(round(self.n / self.fs))))
         self.scales = {'y_rms': float(np.std(self.y)), 'v_rms': float(np.std(st['v'])),
@@ -104,7 +109,8 @@ class Context:
                 {k: v for k, v in model.effects.items() if k not in ops}, model))
             self.e_r = data['force'] - (model.c_d * st['v'] + model.k_d * st['x']
                                         + force_nl(st['x'], st['v']))
-            self.sigma2_f = sg.noise_variance(self.e_r, self.fs)
+            self.sigma2_f = max(sg.noise_variance(self.e_r, self.fs),
+                                (ROUND_OFF * float(np.std(data['force']))) ** 2)
         self.nonlinear_out = scenario == 'actuator' and any(
             k in self.out_eff for k in ('backlash', 'velocity_saturation'))
 

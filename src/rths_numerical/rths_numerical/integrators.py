@@ -139,11 +139,6 @@ class _ExplicitAlpha(_Integrator):
         blocks = [g * inv] + ([af * inv] if af else []) + [s_d, s_v, s_a]
         self._G = np.ascontiguousarray(np.hstack(blocks))
         self._buf = np.zeros(len(blocks) * n)
-        # views of the parts of _buf (filled in place by correct())
-        parts = [self._buf[j * n:(j + 1) * n] for j in range(len(blocks))]
-        self._b_load = parts[0]
-        self._b_prev = parts[1] if af else None
-        self._b_d, self._b_v, self._b_a = parts[-3:]
         self._p = np.zeros(n)
 
     def predict(self, p_next=None):
@@ -159,13 +154,15 @@ class _ExplicitAlpha(_Integrator):
             self.predict()
         p_next = np.asarray(p_next, dtype=float)
         r_next = np.asarray(r_next, dtype=float)
-        np.subtract(p_next, r_next, out=self._b_load)
+        n = self.n
+        b = self._buf            # filled in place (slices, not stored views: copies stay valid)
+        np.subtract(p_next, r_next, out=b[:n])
+        i = n
         if self.alpha_f:
-            np.subtract(self._p, self.r, out=self._b_prev)
-        self._b_d[:] = self.d
-        self._b_v[:] = self.v
-        self._b_a[:] = self.a
-        self.a = self._G @ self._buf
+            np.subtract(self._p, self.r, out=b[n:2 * n])
+            i = 2 * n
+        b[i:i + n], b[i + n:i + 2 * n], b[i + 2 * n:] = self.d, self.v, self.a
+        self.a = self._G @ b
         self.d, self.v = self._d_next, self._v_next
         self._p = p_next
         self.r = r_next

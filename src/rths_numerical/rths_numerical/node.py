@@ -23,7 +23,10 @@ arrives the node advances the missing steps with the newest force (hold),
 flags them in its status and goes on.  Stale measurements (j < k) are
 dropped.  After the last step it exits 0 as in lock-step, which ends the run.
 ``status_every`` = N > 1 publishes the status of every N-th step only (missed
-steps always), to lighten the status traffic.
+steps always), to lighten the status traffic.  ``remote_graph: true``: the rest
+of the graph is in another ROS domain behind a relay (``rths linkemu``,
+distributed RTHS): the node then waits only for ``wait_for_subscribers``
+reader(s) of its output and a measurement publisher before step 0.
 Latency settings (``rt_priority``, ``cpus``, ``gc``) are those of
 :func:`rths_common.node_support.tuning`; the loop messages travel as CDR bytes
 (:mod:`rths_common.cdr`); ``timing_out`` saves per-step publish/receipt times
@@ -45,6 +48,7 @@ from rths_msgs.msg import InterfaceDisplacement, LoopStatus, Measurement
 
 #: Parameters of the node itself; every other parameter goes to make_substructure().
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
+               'remote_graph': False,
                'history_out': '', 'timing_out': '', 'status_every': 1, **ns.TUNING_PARAMS}
 
 
@@ -124,7 +128,14 @@ class NumericalNode:
         # Every loop topic must reach its consumer (and the recorder, if any) before step 0:
         # a reader that matches late would otherwise miss the first steps.
         wanted = self.own['wait_for_subscribers']
-        if (self.pub.get_subscription_count() < wanted
+        if self.own['remote_graph']:
+            # the rest of the graph is in another domain behind a relay (rths linkemu): only
+            # the relay's reader of our output and its measurement publisher are visible
+            if (self.pub.get_subscription_count() < wanted
+                    or self.node.count_publishers(topics.MEASUREMENT) < 1
+                    or (self.realtime and self.node.count_subscribers(topics.RUN_STEPS) < 1)):
+                return
+        elif (self.pub.get_subscription_count() < wanted
                 or self.node.count_subscribers(topics.COMMAND) < wanted
                 or self.node.count_subscribers(topics.MEASUREMENT) < wanted
                 or self.node.count_publishers(topics.MEASUREMENT) < 1

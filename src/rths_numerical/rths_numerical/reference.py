@@ -119,21 +119,40 @@ class DTMSpecimen:
     seed eq. 46, ``m_d z'' + c_d z' + k_d z = -m_d a_table`` (``z`` relative to
     the frame), integrated exactly for piecewise-constant ``a_table``.  Returns
     ``[m_f a_table + m_d (a_table + z'')]`` [N].
+
+    Effects a model update may add (e.g. ``updated_model.yaml`` of the
+    discrepancy workflow): ``force(z, z')`` [N], an extra force on the moving
+    mass (friction, stiffness errors, ...), and ``mass_error`` [kg]::
+
+        (m_d + dm) (z'' + a_table) + c_d z' + k_d z + force(z, z') = 0
+
+    The measured force is then ``m_f a_table - (c_d z' + k_d z + force)``.
+    With ``force`` the sample is split into ``substeps`` exact zero-order-hold
+    sub-steps with the force held per sub-step (as the simulated plant does
+    for its Coulomb friction, rths_actuator_bridge.simulated).
     """
 
-    def __init__(self, dtm='valve4', dt=1 / 1024, frame_mass_kg=FRAME_MASS_KG):
+    def __init__(self, dtm='valve4', dt=1 / 1024, frame_mass_kg=FRAME_MASS_KG, force=None,
+                 mass_error=0.0, substeps=16):
         """Store the parameters and the exact one-step matrices (scipy expm)."""
         from scipy.linalg import expm
         self.dtm = dtm if isinstance(dtm, DTMParameters) else dtm_configuration(dtm)
         self.dt = float(dt)
         self.frame_mass = float(frame_mass_kg)
-        m, c, k = self.dtm.m_d, self.dtm.c_d, self.dtm.k_d
+        self.force = force
+        self.substeps = int(substeps) if force is not None else 1
+        if self.substeps < 1:
+            raise ValueError(f'substeps must be >= 1, got {substeps}')
+        m = self.dtm.m_d + float(mass_error)
+        if not m > 0:
+            raise ValueError(f'mass_error {mass_error} kg leaves no moving mass')
+        c, k = self.dtm.c_d, self.dtm.k_d
         A = np.array([[0.0, 1.0], [-k / m, -c / m]])
-        B = np.array([[0.0], [-1.0]])
-        big = np.zeros((3, 3))
+        B = np.array([[0.0, 0.0], [-1.0, -1.0 / m]])  # inputs: a_table, force
+        big = np.zeros((4, 4))
         big[:2, :2], big[:2, 2:] = A, B
-        E = expm(big * self.dt)
-        self._Ad, self._Bd = E[:2, :2], E[:2, 2]
+        E = expm(big * self.dt / self.substeps)
+        self._Ad, self._Bd = E[:2, :2], E[:2, 2:]
         self._x = [None, None]
         self._z = np.zeros(2)
 
@@ -145,10 +164,15 @@ class DTMSpecimen:
         x2 = x1 if x2 is None else x2
         acc = (x - 2 * x1 + x2) / self.dt ** 2
         self._x = [x, x1]
-        self._z = self._Ad @ self._z + self._Bd * acc
-        m, c, k = self.dtm.m_d, self.dtm.c_d, self.dtm.k_d
-        zdd = (-c * self._z[1] - k * self._z[0]) / m - acc
-        return np.array([self.frame_mass * acc + m * (acc + zdd)])
+        f = 0.0
+        for _ in range(self.substeps):
+            if self.force is not None:
+                f = self.force(self._z[0], self._z[1])
+            self._z = self._Ad @ self._z + self._Bd @ np.array([acc, f])
+        if self.force is not None:
+            f = self.force(self._z[0], self._z[1])
+        c, k = self.dtm.c_d, self.dtm.k_d
+        return np.array([self.frame_mass * acc - (c * self._z[1] + k * self._z[0] + f)])
 
 
 def coupled_rths(substructure, specimen):

@@ -1,0 +1,233 @@
+"""``rths bench distributed``: the realtime loop across an emulated lab network.
+
+Each condition runs the realtime graph (simulated plant, the designed
+compensator of ``config/compensator.yaml`` when its rate matches) with the
+numerical node in ROS domain A and the compensator, the bridge and the
+recorder in domain B, joined by the link relay ``rths linkemu``
+(:mod:`rths_bringup.linkemu`) with the condition's one-way delay, jitter and
+loss.  With ``--netns`` (default when running as root) every node runs on its
+own "host", a network namespace (:mod:`rths_bringup.netns`), and DDS talks
+UDP over veth links; the condition ``local`` is the reference without relay
+(one domain, one host).
+
+Per condition it reports the bridge's deadline misses (ticks without the
+step's command: extrapolated), the relative RMS tracking error between the
+interface displacement the numerical node asked for and the displacement the
+actuator reached (``rms(x_m - x_t) / rms(x_t)``, same step), the final safety
+state and whether the run completed.  The loop closes once per step: the
+command of step k needs measurement k-1, so the round trip (2 x one-way
+delay + compute) must fit in one period (0.98 ms at 1024 Hz); beyond that
+every tick misses and the watchdog stops the run safely.
+"""
+
+import json
+from pathlib import Path
+import subprocess
+import tempfile
+import time
+
+import numpy as np
+import yaml
+
+#: (name, one-way delay [ms], jitter [ms], loss [%]); 'local' = no relay.
+CONDITIONS = (
+    ('local', None, 0.0, 0.0),
+    ('relay 0 ms', 0.0, 0.0, 0.0),
+    ('delay 0.1 ms', 0.1, 0.0, 0.0),
+    ('delay 0.5 ms', 0.5, 0.0, 0.0),
+    ('delay 1 ms', 1.0, 0.0, 0.0),
+    ('delay 2 ms', 2.0, 0.0, 0.0),
+    ('delay 0.1 ms + jitter 0.2 ms', 0.1, 0.2, 0.0),
+    ('delay 0.1 ms + loss 0.1 %', 0.1, 0.0, 0.1),
+    ('delay 0.1 ms + loss 1 %', 0.1, 0.0, 1.0),
+)
+HOSTS = ('numerical', 'compensator', 'bridge', 'link')
+
+
+def rths_executable() -> str:
+    from ament_index_python.packages import get_package_prefix
+
+    return str(Path(get_package_prefix('rths_bringup')) / 'lib' / 'rths_bringup' / 'rths')
+
+
+def write_run_config(directory, rate_hz, duration_s, priority, taps_from=None) -> Path:
+    """Realtime config (bench_loop.write_config) with the designed taps if the rate matches."""
+    from rths_bringup.bench_loop import write_config
+
+    config = write_config(directory, rate_hz=rate_hz, duration_s=duration_s, taps=400,
+                          model='sdof', priority=priority)
+    if taps_from and Path(taps_from).is_file():
+        src = yaml.safe_load(Path(taps_from).read_text())['compensator']['ros__parameters']
+        if float(src.get('fs_hz', 0)) == float(rate_hz):
+            path = config / 'compensator.yaml'
+            data = yaml.safe_load(path.read_text())
+            data['compensator']['ros__parameters'].update(
+                taps=src['taps'], denominator=src.get('denominator', [1.0]),
+                scheme=src.get('scheme', 'wls'))
+            path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return config
+
+
+def bag_metrics(bag) -> dict:
+    """Deadline misses, tracking error and safety state of a run's bag."""
+    from rths_bringup.review import read_loop
+    from rths_common import topics
+
+    loop = read_loop(bag)
+    target = dict(zip(loop['steps'][topics.INTERFACE_DISPLACEMENT]['step'],
+                      loop['steps'][topics.INTERFACE_DISPLACEMENT]['values']))
+    meas_steps = loop['steps'][topics.MEASUREMENT]['step']
+    bridge = loop['status'].get('bridge', {'step': [], 'misses': 0, 'safety_state': [0]})
+    measured = {}
+    for step, values in zip(meas_steps, read_measured(bag)):
+        measured[step] = values
+    common = sorted(set(target) & set(measured))
+    xt = np.array([target[k][0] for k in common]) if common else np.zeros(1)
+    xm = np.array([measured[k][0] for k in common]) if common else np.zeros(1)
+    ok = np.isfinite(xm)
+    rms_t = float(np.sqrt(np.mean(xt[ok] ** 2))) if ok.any() else 0.0
+    err = float(np.sqrt(np.mean((xm[ok] - xt[ok]) ** 2)) / rms_t * 100) if rms_t else None
+    ticks = len(bridge['step'])
+    return {'ticks': ticks, 'deadline_misses': int(bridge['misses']),
+            'miss_pct': round(100.0 * bridge['misses'] / ticks, 2) if ticks else None,
+            'tracking_error_pct': None if err is None else round(err, 3),
+            'steps_compared': len(common),
+            'final_safety_state': int(bridge['safety_state'][-1]) if bridge['safety_state']
+            else None,
+            'faults': sorted(set(f.split(': ', 1)[-1] for f in bridge.get('faults', [])))[:3]}
+
+
+def read_measured(bag):
+    from rths_bringup import bagio
+    from rths_common import topics
+
+    return [np.asarray(m.displacement, dtype=float)
+            for _, _, m in bagio.read_messages(bag, [topics.MEASUREMENT])]
+
+
+def run_condition(name, delay_ms, jitter_ms, loss_pct, config, workdir, net=None,
+                  domains=(71, 72), seed=1, log=print) -> dict:
+    """One run of the graph under a link condition; the metrics of its bag."""
+    from rths_bringup.launcher import Launcher
+
+    bag = Path(workdir) / 'bag'
+    relay = None
+    dom_a, dom_b = domains
+    overrides = {}
+    if delay_ms is None:      # the reference: one domain, one host
+        node_env = {n: _env(net, 'link', dom_b) for n in ('numerical', 'compensator', 'bridge',
+                                                          'recorder')}
+        prefix = {n: (net.prefix('link') if net else []) for n in node_env}
+    else:
+        node_env = {'numerical': _env(net, 'numerical', dom_a),
+                    'compensator': _env(net, 'compensator', dom_b),
+                    'bridge': _env(net, 'bridge', dom_b), 'recorder': _env(net, 'link', dom_b)}
+        prefix = {n: (net.prefix(h) if net else []) for n, h in
+                  (('numerical', 'numerical'), ('compensator', 'compensator'),
+                   ('bridge', 'bridge'), ('recorder', 'link'))}
+        overrides['numerical'] = {'remote_graph': True, 'wait_for_subscribers': 1}
+        import os
+        env = dict(os.environ, **_env(net, 'link', dom_a))
+        env.pop('ROS_DOMAIN_ID', None)
+        argv = [*(net.prefix('link') if net else []), rths_executable(), 'linkemu',
+                '--domain-a', str(dom_a), '--domain-b', str(dom_b), '--delay-ms', str(delay_ms),
+                '--jitter-ms', str(jitter_ms), '--loss-pct', str(loss_pct), '--seed', str(seed)]
+        relay = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                 text=True, env=env)
+        line = relay.stdout.readline()
+        if 'relaying' not in line:
+            relay.kill()
+            raise OSError(f'rths linkemu did not start: {line.strip()}')
+    out = open(Path(workdir) / 'launch.log', 'w')
+    t0 = time.monotonic()
+    try:
+        code = Launcher(config, bag=bag, overrides=overrides, out=out, timeout_s=120.0,
+                        node_env=node_env, node_prefix=prefix).run()
+    finally:
+        out.close()
+        link_stats = ''
+        if relay is not None:
+            relay.send_signal(2)
+            try:
+                link_stats = relay.communicate(timeout=10)[0].strip().splitlines()[-1:]
+            except subprocess.TimeoutExpired:
+                relay.kill()
+    result = {'condition': name, 'one_way_delay_ms': delay_ms, 'jitter_ms': jitter_ms,
+              'loss_pct': loss_pct, 'launcher_exit': code, 'completed': code == 0,
+              'wall_s': round(time.monotonic() - t0, 1), 'link': link_stats}
+    result.update(bag_metrics(bag) if bag.exists() else {})
+    log(f"{name:32s} misses {result.get('deadline_misses')!s:>6} of "
+        f"{result.get('ticks')!s:>6} ({result.get('miss_pct')!s:>6} %), tracking error "
+        f"{result.get('tracking_error_pct')!s:>8} %, completed {result['completed']}, "
+        f"final safety state {result.get('final_safety_state')}")
+    return result
+
+
+def _env(net, host, domain):
+    if net is None:
+        return {'ROS_DOMAIN_ID': str(domain), 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    return net.dds_env(host, domain)
+
+
+def cmd_bench_distributed(args) -> int:
+    from rths_bringup import netns
+
+    use_netns = args.netns
+    if use_netns:
+        reason = netns.available()
+        if reason:
+            raise OSError(f'--netns: cannot create network namespaces ({reason}); run as root '
+                          'or use --no-netns')
+    names = [c[0] for c in CONDITIONS]
+    chosen = [c for c in CONDITIONS if not args.only or c[0] in args.only]
+    if args.only and len(chosen) != len(args.only):
+        raise ValueError(f'--only: unknown condition(s); choose from {names}')
+    results = []
+    with tempfile.TemporaryDirectory(prefix='rths-distributed-') as tmp:
+        config = write_run_config(Path(tmp) / 'config', args.rate, args.duration, args.priority,
+                                  args.taps)
+        net = netns.LabNetwork(HOSTS, tag='bench').create() if use_netns else None
+        try:
+            for i, (name, delay, jitter, loss) in enumerate(chosen):
+                work = Path(tmp) / f'run{i}'
+                work.mkdir()
+                results.append(run_condition(name, delay, jitter, loss, config, work, net,
+                                             domains=(args.domain, args.domain + 1)))
+        finally:
+            if net is not None:
+                net.close()
+    doc = {'rate_hz': args.rate, 'duration_s': args.duration, 'netns': use_netns,
+           'rt_priority': args.priority, 'conditions': results,
+           'note': 'deadline miss: the command of step k had not reached the bridge at tick k '
+                   '(the bridge extrapolated); tracking error: rms(measured - interface '
+                   'displacement) / rms(interface displacement), same step'}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(doc, indent=2))
+    print(f'written {args.out}')
+    return 0
+
+
+def register(commands, benches):
+    """Add ``rths linkemu`` and ``rths bench distributed``."""
+    from rths_bringup import linkemu
+
+    linkemu.add_commands(commands)
+    import os
+    p = benches.add_parser('distributed', help='realtime loop across an emulated lab network '
+                           '(netns hosts, link delay/jitter/loss): misses and tracking error')
+    p.add_argument('--out', required=True, help='JSON file to write')
+    p.add_argument('--rate', type=float, default=1024.0, help='loop rate [Hz]')
+    p.add_argument('--duration', type=float, default=5.0, help='simulated seconds per run')
+    p.add_argument('--priority', type=int, default=80, help='SCHED_FIFO priority of the bridge')
+    p.add_argument('--taps', default='config/compensator.yaml',
+                   help='compensator params whose taps are used when their fs_hz matches')
+    p.add_argument('--domain', type=int, default=71, help='ROS domain A (B is A + 1)')
+    p.add_argument('--netns', action=argparse_bool(), default=os.geteuid() == 0,
+                   help='run each node in its own network namespace (needs root)')
+    p.add_argument('--only', nargs='*', help='run only these conditions (names as printed)')
+    p.set_defaults(func=cmd_bench_distributed)
+
+
+def argparse_bool():
+    import argparse
+    return argparse.BooleanOptionalAction

@@ -1,0 +1,214 @@
+"""Re-run the reference of an RTHS bag with an updated specimen model (issue 7, the proof).
+
+The RTHS result is the 2nd-floor displacement of the run (the interface
+displacement of each step less the ground displacement in the absolute
+frame, as in :func:`rths_bringup.review.review_rths`).  The reference is the
+same numerical substructure (same model, record, integrator and step) coupled
+in lock-step to a *numerical* DTM on a perfect table
+(:func:`rths_numerical.reference.coupled_rths` with a
+:class:`rths_numerical.reference.DTMSpecimen`): once with the nominal
+specimen model (the run's Table 4 damper, linear) and once with the updated
+model, i.e. the nominal one plus the effects the discrepancy workflow named
+(``updated_model.yaml``: loop forces such as ``coulomb_friction`` and a
+``mass_error``; the sensor effects ``time_delay`` and ``sensor_bias`` change
+what is measured, not the physics, and are left out).  Both use the same
+coupling, so the difference between them is the specimen model alone.
+
+Reported: the relative RMS error [%] (seed Table 9 metric) of the RTHS
+against each reference, and against the linear whole-numerical reference of
+seed 6.3.4 (:func:`rths_numerical.reference.simulate_reference`) that
+``rths review`` prints.
+
+The run's parameters come from the bag's run information (bags of ``rths
+run``); a bag of ``rths launch`` carries none, so pass the params directory
+of that launch (``--config DIR``: numerical.yaml and bridge.yaml).
+"""
+
+from pathlib import Path
+
+import numpy as np
+
+from rths_discrepancy import effects as fx
+from rths_discrepancy import models
+
+#: Sub-steps per sample of the DTM integration when the model has a non-linear force.
+SUBSTEPS = 16
+
+
+def run_parameters(bag, config=None) -> tuple:
+    """``(numerical, bridge)`` parameters of the run of ``bag``.
+
+    From the bag's run information when it has them (``rths run``), else
+    from the params files in ``config`` (``rths launch --config DIR``).
+    ValueError names the fix when neither is available.
+    """
+    from rths_bringup import bagio, runinfo
+    from rths_bringup.offline import core_params
+
+    info = bagio.run_info(bag)
+    numerical = runinfo.section(info, 'numerical')
+    bridge = runinfo.section(info, 'bridge')
+    if not numerical and config is not None:
+        cfg = Path(config)
+        numerical = runinfo.load_params(cfg / 'numerical.yaml', 'numerical')
+        bridge = runinfo.load_params(cfg / 'bridge.yaml', 'bridge')
+    if not numerical:
+        raise ValueError(f'{bag}: the bag has no run information (recorded by rths launch?); '
+                         'pass --config DIR, the params directory the run was launched with '
+                         '(numerical.yaml, bridge.yaml)')
+    return core_params(numerical), core_params(bridge)
+
+
+def run_damper_model(bridge: dict) -> models.SpecimenModel:
+    """Nominal specimen model of a run: the Table 4 DTM of the bridge's ``dtm`` parameter."""
+    from rths_numerical.dtm import dtm_configuration
+
+    name = str(bridge.get('dtm', 'valve4'))
+    if name in ('none', ''):
+        raise ValueError("the run's bridge has dtm: none; there is no specimen to review")
+    p = dtm_configuration(name)
+    return models.SpecimenModel(p.m_d, p.c_d, p.k_d)
+
+
+def specimen(model: models.SpecimenModel, dt: float, frame_mass_kg=None):
+    """A :class:`rths_numerical.reference.DTMSpecimen` simulating ``model`` with its effects."""
+    from rths_numerical.dtm import FRAME_MASS_KG, DTMParameters
+    from rths_numerical.reference import DTMSpecimen
+
+    loop = {k: v for k, v in model.effects.items()
+            if k not in ('time_delay', 'sensor_bias', 'mass_error')}
+    force = fx.specimen_force(loop, model) if loop else None
+    frame = FRAME_MASS_KG if frame_mass_kg is None else float(frame_mass_kg)
+    return DTMSpecimen(DTMParameters(model.m_d, model.c_d, model.k_d), dt, frame, force=force,
+                       mass_error=model.effects.get('mass_error', 0.0), substeps=SUBSTEPS)
+
+
+def _frame_mass(bridge):
+    val = bridge.get('frame_mass_kg')
+    try:
+        val = float(val)
+    except (TypeError, ValueError):
+        return None
+    return val if np.isfinite(val) else None
+
+
+def rths_floor_displacement(bag, sub) -> np.ndarray:
+    """2nd-floor displacement [m] (relative to the ground) of the RTHS recorded in ``bag``."""
+    from rths_bringup import bagio
+    from rths_common import topics
+
+    disp = bagio.step_arrays(bag, topics.INTERFACE_DISPLACEMENT, ('displacement',))
+    steps = disp['step']
+    n = int(steps.size)
+    if n == 0 or not np.array_equal(steps, np.arange(n)):
+        raise ValueError(f'{bag}: interface-displacement steps are missing or out of order')
+    desired = disp['displacement'][:, 0]
+    ok = np.isfinite(desired)
+    if not ok.all():
+        n = int(np.argmin(ok))
+        desired = desired[:n]
+    n = min(n, sub.n_steps)
+    ug = sub.ug[:n] if sub.frame == 'absolute' else 0.0
+    return desired[:n] - ug
+
+
+def compare(bag, updated_model, config=None, nominal_model=None) -> dict:
+    """RTHS-vs-reference relative RMS error [%] with the nominal and the updated specimen model.
+
+    ``updated_model`` is a :class:`.models.SpecimenModel` or a YAML path;
+    ``nominal_model`` defaults to the run's Table 4 damper.
+    """
+    from rths_numerical.dtm import FRAME_MASS_KG
+    from rths_numerical.reference import (coupled_rths, relative_rms_error,
+                                          simulate_reference)
+    from rths_numerical.substructure import make_substructure
+
+    numerical, bridge = run_parameters(bag, config)
+    if not isinstance(updated_model, models.SpecimenModel):
+        updated_model = models.load_model('specimen', updated_model)
+    nominal = nominal_model or run_damper_model(bridge)
+    sub = make_substructure(numerical)
+    if sub.iface != [sub.model.output_dof]:
+        raise ValueError('the comparison needs the output DOF to be the interface DOF')
+    floor2 = rths_floor_displacement(bag, sub)
+    n = floor2.size
+    if n < 2:
+        raise ValueError(f'{bag}: fewer than 2 steps recorded')
+    frame = _frame_mass(bridge)
+    out = {'bag': str(bag), 'steps': n, 'duration_s': n * sub.dt,
+           'nominal_model': nominal.to_dict(), 'updated_model': updated_model.to_dict()}
+    refs = {}
+    for label, model in (('nominal', nominal), ('updated', updated_model)):
+        hist = coupled_rths(make_substructure(numerical), specimen(model, sub.dt, frame))
+        refs[label] = hist['output_disp'][:n]
+        out[f'rths_vs_{label}_reference_rel_rms_pct'] = relative_rms_error(floor2, refs[label])
+        out[f'{label}_reference_max_disp_2nd_m'] = float(np.max(np.abs(refs[label])))
+    whole = simulate_reference(sub.model, sub.ag, sub.dt, damper=_params(nominal),
+                               n_dtm=sub.force_scale, frame_mass_kg=frame or FRAME_MASS_KG,
+                               integrator=numerical.get('integrator', 'cr'))
+    out['rths_vs_linear_whole_numerical_rel_rms_pct'] = relative_rms_error(
+        floor2, whole['disp'][:n])
+    out['rths_max_disp_2nd_m'] = float(np.max(np.abs(floor2)))
+    before = out['rths_vs_nominal_reference_rel_rms_pct']
+    after = out['rths_vs_updated_reference_rel_rms_pct']
+    out['error_ratio_after_before'] = after / before if before > 0 else float('nan')
+    out['_series'] = {'rths': floor2, **refs}
+    return out
+
+
+def _params(model):
+    from rths_numerical.dtm import DTMParameters
+    return DTMParameters(model.m_d, model.c_d, model.k_d)
+
+
+def summary_lines(res: dict) -> list:
+    """Printed lines of :func:`compare`."""
+    eff = res['updated_model'].get('effects', {})
+    names = ', '.join(f'{k} {v:.4g}' for k, v in eff.items()) or 'no effects'
+    return [
+        f"RTHS vs reference (2nd-floor displacement, {res['steps']} steps, "
+        f"{res['duration_s']:.1f} s), relative RMS error:",
+        '  nominal specimen model (linear DTM):  '
+        f"{res['rths_vs_nominal_reference_rel_rms_pct']:.3f} %",
+        f"  updated specimen model ({names}):  "
+        f"{res['rths_vs_updated_reference_rel_rms_pct']:.3f} %",
+        f"  (linear whole-numerical reference, seed 6.3.4: "
+        f"{res['rths_vs_linear_whole_numerical_rel_rms_pct']:.3f} %)",
+    ]
+
+
+def write(res: dict, path) -> None:
+    """Write :func:`compare`'s result (without the time series) as JSON, atomically."""
+    import json
+    import os
+    data = {k: v for k, v in res.items() if not k.startswith('_')}
+    tmp = f'{path}.tmp'
+    with open(tmp, 'w') as fh:
+        json.dump(data, fh, indent=2)
+    os.replace(tmp, path)
+
+
+def plot(res: dict, path) -> None:
+    """Time history of the RTHS and both references and the two differences (PNG)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    s = res['_series']
+    t = np.arange(s['rths'].size) * res['duration_s'] / max(s['rths'].size, 1)
+    fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    ax[0].plot(t, s['rths'] * 1e3, lw=1.0, label='RTHS')
+    ax[0].plot(t, s['nominal'] * 1e3, lw=0.8, label='reference, nominal specimen')
+    ax[0].plot(t, s['updated'] * 1e3, '--', lw=0.8, label='reference, updated specimen')
+    ax[0].set_ylabel('2nd-floor displacement [mm]')
+    ax[0].legend(fontsize=8, loc='upper right')
+    ax[1].plot(t, (s['rths'] - s['nominal']) * 1e3, lw=0.7, label='RTHS - nominal')
+    ax[1].plot(t, (s['rths'] - s['updated']) * 1e3, lw=0.7, label='RTHS - updated')
+    ax[1].set_ylabel('difference [mm]')
+    ax[1].set_xlabel('time [s]')
+    ax[1].legend(fontsize=8, loc='upper right')
+    fig.tight_layout()
+    tmp = f'{path}.tmp.png'
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    import os
+    os.replace(tmp, path)

@@ -1,0 +1,251 @@
+"""Faults of the running graph (issue 8): crashes, foreign publishers, duplicates, delay bursts.
+
+Every test checks the two things that must hold whatever happens: the bridge's
+safe stop (the plant ends in the safe state, no output beyond a limit) and the
+recording (the bag is readable and keeps every step up to the fault, in order,
+without gaps).  Faults are injected deterministically (a SIGKILL after a
+logged step, the compensator's ``inject_*`` parameters, a foreign publisher),
+so no assertion depends on the machine's speed; time bounds are the stated
+ones (``Launcher.safe_stop_bound_s``), far above what scheduling adds.
+"""
+
+import os
+from pathlib import Path
+import re
+import shutil
+import signal
+import subprocess
+import threading
+import time
+
+import numpy as np
+import pytest
+import yaml
+
+from rths_system_tests import REPO, graph_env, rths, rths_executable, started_pids
+
+CONFIG = REPO / 'config'
+STOPPED = 3
+WATCHDOG_S = 1.0      # lock-step command watchdog of these runs [s]
+
+
+def copy_config(directory: Path, **changes) -> Path:
+    """Copy config/ to ``directory`` with ``{node: {key: value}}`` changes."""
+    directory.mkdir(parents=True, exist_ok=True)
+    for name in ('bridge', 'compensator', 'numerical'):
+        data = yaml.safe_load((CONFIG / f'{name}.yaml').read_text())
+        data[name]['ros__parameters'].update(changes.get(name, {}))
+        (directory / f'{name}.yaml').write_text(yaml.safe_dump(data, sort_keys=False))
+    return directory
+
+
+def read_bag(bag):
+    """Bridge status (step, state, stamp) and measurements (step, applied) of a bag."""
+    from rths_bringup import bagio
+    from rths_common import topics
+
+    status, meas = [], []
+    for topic, _, msg in bagio.read_messages(bag, [topics.STATUS, topics.MEASUREMENT]):
+        if topic == topics.STATUS and msg.node == 'bridge':
+            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            status.append((int(msg.step), int(msg.safety_state), stamp, msg.fault))
+        elif topic == topics.MEASUREMENT:
+            meas.append((int(msg.step), np.asarray(msg.applied, dtype=float)))
+    return status, meas
+
+
+def check_recording(bag):
+    """The bag is readable; every loop topic starts at 0, in order, without gaps."""
+    from rths_bringup.review import read_loop, step_check
+
+    loop = read_loop(bag)
+    for topic, data in loop['steps'].items():
+        check = step_check(data['step'])
+        assert check['count'] > 100, (topic, check)
+        assert check['first'] == 0 and check['gaps'] == 0 and check['in_order'], (topic, check)
+        assert check['duplicates'] == 0, (topic, check)
+    return loop
+
+
+def launch_background(config, bag):
+    return subprocess.Popen(
+        [rths_executable(), 'launch', '--config', str(config), '--bag', str(bag)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=graph_env())
+
+
+def wait_for(proc, text, timeout=90.0):
+    seen = []
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        seen.append(line)
+        if text in line:
+            return ''.join(seen)
+    raise AssertionError(f'{text!r} not seen in launcher output:\n' + ''.join(seen[-50:]))
+
+
+@pytest.mark.parametrize('victim', ['compensator', 'numerical', 'bridge'])
+def test_sigkill_mid_run_reaches_the_safe_state_and_keeps_the_bag(tmp_path, victim):
+    """SIGKILL of any loop node: the plant ends safe within the stated time; the bag holds."""
+    config = copy_config(tmp_path / 'config', bridge={'watchdog_timeout_s': WATCHDOG_S},
+                         numerical={'duration_s': 600.0})
+    bag = tmp_path / 'bag'
+    proc = launch_background(config, bag)
+    try:
+        head = wait_for(proc, 'graph connected')
+        head += wait_for(proc, 'progress: step 1024 ')
+        os.kill(started_pids(head)[victim], signal.SIGKILL)
+        t_kill = time.time()
+        rest, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    out = head + rest
+    assert proc.returncode == 1, out[-3000:]
+    assert f'node {victim} died (killed by SIGKILL)' in out
+    status, meas = read_bag(bag)
+    check_recording(bag)
+    if victim == 'bridge':
+        # The simulated plant lived in the bridge process: it stopped with it.
+        assert 'stopped with it: safe state (nothing moves)' in out, out[-2000:]
+        return
+    bound = float(re.search(r'waiting up to ([\d.]+) s for the bridge', out).group(1))
+    # the stated bound: watchdog + hold + ramp (+2 s), from the bridge's parameters
+    assert bound == pytest.approx(WATCHDOG_S + 0.1 + 0.25 + 2.0 + 2.0)
+    took = float(re.search(r'safe state \(safety stop\) ([\d.]+) s after', out).group(1))
+    assert took <= bound
+    # the bridge's last status says STOPPED, with the watchdog as the reason, within the bound
+    assert status[-1][1] == STOPPED, status[-3:]
+    assert 'watchdog' in status[-1][3]
+    assert status[-1][2] - t_kill <= bound
+    # the ramp ended at the safe position, and no output ever left the stroke
+    applied = np.concatenate([a for _, a in meas if a.size])
+    assert np.all(np.abs(applied) <= 0.254)
+    assert abs(meas[-1][1][0]) < 1e-9 or meas[-1][1].size == 0
+
+
+class ForeignPublisher:
+    """A node named 'intruder' flooding /rths/command with 0.2 m commands for any step."""
+
+    def __init__(self, domain_id: int):
+        import rclpy
+        from rclpy.context import Context
+
+        from rths_common import topics
+        from rths_common.qos import loop_qos
+        from rths_msgs.msg import Command
+
+        self.rclpy, self.Command = rclpy, Command
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node('intruder', context=self.context)
+        self.pub = self.node.create_publisher(Command, topics.COMMAND, loop_qos('lockstep'))
+        self.running = True
+        self.sent = 0
+        self.thread = threading.Thread(target=self.run, daemon=True)
+        self.thread.start()
+
+    def run(self):
+        step = 0
+        while self.running:
+            # forged senders too: empty, and a made-up gid
+            for frame in ('', '01.0f.00.00'):
+                msg = self.Command(step=step % 4096, command=[0.2])
+                msg.header.frame_id = frame
+                self.pub.publish(msg)
+                self.sent += 1
+            step += 1
+            time.sleep(0.002)
+
+    def close(self):
+        self.running = False
+        self.thread.join(timeout=5.0)
+        self.node.destroy_node()
+        self.rclpy.shutdown(context=self.context)
+
+
+def test_foreign_publisher_and_duplicate_steps_are_logged_and_ignored(tmp_path):
+    """A foreign node on /rths/command and duplicated steps change nothing in the run."""
+    duration = 2.0
+    config = copy_config(tmp_path / 'config', numerical={'duration_s': duration},
+                         compensator={'inject_duplicate_every': 100})
+    bag = tmp_path / 'bag'
+    intruder = ForeignPublisher(int(graph_env()['ROS_DOMAIN_ID']))
+    try:
+        proc = rths('launch', '--config', config, '--bag', bag, timeout=240)
+    finally:
+        intruder.close()
+    out = proc.stdout
+    assert intruder.sent > 100
+    assert 'run finished' in out and 'FAILED' not in out
+    assert re.search(r'foreign publisher /intruder \(gid [0-9a-f.]+\) on /rths/command', out)
+    assert 'foreign command(s) so far' in out
+    n_dup = len(range(100, int(duration * 1024), 100))
+    assert len(re.findall(r'command of step \d+ ignored: expected step', out)) == n_dup
+    status, meas = read_bag(bag)
+    steps = [s for s, _ in meas]
+    assert steps == list(range(int(duration * 1024)))   # each step once, in order
+    applied = np.concatenate([a for _, a in meas])
+    assert not np.any(np.isclose(applied, 0.2))          # no foreign command reached the plant
+    assert all(state == 0 for _, state, _, _ in status)
+
+
+def realtime_config(directory, duration_s=3.0, **compensator):
+    """A 256 Hz realtime graph (simulated plant, 50-tap unit FIR) with compensator faults."""
+    from rths_bringup.bench_loop import write_config
+
+    config = write_config(directory, rate_hz=256.0, duration_s=duration_s, taps=50,
+                          model='sdof', priority=0, watchdog_steps=40)
+    path = config / 'compensator.yaml'
+    data = yaml.safe_load(path.read_text())
+    data['compensator']['ros__parameters'].update(compensator)
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return config
+
+
+def bridge_misses(bag) -> int:
+    """The bridge's running deadline-miss count at the end of a bag."""
+    from rths_bringup import bagio
+    from rths_common import topics
+
+    return max(int(m.deadline_misses) for _, _, m in bagio.read_messages(bag, [topics.STATUS])
+               if m.node == 'bridge')
+
+
+def test_realtime_delay_bursts_are_deadline_misses_not_faults(tmp_path):
+    """Bursts shorter than the watchdog: counted misses, extrapolated, the run completes."""
+    every, burst_ms = 150, 60.0       # 60 ms at 256 Hz: >= 15 ticks pass; watchdog at 40
+    config = realtime_config(tmp_path / 'config', inject_delay_every=every,
+                             inject_delay_ms=burst_ms)
+    bag = tmp_path / 'bag'
+    proc = rths('launch', '--config', config, '--bag', bag, '--timeout', 180, timeout=300)
+    assert 'run finished' in proc.stdout and 'FAILED' not in proc.stdout
+    status, meas = read_bag(bag)
+    n_bursts = len(range(every, 768, every))
+    assert bridge_misses(bag) >= n_bursts * 15
+    assert all(state == 0 for _, state, _, _ in status)  # extrapolation covered every burst
+    applied = np.concatenate([a for _, a in meas if a.size])
+    assert np.all(np.abs(applied) <= 0.254)
+    steps = [s for s, _ in meas]
+    assert steps == list(range(len(steps))) and len(steps) >= 768
+
+
+def test_realtime_long_delay_burst_trips_the_watchdog_into_the_safe_state(tmp_path):
+    """A burst longer than watchdog_steps: hold, ramp, STOPPED; the bag keeps every step."""
+    config = realtime_config(tmp_path / 'config', duration_s=8.0, inject_delay_every=300,
+                             inject_delay_ms=1000.0)
+    bag = tmp_path / 'bag'
+    proc = rths('launch', '--config', config, '--bag', bag, '--timeout', 180, timeout=300,
+                check=False)
+    out = proc.stdout
+    assert proc.returncode == 1, out[-3000:]
+    assert 'node bridge died (exit code 3: safety stop)' in out
+    status, meas = read_bag(bag)
+    assert status[-1][1] == STOPPED and 'watchdog' in status[-1][3], status[-3:]
+    applied = np.concatenate([a for _, a in meas if a.size])
+    assert np.all(np.abs(applied) <= 0.254)
+    assert abs(applied[-1]) < 1e-9                     # ramped to the safe position
+    steps = [s for s, _ in meas]
+    assert steps == list(range(len(steps)))
