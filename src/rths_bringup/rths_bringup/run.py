@@ -100,6 +100,18 @@ def _launch_phase(name, cfg, bag, kind, fs, mode, sections, history=None):
                            f'and the bag {bag}')
 
 
+def _install_compensator(designed: Path, target: Path, external_plant: bool):
+    """Copy the designed compensator into the config dir; its plant becomes config/plant.yaml."""
+    from rths_compensator.params import load_compensator_params, write_compensator_params
+
+    params = load_compensator_params(designed)
+    if not external_plant:
+        params['plant'] = 'plant.yaml'  # relative to the config directory, copied beside it
+    fields = ('taps', 'denominator', 'fs_hz', 'scheme')
+    write_compensator_params(target, *(params[f] for f in fields),
+                             provenance={k: v for k, v in params.items() if k not in fields})
+
+
 def cmd_run(args) -> int:
     try:
         return _run(args)
@@ -158,7 +170,7 @@ def _run(args) -> int:
                           '--out', str(comp_file)])
         if code:
             raise RuntimeError('compensator design failed')
-        shutil.copyfile(comp_file, config / 'compensator.yaml')
+        _install_compensator(comp_file, config / 'compensator.yaml', bool(args.plant))
         _say(f'compensator written to {config / "compensator.yaml"}'
              + ('' if args.plant else f' (its plant: {config / "plant.yaml"})'))
     comp = runinfo.load_params(comp_file, 'compensator')
