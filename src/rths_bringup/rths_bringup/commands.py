@@ -55,22 +55,31 @@ def default_config_dir() -> Path:
 
 
 def launch(config, duration=None, bag=None, timeout=600.0, overrides=None):
-    """Run the graph; return the launcher's exit code."""
-    from rths_bringup.launcher import Launcher
+    """Run the graph; return the launcher's exit code.
 
+    With a bag, the run's parameters (the three params files with the
+    overrides applied) go into the bag's run information, so ``rths review``,
+    ``rths identify --bag`` and ``rths discrepancy`` need nothing but the bag.
+    """
     from rths_bringup import runinfo
+    from rths_bringup.launcher import Launcher
 
     config = Path(config) if config else default_config_dir()
     overrides = overrides or {}
-    if bag:  # the loop rate goes into the bag's run information
-        fs = runinfo.load_params(config / 'numerical.yaml', 'numerical').get('fs_hz', 1024.0)
-        overrides.setdefault('recorder', {}).setdefault('fs_hz', float(fs))
     if duration is not None:
         if not duration > 0:
             raise ValueError(f'--duration must be > 0 s, got {duration}')
         overrides.setdefault('numerical', {})['duration_s'] = float(duration)
-    launcher = Launcher(config, bag=bag, overrides=overrides,
-                        timeout_s=timeout)
+    if bag and 'kind' not in overrides.get('recorder', {}):
+        sections = {node: dict(runinfo.load_params(config / f'{node}.yaml', node),
+                               **overrides.get(node, {}))
+                    for node in ('numerical', 'compensator', 'bridge')}
+        numerical = sections['numerical']
+        kind = 'identification' if numerical.get('model') == 'excitation' else 'rths'
+        info = runinfo.flatten(kind, numerical.get('fs_hz', 1024.0),
+                               numerical.get('mode', 'lockstep'), sections)
+        overrides['recorder'] = dict(info, **overrides.get('recorder', {}))
+    launcher = Launcher(config, bag=bag, overrides=overrides, timeout_s=timeout)
     return launcher.run()
 
 
