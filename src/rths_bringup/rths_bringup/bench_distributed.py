@@ -42,6 +42,9 @@ CONDITIONS = (
     ('delay 0.1 ms + loss 1 %', 0.1, 0.0, 1.0),
 )
 HOSTS = ('numerical', 'compensator', 'bridge', 'link')
+#: The bridge's watchdog in these runs [steps]: 50 ms of extrapolation before a safe stop, so
+#: a scheduling stall of the loaded test machine is counted (misses) rather than ending the run.
+WATCHDOG_STEPS = 51
 
 
 def rths_executable() -> str:
@@ -55,7 +58,11 @@ def write_run_config(directory, rate_hz, duration_s, priority, taps_from=None) -
     from rths_bringup.bench_loop import write_config
 
     config = write_config(directory, rate_hz=rate_hz, duration_s=duration_s, taps=400,
-                          model='sdof', priority=priority)
+                          model='sdof', priority=priority, watchdog_steps=WATCHDOG_STEPS)
+    path = config / 'bridge.yaml'   # the limits of config/bridge.yaml (seed BLWN: 178 m/s^2)
+    data = yaml.safe_load(path.read_text())
+    data['bridge']['ros__parameters']['acceleration_m_s2'] = 400.0
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
     if taps_from and Path(taps_from).is_file():
         src = yaml.safe_load(Path(taps_from).read_text())['compensator']['ros__parameters']
         if float(src.get('fs_hz', 0)) == float(rate_hz):
@@ -106,7 +113,8 @@ def read_measured(bag):
 
 
 def run_condition(name, delay_ms, jitter_ms, loss_pct, config, workdir, net=None,
-                  domains=(71, 72), seed=1, log=print) -> dict:
+                  domains=(71, 72), seed=1, log=print, priority=0, mode='realtime',
+                  timeout_s=120.0) -> dict:
     """One run of the graph under a link condition; the metrics of its bag."""
     from rths_bringup.launcher import Launcher
 
@@ -131,17 +139,21 @@ def run_condition(name, delay_ms, jitter_ms, loss_pct, config, workdir, net=None
         env.pop('ROS_DOMAIN_ID', None)
         argv = [*(net.prefix('link') if net else []), rths_executable(), 'linkemu',
                 '--domain-a', str(dom_a), '--domain-b', str(dom_b), '--delay-ms', str(delay_ms),
-                '--jitter-ms', str(jitter_ms), '--loss-pct', str(loss_pct), '--seed', str(seed)]
+                '--jitter-ms', str(jitter_ms), '--loss-pct', str(loss_pct), '--seed', str(seed),
+                '--rt-priority', str(max(priority - 1, 0)), '--mode', mode,
+                '--wait-readers', '2']
         relay = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                  text=True, env=env)
-        line = relay.stdout.readline()
-        if 'relaying' not in line:
-            relay.kill()
-            raise OSError(f'rths linkemu did not start: {line.strip()}')
+        lines = []
+        while not lines or 'relaying' not in lines[-1]:
+            lines.append(relay.stdout.readline())
+            if not lines[-1] or len(lines) > 50:
+                relay.kill()
+                raise OSError('rths linkemu did not start: ' + ''.join(lines[-5:]).strip())
     out = open(Path(workdir) / 'launch.log', 'w')
     t0 = time.monotonic()
     try:
-        code = Launcher(config, bag=bag, overrides=overrides, out=out, timeout_s=120.0,
+        code = Launcher(config, bag=bag, overrides=overrides, out=out, timeout_s=timeout_s,
                         node_env=node_env, node_prefix=prefix).run()
     finally:
         out.close()
@@ -184,6 +196,9 @@ def cmd_bench_distributed(args) -> int:
         raise ValueError(f'--only: unknown condition(s); choose from {names}')
     results = []
     with tempfile.TemporaryDirectory(prefix='rths-distributed-') as tmp:
+        if args.keep:
+            tmp = tempfile.mkdtemp(prefix='rths-distributed-')
+            print(f'keeping configs, bags and logs in {tmp}')
         config = write_run_config(Path(tmp) / 'config', args.rate, args.duration, args.priority,
                                   args.taps)
         net = netns.LabNetwork(HOSTS, tag='bench').create() if use_netns else None
@@ -192,7 +207,8 @@ def cmd_bench_distributed(args) -> int:
                 work = Path(tmp) / f'run{i}'
                 work.mkdir()
                 results.append(run_condition(name, delay, jitter, loss, config, work, net,
-                                             domains=(args.domain, args.domain + 1)))
+                                             domains=(args.domain, args.domain + 1),
+                                             priority=args.priority))
         finally:
             if net is not None:
                 net.close()
@@ -219,11 +235,14 @@ def register(commands, benches):
     p.add_argument('--rate', type=float, default=1024.0, help='loop rate [Hz]')
     p.add_argument('--duration', type=float, default=5.0, help='simulated seconds per run')
     p.add_argument('--priority', type=int, default=80, help='SCHED_FIFO priority of the bridge')
-    p.add_argument('--taps', default='config/compensator.yaml',
-                   help='compensator params whose taps are used when their fs_hz matches')
+    p.add_argument('--taps', default='',
+                   help='compensator params file whose taps are used when their fs_hz matches '
+                        "(default: a 400-tap unit-gain FIR; a designed FIR's large taps turn "
+                        'one extrapolated step into a velocity-limit trip)')
     p.add_argument('--domain', type=int, default=71, help='ROS domain A (B is A + 1)')
     p.add_argument('--netns', action=argparse_bool(), default=os.geteuid() == 0,
                    help='run each node in its own network namespace (needs root)')
+    p.add_argument('--keep', action='store_true', help='keep the bags and logs')
     p.add_argument('--only', nargs='*', help='run only these conditions (names as printed)')
     p.set_defaults(func=cmd_bench_distributed)
 

@@ -31,6 +31,8 @@ import time
 A_TO_B = (('/rths/interface_displacement', 'loop'), ('/rths/run_steps', 'run_info'),
           ('/rths/status', 'status'))
 B_TO_A = (('/rths/measurement', 'loop'),)
+#: Messages due within this time [s] are held and published in the receiving callback.
+INLINE_S = 0.003
 
 
 class LinkEmulator:
@@ -50,15 +52,21 @@ class LinkEmulator:
         self.sent = self.lost = self.delivered = 0
         self.lock = threading.Lock()
 
-    def send(self, now: float, item) -> bool:
-        """Put ``item`` on the link at time ``now`` [s]; False if the link loses it."""
+    def send(self, now: float, item, sent_at: float = None) -> bool:
+        """Put ``item`` on the link at time ``now`` [s]; False if the link loses it.
+
+        ``sent_at`` (same clock, <= now): when the sender published it; the delay
+        counts from then, so the relay's own latency is part of the delay, not
+        added to it.
+        """
         with self.lock:
             self.sent += 1
             if self.loss and self.rng.random() < self.loss:
                 self.lost += 1
                 return False
             jitter = self.rng.uniform(0.0, self.jitter_s) if self.jitter_s else 0.0
-            release = max(self.last_release, now + self.delay_s + jitter)
+            start = now if sent_at is None else min(now, sent_at)
+            release = max(self.last_release, start + self.delay_s + jitter)
             self.last_release = release
             self.queue.append((release, item))
             return True
@@ -100,7 +108,10 @@ class Relay:
     """The relay process: one node per domain, a delay line per direction, one sender thread."""
 
     def __init__(self, domain_a: int, domain_b: int, delay_s=0.0, jitter_s=0.0, loss=0.0,
-                 seed=0, mode='realtime'):
+                 seed=0, mode='realtime', readers_b: int = 0, timeout_s: float = 60.0):
+        """Join the domains; ``readers_b`` > 0: first wait until that many readers in B
+        (compensator, recorder) and one in A (numerical) match the relayed loop topics, so no
+        lock-step message is relayed before its readers exist."""
         import rclpy
         from rclpy.context import Context
 
@@ -112,26 +123,72 @@ class Relay:
             ctx = Context()
             rclpy.init(context=ctx, domain_id=int(domain))
             self.contexts[side] = ctx
-            self.nodes[side] = rclpy.create_node('linkemu', context=ctx)
+            self.nodes[side] = rclpy.create_node(f'linkemu_{side}', context=ctx)
+            # (not the EventsExecutor: its spin_once keeps the GIL while it waits, which
+            # would stall the sender thread of the delay line)
             self.executors[side] = rclpy.executors.SingleThreadedExecutor(context=ctx)
             self.executors[side].add_node(self.nodes[side])
-        self.routes = []   # (link, publisher)
+        routes = []
         for src, dst, topics in (('a', 'b', A_TO_B), ('b', 'a', B_TO_A)):
-            link = self.links[f'{src}_to_{dst}']
             for topic, kind in topics:
                 qos = _qos(kind, mode)
                 pub = self.nodes[dst].create_publisher(_msg_type(topic), topic, qos)
+                routes.append((src, dst, topic, kind, qos, pub))
+        for src, dst, topic, kind, qos, pub in routes:   # B -> A first: B's graph arms
+            if src == 'b':
                 self.nodes[src].create_subscription(
-                    _msg_type(topic), topic, self._forward(link, pub), qos, raw=True)
+                    _msg_type(topic), topic, self._forward(self.links['b_to_a'], pub,
+                                                           topic != '/rths/run_steps'),
+                    qos, raw=True)
+        if readers_b > 0:
+            wanted = {'/rths/interface_displacement': readers_b, '/rths/measurement': 1}
+            t_end = time.monotonic() + timeout_s
+            while any(pub.get_subscription_count() < wanted[topic]
+                      for _, _, topic, _, _, pub in routes if topic in wanted):
+                if time.monotonic() > t_end:
+                    raise OSError(f'linkemu: the loop readers did not match within '
+                                  f'{timeout_s:g} s; is the graph running in both domains?')
+                for executor in self.executors.values():
+                    executor.spin_once(timeout_sec=0.01)
+        for src, dst, topic, kind, qos, pub in routes:
+            if src == 'a':
+                self.nodes[src].create_subscription(
+                    _msg_type(topic), topic, self._forward(self.links['a_to_b'], pub,
+                                                           topic != '/rths/run_steps'),
+                    qos, raw=True)
         self.running = True
         self.threads = [threading.Thread(target=self._spin, args=(s,), daemon=True)
                         for s in ('a', 'b')]
         self.threads.append(threading.Thread(target=self._send, daemon=True))
 
     @staticmethod
-    def _forward(link, pub):
+    def _forward(link, pub, stamped=True):
+        """Subscription callback of one route.
+
+        The delay counts from the sender's header stamp (wall clock; hosts of one
+        machine share it).  A message due within ``INLINE_S`` is held in the
+        callback itself (sleeping to its release time) and published from there:
+        no thread hand-over, so sub-millisecond delays are kept; later ones go
+        to the sender thread.
+        """
         def callback(data):
-            link.send(time.monotonic(), (pub, data))
+            now = time.monotonic()
+            sent_at = None
+            if stamped and len(data) >= 12:
+                sec, nsec = int.from_bytes(data[4:8], 'little', signed=True), \
+                    int.from_bytes(data[8:12], 'little')
+                sent_at = now - (time.time_ns() - (sec * 1_000_000_000 + nsec)) * 1e-9
+            if not link.send(now, (pub, data), sent_at):
+                return
+            due = link.next_due()
+            while due is not None and due - time.monotonic() < INLINE_S:
+                wait = due - time.monotonic()
+                if wait > 0:
+                    time.sleep(min(wait, 50e-6))
+                    continue
+                for pub_, data_ in link.due(time.monotonic()):   # in order
+                    pub_.publish(data_)
+                due = link.next_due()
         return callback
 
     def _spin(self, side):
@@ -149,9 +206,14 @@ class Relay:
             wait = min(dues) - time.monotonic() if dues else 0.0005
             time.sleep(min(max(wait, 0.0), 0.0005))
 
-    def start(self):
+    def start(self, rt_priority: int = 0):
+        """Start the threads; ``rt_priority`` > 0: SCHED_FIFO for the whole relay process."""
         for thread in self.threads:
             thread.start()
+        if rt_priority > 0:
+            from rths_common.node_support import tune_process
+            time.sleep(0.05)
+            self.tuning = tune_process(int(rt_priority), '', 'freeze')
         return self
 
     def stop(self):
@@ -168,14 +230,16 @@ def run_relay(args) -> int:
     """``rths linkemu``: relay until SIGINT/SIGTERM, then print the link statistics."""
     import signal
 
-    relay = Relay(args.domain_a, args.domain_b, args.delay_ms * 1e-3, args.jitter_ms * 1e-3,
-                  args.loss_pct * 1e-2, args.seed, args.mode).start()
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
     print(f'linkemu: relaying domain {args.domain_a} <-> {args.domain_b}: delay '
           f'{args.delay_ms:g} ms + U(0, {args.jitter_ms:g}) ms, loss {args.loss_pct:g} %',
           flush=True)
+    relay = Relay(args.domain_a, args.domain_b, args.delay_ms * 1e-3, args.jitter_ms * 1e-3,
+                  args.loss_pct * 1e-2, args.seed, args.mode,
+                  args.wait_readers).start(args.rt_priority)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    print('linkemu: loop topics connected', flush=True)
     stop.wait()
     print(f'linkemu: {relay.stop()}', flush=True)
     return 0
@@ -195,4 +259,9 @@ def add_commands(sub):
     p.add_argument('--loss-pct', type=float, default=0.0, help='loss probability [%%]')
     p.add_argument('--seed', type=int, default=1)
     p.add_argument('--mode', default='realtime', choices=('realtime', 'lockstep'))
+    p.add_argument('--wait-readers', type=int, default=0,
+                   help='relay nothing until this many readers in domain B (compensator, '
+                        'recorder) and the numerical node in A match (lock-step runs)')
+    p.add_argument('--rt-priority', type=int, default=0,
+                   help='SCHED_FIFO priority of the relay (0: normal scheduling)')
     p.set_defaults(func=run_relay)

@@ -92,14 +92,26 @@ class LabNetwork:
         return {'ROS_DOMAIN_ID': str(domain_id), 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET',
                 'ROS_STATIC_PEERS': peers, 'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
 
-    def ping(self, src: str, dst: str) -> bool:
-        """True if ``src`` reaches ``dst`` (one ICMP echo; False if ping is missing)."""
+    def reachable(self, src: str, dst: str, port: int = 47999) -> bool:
+        """True if a UDP datagram from ``src`` reaches ``dst`` (no ping needed)."""
+        import sys
+
+        recv = subprocess.Popen(
+            [*self.prefix(dst), sys.executable, '-c',
+             'import socket; s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM); '
+             f's.bind(("{self.addr[dst]}", {port})); s.settimeout(5); '
+             'print(s.recvfrom(64)[0].decode())'],
+            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        send = (f'import socket, time; s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)\n'
+                f'for _ in range(20): s.sendto(b"rths", ("{self.addr[dst]}", {port})); '
+                'time.sleep(0.1)')
+        subprocess.run([*self.prefix(src), sys.executable, '-c', send], capture_output=True)
         try:
-            proc = subprocess.run([*self.prefix(src), 'ping', '-c', '1', '-W', '2',
-                                   self.addr[dst]], capture_output=True)
-        except OSError:
+            out = recv.communicate(timeout=10)[0]
+        except subprocess.TimeoutExpired:
+            recv.kill()
             return False
-        return proc.returncode == 0
+        return 'rths' in out
 
     def close(self):
         for name in reversed(self.created):

@@ -7,6 +7,7 @@ numerical and bridge parameters prefixed with ``numerical.`` / ``bridge.``.
 Values are strings in the bag; :func:`section` parses them back with YAML.
 """
 
+import datetime
 from pathlib import Path
 
 import yaml
@@ -60,5 +61,8 @@ def section(info: dict, name: str) -> dict:
     out = {}
     for key, value in info.items():
         if key.startswith(prefix):
-            out[key[len(prefix):]] = yaml.safe_load(value) if isinstance(value, str) else value
+            value = yaml.safe_load(value) if isinstance(value, str) else value
+            if isinstance(value, (datetime.date, datetime.datetime)):
+                value = value.isoformat()  # YAML reads ISO times as dates; keep them text
+            out[key[len(prefix):]] = value
     return out

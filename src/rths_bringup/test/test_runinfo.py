@@ -9,13 +9,16 @@ def test_flatten_and_section_round_trip():
     info = runinfo.flatten('rths', 1024.0, 'lockstep', {
         'numerical': {'record': 'kobe', 'scale': 0.135, 'interface_dofs': [2], 'fs_hz': 1024.0,
                       'taps': [1.0, 2.0]},
-        'bridge': {'dtm': 'valve4', 'autostart': True}})
+        'bridge': {'dtm': 'valve4', 'autostart': True},
+        'compensator': {'created': '2026-11-21T10:31:03+00:00'}})
     assert all(isinstance(v, str) for v in info.values())  # rosbag2 custom_data holds strings
     assert info['fs_hz'] == '1024.0' and info['kind'] == 'rths'
     assert 'numerical.taps' not in info  # long arrays are not run information
     assert runinfo.section(info, 'numerical') == {'record': 'kobe', 'scale': 0.135,
                                                   'interface_dofs': [2], 'fs_hz': 1024.0}
     assert runinfo.section(info, 'bridge') == {'dtm': 'valve4', 'autostart': True}
+    # an ISO time stays text (YAML would read it as a datetime, which JSON cannot write)
+    assert runinfo.section(info, 'compensator') == {'created': '2026-11-21T10:31:03+00:00'}
 
 
 def test_params_file_round_trip_keeps_types(tmp_path):
