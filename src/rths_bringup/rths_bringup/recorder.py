@@ -5,8 +5,9 @@
 Subscriptions take the serialized (CDR) bytes (``raw=True``), so recording
 costs no deserialization; a writer thread drains a queue into the bag in
 batches (every ``batch_s``, default 0.05 s; the callbacks only append to the
-queue) and commits every 0.25 s, so a crash of any process loses at most that
-much.  This node never sits in the 1 kHz path of the loop.
+queue) and commits at least every 0.25 s (checked after each batch), so a
+crash of any process loses at most that much plus one batch.  This node never
+sits in the 1 kHz path of the loop.
 
 Realtime mode: the recorder must not take the loop's CPU.  Its threads stay
 at normal (SCHED_OTHER) scheduling with a positive nice value (``nice``,
@@ -15,11 +16,10 @@ are pinned to those CPUs, so the SCHED_FIFO loop nodes can have the other core.
 """
 
 from collections import deque
+import os
 import sys
 import threading
 import time
-
-import os
 
 import rclpy
 
