@@ -26,13 +26,33 @@ from scipy import signal
 from . import design as dsg
 from .filters import CausalFilter, MultiChannelFilter
 from .identification import identify, selection_summary
-from .indicators import relative_rms_pct, time_delay_from_data
+from .indicators import relative_rms_pct, time_delay_from_data, time_delay_ms
 from .plants import discrete_actuator, unstable_zero_threshold_hz
 
 BANDS_HZ = (5, 10, 20, 30)
 FIR_TAPS = (25, 50, 75, 100, 200, 300)
 FIR_FC_HZ = (32, 64, 96, 128)
 SEED_TABLE2_DELAY_MS = {5: 14.9, 10: 16.7, 20: 20.8, 30: 21.1}
+
+#: Zeros of the identified B* with modulus >= this go to B-* (not cancelled by the FIR
+#: compensator's denominator B+*).  The BLWN runs excite 0-128 Hz only; the ARX model's
+#: zeros above that band are unidentified, and the BIC model has a spurious pair at
+#: |z| = 0.996 (154 Hz): cancelling it puts poles at 0.996 in G and a +60 dB resonance on
+#: the real plant.  Lightly damped zeros are 'unacceptable' zeros in Tomizuka's ZPETC sense.
+BENCH_ZERO_TOL = 0.98
+
+#: Why the uncompensated delay differs from Table 2 (written into the JSON).
+DELAY_NOTE = (
+    'Table 2 reports the delay MEASURED on the laboratory actuator (0-5/10/20/30 Hz: '
+    '14.9/16.7/20.8/21.1 ms). The bench simulates the Table 1 3-pole model (ZOH at 1024 Hz) '
+    'instead; that model itself has a delay (eq. 42, averaged over the band) of '
+    'table1_model_delay_ms = 14.93/15.69/19.05/19.89 ms (the 4-pole model: 14.60/15.78/'
+    '19.21/20.13 ms), and the bench measures it from the noisy time series to within the H1 '
+    'FRF estimation error. The 1.75 ms gap at 0-20 Hz (1.0 and 1.2 ms at 0-10 and 0-30 Hz) '
+    'is the gap between the seed\'s fitted Table 1 model and its own hardware: a 3-pole fit '
+    'cannot carry the extra phase lag the real servo-hydraulic loop shows between 10 and '
+    '30 Hz. It is reported, not tuned away: matching Table 2 would need a different plant '
+    'than Table 1.')
 
 
 def _log(msg):
@@ -68,8 +88,14 @@ def run_study(seed: int = 2024, noise_m: float = 2e-6, eval_s: float = 60.0,
               fs_hz: float = 1024.0, epsilon: float = dsg.DEFAULT_EPSILON,
               taps_list=FIR_TAPS, fc_list=FIR_FC_HZ, n_validation: int = 72,
               na_max: int = 29, nb_max: int = 29, train_s: float = 20.0,
-              log=_log) -> dict:
-    """Run the study; return the result dict (JSON layout of issue 3) plus ``_extra`` data."""
+              zero_tol: float = BENCH_ZERO_TOL, log=_log) -> dict:
+    """Run the study; return the result dict (JSON layout of issue 3) plus ``_extra`` data.
+
+    ``zero_tol`` is passed to :func:`.design.design_fir` (see :data:`BENCH_ZERO_TOL`).
+    Every FIR entry carries ``highpass_gain_db`` (max ``20 log10 |T_com|`` from fc to
+    Nyquist predicted on the identified model) and ``true_highpass_gain_db`` (the same
+    for the true plant times the compensator).
+    """
     from ._blas import limit_blas_threads
     limit_blas_threads(1)
     rng = np.random.default_rng(seed)
@@ -120,21 +146,26 @@ def run_study(seed: int = 2024, noise_m: float = 2e-6, eval_s: float = 60.0,
     log(f'[3/4] designing {3 * len(taps_list) * len(fc_list)} FIR compensators '
         f'(epsilon = {epsilon})')
     compensators, designs = [], {}
-    fir_total = 0.0
+    fir_total = fir_cpu = 0.0
     for scheme in dsg.FIR_SCHEMES:
         for n in taps_list:
             for fc in fc_list:
                 name = f'fir-{scheme}-n{n}-fc{fc}'
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 try:
-                    d = dsg.design_fir(model, n, fc, scheme, epsilon)
+                    d = dsg.design_fir(model, n, fc, scheme, epsilon, zero_tol=zero_tol)
                     err = None
                 except ValueError as exc:
                     d, err = None, str(exc)
                 dt = time.perf_counter() - t0
                 fir_total += dt
+                fir_cpu += time.process_time() - c0
                 entry = {'name': name, 'scheme': scheme, 'taps': n, 'fc_hz': fc,
                          'design_s': dt, 'bands': evaluate(d.taps, d.denominator) if d else None}
+                if d is not None:
+                    entry['highpass_gain_db'] = dsg.predict(model, d, fc)['highpass_gain_db']
+                    entry['true_highpass_gain_db'] = dsg.predict(
+                        (b_true, a_true), d, fc, fs_hz)['highpass_gain_db']
                 if err:
                     entry['error'] = err
                     log(f'      {name}: FAILED {err}')
@@ -171,10 +202,25 @@ def run_study(seed: int = 2024, noise_m: float = 2e-6, eval_s: float = 60.0,
 
     log('[4/4] timing the node filter step (400 taps, 100000 steps)')
     step = node_step_us(400, 100000)
+    fir_ok = [c for c in compensators if 'highpass_gain_db' in c]
     result = {
         'uncompensated': {'bands': uncompensated},
+        'table1_model_delay_ms': {str(b): time_delay_ms(b_true, a_true, fs_hz, b)
+                                  for b in BANDS_HZ},
+        'delay_note': DELAY_NOTE,
+        'identified_model': {'na': model.na, 'nb': model.nb, 'd': model.d,
+                             'zero_moduli': np.round(np.abs(zeros), 4).tolist(),
+                             'zero_tol': zero_tol},
+        'fir_highpass_gain_db': {
+            'median_predicted': float(np.median([c['highpass_gain_db'] for c in fir_ok])),
+            'max_predicted': float(np.max([c['highpass_gain_db'] for c in fir_ok])),
+            'median_true_plant': float(np.median([c['true_highpass_gain_db']
+                                                  for c in fir_ok])),
+            'max_true_plant': float(np.max([c['true_highpass_gain_db'] for c in fir_ok]))}
+        if fir_ok else None,
         'compensators': compensators,
         'fir_design_total_s': fir_total,
+        'fir_design_cpu_s': fir_cpu,
         'arx_selection_s': arx_s,
         'unstable_zero_fs_hz': {'3pole': unstable_zero_threshold_hz('3pole'),
                                 '4pole': unstable_zero_threshold_hz('4pole')},
@@ -194,8 +240,10 @@ def targets(result: dict) -> list:
     for band in BANDS_HZ:
         got = unc[str(band)]['delay_ms']
         ref = SEED_TABLE2_DELAY_MS[band]
-        rows.append((f'uncompensated delay 0-{band} Hz vs Table 2 {ref} ms', f'{got:.2f} ms',
-                     '|diff| <= 1.5 ms', abs(got - ref) <= 1.5))
+        model_ms = result.get('table1_model_delay_ms', {}).get(str(band))
+        extra = f' (Table 1 model: {model_ms:.2f} ms)' if model_ms is not None else ''
+        rows.append((f'uncompensated delay 0-{band} Hz vs Table 2 {ref} ms', f'{got:.2f} ms'
+                     + extra, '|diff| <= 1.5 ms', abs(got - ref) <= 1.5))
     by_name = {c['name']: c for c in result['compensators']}
     ls = by_name.get('fir-ls-n100-fc64')
     if ls and ls['bands']:
@@ -221,7 +269,9 @@ def targets(result: dict) -> list:
             other_rms = best_other['bands'][str(band)]['rel_rms_pct']
             rows.append((f'FIR LS n=100 fc=64 lower rel. RMS than every non-FIR 0-{band} Hz',
                          f'{got:.2f} %', f'< {other_rms:.2f} %', got < other_rms))
-    rows.append(('72 FIR designs total', f'{result["fir_design_total_s"]:.1f} s', '<= 60 s',
+    cpu = result.get('fir_design_cpu_s')
+    rows.append(('72 FIR designs total', f'{result["fir_design_total_s"]:.1f} s'
+                 + (f' (CPU {cpu:.1f} s)' if cpu is not None else ''), '<= 60 s',
                  result['fir_design_total_s'] <= 60))
     rows.append(('ARX grid + selection', f'{result["arx_selection_s"]:.1f} s', '<= 60 s',
                  result['arx_selection_s'] <= 60))

@@ -29,7 +29,11 @@ FIR compensator (eq. 28-36)
       squares); if the passband bound already holds, that is the optimum of the convex
       problem.  Otherwise the inequality-constrained least squares (LSI) is solved exactly
       by the Lawson-Hanson reduction LSI -> least-distance programme -> non-negative
-      least squares (``scipy.optimize.nnls``).  MM is one LP.  No generic NLP is used.
+      least squares (``scipy.optimize.nnls``).  MM is one LP, solved by cutting planes
+      (:func:`_minimax_lp`): a subset of its rows, then the violated rows of the full grid
+      added until none is violated, each re-solve warm-started from the previous basis
+      (the optimum of the same LP, 3-10x faster than handing HiGHS every row).  No
+      generic NLP is used.
     * The unknown is scaled by B-*(1) (``g = B-*(1) h``) so it is O(1).
 
 Comparison compensators
@@ -160,6 +164,14 @@ def _infeasible_msg(plant, scheme, n_taps, fc_hz, epsilon, fs, n_grid, n_sides):
             'raise --epsilon, add taps or lower --fc')
 
 
+#: HiGHS options of the warm-started MM solves: Devex dual edge weights (measured 1.7x less
+#: CPU than the default steepest edge on the bench's n = 200/300 designs).  Devex can stall
+#: on these degenerate LPs (once 110000 iterations): a run that needs more than
+#: ``_DEVEX_MAX_ITERATIONS`` continues from where it stopped with the default weights.
+_HIGHS_OPTIONS = {'simplex_dual_edge_weight_strategy': 1}
+_DEVEX_MAX_ITERATIONS = 3000
+
+
 class _IncrementalLp:
     """``min c x`` s.t. ``a x <= b`` (rows added in batches), ``a_eq x = b_eq``, x free.
 
@@ -183,6 +195,10 @@ class _IncrementalLp:
                 self._core = _core
                 self.highs = _core._Highs()
                 self.highs.setOptionValue('output_flag', False)
+                for key, val in _HIGHS_OPTIONS.items():
+                    self.highs.setOptionValue(key, val)
+                if _HIGHS_OPTIONS:
+                    self.highs.setOptionValue('simplex_iteration_limit', _DEVEX_MAX_ITERATIONS)
                 n = self.c.size
                 inf = self.highs.getInfinity()
                 self.highs.addVars(n, np.full(n, -inf), np.full(n, inf))
@@ -199,11 +215,10 @@ class _IncrementalLp:
 
     def add_rows(self, a, b):
         """Append the rows ``a x <= b``."""
+        self.rows.append(np.asarray(a, dtype=float))
+        self.rhs.append(np.asarray(b, dtype=float))
         if self.highs is not None:
             self._add(a, np.full(len(b), -self.highs.getInfinity()), b)
-        else:
-            self.rows.append(np.asarray(a, dtype=float))
-            self.rhs.append(np.asarray(b, dtype=float))
 
     def solve(self):
         """Return ``(x, status)``: 0 optimal, 2 infeasible, other = failure."""
@@ -213,11 +228,23 @@ class _IncrementalLp:
         self.highs.run()
         status = self.highs.getModelStatus()
         ms = self._core.HighsModelStatus
+        if status == ms.kIterationLimit:
+            # stalled: resume from the current basis with the default (steepest edge) weights
+            self.highs.setOptionValue('simplex_dual_edge_weight_strategy', -1)
+            self.highs.setOptionValue('simplex_iteration_limit', 2 ** 31 - 1)
+            self.highs.run()
+            status = self.highs.getModelStatus()
         if status == ms.kOptimal:
             return np.asarray(self.highs.getSolution().col_value), 0
         if status == ms.kInfeasible:
             return None, 2
-        return None, 4
+        # numerical trouble in the warm start: solve the same rows afresh
+        for method in ('highs-ds', 'highs-ipm'):
+            x, code = _linprog_free(self.c, np.vstack(self.rows), np.concatenate(self.rhs),
+                                    self.a_eq, self.b_eq, method)
+            if code in (0, 2):
+                break
+        return x, code
 
 
 def _minimax_lp(m, mp, bound_eps, lp_method='highs', infeasible=None, n_obj_sides=8,
@@ -278,10 +305,19 @@ def _minimax_lp(m, mp, bound_eps, lp_method='highs', infeasible=None, n_obj_side
                f'{int(act_pass.any(axis=0).sum())} passband points')
 
 
-def _most_violated(excess, tol):
-    """Mask (sides x points) of the most violated side at each point whose excess > tol."""
+def _most_violated(excess, tol, local_max=True):
+    """Mask (sides x points) of the most violated side at the violated points (excess > tol).
+
+    With ``local_max`` only the points where the violation is a local maximum over
+    frequency are taken (as in a Remez exchange): far fewer rows for the same optimum.
+    """
     mask = np.zeros(excess.shape, dtype=bool)
-    cols = np.flatnonzero(excess.max(axis=0) > tol)
+    worst = excess.max(axis=0)
+    keep = worst > tol
+    if local_max and worst.size > 2:
+        padded = np.r_[-np.inf, worst, -np.inf]
+        keep &= (worst >= padded[:-2]) & (worst >= padded[2:])
+    cols = np.flatnonzero(keep)
     mask[np.argmax(excess[:, cols], axis=0), cols] = True
     return mask
 
@@ -319,9 +355,11 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
     n (length of H), ``fc_hz`` the passband edge, ``epsilon`` the passband tolerance on
     ``|T_com - 1|`` (see module docstring), ``n_grid`` the number of frequency points
     from 0 to Nyquist (default 513 for LS/WLS, 257 for MM), ``zero_tol`` the modulus from
-    which a zero counts as unstable (goes to B-*), ``lp_method`` the HiGHS variant for MM
-    ('highs', 'highs-ds' or 'highs-ipm').  Raises ValueError if the constraints
-    cannot be met (the message gives the smallest feasible epsilon).
+    which a zero counts as unstable (goes to B-*; below 1 it also keeps lightly damped
+    zeros out of the denominator B+*), ``lp_method`` the HiGHS variant for MM ('highs':
+    warm-started re-solves; 'highs-ds' or 'highs-ipm': a fresh linprog per cut round).
+    Raises ValueError if the constraints cannot be met (the message gives the smallest
+    feasible epsilon).
     """
     scheme = scheme.lower()
     if scheme not in FIR_SCHEMES:

@@ -20,8 +20,8 @@ command of every N-th step, ``inject_delay_every`` = N > 0 holds it back
 = N > 0 publishes it twice (lock-step): fault injection for the tests of the
 bridge's deadline-miss and step-order policies.  In lock-step the command's
 ``header.frame_id`` carries this node's writer gid; the bridge accepts
-commands only from that writer (``command_source``).  ``status_every`` = N > 1 publishes the status of
-every N-th step only (and of every step after a miss).  Latency settings:
+commands only from that writer (``command_source``).  ``status_every`` = N > 1
+publishes the status of every N-th step only (and of every step after a miss).  Latency settings:
 ``rt_priority``, ``cpus``, ``gc`` (:func:`rths_common.node_support.tuning`).  In
 realtime the loop messages travel as CDR bytes (:mod:`rths_common.cdr`).
 """

@@ -179,3 +179,54 @@ def test_auto_design_picks_a_good_candidate(plant):
     best = table[0]
     assert best['score'] == min(r['score'] for r in table)
     assert abs(best['delay_ms']) < 0.5 and comp.scheme == best['scheme']
+
+
+def _full_minimax_lp(plant, n_taps, fc, eps, n_grid=257):
+    """The MM LP of design_fir with every row at once (one linprog): its optimal t."""
+    _, b_minus = factor_zeros(plant.b)
+    bmu = b_minus / np.sum(b_minus)
+    m = dsg._fir_matrix(bmu, 0, n_taps, np.linspace(0, FS / 2, n_grid), FS)
+    f_pass = np.linspace(0.0, fc, max(8, int(np.ceil(fc / (FS / 4096))) + 1))
+    mp = dsg._fir_matrix(bmu, 0, n_taps, f_pass, FS)
+    rot = dsg._polygon(8)
+    ro = np.real(rot[:, None, None] * m[None]).reshape(-1, n_taps)
+    rp = np.real(rot[:, None, None] * mp[None]).reshape(-1, n_taps)
+    a_ub = np.vstack([np.hstack([ro, -np.ones((ro.shape[0], 1))]),
+                      np.hstack([rp, np.zeros((rp.shape[0], 1))])])
+    b_ub = np.r_[np.repeat(np.real(rot), m.shape[0]),
+                 0.97 * eps * np.cos(np.pi / 8) + np.repeat(np.real(rot), mp.shape[0])]
+    x, status = dsg._linprog_free(np.r_[np.zeros(n_taps), 1.0], a_ub, b_ub,
+                                  np.r_[np.ones(n_taps), 0.0][None, :], [1.0])
+    assert status == 0
+    return x[-1]
+
+
+@pytest.mark.parametrize('lp_method', ['highs', 'highs-ds'])
+def test_mm_cutting_planes_reach_the_full_lp_optimum(plant, lp_method):
+    """The cutting-plane MM (warm-started HiGHS or repeated linprog) solves the same LP."""
+    t_full = _full_minimax_lp(plant, 40, 64.0, 0.005)
+    comp = dsg.design_fir(plant, 40, 64.0, 'mm', 0.005, lp_method=lp_method)
+    assert 'cutting planes' in comp.info['solver']
+    # the polygon objective of the design (from its T_com) equals the full LP's optimum
+    num, den = dsg.compensated(plant, comp)
+    t_com = _frf(num, den, np.linspace(0, FS / 2, 257))
+    rot = dsg._polygon(8)
+    t_design = np.max(np.real(rot[:, None] * (t_com[None, :] - 1.0)))
+    assert t_design == pytest.approx(t_full, rel=1e-5)
+
+
+def test_zero_tol_keeps_lightly_damped_zeros_out_of_the_denominator():
+    """Zeros with modulus >= zero_tol go to B-*: G = A* H/B+* then has no such poles."""
+    b, a = discrete_actuator('3pole', FS)
+    r, th = 0.995, 2 * np.pi * 150.0 / FS          # lightly damped pair at 150 Hz
+    b = np.convolve(b, [1.0, -2 * r * np.cos(th), r * r])
+    b = b / (np.sum(b) / np.sum(a))
+    plant = ArxModel(a=a, b=b, fs_hz=FS)
+    plain = dsg.design_fir(plant, 50, 32.0, 'ls', 0.01)
+    tol = dsg.design_fir(plant, 50, 32.0, 'ls', 0.01, zero_tol=0.98)
+    assert np.max(np.abs(np.roots(plain.denominator))) == pytest.approx(r, abs=1e-6)
+    assert np.max(np.abs(np.roots(tol.denominator))) < 0.98
+    assert tol.info['n_unstable_zeros'] == plain.info['n_unstable_zeros'] + 2
+    for comp in (plain, tol):                        # both keep the defining constraints
+        assert comp.info['passband_max_error'] <= 0.01
+        assert comp.info['dc_gain_error'] < 1e-8
