@@ -15,6 +15,15 @@ on unless the supervisor accepts it; after any fault the supervisor holds,
 ramps to the safe position and stops, and the node then deactivates the
 backend and exits with code 3 (the launcher reports a safety stop).
 
+Command source: only the node named ``command_source`` (default
+``compensator``) may command the actuator.  Every other publisher on
+``/rths/command`` is logged once by name and gid; in lock-step its messages
+are ignored (the compensator puts its writer gid in ``header.frame_id`` and
+the bridge checks it against the graph: rclpy's message info has no publisher
+gid); in realtime (lean CDR, no frame id) foreign publishers are only logged.
+The parameters are checked first (:func:`check_bridge_params`: unknown keys,
+non-finite limits, limits in the wrong unit).
+
 Emergency stop: a ``std_msgs/String`` on ``/rths/emergency_stop`` (the reason)
 or the ``rths_msgs/srv/EmergencyStop`` service ``/rths/emergency_stop_service``.
 In lock-step mode the supervisor is stepped by the incoming commands; when

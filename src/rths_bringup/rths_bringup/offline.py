@@ -17,7 +17,9 @@ import numpy as np
 #: NODE_PARAMS (test_offline_node_keys checks this list against the nodes).
 NODE_KEYS = {'mode', 'executor', 'wait_for_subscribers', 'history_out', 'timing_out',
              'status_every', 'autostart', 'watchdog_timeout_s', 'clock', 'spin_margin_us',
-             'publish_specimen', 'inject_drop_every', 'rt_priority', 'cpus', 'gc'}
+             'publish_specimen', 'inject_drop_every', 'rt_priority', 'cpus', 'gc',
+             'command_source', 'inject_duplicate_every', 'inject_delay_every',
+             'inject_delay_ms', 'remote_graph'}
 
 
 def core_params(params: dict) -> dict:
