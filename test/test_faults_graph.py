@@ -12,7 +12,6 @@ ones (``Launcher.safe_stop_bound_s``), with hold and ramp counted in steps.
 import os
 from pathlib import Path
 import re
-import shutil
 import signal
 import subprocess
 import threading

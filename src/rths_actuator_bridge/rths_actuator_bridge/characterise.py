@@ -298,17 +298,13 @@ def read_csv(path, name: str = None) -> DTMRecord:
 
 def write_csv(path, record: DTMRecord, force=None):
     """Write a record in the :func:`read_csv` layout (atomic)."""
-    import os
-    import tempfile
+    from rths_numerical.files import atomic_open
     t = np.arange(len(record.base_accel)) / record.fs_hz
     cols = [t, record.base_accel, record.rel_disp] + ([force] if force is not None else [])
     header = 'time,base_accel,rel_disp' + (',force' if force is not None else '')
-    d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=d, suffix='.tmp')
-    with os.fdopen(fd, 'w') as fh:
+    with atomic_open(path) as fh:
         np.savetxt(fh, np.column_stack(cols), delimiter=',', header=header, comments='',
                    fmt='%.10g')
-    os.replace(tmp, path)
 
 
 def read_bag(path):

@@ -7,9 +7,9 @@
 
 import argparse
 import json
-import os
 import sys
-import tempfile
+
+from rths_numerical.files import atomic_open
 
 
 def _progress(text: str):
@@ -18,17 +18,8 @@ def _progress(text: str):
 
 def _write_json(path, data):
     """Atomic JSON write (temp file + rename)."""
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=d, suffix='.tmp')
-    try:
-        with os.fdopen(fd, 'w') as fh:
-            json.dump(data, fh, indent=2)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_open(path) as fh:
+        json.dump(data, fh, indent=2)
 
 
 def _add_plant_options(p):

@@ -15,7 +15,6 @@ Every phase writes the exact params files it ran with under ``OUT/<phase>/config
 """
 
 import datetime
-import json
 from pathlib import Path
 import shutil
 import sys

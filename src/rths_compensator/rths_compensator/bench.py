@@ -17,11 +17,12 @@
 import json
 import os
 import sys
-import tempfile
 import time
 
 import numpy as np
 from scipy import signal
+
+from rths_numerical.files import atomic_open
 
 from . import design as dsg
 from .filters import CausalFilter, MultiChannelFilter
@@ -287,17 +288,8 @@ def targets(result: dict) -> list:
 def write_json(path, result: dict) -> str:
     """Atomically write the public part of ``result`` (no ``_extra``) as JSON."""
     public = {k: v for k, v in result.items() if not k.startswith('_')}
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix='.bench-', suffix='.json', dir=directory)
-    try:
-        with os.fdopen(fd, 'w', encoding='utf-8') as handle:
-            json.dump(public, handle, indent=1)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_open(path) as handle:
+        json.dump(public, handle, indent=1)
     return path
 
 

@@ -32,13 +32,14 @@ zeros strictly inside the unit circle and B-* (carrying the gain b1) the others.
 
 import dataclasses
 import os
-import tempfile
 import warnings
 
 import numpy as np
 import yaml
 from numpy.lib.stride_tricks import sliding_window_view
 from scipy import linalg, signal
+
+from rths_numerical.files import atomic_open
 
 CRITERIA = ('mse', 'fit', 'aic', 'bic')
 
@@ -125,17 +126,8 @@ def save_plant(path, model: ArxModel, selection_info: dict = None) -> str:
     doc = model.to_dict()
     doc['selection'] = _plain(selection_info or {})
     text = yaml.safe_dump(doc, default_flow_style=None, sort_keys=False, width=100)
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix='.plant-', suffix='.yaml', dir=directory)
-    try:
-        with os.fdopen(fd, 'w', encoding='utf-8') as handle:
-            handle.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_open(path) as handle:
+        handle.write(text)
     return path
 
 

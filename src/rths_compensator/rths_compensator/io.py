@@ -1,9 +1,10 @@
 """Reading and writing the CSV time series of the compensator commands."""
 
 import os
-import tempfile
 
 import numpy as np
+
+from rths_numerical.files import atomic_open
 
 
 def read_csv_columns(path, columns):
@@ -52,16 +53,7 @@ def write_csv_columns(path, columns: dict) -> str:
     path = os.fspath(path)
     names = list(columns)
     data = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix='.rths-', suffix='.csv', dir=directory)
-    try:
-        with os.fdopen(fd, 'w', encoding='utf-8') as handle:
-            np.savetxt(handle, data, delimiter=',', header=','.join(names), comments='',
-                       fmt='%.10g')
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_open(path) as handle:
+        np.savetxt(handle, data, delimiter=',', header=','.join(names), comments='',
+                   fmt='%.10g')
     return path

@@ -19,10 +19,11 @@ inside the unit circle (a stable filter), fs_hz > 0, a known scheme.
 
 import datetime
 import os
-import tempfile
 
 import numpy as np
 import yaml
+
+from rths_numerical.files import atomic_open
 
 SCHEMES = ('ls', 'wls', 'mm', 'inverse', 'mff', 'npz', 'zpetc', 'zmetc', 'identity')
 
@@ -141,17 +142,8 @@ def write_compensator_params(path, taps, denominator, fs_hz, scheme, provenance=
         params[str(key)] = _scalar(value)
     text = yaml.safe_dump({'compensator': {'ros__parameters': params}},
                           default_flow_style=None, sort_keys=False, width=100)
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix='.compensator-', suffix='.yaml', dir=directory)
-    try:
-        with os.fdopen(fd, 'w', encoding='utf-8') as handle:
-            handle.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_open(path) as handle:
+        handle.write(text)
     return path
 
 

@@ -8,7 +8,8 @@
 import json
 import os
 import sys
-import tempfile
+
+from .files import atomic_open, save_figure
 
 
 def _progress(label):
@@ -19,17 +20,8 @@ def _progress(label):
 
 def _write_json(path, data):
     """Write JSON atomically (temp file in the same directory, then rename)."""
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, suffix='.tmp')
-    try:
-        with os.fdopen(fd, 'w') as fh:
-            json.dump(data, fh, indent=2, default=_jsonable)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_open(path) as fh:
+        json.dump(data, fh, indent=2, default=_jsonable)
 
 
 def _jsonable(obj):
@@ -42,15 +34,7 @@ def _jsonable(obj):
 
 
 def _save_fig(fig, path):
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=folder, suffix='.png')
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=120)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    save_figure(fig, path, dpi=120)
 
 
 def _building(name, mass=None):
