@@ -156,6 +156,49 @@ def run_dtm_tuning(n_fn=100, n_zeta=30, duration_s=60.0, fs_hz=256.0, seed=0, ma
                             np.linspace(0.005, 0.15, n_zeta), mass_ratio, f1_hz, progress)
 
 
+def cmd_study_model_reduction(args):
+    """``rths study model-reduction``: seed figure 33, 16-DOF vs 240-DOF 2nd-floor response."""
+    import numpy as np
+    from . import building as bld
+    from .ground_motion import baseline_correct, ground_motion
+    from .reference import integrate_model, relative_rms_error
+    dt = 1.0 / args.fs_hz
+    ag, _, _ = baseline_correct(ground_motion(args.record, args.fs_hz, args.scale,
+                                              args.duration_s), dt)
+    _progress('model-reduction')(1, 2)
+    d16, _ = integrate_model(bld.building_16dof(), ag, dt)
+    _progress('model-reduction')(2, 2)
+    d240, _ = integrate_model(bld.building_240dof(), ag, dt)
+    u16 = d16[:, bld.IX2]
+    u240 = d240[:, bld.floor2_x_dofs_240()].mean(axis=1)  # mean of the 2nd-floor joints
+    data = {'record': args.record, 'scale': args.scale, 'fs_hz': args.fs_hz,
+            'max_disp_16dof_m': float(np.max(np.abs(u16))),
+            'max_disp_240dof_m': float(np.max(np.abs(u240))),
+            'rel_rms_diff_pct': relative_rms_error(u240, u16)}
+    os.makedirs(args.out, exist_ok=True)
+    _write_json(os.path.join(args.out, 'model_reduction.json'), data)
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    t = np.arange(ag.size) * dt
+    fig, ax = plt.subplots(figsize=(10, 4))
+    ax.plot(t, u240 * 1e3, label='240 DOF (full frame, mean of 2nd-floor joints)')
+    ax.plot(t, u16 * 1e3, '--', label='16 DOF (rigid diaphragms, condensed)')
+    ax.set_xlabel('time [s]')
+    ax.set_ylabel('2nd-floor displacement [mm]')
+    ax.set_title(f'{args.record} x {args.scale:g}: relative RMS difference '
+                 f"{data['rel_rms_diff_pct']:.1f} %")
+    ax.legend()
+    fig.tight_layout()
+    _save_fig(fig, os.path.join(args.out, 'model_reduction.png'))
+    plt.close(fig)
+    print(f"2nd-floor peak: 16 DOF {data['max_disp_16dof_m'] * 1e3:.3f} mm, 240 DOF "
+          f"{data['max_disp_240dof_m'] * 1e3:.3f} mm; relative RMS difference "
+          f"{data['rel_rms_diff_pct']:.2f} %")
+    print(f'wrote {args.out}/model_reduction.json and model_reduction.png')
+    return 0
+
+
 def cmd_study_dtm_tuning(args):
     """Run ``rths study dtm-tuning``."""
     from .studies import CRITERIA
@@ -293,6 +336,19 @@ def register(commands, benches):
     dt_.add_argument('--f1-hz', type=float, default=2.81, help='building first frequency')
     dt_.add_argument('--out', default='out/study')
     dt_.set_defaults(func=cmd_study_dtm_tuning)
+
+    mr = studies.add_parser(
+        'model-reduction', help='seed figure 33: 2nd-floor response of the 16- and 240-DOF models',
+        description='Seed 6.2 / figure 33: integrate the condensed 16-DOF building and the full '
+                    '240-DOF frame under the same ground motion; print the peak 2nd-floor '
+                    'displacements and their relative RMS difference; write '
+                    'OUT/model_reduction.json and model_reduction.png (the overlay).')
+    mr.add_argument('--record', default='kobe', help='kobe, northridge, imperial_valley or AT2')
+    mr.add_argument('--scale', type=float, default=0.135, help='record scale factor')
+    mr.add_argument('--duration-s', type=float, default=12.0, help='seconds of record')
+    mr.add_argument('--fs-hz', type=float, default=256.0, help='integration rate (Hz)')
+    mr.add_argument('--out', default='out/study')
+    mr.set_defaults(func=cmd_study_model_reduction)
 
     bn = benches.add_parser(
         'numerical', help='integrator step times (16/240 DOF) and dtm-tuning run time',
