@@ -13,7 +13,6 @@ import os
 from pathlib import Path
 import re
 import signal
-import subprocess
 import threading
 import time
 
@@ -21,7 +20,8 @@ import numpy as np
 import pytest
 import yaml
 
-from rths_system_tests import REPO, graph_env, rths, rths_executable, started_pids
+from rths_system_tests import (REPO, graph_env, launch_background, rths, started_pids,
+                               wait_for)
 
 CONFIG = REPO / 'config'
 STOPPED = 3
@@ -64,25 +64,6 @@ def check_recording(bag):
         assert check['first'] == 0 and check['gaps'] == 0 and check['in_order'], (topic, check)
         assert check['duplicates'] == 0, (topic, check)
     return loop
-
-
-def launch_background(config, bag):
-    return subprocess.Popen(
-        [rths_executable(), 'launch', '--config', str(config), '--bag', str(bag)],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=graph_env())
-
-
-def wait_for(proc, text, timeout=90.0):
-    seen = []
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        line = proc.stdout.readline()
-        if not line:
-            break
-        seen.append(line)
-        if text in line:
-            return ''.join(seen)
-    raise AssertionError(f'{text!r} not seen in launcher output:\n' + ''.join(seen[-50:]))
 
 
 @pytest.mark.parametrize('victim', ['compensator', 'numerical', 'bridge'])

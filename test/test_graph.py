@@ -7,12 +7,10 @@ kill one node and check the launcher names it and the bag stays readable.
 
 import os
 import signal
-import subprocess
-import time
 
 import pytest
 
-from rths_system_tests import REPO, rths, rths_executable, started_pids, graph_env
+from rths_system_tests import REPO, launch_background, rths, started_pids, wait_for
 
 CONFIG = REPO / 'config'
 FS_HZ = 1024.0
@@ -52,31 +50,10 @@ def test_bag_info_reads_the_bag(tmp_path):
     assert ' 512' in out  # 0.5 s at 1024 Hz
 
 
-def launch_background(bag, duration):
-    return subprocess.Popen(
-        [rths_executable(), 'launch', '--config', str(CONFIG), '--duration', str(duration),
-         '--bag', str(bag)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        env=graph_env())
-
-
-def wait_for(proc, text, timeout=60.0):
-    """Read the launcher's output until ``text`` appears; return everything read."""
-    seen = []
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        line = proc.stdout.readline()
-        if not line:
-            break
-        seen.append(line)
-        if text in line:
-            return ''.join(seen)
-    raise AssertionError(f'{text!r} not seen in launcher output:\n' + ''.join(seen[-50:]))
-
-
 @pytest.mark.parametrize('victim', ['numerical', 'bridge', 'recorder'])
 def test_sigkill_of_a_node_fails_the_run_names_it_and_keeps_the_bag(tmp_path, victim):
     bag = tmp_path / 'bag'
-    proc = launch_background(bag, duration=600.0)
+    proc = launch_background(CONFIG, bag, '--duration', 600.0)
     try:
         head = wait_for(proc, 'graph connected')
         head += wait_for(proc, 'progress: step 1024 ')  # one simulated second is done

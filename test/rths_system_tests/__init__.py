@@ -5,6 +5,7 @@ from pathlib import Path
 import re
 import subprocess
 import sys
+import time
 
 
 
@@ -51,3 +52,25 @@ def started_pids(output: str) -> dict:
     """``{node: pid}`` from the launcher's 'started NAME (pid N)' lines."""
     return {m.group(1): int(m.group(2))
             for m in re.finditer(r'started (\w+) \(pid (\d+)\)', output)}
+
+
+def launch_background(config, bag, *args) -> subprocess.Popen:
+    """``rths launch --config CONFIG --bag BAG ARGS`` running in the background (text stdout)."""
+    return subprocess.Popen(
+        [rths_executable(), 'launch', '--config', str(config), '--bag', str(bag),
+         *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        env=graph_env())
+
+
+def wait_for(proc, text, timeout=90.0) -> str:
+    """Read the launcher's output until ``text`` appears; return everything read."""
+    seen = []
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        seen.append(line)
+        if text in line:
+            return ''.join(seen)
+    raise AssertionError(f'{text!r} not seen in launcher output:\n' + ''.join(seen[-50:]))
