@@ -5,6 +5,7 @@ check the loop made progress on every topic, in order, with no gaps (lock-step);
 kill one node and check the launcher names it and the bag stays readable.
 """
 
+import json
 import os
 import signal
 
@@ -40,6 +41,10 @@ def test_lockstep_run_progresses_on_every_topic(tmp_path):
     # every node reported status for every step
     for node in ('numerical', 'compensator', 'bridge'):
         assert len(loop['status'][node]['step']) == n_steps, node
+    # the review rebuilds from the bag alone (run parameters incl. node-level keys in the bag)
+    rths('review', bag, '--out', tmp_path / 'review')
+    summary = json.loads((tmp_path / 'review' / 'summary.json').read_text())
+    assert summary['steps'] == n_steps and summary['deadline_misses'] == 0
 
 
 def test_bag_info_reads_the_bag(tmp_path):

@@ -115,11 +115,10 @@ def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
 
 
 def _numerical_params(info: dict) -> dict:
+    """The run's numerical core parameters (the node-level keys stripped, as offline does)."""
     from rths_bringup import runinfo
-    params = runinfo.section(info, 'numerical')
-    for key in ('mode',):
-        params.pop(key, None)
-    return params
+    from rths_bringup.offline import core_params
+    return core_params(runinfo.section(info, 'numerical'))
 
 
 def review_rths(bag, out_dir) -> dict:
