@@ -7,7 +7,8 @@ ZMETC eq. 14) is a causal rational filter
     G(z^-1) = (b0 + b1 z^-1 + ... + bn z^-n) / (a0 + a1 z^-1 + ... + am z^-m),
 
 i.e. the difference equation  a0 y_k = sum_i b_i x_{k-i} - sum_{j>=1} a_j y_{k-j}.
-:class:`CausalFilter` evaluates it one sample at a time in direct form I.  The input and
+:class:`MultiChannelFilter` evaluates it one sample at a time in direct form I
+(:class:`CausalFilter` is its one-channel form).  The input and
 output histories live in *doubled ring buffers*: each new sample is written at position
 ``p`` and ``p + n``, so ``buf[p:p + n]`` is always the contiguous history
 ``x_k, x_{k-1}, ..., x_{k-n+1}`` and one ``numpy.dot`` per step evaluates the sum,
@@ -33,59 +34,26 @@ class CausalFilter:
     ``(1.0,)`` gives a pure FIR).  :meth:`step` returns the output for one new input
     sample; :meth:`apply` filters a whole array from the current state and equals
     ``scipy.signal.lfilter(taps, denominator, x)`` to round-off when started from rest.
+    It is a one-channel :class:`MultiChannelFilter` (one implementation of the recursion).
     """
 
     def __init__(self, taps, denominator=(1.0,)):
-        b = _as_coefficients(taps, 'taps')
-        a = _as_coefficients(denominator, 'denominator')
-        if a[0] == 0.0:
-            raise ValueError('filter denominator a0 is 0; the leading coefficient must be '
-                             'non-zero')
-        self.taps = b / a[0]
-        self.denominator = a / a[0]
-        self._nb = b.size
-        self._na = a.size - 1
-        self._a_rest = np.ascontiguousarray(self.denominator[1:])
-        self._xbuf = np.zeros(2 * self._nb)
-        self._ybuf = np.zeros(2 * max(self._na, 1))
-        self._px = 0
-        self._py = 0
+        self._filter = MultiChannelFilter(taps, denominator, n_channels=1)
+        self.taps = self._filter.taps
+        self.denominator = self._filter.denominator
 
     @property
     def is_fir(self) -> bool:
         """True if the denominator is 1 (finite impulse response)."""
-        return self._na == 0
+        return self.denominator.size == 1
 
     def reset(self) -> None:
         """Return to rest (all past inputs and outputs zero)."""
-        self._xbuf[:] = 0.0
-        self._ybuf[:] = 0.0
-        self._px = 0
-        self._py = 0
+        self._filter.reset()
 
     def step(self, x: float) -> float:
         """Feed input sample ``x_k`` and return output ``y_k``."""
-        nb = self._nb
-        p = self._px - 1
-        if p < 0:
-            p = nb - 1
-        self._px = p
-        xb = self._xbuf
-        xb[p] = x
-        xb[p + nb] = x
-        y = float(np.dot(self.taps, xb[p:p + nb]))
-        na = self._na
-        if na:
-            q = self._py
-            yb = self._ybuf
-            y -= float(np.dot(self._a_rest, yb[q:q + na]))
-            q -= 1
-            if q < 0:
-                q = na - 1
-            yb[q] = y
-            yb[q + na] = y
-            self._py = q
-        return y
+        return float(self._filter.step((x,))[0])
 
     def apply(self, x) -> np.ndarray:
         """Filter the 1-D array ``x`` sample by sample from the current state; return outputs."""
@@ -104,9 +72,13 @@ class MultiChannelFilter:
     def __init__(self, taps, denominator=(1.0,), n_channels: int = 1):
         if int(n_channels) < 1:
             raise ValueError(f'n_channels must be >= 1, got {n_channels}')
-        single = CausalFilter(taps, denominator)
-        self.taps = single.taps
-        self.denominator = single.denominator
+        b = _as_coefficients(taps, 'taps')
+        a = _as_coefficients(denominator, 'denominator')
+        if a[0] == 0.0:
+            raise ValueError('filter denominator a0 is 0; the leading coefficient must be '
+                             'non-zero')
+        self.taps = b / a[0]
+        self.denominator = a / a[0]
         self.n_channels = int(n_channels)
         self._nb = self.taps.size
         self._na = self.denominator.size - 1
