@@ -77,12 +77,11 @@ def _say(text):
     print(f'[run] {text}', flush=True)
 
 
-def _phase_config(out_dir: Path, base: dict, overrides: dict) -> Path:
-    """Write the three params files of one phase; return the directory."""
+def _phase_config(out_dir: Path, sections: dict) -> Path:
+    """Write the three params files of one phase (``sections``: node -> params); return the dir."""
     cfg = out_dir / 'config'
     for node, fname in NODE_FILES.items():
-        params = dict(base[node], **overrides.get(node, {}))
-        runinfo.write_params(cfg / fname, node, params)
+        runinfo.write_params(cfg / fname, node, sections[node])
     return cfg
 
 
@@ -151,11 +150,11 @@ def _run(args) -> int:
                          'model': 'excitation', 'fs_hz': fs,
                          'duration_s': float(args.ident_duration),
                          'excitation_band_hz': 64.0, 'excitation_peak_m': 0.00254, 'seed': 7}
-            cfg = _phase_config(ident, base, {
-                'numerical': numerical, 'compensator': {
-                    'scheme': 'identity', 'taps': [1.0], 'denominator': [1.0], 'fs_hz': fs}})
             # the excitation replaces the building: only its own keys apply
-            runinfo.write_params(cfg / 'numerical.yaml', 'numerical', numerical)
+            cfg = _phase_config(ident, {
+                'numerical': numerical, 'bridge': base['bridge'],
+                'compensator': dict(base['compensator'], scheme='identity', taps=[1.0],
+                                    denominator=[1.0], fs_hz=fs)})
             _launch_phase('identification', cfg, ident / 'bag', 'identification', fs, args.mode,
                           {'numerical': numerical, 'bridge': base['bridge']})
             _say('step 2: ARX identification (rths identify)')
@@ -182,7 +181,8 @@ def _run(args) -> int:
         numerical.pop(key, None)
     numerical['duration_s'] = float(args.duration)
     rths_dir = out / 'rths'
-    cfg = _phase_config(rths_dir, base, {'numerical': numerical, 'compensator': comp})
+    cfg = _phase_config(rths_dir, {'numerical': numerical, 'compensator': comp,
+                                   'bridge': base['bridge']})
     _launch_phase('RTHS', cfg, rths_dir / 'bag', 'rths', fs, args.mode,
                   {'numerical': numerical, 'bridge': base['bridge'],
                    'compensator': {k: v for k, v in comp.items() if k in (
