@@ -6,6 +6,17 @@ The ROS node is a thin shell over :class:`Bridge`: on configure it calls
 time), and on the emergency-stop topic/service :meth:`Bridge.emergency_stop`.
 Lifecycle: nothing is written to the backend before configure + activate;
 when the supervisor reaches STOPPED the backend is deactivated.
+
+Command delay line (``command_delay_steps`` = D, default 0): the command of
+step k is written at tick k + D, not k.  The node hands every arriving command
+to :meth:`Bridge.receive` and asks :meth:`Bridge.due` for the command of each
+tick.  This is a jitter buffer for a network between the compensator and the
+actuator: the loop's round trip (measurement k out, command k + 1 back) may
+then take D + 1 periods instead of one.  The loop sees the D steps as a pure
+delay of the plant, ``P(z) z^-D``; an identification run made with the same
+D identifies it, and the compensator designed on that plant compensates it
+(``rths bench distributed --absorb``).  Ticks before step 0's command is due
+write the command of step 0 (the position at rest).
 """
 
 from dataclasses import dataclass, field
@@ -29,13 +40,63 @@ class StepResult:
     channels: dict = field(default_factory=dict)
 
 
+#: Largest command delay line [steps] (0.5 s at 1024 Hz: far beyond any lab network).
+MAX_DELAY_STEPS = 512
+
+
+class DelayLine:
+    """Commands by step, written ``steps`` ticks after their own step (D of the module doc)."""
+
+    def __init__(self, steps: int = 0):
+        """Check ``steps`` (parameter ``command_delay_steps``) and start empty."""
+        if (isinstance(steps, bool) or not isinstance(steps, (int, float))
+                or steps != int(steps) or not 0 <= steps <= MAX_DELAY_STEPS):
+            raise ValueError(f'parameter command_delay_steps = {steps!r} must be an integer '
+                             f'in [0, {MAX_DELAY_STEPS}] (steps between a command and the tick '
+                             'that writes it; 0 = none)')
+        self.steps = int(steps)
+        self.pending = {}
+        self.first = None
+
+    def receive(self, step: int, command):
+        """Keep the command of ``step`` until its tick (step + D)."""
+        self.pending[step] = command
+        if step == 0:
+            self.first = command
+
+    def due(self, tick: int):
+        """The command to write at ``tick`` (None if it has not arrived); forget older ones."""
+        step = tick - self.steps
+        if step < 0:
+            return self.first
+        command = self.pending.pop(step, None)
+        if self.pending and min(self.pending) < step:
+            for old in [s for s in self.pending if s < step]:
+                del self.pending[old]
+        return command
+
+
 class Bridge:
-    """Backend + :class:`~rths_actuator_bridge.safety.SafetySupervisor`."""
+    """Backend + :class:`~rths_actuator_bridge.safety.SafetySupervisor` + command delay line."""
 
     def __init__(self):
         """Create an unconfigured bridge."""
         self.backend = None
         self.supervisor = safety.SafetySupervisor()
+        self.delay = DelayLine(0)
+
+    @property
+    def delay_steps(self) -> int:
+        """D: the command of step k is written at tick k + D."""
+        return self.delay.steps
+
+    def receive(self, step: int, command):
+        """A command for ``step`` arrived: it waits in the delay line until tick step + D."""
+        self.delay.receive(step, command)
+
+    def due(self, tick: int):
+        """The command to write at ``tick`` (that of step tick - D), None if it is missing."""
+        return self.delay.due(tick)
 
     @property
     def state(self) -> int:
@@ -46,6 +107,8 @@ class Bridge:
         """Create and configure the backend and the limits from flat parameters."""
         if self.backend is not None:
             self.backend.close()
+        params = dict(params)
+        self.delay = DelayLine(params.pop('command_delay_steps', 0))
         self.backend = make_backend(params)
         self.supervisor.configure(self.backend.limits)
 
@@ -67,7 +130,7 @@ class Bridge:
         self.supervisor.emergency_stop(reason)
 
     def step(self, step: int, command=None) -> StepResult:
-        """Run loop step ``step`` with ``command`` [m] (None: no command arrived)."""
+        """Run tick ``step``: write ``command`` [m] now (None: none arrived: extrapolate)."""
         sup = self.supervisor
         out, state, fault = sup.filter(step, command)
         backend = self.backend

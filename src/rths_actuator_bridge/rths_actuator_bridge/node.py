@@ -32,14 +32,17 @@ emergency stop, a timer at the loop rate drives the stop sequence alone.
 
 Realtime mode (``mode: realtime``): the bridge is the clock, as a servo
 controller is.  The first command (step 0) starts the clock; tick k comes at
-``t0 + k / fs`` (steady clock) and writes the newest command, then publishes
-measurement k.  The command of step k must have arrived before tick k,
-otherwise step k is a *deadline miss*: counted, flagged in that step's status
+``t0 + k / fs`` (steady clock) and writes the command of step k, then publishes
+measurement k.  The command of step k must have arrived before tick k
+(with ``command_delay_steps`` = D > 0: before tick k + D, which writes it;
+see :mod:`rths_actuator_bridge.bridge`), otherwise the tick is a *deadline miss*: counted, flagged in that step's status
 (``deadline_missed``, running ``deadline_misses``) and handled by the
 **extrapolation policy**: ``Bridge.step(k, None)``, i.e. the safety
 supervisor continues the last command at constant velocity (checked against
 every limit) and, after ``watchdog_steps`` misses in a row, trips its
-watchdog (hold, ramp to the safe position, stop).  A command that arrives
+watchdog (hold, ramp to the safe position, stop).  When commands come back
+after misses the supervisor rejoins them within 80 % of the limits instead of
+jumping (:mod:`rths_actuator_bridge.safety`).  A command that arrives
 after its tick is discarded (counted as late).  The clock is one of
 (``clock``): ``loop`` (default: the spin loop waits in ``spin_once`` until the
 tick, the last ``spin_margin_us`` polling; no second thread), ``thread`` (a
@@ -94,6 +97,7 @@ def check_bridge_params(params: dict) -> dict:
     pre-flight check (:mod:`rths_bringup.preflight`).
     """
     from rths_actuator_bridge.backend import BACKENDS
+    from rths_actuator_bridge.bridge import DelayLine
     from rths_actuator_bridge.safety import SAFETY_PARAMS, SafetyLimits
     from rths_actuator_bridge.simulated import SIM_PARAMS
     from rths_actuator_bridge.udp import UDP_PARAMS
@@ -105,12 +109,14 @@ def check_bridge_params(params: dict) -> dict:
     if backend not in BACKENDS:
         raise ValueError(f"parameter 'backend' = {backend!r} is unknown; use one of "
                          f"{', '.join(repr(b) for b in BACKENDS)}")
-    known = {'backend', *SAFETY_PARAMS, *(UDP_PARAMS if backend == 'udp' else SIM_PARAMS)}
+    known = {'backend', 'command_delay_steps', *SAFETY_PARAMS,
+             *(UDP_PARAMS if backend == 'udp' else SIM_PARAMS)}
     unknown = sorted(set(core) - known)
     if unknown:
         raise ValueError(f'unknown parameter(s) {", ".join(unknown)} for backend {backend!r}; '
                          f'known: {", ".join(sorted(known | set(NODE_PARAMS)))}')
     SafetyLimits.from_params(core)
+    DelayLine(core.get('command_delay_steps', 0))
     for key, (bound, unit, other) in PLAUSIBLE_MAX.items():
         value = core.get(key)
         if isinstance(value, (int, float)) and abs(value) > bound:
@@ -174,7 +180,6 @@ class BridgeNode:
         self.t0_ns = None              # monotonic time of tick 0
         self.k = 0                     # next tick's step
         self.n_steps = None            # steps of the run (from the numerical node)
-        self.latest = None             # newest command: (step, command, receipt_ns, latency_us)
         self.late = 0                  # commands that arrived after their tick
         self.overruns = 0              # ticks more than a period late (clock re-anchored)
         self.run_over = False
@@ -246,7 +251,8 @@ class BridgeNode:
         self.last_command_t = time.monotonic()
         if self.stop_timer is not None:
             return  # an autonomous safe stop is running; commands are ignored
-        self.apply(msg.step, list(msg.command), t_in,
+        self.bridge.receive(msg.step, list(msg.command))
+        self.apply(msg.step, self.bridge.due(msg.step), t_in,   # step - D's (command_delay_steps)
                    latency_us=(t_in - ns.stamp_ns(msg.header)) * 1e-3)
 
     # ---------------------------------------------------------------- realtime
@@ -267,14 +273,14 @@ class BridgeNode:
         if self.t0_ns is None:
             if step != 0:
                 return
-            self.latest = (0, command, t_in, latency_us)
+            self.bridge.receive(0, (command, latency_us))
             self.start_clock()
             return
-        if step < self.k:
+        if step + self.bridge.delay_steps < self.k:
             if step > 0:
                 self.late += 1  # its tick has passed: already counted as a miss
             return
-        self.latest = (step, command, t_in, latency_us)
+        self.bridge.receive(step, (command, latency_us))  # waits for tick step + D
 
     def start_clock(self):
         """Tick 0 is now; start the clock thread or timer if one is used."""
@@ -322,11 +328,11 @@ class BridgeNode:
             self.overruns += 1
             self.t0_ns = now - self.k * self.period_ns
         k = self.k
-        latest = self.latest
         t_in = ns.now_ns()
         in_run = self.n_steps is None or k < self.n_steps
-        if latest is not None and latest[0] == k:
-            command, latency_us, missed = latest[1], latest[3], False
+        due = self.bridge.due(k)   # (command, latency) of step k - D (command_delay_steps)
+        if due is not None:
+            (command, latency_us), missed = due, False
         else:
             command, latency_us, missed = None, -1.0, in_run
             if missed:
@@ -456,7 +462,9 @@ def main(argv=None):
         ns.flush([shell.pub, shell.status_pub])
         shell.log.info(f'bridge: {shell.step + 1} steps applied, {shell.rejected} rejected, '
                        f'{shell.foreign_rejected} foreign, '
-                       f'{shell.clock.misses} deadline miss(es), final state {shell.bridge.state}')
+                       f'{shell.clock.misses} deadline miss(es), '
+                       f'{shell.bridge.supervisor.rejoins} rejoin(s) after misses, '
+                       f'final state {shell.bridge.state}')
     except ValueError as err:
         print(f'bridge_node: error: {ns.params_file_of(argv)}{err}', file=sys.stderr)
         code = 2

@@ -19,6 +19,18 @@ The bridge enforces these rules whatever the other nodes send (issue 4):
 * Watchdog: ``watchdog_steps`` consecutive steps without a new command.  While
   fewer steps are missing the supervisor extrapolates the last command at
   constant velocity (zero acceleration; still checked against every limit).
+* Rejoin after missing commands: when commands come back after a miss streak,
+  the extrapolated position has drifted from them (a 13-step stall of a
+  1 m/s BLWN drifted 4.5 mm: a 4.7 m/s jump).  Only then, a command that
+  breaks the velocity or acceleration limit but is finite and inside the
+  stroke is not a fault: the supervisor approaches the newest command at
+  80 % of the velocity and acceleration limits (like the ramp, every output
+  still checked) until the commands pass unchanged for ``REJOIN_SETTLE_STEPS``
+  steps in a row (a command that passes while the approach still moves may
+  leave a velocity the next command cannot stop: the approach brakes it).  If
+  the approach takes
+  ``watchdog_steps`` steps it trips (``rejoin: ...``).  A jump without a
+  preceding miss still trips at once: it is a bad command, not a stall.
 * Instability detector, over windows of ``instability_window_steps`` samples:
   RMS tracking error ``e_k = y_k - p_k`` above ``instability_tracking_m``, or
   the RMS of the force oscillation (force minus its window mean) above
@@ -39,6 +51,9 @@ from dataclasses import dataclass, fields
 import math
 
 import numpy as np
+
+#: Commands that must pass unchanged in a row before a rejoin after missing commands ends.
+REJOIN_SETTLE_STEPS = 3
 
 ACTIVE = OK = 0
 HOLD = 1
@@ -191,6 +206,9 @@ class SafetySupervisor:
         self.pos = pos.copy()              # last command sent
         self.vel = np.zeros_like(pos)      # its velocity [m/s]
         self.missing = 0
+        self.rejoin_left = 0               # steps left to rejoin the commands after misses
+        self.rejoins = 0                   # rejoins so far (one per miss streak that needed it)
+        self.rejoin_clean = 0              # commands passed unchanged in a row while rejoining
         self.invalid = 0
         self.hold_left = 0
         self._win_e, self._win_f = [], []
@@ -300,10 +318,19 @@ class SafetySupervisor:
                         return self._accept(guess), ACTIVE, ''
                     self._trip(f'{text} (extrapolating a missing command)')
             else:
+                rejoining = self.missing > 0 or self.rejoin_left > 0
                 self.missing = 0
                 text = self.check_command(command)
                 if not text:
+                    if self.rejoin_left:
+                        self.rejoin_clean += 1
+                        if self.rejoin_clean >= REJOIN_SETTLE_STEPS:
+                            self.rejoin_left = 0      # rejoined
                     return self._accept(np.atleast_1d(np.asarray(command, float))), ACTIVE, ''
+                if rejoining and self._rejoinable(command):
+                    out, text = self._rejoin(command)
+                    if out is not None:
+                        return out, ACTIVE, ''
                 self._trip(f'{text} at step {step}')
         if self.state == HOLD:
             if np.any(self.vel != 0):
@@ -326,14 +353,45 @@ class SafetySupervisor:
         # STOPPED: keep the safe position (the owner deactivates the backend)
         return self._accept(self.pos) if self.last_sent is not None else None, STOPPED, self.fault
 
+    def _rejoinable(self, command) -> bool:
+        """A command the supervisor may approach after misses: right size, finite, in the stroke."""
+        u = np.atleast_1d(np.asarray(command, float))
+        return (u.shape == self.pos.shape and bool(np.all(np.isfinite(u)))
+                and bool(np.all(np.abs(u) <= self.limits.stroke_m)))
+
+    def _rejoin(self, command):
+        """One step towards ``command`` at 80 % of the limits: ``(output, '')`` or ``(None, fault)``."""
+        lim = self.limits
+        if self.rejoin_left == 0:
+            self.rejoin_left = lim.watchdog_steps
+            self.rejoins += 1
+        self.rejoin_left -= 1
+        self.rejoin_clean = 0
+        if self.rejoin_left == 0:
+            return None, (f'rejoin: the commands were not reached within {lim.watchdog_steps} '
+                          'steps after missing commands')
+        fs = lim.fs_hz
+        acc, vmax = 0.8 * lim.acceleration_m_s2, 0.8 * lim.velocity_m_s
+        err = np.atleast_1d(np.asarray(command, float)) - self.pos
+        v_des = np.sign(err) * np.minimum.reduce([
+            np.full_like(err, vmax), 0.9 * np.sqrt(2 * acc * np.abs(err)), np.abs(err) * fs])
+        dv = np.clip(v_des - self.vel, -acc / fs, acc / fs)
+        out = self.pos + (self.vel + dv) / fs
+        text = self.check_command(out)
+        if text:
+            return None, f'{text} (rejoining the commands after missing ones)'
+        return self._accept(out), ''
+
     def _filter_one(self, command):
         """Fast path of :meth:`filter`: one channel, ACTIVE, a command that passes every limit.
 
         Plain floats instead of numpy on 1-element arrays; the arithmetic is that
         of :meth:`check_command` and :meth:`_accept`, so the result is identical.
         Returns the command to send, or None when the general path must decide
-        (any limit violated, another command type or size).
+        (any limit violated, another command type or size, rejoining after misses).
         """
+        if self.rejoin_left:
+            return None
         kind = type(command)
         if kind is list or kind is tuple:
             if len(command) != 1:

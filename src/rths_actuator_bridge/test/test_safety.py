@@ -147,6 +147,49 @@ def test_watchdog_holds_ramps_then_stops_and_deactivates():
     assert after.applied.size == 0      # deactivated backend: nothing written
 
 
+LIM_REJOIN = SafetyLimits(fs_hz=FS, stroke_m=0.254, velocity_m_s=0.5, acceleration_m_s2=20.0,
+                          hold_time_s=0.01, ramp_time_s=0.5, watchdog_steps=51)
+
+
+def _rest_gap_then(target_commands, gap=4, rest=100):
+    """At rest, ``gap`` missing commands (a stall), then ``target_commands``."""
+    return [0.0] * rest + [None] * gap + list(target_commands)
+
+
+def test_after_missing_commands_the_supervisor_rejoins_them_within_the_limits():
+    # A 2 mm step after a 4-step stall: 2.05 m/s in one step, four times the velocity limit.
+    sent, states, faults, sup = _run(_rest_gap_then([0.002] * 300), lim=LIM_REJOIN,
+                                     extra_steps=0)
+    assert all(s == safety.ACTIVE for s in states) and not any(faults), faults[-1]
+    assert sup.rejoins == 1
+    _assert_within_limits(sent, LIM_REJOIN)
+    off = np.flatnonzero(sent != 0.002)
+    caught = int(off[-1]) + 1                 # from here on every command passes unchanged
+    assert 104 < caught < 104 + LIM_REJOIN.watchdog_steps
+    assert caught < len(sent) - 100
+
+
+def test_the_same_jump_without_missing_commands_is_a_fault():
+    sent, states, faults, sup = _run([0.0] * 100 + [0.002] * 300, lim=LIM_REJOIN)
+    assert 'velocity limit' in faults[-1] and sup.rejoins == 0
+    assert not np.any(np.isclose(sent, 0.002))
+
+
+def test_commands_running_away_faster_than_the_rejoin_speed_trip():
+    # after the stall the commands move at 0.45 m/s (inside the 0.5 m/s limit, beyond the
+    # 0.4 m/s = 80 % the rejoin may use), starting 5 mm away: never caught
+    run_away = 0.005 + 0.45 * np.arange(200) / FS
+    sent, states, faults, sup = _run(_rest_gap_then(run_away), lim=LIM_REJOIN)
+    assert faults[-1].startswith('rejoin:'), faults[-1]
+    _assert_within_limits(sent, LIM_REJOIN)
+
+
+def test_a_non_finite_command_after_a_stall_still_trips_at_once():
+    sent, states, faults, sup = _run(_rest_gap_then([float('nan')] + [0.0] * 10),
+                                     lim=LIM_REJOIN)
+    assert 'non-finite' in faults[-1] and sup.rejoins == 0
+
+
 def test_emergency_stop():
     sup = SafetySupervisor(LIM)
     sup.activate(0.0)

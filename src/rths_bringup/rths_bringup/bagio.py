@@ -273,12 +273,26 @@ def sampling_rate(bag) -> float:
                          "'rths launch' or 'rths run'") from None
 
 
-def read_identification(bag):
+def delay_steps(bag) -> int:
+    """The bridge's ``command_delay_steps`` D of a run (0 if the run info does not set it)."""
+    from rths_bringup import runinfo
+
+    return int(runinfo.section(run_info(bag), 'bridge').get('command_delay_steps', 0) or 0)
+
+
+def read_identification(bag, loop: bool = True):
     """``(time [s], command [m], measured [m])`` of channel 0 from a bag's measurements.
 
     ``command`` is what the bridge wrote to the actuator (``Measurement.applied``),
     ``measured`` the measured actuator displacement; time is ``step / fs_hz``.
     Steps the bridge did not apply (empty arrays) are dropped.
+
+    ``loop=True`` (identification for the compensator): the plant as the loop
+    sees it, from the command of step k to the measurement of step k.  With a
+    bridge delay line of D steps (``command_delay_steps``) the command of step
+    k was written at tick k + D, so the pairs are (applied[k + D], measured[k])
+    and the identified plant includes the D-step delay.  ``loop=False``: the
+    actuator alone (applied and measured at the same tick).
     """
     import numpy as np
 
@@ -286,9 +300,13 @@ def read_identification(bag):
     data = step_arrays(bag, topics.MEASUREMENT, ('applied', 'displacement'))
     if data['step'].size == 0:
         raise ValueError(f'{bag}: no {topics.MEASUREMENT} messages; is this an rths run bag?')
-    command, measured = data['applied'][:, 0], data['displacement'][:, 0]
+    step, command, measured = data['step'], data['applied'][:, 0], data['displacement'][:, 0]
+    shift = delay_steps(bag) if loop else 0
+    if shift:
+        applied_at = dict(zip(step.tolist(), command))
+        command = np.array([applied_at.get(k + shift, np.nan) for k in step.tolist()])
     ok = np.isfinite(command) & np.isfinite(measured)
-    return data['step'][ok] / fs, command[ok], measured[ok]
+    return step[ok] / fs, command[ok], measured[ok]
 
 
 def read_discrepancy(bag, scenario: str) -> dict:
@@ -303,7 +321,7 @@ def read_discrepancy(bag, scenario: str) -> dict:
     import numpy as np
 
     if scenario == 'actuator':
-        t, command, measured = read_identification(bag)
+        t, command, measured = read_identification(bag, loop=False)  # the actuator itself
         return {'time': t, 'command': command, 'measured': measured}
     if scenario != 'specimen':
         raise ValueError(f"scenario {scenario!r}: use 'specimen' or 'actuator'")

@@ -3,7 +3,7 @@
 Each loop step k, exactly as the three nodes do it in lock-step mode:
 
     command_k      = compensator.step(interface_displacement_k)        (compensator node)
-    measurement_k  = bridge.step(k, command_k)                         (bridge node)
+    measurement_k  = bridge.step(k, command_{k-D})   (bridge node; D = command_delay_steps)
     interface_displacement_{k+1} = substructure.advance(force_k)       (numerical node)
 
 so a lock-step run of the node graph with a simulated plant must reproduce
@@ -47,7 +47,8 @@ def offline_rths(numerical: dict, compensator: dict, bridge: dict) -> dict:
     k = 0
     while not sub.done():
         command = comp.step(np.asarray(displacement, dtype=float))
-        result = lab.step(k, command)
+        lab.receive(k, command)
+        result = lab.step(k, lab.due(k))   # command of step k - D (command_delay_steps)
         out['interface_displacement'][k] = displacement
         out['command'][k] = command
         out['applied'][k, :result.applied.size] = result.applied

@@ -159,14 +159,22 @@ def review_rths(bag, out_dir) -> dict:
                              f'{check["duplicates"]} duplicated steps; the recording lost '
                              'messages (see the recorder log), so the run cannot be aligned')
     desired = disp['displacement'][:n, 0]
-    applied = meas['applied'][:n, 0]
+    applied = meas['applied'][:, 0]
+    shift = bagio.delay_steps(bag)  # the command of step k was written at tick k + D
+    applied = np.concatenate([applied[shift:], np.full(shift, np.nan)])[:n]
     measured = meas['displacement'][:n, 0]
     ok = np.isfinite(applied) & np.isfinite(measured)
-    if not ok.all():  # a safety stop: review what ran before it
+    status = read_loop(bag)['status'].get('bridge', {})
+    tripped = [k for k, state in zip(status.get('step', []), status.get('safety_state', []))
+               if state != 0]
+    if tripped and min(tripped) < n:  # a safety stop: review what ran before the fault
+        ok[int(min(tripped)):] = False  # (then the plant holds and ramps to the safe position)
+    if not ok.all():
         n = int(np.argmin(ok))
         desired, applied, measured = desired[:n], applied[:n], measured[:n]
 
-    # Table 5: the plant (applied -> measured) and the compensated actuator (desired -> measured)
+    # Table 5: the plant (command -> measured; with D > 0 it includes the D-step delay line)
+    # and the compensated actuator (desired -> measured)
     table5 = {
         'delay_ms_before': weighted_delay_ms(applied, measured, fs),
         'delay_ms_after': weighted_delay_ms(desired, measured, fs),
@@ -185,7 +193,6 @@ def review_rths(bag, out_dir) -> dict:
     ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
     unc = uncontrolled['metrics']
     max_d, rms_d = float(np.max(np.abs(floor2))), float(np.sqrt(np.mean(floor2 ** 2)))
-    status = read_loop(bag)['status'].get('bridge', {})
     bridge_steps = max(len(status.get('step', [])), 1)
     summary = {
         'record': numerical.get('record'), 'scale': numerical.get('scale'), 'damper': damper,

@@ -12,6 +12,16 @@
    and PNG plots.
 
 Every phase writes the exact params files it ran with under ``OUT/<phase>/config``.
+
+Safety stop.  If the bridge's safety supervisor stops the RTHS (e.g. an uncompensated
+loop that goes unstable trips the instability detector), the bridge exits with code 3
+and the launcher with 1 (``node bridge died (exit code 3: safety stop)``).  ``rths run``
+then reads the bag (:func:`read_safety_stop`), writes ``OUT/summary.json`` and
+``OUT/review.txt`` with ``safety_stop`` (the bridge's fault text), the fault and stop
+steps, the ``steps`` run and the final actuator position (:func:`safety_stop_summary`),
+prints them and exits with :data:`EXIT_SAFETY_STOP`.  Tables 5-9 are not computed: after
+the fault the plant holds and ramps to the safe position, so a comparison with the
+reference would be meaningless.
 """
 
 import datetime
@@ -24,6 +34,11 @@ from rths_bringup.commands import default_config_dir, launch
 
 NODE_FILES = {'numerical': 'numerical.yaml', 'compensator': 'compensator.yaml',
               'bridge': 'bridge.yaml'}
+#: Exit code of ``rths run`` when the bridge's safety supervisor stopped the RTHS run
+#: (the bridge node's own exit code for a safety stop, launcher.EXIT_MEANINGS).
+EXIT_SAFETY_STOP = 3
+#: Safety state numbers of rths_msgs/LoopStatus (rths_actuator_bridge.safety).
+ACTIVE, STOPPED = 0, 3
 
 
 def register(commands, benches):
@@ -46,6 +61,9 @@ def register(commands, benches):
                         'el centro 0.10; default 0.135)')
     p.add_argument('--damper', default='valve4',
                    help='DTM configuration of Table 4: valve1..valve4, novalve (default valve4)')
+    p.add_argument('--force-scale', type=float, default=5.0,
+                   help='DTMs the one in the lab stands for: its measured force is multiplied '
+                        'by this in the building (seed 6.2: 5, the default)')
     p.add_argument('--mode', choices=('lockstep', 'realtime'), default='lockstep',
                    help='timing mode (default lockstep: deterministic, as fast as possible)')
     p.add_argument('--duration', type=float, default=0.0,
@@ -60,6 +78,10 @@ def register(commands, benches):
     p.add_argument('--no-compensation', action='store_true',
                    help='skip steps 1-2 and run with identity taps (shows the uncompensated '
                         'error and, where the loop goes unstable, the safe abort)')
+    p.epilog = ('Exit codes: 0 the run completed and was reviewed; 3 the bridge\'s safety '
+                'supervisor stopped the RTHS (OUT/summary.json then holds safety_stop, the '
+                'fault text, and the steps run; e.g. --no-compensation --damper novalve '
+                '--force-scale 60 goes unstable); 1 a phase failed; 2 bad input.')
     p.set_defaults(func=cmd_run)
 
     p = commands.add_parser(
@@ -86,6 +108,10 @@ def _phase_config(out_dir: Path, sections: dict) -> Path:
 
 
 def _launch_phase(name, cfg, bag, kind, fs, mode, sections, history=None):
+    """Run one phase of the graph; return None, or the bridge's safety stop (a dict).
+
+    A launcher failure that is not the bridge's safety stop raises RuntimeError.
+    """
     overrides = {'recorder': runinfo.flatten(kind, fs, mode, sections)}
     if history:
         overrides['numerical'] = {'history_out': str(Path(history).resolve())}
@@ -93,9 +119,137 @@ def _launch_phase(name, cfg, bag, kind, fs, mode, sections, history=None):
         overrides.setdefault(node, {})['mode'] = mode
     _say(f'{name}: launching the node graph ({mode}), recording to {bag}')
     code = launch(cfg, bag=bag, overrides=overrides, timeout=3600.0)
-    if code != 0:
+    if code == 0:
+        return None
+    try:
+        stop = read_safety_stop(bag) if Path(bag).exists() else None
+    except Exception as err:  # an unreadable bag: report the launcher's failure instead
+        _say(f'{name}: could not read the bag {bag} ({err})')
+        stop = None
+    if stop is None:
         raise RuntimeError(f'{name} run failed (launcher exit {code}); see the log above '
                            f'and the bag {bag}')
+    stop['launcher_exit'] = code
+    _say(f'{name}: launcher exit {code}: the bridge\'s safety supervisor stopped the run '
+         f'(fault at step {stop["fault_step"]}: {stop["safety_stop"]})')
+    return stop
+
+
+def safety_stop_summary(step, state, fault, applied, displacement, force, fs_hz: float,
+                        safe_position_m: float = 0.0) -> dict:
+    """Summarise a run that the bridge's safety supervisor stopped (pure; SI units).
+
+    ``step``, ``state`` (LoopStatus safety state), ``applied`` (command written
+    [m]), ``displacement`` (measured [m]) and ``force`` (measured force [N]) are
+    per-step arrays of channel 0 in step order; ``fault`` is the bridge's fault
+    text.  ``steps`` is the number of loop steps run (through hold, ramp and stop),
+    ``fault_step`` the first step not ACTIVE, ``stop_step`` the first STOPPED one;
+    ``force_rms_per_s_n`` is the RMS force oscillation (force minus its mean) of
+    each whole second before the fault, which shows the growth of an unstable loop.
+    """
+    import numpy as np
+
+    step = np.asarray(step, dtype=np.int64)
+    state = np.asarray(state, dtype=np.int64)
+    force = np.asarray(force, dtype=float)
+    fs = float(fs_hz)
+    tripped = np.flatnonzero(state != ACTIVE)
+    stopped = np.flatnonzero(state == STOPPED)
+    if not tripped.size or not stopped.size:
+        raise ValueError('the run has no safety stop (no STOPPED state)')
+    i_fault, i_stop = int(tripped[0]), int(stopped[0])
+    before = force[:i_fault]
+    per_s = int(round(fs))
+    rms = [float(np.sqrt(np.mean((w - w.mean()) ** 2)))
+           for w in (before[i:i + per_s] for i in range(0, before.size - per_s + 1, per_s))]
+    written = np.asarray(applied, dtype=float)[:i_stop + 1]
+    written = written[np.isfinite(written)]
+    return {
+        'safety_stop': fault,
+        'fault_step': int(step[i_fault]), 'fault_time_s': float(step[i_fault] / fs),
+        'stop_step': int(step[i_stop]), 'stop_time_s': float(step[i_stop] / fs),
+        'steps': int(step.size),
+        'safe_position_m': float(safe_position_m),
+        'final_command_m': float(written[-1]) if written.size else None,
+        'final_displacement_m': float(np.asarray(displacement, dtype=float)[i_stop]),
+        'max_abs_command_m': float(np.max(np.abs(written))) if written.size else None,
+        'max_abs_force_before_fault_n': float(np.max(np.abs(before))) if before.size else 0.0,
+        'force_rms_per_s_n': [round(v, 1) for v in rms],
+    }
+
+
+def read_safety_stop(bag):
+    """The bridge's safety stop recorded in a bag (:func:`safety_stop_summary`), else None.
+
+    None when the bridge never reported STOPPED in ``/rths/status``.  The
+    summary also holds the run's parameters from the bag's run information and
+    every distinct fault the bridge reported (``safety_faults``).
+    """
+    import numpy as np
+    from rths_bringup import bagio
+    from rths_common import topics
+
+    status = {}
+    faults = []
+    for _, _, msg in bagio.read_messages(bag, [topics.STATUS]):
+        if msg.node == 'bridge':
+            status[int(msg.step)] = int(msg.safety_state)
+            if msg.fault and msg.fault not in faults:
+                faults.append(msg.fault)
+    if STOPPED not in status.values() or not faults:
+        return None
+    meas = bagio.step_arrays(bag, topics.MEASUREMENT, ('applied', 'displacement', 'force'))
+    steps = meas['step']
+    state = np.array([status.get(int(k), ACTIVE) for k in steps])
+    if not np.any(state == STOPPED):  # STOPPED after the last recorded measurement
+        return None
+
+    def channel0(table):
+        return table[:, 0] if table.shape[1] else np.full(steps.size, np.nan)
+
+    info = bagio.run_info(bag)
+    fs = bagio.sampling_rate(bag)
+    numerical = runinfo.section(info, 'numerical')
+    bridge = runinfo.section(info, 'bridge')
+    summary = {
+        'record': numerical.get('record'), 'scale': numerical.get('scale'),
+        'damper': bridge.get('dtm'), 'force_scale': numerical.get('force_scale'),
+        'actuator_model': bridge.get('actuator_model'), 'mode': info.get('mode'),
+        'fs_hz': fs, 'compensator': runinfo.section(info, 'compensator'),
+    }
+    summary.update(safety_stop_summary(
+        steps, state, faults[0], channel0(meas['applied']), channel0(meas['displacement']),
+        channel0(meas['force']), fs, float(bridge.get('safe_position_m', 0.0) or 0.0)))
+    summary['safety_faults'] = faults
+    return summary
+
+
+def safety_stop_text(s: dict) -> str:
+    """The printed report of a run stopped by the bridge's safety supervisor."""
+    scheme = (s.get('compensator') or {}).get('scheme', '?')
+
+    def metres(value, spec):
+        return 'none' if value is None else f'{value:{spec}} m'
+
+    lines = [
+        f"RTHS ABORTED by the bridge's safety supervisor: {s['record']} x {s['scale']}, "
+        f"DTM {s['damper']} x {s['force_scale']}, {s['mode']}, compensator {scheme}",
+        f"  safety stop: {s['safety_stop']}",
+        f"  fault at step {s['fault_step']} ({s['fault_time_s']:.3f} s); hold, ramp to the safe "
+        f"position {s['safe_position_m']:g} m; STOPPED at step {s['stop_step']} "
+        f"({s['stop_time_s']:.3f} s)",
+        f"  steps run: {s['steps']}" + (f" of {s['planned_steps']} planned"
+                                         if s.get('planned_steps') else ''),
+        f"  final command {metres(s['final_command_m'], '.3g')}, measured displacement "
+        f"{metres(s['final_displacement_m'], '.3g')}; largest command "
+        f"{metres(s['max_abs_command_m'], '.4g')}",
+        f"  largest |force| before the fault {s['max_abs_force_before_fault_n']:.1f} N; "
+        'RMS force oscillation per second before it [N]:',
+        '    ' + ' '.join(f'{v:.0f}' for v in s['force_rms_per_s_n']),
+    ]
+    if len(s.get('safety_faults', [])) > 1:
+        lines.append('  further faults: ' + '; '.join(s['safety_faults'][1:]))
+    return '\n'.join(lines) + '\n'
 
 
 def _install_compensator(designed: Path, target: Path, external_plant: bool):
@@ -122,6 +276,9 @@ def _run(args) -> int:
     from rths_bringup.cli import main as rths_main
     from rths_bringup.review import review_rths, print_review
 
+    if not args.force_scale > 0:
+        raise ValueError(f'--force-scale must be > 0 (DTMs the one in the lab stands for), '
+                         f'got {args.force_scale}')
     config = Path(args.config) if args.config else default_config_dir()
     out = Path(args.out) if args.out else Path('out') / (
         'run-' + datetime.datetime.now().strftime('%Y%m%d-%H%M%S'))
@@ -155,8 +312,12 @@ def _run(args) -> int:
                 'numerical': numerical, 'bridge': base['bridge'],
                 'compensator': dict(base['compensator'], scheme='identity', taps=[1.0],
                                     denominator=[1.0], fs_hz=fs)})
-            _launch_phase('identification', cfg, ident / 'bag', 'identification', fs, args.mode,
-                          {'numerical': numerical, 'bridge': base['bridge']})
+            stop = _launch_phase('identification', cfg, ident / 'bag', 'identification', fs,
+                                 args.mode, {'numerical': numerical, 'bridge': base['bridge']})
+            if stop is not None:
+                raise RuntimeError(f'the identification run ended in the bridge\'s safety stop '
+                                   f'({stop["safety_stop"]}); check the excitation against the '
+                                   f'limits in {config / "bridge.yaml"}')
             _say('step 2: ARX identification (rths identify)')
             code = rths_main(['identify', '--bag', str(ident / 'bag'), '--out', str(plant)])
             if code:
@@ -176,18 +337,21 @@ def _run(args) -> int:
 
     # 3: the RTHS run
     numerical = dict(base['numerical'], model='building2story', record=args.record,
-                     scale=float(args.scale), force_scale=5.0, interface_frame='absolute')
+                     scale=float(args.scale), force_scale=float(args.force_scale),
+                     interface_frame='absolute')
     for key in ('sdof_mass_kg', 'sdof_freq_hz', 'sdof_zeta', 'harmonic_freq_hz'):
         numerical.pop(key, None)
     numerical['duration_s'] = float(args.duration)
     rths_dir = out / 'rths'
     cfg = _phase_config(rths_dir, {'numerical': numerical, 'compensator': comp,
                                    'bridge': base['bridge']})
-    _launch_phase('RTHS', cfg, rths_dir / 'bag', 'rths', fs, args.mode,
-                  {'numerical': numerical, 'bridge': base['bridge'],
-                   'compensator': {k: v for k, v in comp.items() if k in (
-                       'scheme', 'n_taps', 'fc_hz', 'plant', 'predicted_delay_ms')}},
-                  history=rths_dir / 'numerical_history.npz')
+    stop = _launch_phase('RTHS', cfg, rths_dir / 'bag', 'rths', fs, args.mode,
+                         {'numerical': numerical, 'bridge': base['bridge'],
+                          'compensator': {k: v for k, v in comp.items() if k in (
+                              'scheme', 'n_taps', 'fc_hz', 'plant', 'predicted_delay_ms')}},
+                         history=rths_dir / 'numerical_history.npz')
+    if stop is not None:
+        return _report_safety_stop(stop, numerical, out, rths_dir / 'bag')
 
     # 4: review
     _say('step 4: review')
@@ -196,6 +360,24 @@ def _run(args) -> int:
     _say(f'results: {out}/summary.json, {out}/review.txt, plots {out}/*.png, '
          f'bags {out}/*/bag')
     return 0
+
+
+def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path) -> int:
+    """Write and print the summary of an RTHS run the bridge stopped; return EXIT_SAFETY_STOP."""
+    import json
+    from rths_bringup.offline import core_params
+    from rths_numerical.substructure import make_substructure
+
+    stop['planned_steps'] = int(make_substructure(core_params(numerical)).n_steps)
+    stop['bag'] = str(bag)
+    _say('step 4: no review (tables 5-9): the bridge stopped the run')
+    (out / 'summary.json').write_text(json.dumps(stop, indent=2))
+    text = safety_stop_text(stop)
+    (out / 'review.txt').write_text(text)
+    print(text, end='', flush=True)
+    _say(f'results: {out}/summary.json, {out}/review.txt, bag {bag}; exit code '
+         f'{EXIT_SAFETY_STOP} (safety stop)')
+    return EXIT_SAFETY_STOP
 
 
 def cmd_review(args) -> int:

@@ -77,3 +77,30 @@ def test_sigkilled_writer_leaves_a_readable_bag(tmp_path):
     steps = [m.step for _, m in bagio.read_topic(bag, '/rths/measurement')]
     assert steps == list(range(300))
     assert bagio.sampling_rate(bag) == 1024.0  # run information survives via the side file
+
+
+def test_identification_pairs_the_loop_command_with_its_measurement(tmp_path):
+    """With command_delay_steps D the command of step k was applied at tick k + D."""
+    bag = tmp_path / 'bag'
+    with bagio.BagWriter(bag, run_info={'fs_hz': 512.0, 'kind': 'identification',
+                                        'bridge.command_delay_steps': '2'}) as w:
+        for k in range(10):
+            w.write_msg('/rths/measurement', 1000 + k, _measurement(k))
+    assert bagio.delay_steps(bag) == 2
+    t, command, measured = bagio.read_identification(bag)            # loop plant
+    np.testing.assert_allclose(command, 0.001 * (np.arange(8) + 2))   # applied[k + 2]
+    np.testing.assert_allclose(measured, 0.001 * np.arange(8) - 1e-5)
+    np.testing.assert_allclose(t, np.arange(8) / 512.0)
+    _, command, _ = bagio.read_identification(bag, loop=False)         # the actuator alone
+    np.testing.assert_allclose(command, 0.001 * np.arange(10))
+
+
+def test_delay_steps_for_the_link_fits_the_round_trip():
+    from rths_bringup.bench_distributed import ROUND_TRIP_OVERHEAD_MS, delay_steps_for
+
+    for one_way_ms, rate in ((1.0, 512.0), (1.0, 1024.0), (0.0, 1024.0), (2.0, 256.0)):
+        d = delay_steps_for(one_way_ms, rate)
+        budget_ms = (d + 1) * 1000.0 / rate
+        assert budget_ms >= 2 * one_way_ms + ROUND_TRIP_OVERHEAD_MS
+        assert d == 0 or d * 1000.0 / rate < 2 * one_way_ms + ROUND_TRIP_OVERHEAD_MS
+    assert delay_steps_for(1.0, 512.0) == 2   # docs/bench/absorb_delay_512hz.json

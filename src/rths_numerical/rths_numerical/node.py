@@ -19,9 +19,17 @@ the graph is connected (again every 0.1 s until the first measurement comes
 back: best-effort samples sent before discovery settles can be lost); then it
 computes step k+1 as soon as measurement k arrives.  A measurement that never
 arrives (best-effort loss) is a deadline miss here: when measurement j > k
-arrives the node advances the missing steps with the newest force (hold),
-flags them in its status and goes on.  Stale measurements (j < k) are
-dropped.  After the last step it exits 0 as in lock-step, which ends the run.
+arrives the node advances the missing steps with measured forces
+*interpolated* (linearly, :mod:`rths_common.gaps`) between the last received
+one and that of step j, flags them in its status and goes on.  Interpolated,
+not held: both ends are known when j arrives, and a held force is off by
+about force rate x dt per step, the interpolated one by at most
+``max|f''| dt^2 / 2`` for one lost step.  If measurement 0 itself is lost
+there is nothing to interpolate from, and the force of step j fills the
+missing steps.  Stale measurements (j < k) are dropped.  After the last step
+it exits 0 as in lock-step, which ends the run.  ``inject_drop_every`` = N > 0
+(realtime only) does not publish the interface displacement of every N-th
+step: fault injection for the tests of the compensator's miss policy.
 ``status_every`` = N > 1 publishes the status of every N-th step only (missed
 steps always), to lighten the status traffic.  ``remote_graph: true``: the rest
 of the graph is in another ROS domain behind a relay (``rths linkemu``,
@@ -41,6 +49,7 @@ import rclpy
 from std_msgs.msg import UInt64
 
 from rths_common import cdr
+from rths_common import gaps
 from rths_common import node_support as ns
 from rths_common import topics
 from rths_common.qos import loop_qos, run_info_qos, status_qos
@@ -48,7 +57,7 @@ from rths_msgs.msg import InterfaceDisplacement, LoopStatus, Measurement
 
 #: Parameters of the node itself; every other parameter goes to make_substructure().
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
-               'remote_graph': False,
+               'remote_graph': False, 'inject_drop_every': 0,
                'history_out': '', 'timing_out': '', 'status_every': 1, **ns.TUNING_PARAMS}
 
 
@@ -88,7 +97,7 @@ class NumericalNode:
         self.t_start = None
         self.progress_steps = max(1, int(round(1.0 / self.sub.dt)))  # every simulated second
         self.stale = 0
-        self.last_force = None
+        self.gaps = gaps.GapFiller(gaps.FORCE_ORDER)  # realtime: lost measured forces
         self.last_publish = 0.0
         self.timing = {'pub_step': [], 'pub_wall_ns': [], 'recv_step': [], 'recv_wall_ns': []}
         self.cpu_loop = None
@@ -98,6 +107,7 @@ class NumericalNode:
             # warm-up: the first call of every code path is slow (numpy dispatch, caches)
             import copy
             copy.deepcopy(self.sub).advance(np.zeros(self.sub.n_interface))
+            gaps.warm_up(gaps.FORCE_ORDER, n_channels=self.sub.n_interface)
             tuning = ns.tune_process(*ns.tuning(own, 'numerical'))
             self.log.info(f'realtime: {tuning}')
         self.start_timer = self.node.create_timer(0.05, self.try_start)
@@ -107,6 +117,9 @@ class NumericalNode:
 
     def publish(self, step: int, displacement):
         if self.realtime:
+            drop = self.own['inject_drop_every']
+            if drop > 0 and step > 0 and step % drop == 0:
+                return  # fault injection: this interface displacement is lost
             t_ns = ns.now_ns()
             self.pub.publish(cdr.pack_step_arrays(t_ns, step, displacement))
             self.timing['pub_step'].append(step)
@@ -184,7 +197,7 @@ class NumericalNode:
         self.publish(self.expected, displacement)
 
     def on_measurement_raw(self, data: bytes):
-        """Realtime: finish step k (holding the force over lost measurements), publish k+1."""
+        """Realtime: finish step k (interpolating over lost measurements), publish k+1."""
         t_in = ns.now_ns()
         if self.finished:
             return
@@ -205,10 +218,13 @@ class NumericalNode:
             return
         period_us = self.clock.period_us(t_in)
         latency_us = (t_in - stamp_ns) * 1e-3
+        lost = step - self.expected
+        filled = self.gaps.fill(step, force)  # interpolated lost forces (none before step 0)
         while self.expected < step and not self.sub.done():
-            # measurement lost: hold the newest force over the missing step
+            # measurement lost: the interpolated force (or, before any, the new one)
             self.clock.misses += 1
-            self.sub.advance(force if self.last_force is None else self.last_force)
+            i = lost - (step - self.expected)
+            self.sub.advance(filled[i] if len(filled) == lost else force)
             self.status_pub.publish(cdr.pack_status(
                 ns.now_ns(), 'numerical', self.expected, period_us=period_us, missed=True,
                 misses=self.clock.misses))
@@ -219,7 +235,6 @@ class NumericalNode:
         t0 = time.perf_counter_ns()
         displacement = self.sub.advance(force)
         compute_us = (time.perf_counter_ns() - t0) * 1e-3
-        self.last_force = force
         self.expected += 1
         if not self.sub.done():
             self.publish(self.expected, displacement)
@@ -253,7 +268,7 @@ class NumericalNode:
         text = (f'numerical: {self.expected} of {self.sub.n_steps} steps in {wall:.2f} s '
                 f'({rate:.0f} steps/s), {self.rejected} measurement(s) rejected')
         if self.realtime:
-            text += (f', {self.clock.misses} measurement(s) missed (force held), '
+            text += (f', {self.clock.misses} measurement(s) missed (force interpolated), '
                      f'{self.stale} stale')
         return text
 
