@@ -122,6 +122,7 @@ def run_condition(name, delay_ms, jitter_ms, loss_pct, config, workdir, net=None
                   domains=(71, 72), seed=1, log=print, priority=0, mode='realtime',
                   timeout_s=120.0) -> dict:
     """One run of the graph under a link condition; the metrics of its bag."""
+    from rths_bringup.commands import run_info_of
     from rths_bringup.launcher import Launcher
 
     bag = Path(workdir) / 'bag'
@@ -159,7 +160,7 @@ def run_condition(name, delay_ms, jitter_ms, loss_pct, config, workdir, net=None
     # The recorder runs on the bridge's host, as a lab records at the controller, at nice 0:
     # best-effort samples it does not read in time are lost (on the link host at nice 10 it
     # recorded 692 of 8791 steps of a loaded 1024 Hz run).
-    overrides['recorder'] = dict(run_info(config, overrides), nice=0)
+    overrides['recorder'] = dict(run_info_of(config, overrides), nice=0)
     out = open(Path(workdir) / 'launch.log', 'w')
     t0 = time.monotonic()
     try:
@@ -183,19 +184,6 @@ def run_condition(name, delay_ms, jitter_ms, loss_pct, config, workdir, net=None
         f"{result.get('tracking_error_pct')!s:>8} %, completed {result['completed']}, "
         f"final safety state {result.get('final_safety_state')}")
     return result
-
-
-def run_info(config, overrides) -> dict:
-    """The recorder's run information for a run of ``config`` (so bags review/identify alone)."""
-    from rths_bringup import runinfo
-
-    sections = {node: dict(runinfo.load_params(Path(config) / f'{node}.yaml', node),
-                           **overrides.get(node, {}))
-                for node in ('numerical', 'compensator', 'bridge')}
-    numerical = sections['numerical']
-    kind = 'identification' if numerical.get('model') == 'excitation' else 'rths'
-    return runinfo.flatten(kind, numerical.get('fs_hz', 1024.0),
-                           numerical.get('mode', 'realtime'), sections)
 
 
 def _env(net, host, domain):

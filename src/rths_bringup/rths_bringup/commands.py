@@ -54,6 +54,19 @@ def default_config_dir() -> Path:
     return Path(root) / 'config' if root else Path('config')
 
 
+def run_info_of(config, overrides) -> dict:
+    """The recorder's run information for a run of ``config`` with ``overrides`` applied."""
+    from rths_bringup import runinfo
+
+    sections = {node: dict(runinfo.load_params(Path(config) / f'{node}.yaml', node),
+                           **overrides.get(node, {}))
+                for node in ('numerical', 'compensator', 'bridge')}
+    numerical = sections['numerical']
+    kind = 'identification' if numerical.get('model') == 'excitation' else 'rths'
+    return runinfo.flatten(kind, numerical.get('fs_hz', 1024.0),
+                           numerical.get('mode', 'lockstep'), sections)
+
+
 def launch(config, duration=None, bag=None, timeout=600.0, overrides=None):
     """Run the graph; return the launcher's exit code.
 
@@ -61,7 +74,6 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None):
     overrides applied) go into the bag's run information, so ``rths review``,
     ``rths identify --bag`` and ``rths discrepancy`` need nothing but the bag.
     """
-    from rths_bringup import runinfo
     from rths_bringup.launcher import Launcher
 
     config = Path(config) if config else default_config_dir()
@@ -71,14 +83,8 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None):
             raise ValueError(f'--duration must be > 0 s, got {duration}')
         overrides.setdefault('numerical', {})['duration_s'] = float(duration)
     if bag and 'kind' not in overrides.get('recorder', {}):
-        sections = {node: dict(runinfo.load_params(config / f'{node}.yaml', node),
-                               **overrides.get(node, {}))
-                    for node in ('numerical', 'compensator', 'bridge')}
-        numerical = sections['numerical']
-        kind = 'identification' if numerical.get('model') == 'excitation' else 'rths'
-        info = runinfo.flatten(kind, numerical.get('fs_hz', 1024.0),
-                               numerical.get('mode', 'lockstep'), sections)
-        overrides['recorder'] = dict(info, **overrides.get('recorder', {}))
+        overrides['recorder'] = dict(run_info_of(config, overrides),
+                                     **overrides.get('recorder', {}))
     launcher = Launcher(config, bag=bag, overrides=overrides, timeout_s=timeout)
     return launcher.run()
 
