@@ -280,17 +280,21 @@ class SafetySupervisor:
         vel = np.sign(self.vel) * np.maximum(np.abs(self.vel) - dv, 0.0)
         return self._accept(self.pos + vel / self.limits.fs_hz)
 
+    def _approach(self, target, v_cap, acc):
+        """Next position towards ``target`` at speed <= ``v_cap``, acceleration <= ``acc``."""
+        fs = self.limits.fs_hz
+        err = target - self.pos
+        v_des = np.sign(err) * np.minimum.reduce([
+            v_cap, 0.9 * np.sqrt(2 * acc * np.abs(err)), np.abs(err) * fs])
+        dv = np.clip(v_des - self.vel, -acc / fs, acc / fs)
+        return self.pos + (self.vel + dv) / fs
+
     def _ramp(self):
         """One step towards the safe position within velocity/acceleration limits."""
         lim = self.limits
-        fs = lim.fs_hz
-        err = lim.safe_position_m - self.pos
         v_cap = np.minimum(lim.velocity_m_s,
                            np.maximum(np.abs(self._ramp_dist) / lim.ramp_time_s, 1e-6))
-        v_des = np.sign(err) * np.minimum.reduce([
-            v_cap, 0.9 * np.sqrt(2 * lim.acceleration_m_s2 * np.abs(err)), np.abs(err) * fs])
-        dv = np.clip(v_des - self.vel, -lim.acceleration_m_s2 / fs, lim.acceleration_m_s2 / fs)
-        return self._accept(self.pos + (self.vel + dv) / fs)
+        return self._accept(self._approach(lim.safe_position_m, v_cap, lim.acceleration_m_s2))
 
     def filter(self, step: int, command=None):
         """Return ``(command_to_send or None, state, fault_text)`` for loop step ``step``.
@@ -370,13 +374,9 @@ class SafetySupervisor:
         if self.rejoin_left == 0:
             return None, (f'rejoin: the commands were not reached within {lim.watchdog_steps} '
                           'steps after missing commands')
-        fs = lim.fs_hz
-        acc, vmax = 0.8 * lim.acceleration_m_s2, 0.8 * lim.velocity_m_s
-        err = np.atleast_1d(np.asarray(command, float)) - self.pos
-        v_des = np.sign(err) * np.minimum.reduce([
-            np.full_like(err, vmax), 0.9 * np.sqrt(2 * acc * np.abs(err)), np.abs(err) * fs])
-        dv = np.clip(v_des - self.vel, -acc / fs, acc / fs)
-        out = self.pos + (self.vel + dv) / fs
+        out = self._approach(np.atleast_1d(np.asarray(command, float)),
+                             np.full(self.pos.shape, 0.8 * lim.velocity_m_s),
+                             0.8 * lim.acceleration_m_s2)
         text = self.check_command(out)
         if text:
             return None, f'{text} (rejoining the commands after missing ones)'
