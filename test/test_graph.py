@@ -8,12 +8,12 @@ kill one node and check the launcher names it and the bag stays readable.
 import json
 import os
 import signal
-import time
 
 import pytest
 
-from rths_bringup.recorder import COMMIT_PERIOD_S
-from rths_system_tests import REPO, launch_background, rths, started_pids, wait_for
+from rths_bringup.review import STEP_TOPICS
+from rths_system_tests import (REPO, launch_background, rths, started_pids, wait_committed,
+                               wait_for)
 
 CONFIG = REPO / 'config'
 FS_HZ = 1024.0
@@ -64,11 +64,11 @@ def test_sigkill_of_a_node_fails_the_run_names_it_and_keeps_the_bag(tmp_path, vi
     try:
         head = wait_for(proc, 'graph connected')
         head += wait_for(proc, 'progress: step 1024 ')  # one simulated second is done
-        if victim == 'recorder':
-            # The recorder's promise is in wall time (a crash loses at most COMMIT_PERIOD_S
-            # plus one batch), not in steps: under CI load it had committed only 73 steps
-            # when the loop reached step 1024.  Let it commit a few times first.
-            time.sleep(4 * COMMIT_PERIOD_S)
+        # The recorder's promise is in wall time (a crash loses at most COMMIT_PERIOD_S plus
+        # one batch), not in steps: under CI load it had committed only 73 steps when the
+        # loop reached step 1024.  Kill only once more than 100 steps of every loop topic
+        # are committed, so the check below tests what a crash keeps, not machine load.
+        wait_committed(bag, STEP_TOPICS, 100)
         pid = started_pids(head)[victim]
         os.kill(pid, signal.SIGKILL)
         rest, _ = proc.communicate(timeout=60)

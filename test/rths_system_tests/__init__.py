@@ -74,3 +74,39 @@ def wait_for(proc, text, timeout=90.0) -> str:
         if text in line:
             return ''.join(seen)
     raise AssertionError(f'{text!r} not seen in launcher output:\n' + ''.join(seen[-50:]))
+
+
+def committed_count(bag, topic) -> int:
+    """Messages of ``topic`` already committed to the bag's sqlite file (0 if none yet).
+
+    Reads the file of a bag that is still being written (read-only; a busy or
+    not yet created database counts as 0).
+    """
+    import sqlite3
+
+    files = sorted(Path(bag).glob('*.db3'))
+    if not files:
+        return 0
+    try:
+        conn = sqlite3.connect(f'file:{files[0]}?mode=ro', uri=True, timeout=1.0)
+        try:
+            row = conn.execute('SELECT count(*) FROM messages JOIN topics '
+                               'ON topics.id = messages.topic_id WHERE topics.name = ?',
+                               (topic,)).fetchone()
+        finally:
+            conn.close()
+    except sqlite3.Error:
+        return 0
+    return int(row[0])
+
+
+def wait_committed(bag, topics, count, timeout=60.0) -> dict:
+    """Wait until the bag holds more than ``count`` committed messages of every topic."""
+    t_end = time.monotonic() + timeout
+    while True:
+        have = {t: committed_count(bag, t) for t in topics}
+        if min(have.values()) > count:
+            return have
+        if time.monotonic() > t_end:
+            raise AssertionError(f'the recorder committed only {have} within {timeout} s')
+        time.sleep(0.1)
