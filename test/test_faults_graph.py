@@ -110,9 +110,13 @@ def test_sigkill_mid_run_reaches_the_safe_state_and_keeps_the_bag(tmp_path, vict
 
 
 class ForeignPublisher:
-    """A node named 'intruder' flooding /rths/command with 0.2 m commands for any step."""
+    """A node named 'intruder' flooding /rths/command with 0.2 m commands for any step.
 
-    def __init__(self, domain_id: int):
+    ``mode`` 'lockstep' publishes Command messages with forged senders in
+    ``header.frame_id``; 'realtime' publishes them with the loop's best-effort QoS.
+    """
+
+    def __init__(self, domain_id: int, mode: str = 'lockstep', period_s: float = 0.002):
         import rclpy
         from rclpy.context import Context
 
@@ -124,7 +128,8 @@ class ForeignPublisher:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node('intruder', context=self.context)
-        self.pub = self.node.create_publisher(Command, topics.COMMAND, loop_qos('lockstep'))
+        self.pub = self.node.create_publisher(Command, topics.COMMAND, loop_qos(mode))
+        self.period_s = period_s
         self.running = True
         self.sent = 0
         self.thread = threading.Thread(target=self.run, daemon=True)
@@ -133,14 +138,15 @@ class ForeignPublisher:
     def run(self):
         step = 0
         while self.running:
-            # forged senders too: empty, and a made-up gid
-            for frame in ('', '01.0f.00.00'):
-                msg = self.Command(step=step % 4096, command=[0.2])
+            # forged senders too: empty with any step, a made-up gid with step 0 (in
+            # realtime a step 0 starts the bridge's clock: it must be the compensator's)
+            for frame, k in (('', step % 4096), ('01.0f.00.00', 0)):
+                msg = self.Command(step=k, command=[0.2])
                 msg.header.frame_id = frame
                 self.pub.publish(msg)
                 self.sent += 1
             step += 1
-            time.sleep(0.002)
+            time.sleep(self.period_s)
 
     def close(self):
         self.running = False
@@ -211,6 +217,36 @@ def test_realtime_delay_bursts_are_deadline_misses_not_faults(tmp_path):
     assert all(state == 0 for _, state, _, _ in status)  # extrapolation covered every burst
     applied = np.concatenate([a for _, a in meas if a.size])
     assert np.all(np.abs(applied) <= 0.254)
+    steps = [s for s, _ in meas]
+    assert steps == list(range(len(steps))) and len(steps) >= 768
+
+
+def test_realtime_foreign_publisher_is_ignored(tmp_path):
+    """Realtime (lean CDR): a foreign writer's commands never reach the plant, even step 0.
+
+    The intruder publishes 0.2 m for steps 0, 1, 2, ... and for step 0 again and
+    again at about the loop rate, from before the loop starts: without the
+    sender check its step 0 starts the bridge's clock with a 0.2 m command (a
+    jump: a velocity trip) before the compensator has sent anything.
+    """
+    config = realtime_config(tmp_path / 'config')
+    bag = tmp_path / 'bag'
+    intruder = ForeignPublisher(int(graph_env()['ROS_DOMAIN_ID']), mode='realtime',
+                                period_s=1.0 / 256)
+    try:
+        proc = rths('launch', '--config', config, '--bag', bag, '--timeout', 180, timeout=300,
+                    check=False)
+    finally:
+        intruder.close()
+    out = proc.stdout
+    assert intruder.sent > 100
+    assert proc.returncode == 0 and 'run finished' in out, out[-3000:]
+    assert re.search(r'foreign publisher /intruder \(gid [0-9a-f.]+\) on /rths/command', out)
+    assert 'foreign command(s) so far' in out
+    status, meas = read_bag(bag)
+    assert all(state == 0 for _, state, _, _ in status), status[-3:]
+    applied = np.concatenate([a for _, a in meas if a.size])
+    assert not np.any(np.isclose(applied, 0.2))          # no foreign command reached the plant
     steps = [s for s, _ in meas]
     assert steps == list(range(len(steps))) and len(steps) >= 768
 

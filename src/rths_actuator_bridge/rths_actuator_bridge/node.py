@@ -17,10 +17,10 @@ backend and exits with code 3 (the launcher reports a safety stop).
 
 Command source: only the node named ``command_source`` (default
 ``compensator``) may command the actuator.  Every other publisher on
-``/rths/command`` is logged once by name and gid; in lock-step its messages
-are ignored (the compensator puts its writer gid in ``header.frame_id`` and
-the bridge checks it against the graph: rclpy's message info has no publisher
-gid); in realtime (lean CDR, no frame id) foreign publishers are only logged.
+``/rths/command`` is logged once by name and gid and its messages are
+ignored: the compensator puts its writer gid in ``header.frame_id`` (also in
+the lean realtime messages) and the bridge checks it against the gids the
+graph shows for ``command_source`` (rclpy's message info has no publisher gid).
 The parameters are checked first (:func:`check_bridge_params`: unknown keys,
 non-finite limits, limits in the wrong unit).
 
@@ -80,6 +80,8 @@ NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'autostart': True,
                **ns.TUNING_PARAMS}
 CLOCKS = ('loop', 'thread', 'timer')
 EXIT_SAFETY_STOP = 3
+#: Shortest time between two graph scans for the command source's writer gids [s].
+RESCAN_S = 0.05
 
 #: Plausibility bounds of the limits [SI]: a larger value is almost surely in the wrong unit
 #: (inches or mm for metres, kN for N is the other way round and passes).
@@ -166,6 +168,7 @@ class BridgeNode:
         self.source_gids = set()       # writer gids of the command_source node on /rths/command
         self.foreign = {}              # gid -> 'namespace/node' of other publishers (logged once)
         self.foreign_rejected = 0
+        self.last_scan = float('-inf')  # monotonic time of the last scan for the source's gids
         self.clock = ns.StepClock()
         self.step = -1                 # last step written to the backend
         self.expected = 0
@@ -221,17 +224,27 @@ class BridgeNode:
                                f'{source!r} may command the actuator; its commands are ignored')
         self.source_gids = gids
 
-    def command_from_source(self, msg: Command) -> bool:
-        """True if ``msg`` carries the writer gid of the command source (lock-step messages)."""
-        sender = msg.header.frame_id
-        if sender not in self.source_gids and sender not in self.foreign:
-            self.scan_command_publishers()  # a new source writer may have just matched
+    def command_from_source(self, sender: str, step: int) -> bool:
+        """True if ``sender`` (a command's ``header.frame_id``) is the command source's writer gid.
+
+        An unknown sender triggers a rescan of the graph (a new source writer may
+        have just matched; the graph can show it after its first messages): always
+        while no source writer is known, else at most every RESCAN_S, so a flood
+        of forged senders costs the running loop little.
+        """
         if sender in self.source_gids:
             return True
+        now = time.monotonic()
+        if sender not in self.foreign and (not self.source_gids
+                                           or now - self.last_scan >= RESCAN_S):
+            self.last_scan = now
+            self.scan_command_publishers()
+            if sender in self.source_gids:
+                return True
         self.foreign_rejected += 1
         if self.foreign_rejected <= 5 or self.foreign_rejected % 1000 == 0:
             who = self.foreign.get(sender, 'an unknown writer')
-            self.log.warning(f'command of step {msg.step} from {who} (sender {sender!r}) '
+            self.log.warning(f'command of step {step} from {who} (sender {sender!r}) '
                              f'ignored; {self.foreign_rejected} foreign command(s) so far')
         return False
 
@@ -240,7 +253,7 @@ class BridgeNode:
         t_in = ns.now_ns()
         if self.stopped:
             return
-        if not self.command_from_source(msg):
+        if not self.command_from_source(msg.header.frame_id, msg.step):
             return
         if msg.step != self.expected:
             self.rejected += 1
@@ -265,6 +278,8 @@ class BridgeNode:
         if self.stopped:
             return
         stamp_ns, step, command = cdr.unpack_step_arrays(data)
+        if not self.command_from_source(cdr.sender_of(data), step):
+            return
         timing = self.timing
         timing['recv_step'].append(step)
         timing['recv_wall_ns'].append(t_in)

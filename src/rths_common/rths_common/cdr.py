@@ -15,10 +15,11 @@ Layouts (offsets after the 4-byte encapsulation header, CDR alignment = size):
 uint8, string fault.  ``header`` is builtin_interfaces/Time + string frame_id.
 """
 
+import functools
 import struct
 
 _ENCAP_LE = b'\x00\x01\x00\x00'
-_TIME_EMPTY_FRAME = struct.Struct('<iII')   # sec, nanosec, len(frame_id) (1: '' + NUL)
+_TIME = struct.Struct('<iI')                # builtin_interfaces/Time: sec, nanosec
 _U32 = struct.Struct('<I')
 _U64 = struct.Struct('<Q')
 
@@ -30,10 +31,10 @@ def _pad(buf: bytearray, align: int):
         buf += b'\x00' * (align - rem)
 
 
-def _header(buf: bytearray, stamp_ns: int):
+def _header(buf: bytearray, stamp_ns: int, frame_id: str = ''):
     sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
-    buf += _TIME_EMPTY_FRAME.pack(sec, nanosec, 1)
-    buf += b'\x00'
+    buf += _TIME.pack(sec, nanosec)
+    _string(buf, frame_id)
 
 
 def _string(buf: bytearray, text: str):
@@ -53,41 +54,46 @@ def _f64_array(buf: bytearray, values):
         buf += struct.pack(f'<{n}d', *values)
 
 
-def _one_value_layout(n_arrays: int) -> struct.Struct:
-    """Whole message ``header (empty frame_id), uint64 step, n_arrays x float64[1]`` as a Struct.
+@functools.lru_cache(maxsize=64)
+def _one_value_layout(n_arrays: int, frame_len: int = 0) -> struct.Struct:
+    """Whole message ``header, uint64 step, n_arrays x float64[1]`` as one Struct.
 
-    The one-channel loop messages in one ``pack``/``unpack`` call; field
-    offsets as :func:`pack_step_arrays` writes them (encapsulation, sec,
-    nanosec, frame_id length 1 + NUL, pad to 8, step, then per array its
-    length 1, pad to 8 and the value).
+    The one-channel loop messages in one ``pack``/``unpack`` call, for a
+    ``frame_id`` of ``frame_len`` bytes; field offsets as :func:`pack_step_arrays`
+    writes them (encapsulation, sec, nanosec, frame_id length + 1, its bytes and
+    NUL, pad to 8, step, then per array its length 1, pad to 8 and the value).
     """
-    return struct.Struct('<4siIIx3xQ' + 'I4xd' * n_arrays)
+    pad = -(12 + frame_len + 1) % 8
+    return struct.Struct(f'<4siII{frame_len + 1}s{pad}xQ' + 'I4xd' * n_arrays)
 
 
-#: Fast layouts of the one-value messages: Command/InterfaceDisplacement (1), Measurement (3).
-_ONE_VALUE = {n: _one_value_layout(n) for n in (1, 3)}
-
-
-def pack_step_arrays(stamp_ns: int, step: int, *arrays) -> bytes:
-    """CDR of a message ``header, uint64 step, float64[] x len(arrays)`` (empty frame_id).
+def pack_step_arrays(stamp_ns: int, step: int, *arrays, frame_id: str = '') -> bytes:
+    """CDR of a message ``header, uint64 step, float64[] x len(arrays)``.
 
     One array: InterfaceDisplacement / Command; three: Measurement
-    (applied, displacement, force).
+    (applied, displacement, force).  ``frame_id`` goes into ``header.frame_id``
+    (the compensator's commands carry its writer gid there: :func:`sender_of`).
     """
-    layout = _ONE_VALUE.get(len(arrays))
-    if layout is not None and all(len(values) == 1 for values in arrays):
+    frame = frame_id.encode()
+    if all(len(values) == 1 for values in arrays):
         sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
-        fields = [_ENCAP_LE, sec, nanosec, 1, int(step)]
+        fields = [_ENCAP_LE, sec, nanosec, len(frame) + 1, frame, int(step)]
         for values in arrays:
             fields += (1, values[0])
-        return layout.pack(*fields)
+        return _one_value_layout(len(arrays), len(frame)).pack(*fields)
     buf = bytearray(_ENCAP_LE)
-    _header(buf, stamp_ns)
+    _header(buf, stamp_ns, frame_id)
     _pad(buf, 8)
     buf += _U64.pack(int(step))
     for values in arrays:
         _f64_array(buf, values)
     return bytes(buf)
+
+
+def sender_of(data: bytes) -> str:
+    """``header.frame_id`` of a stamped loop message's CDR (the sender's writer gid, or '')."""
+    (n,) = _U32.unpack_from(data, 12)   # after encapsulation (4), sec and nanosec (8)
+    return data[16:16 + n - 1].decode(errors='replace') if n > 1 else ''
 
 
 class _Reader:
@@ -129,17 +135,16 @@ class _Reader:
         return values
 
 
-_TIME = struct.Struct('<iI')
-
 
 def unpack_step_arrays(data: bytes, n_arrays: int = 1) -> tuple:
     """``(stamp_ns, step, array, ...)`` of the CDR of :func:`pack_step_arrays` (any frame_id)."""
-    layout = _ONE_VALUE.get(n_arrays)
-    if layout is not None and len(data) == layout.size and data[:2] == b'\x00\x01':
-        fields = layout.unpack(data)   # one-value arrays and an empty frame_id?
-        if fields[3] == 1 and fields[5::2] == (1,) * n_arrays:
-            return (fields[1] * 1_000_000_000 + fields[2], fields[4]) + tuple(
-                (v,) for v in fields[6::2])
+    if data[:2] == b'\x00\x01' and len(data) >= 16:
+        layout = _one_value_layout(n_arrays, _U32.unpack_from(data, 12)[0] - 1)
+        if len(data) == layout.size:
+            fields = layout.unpack(data)   # one-value arrays?
+            if fields[6::2] == (1,) * n_arrays:
+                return (fields[1] * 1_000_000_000 + fields[2], fields[5]) + tuple(
+                    (v,) for v in fields[7::2])
     r = _Reader(data)
     sec, nanosec = r.unpack(_TIME)
     r.string()

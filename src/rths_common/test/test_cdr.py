@@ -51,6 +51,24 @@ def test_measurement_matches_rclpy(applied):
 def test_parser_reads_any_frame_id():
     msg = stamped(Command(step=3, command=[1.5]), frame_id='table')
     assert cdr.unpack_step_arrays(serialize_message(msg)) == (STAMP_NS, 3, (1.5,))
+    assert cdr.sender_of(serialize_message(msg)) == 'table'
+
+
+# frame ids of every length modulo 8 (padding before the step), and a writer gid's text
+@pytest.mark.parametrize('frame_id', ['', 'a', 'ab', 'abc', 'abcd', 'abcde', 'abcdef', 'abcdefg',
+                                      '01.0f.a3.29.5c.1e.00.00.00.00.00.00.00.00.14.03'])
+@pytest.mark.parametrize('values', [[0.125], [1.0, -2.5e-3]])
+def test_sender_in_frame_id_matches_rclpy(frame_id, values):
+    """The compensator's realtime commands carry its writer gid (the bridge's source check)."""
+    msg = stamped(Command(step=77, command=values), frame_id=frame_id)
+    raw = cdr.pack_step_arrays(STAMP_NS, 77, values, frame_id=frame_id)
+    assert deserialize_message(raw, Command) == msg
+    assert cdr.sender_of(raw) == frame_id
+    assert cdr.sender_of(serialize_message(msg)) == frame_id
+    assert cdr.unpack_step_arrays(raw) == (STAMP_NS, 77, tuple(values))
+    meas = cdr.pack_step_arrays(STAMP_NS, 5, [0.1], [0.2], [0.3], frame_id=frame_id)
+    assert cdr.unpack_step_arrays(meas, 3) == (STAMP_NS, 5, (0.1,), (0.2,), (0.3,))
+    assert deserialize_message(meas, Measurement).header.frame_id == frame_id
 
 
 @pytest.mark.parametrize('node,fault,missed', [('bridge', '', True),

@@ -161,7 +161,9 @@ class CompensatorNode:
         delay = self.own['inject_delay_every']
         if delay > 0 and step > 0 and step % delay == 0:
             time.sleep(self.own['inject_delay_ms'] * 1e-3)  # fault injection: a delay burst
-        out = cdr.pack_step_arrays(ns.now_ns(), step, command.tolist())
+        if not self.sender:  # once the graph shows this node's writer (found at step 0)
+            self.sender = ns.own_writer_gid(self.node, topics.COMMAND)
+        out = cdr.pack_step_arrays(ns.now_ns(), step, command.tolist(), frame_id=self.sender)
         drop = self.own['inject_drop_every']
         if not (drop > 0 and step > 0 and step % drop == 0):
             self.pub.publish(out)
