@@ -17,7 +17,9 @@ actuator reached (``rms(x_m - x_t) / rms(x_t)``, same step), the final safety
 state and whether the run completed.  The loop closes once per step: the
 command of step k needs measurement k-1, so the round trip (2 x one-way
 delay + compute) must fit in one period (0.98 ms at 1024 Hz); beyond that
-every tick misses and the watchdog stops the run safely.
+every tick misses and the watchdog stops the run safely.  ``--delay-line auto``
+runs each relayed condition with the bridge's delay line sized for its round
+trip (:func:`delay_steps_for`), the compensator unchanged.
 
 ``rths bench absorb-delay`` (:func:`cmd_bench_absorb`): the bridge's delay
 line (``command_delay_steps`` D) lets the round trip take D + 1 periods; an
@@ -120,15 +122,18 @@ def read_measured(bag):
 
 def run_condition(name, delay_ms, jitter_ms, loss_pct, config, workdir, net=None,
                   domains=(71, 72), seed=1, log=print, priority=0, mode='realtime',
-                  timeout_s=120.0) -> dict:
-    """One run of the graph under a link condition; the metrics of its bag."""
+                  timeout_s=120.0, delay_steps=0) -> dict:
+    """One run of the graph under a link condition; the metrics of its bag.
+
+    ``delay_steps`` > 0 runs the bridge with that delay line (``command_delay_steps``).
+    """
     from rths_bringup.commands import run_info_of
     from rths_bringup.launcher import Launcher
 
     bag = Path(workdir) / 'bag'
     relay = None
     dom_a, dom_b = domains
-    overrides = {}
+    overrides = {'bridge': {'command_delay_steps': int(delay_steps)}} if delay_steps else {}
     if delay_ms is None:      # the reference: one domain, one host
         node_env = {n: _env(net, 'link', dom_b) for n in ('numerical', 'compensator', 'bridge',
                                                           'recorder')}
@@ -176,7 +181,8 @@ def run_condition(name, delay_ms, jitter_ms, loss_pct, config, workdir, net=None
             except subprocess.TimeoutExpired:
                 relay.kill()
     result = {'condition': name, 'one_way_delay_ms': delay_ms, 'jitter_ms': jitter_ms,
-              'loss_pct': loss_pct, 'launcher_exit': code, 'completed': code == 0,
+              'loss_pct': loss_pct, 'command_delay_steps': int(delay_steps),
+              'launcher_exit': code, 'completed': code == 0,
               'wall_s': round(time.monotonic() - t0, 1), 'link': link_stats}
     result.update(bag_metrics(bag) if bag.exists() else {})
     log(f"{name:32s} misses {result.get('deadline_misses')!s:>6} of "
@@ -217,14 +223,18 @@ def cmd_bench_distributed(args) -> int:
             for i, (name, delay, jitter, loss) in enumerate(chosen):
                 work = Path(tmp) / f'run{i}'
                 work.mkdir()
+                steps = 0
+                if args.delay_line == 'auto' and delay is not None:
+                    steps = delay_steps_for(delay + jitter, args.rate)
+                    name = f'{name}, D = {steps}'
                 results.append(run_condition(name, delay, jitter, loss, config, work, net,
                                              domains=(args.domain, args.domain + 1),
-                                             priority=args.priority))
+                                             priority=args.priority, delay_steps=steps))
         finally:
             if net is not None:
                 net.close()
     doc = {'rate_hz': args.rate, 'duration_s': args.duration, 'netns': use_netns,
-           'rt_priority': args.priority, 'conditions': results,
+           'rt_priority': args.priority, 'delay_line': args.delay_line, 'conditions': results,
            'note': 'deadline miss: the command of step k had not reached the bridge at tick k '
                    '(the bridge extrapolated); tracking error: rms(measured - interface '
                    'displacement) / rms(interface displacement), same step'}
@@ -413,6 +423,12 @@ def register(commands, benches):
                    help='run each node in its own network namespace (needs root)')
     p.add_argument('--keep', action='store_true', help='keep the bags and logs')
     p.add_argument('--only', nargs='*', help='run only these conditions (names as printed)')
+    p.add_argument('--delay-line', choices=('off', 'auto'), default='off',
+                   help="off: the bridge writes command k at tick k (the round trip must fit in "
+                        "one period); auto: relayed conditions run with the bridge's delay line "
+                        'D = command_delay_steps sized for the round trip (2 x (delay + jitter) '
+                        f'+ {ROUND_TRIP_OVERHEAD_MS} ms in D + 1 periods), the compensator '
+                        'unchanged (the D steps are not compensated: see absorb-delay)')
     p.set_defaults(func=cmd_bench_distributed)
 
     p = benches.add_parser(
