@@ -8,7 +8,6 @@ import sys
 import time
 
 
-
 def _repo_root() -> Path:
     """The checkout (RTHS_ROOT from env.sh, else the first parent holding config/ and Makefile)."""
     if os.environ.get('RTHS_ROOT'):

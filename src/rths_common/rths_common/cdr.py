@@ -135,7 +135,6 @@ class _Reader:
         return values
 
 
-
 def unpack_step_arrays(data: bytes, n_arrays: int = 1) -> tuple:
     """``(stamp_ns, step, array, ...)`` of the CDR of :func:`pack_step_arrays` (any frame_id)."""
     if data[:2] == b'\x00\x01' and len(data) >= 16:

@@ -102,6 +102,15 @@ class CompensatorNode:
                       f"{len(self.params['taps'])} taps, "
                       f"{len(self.params['denominator']) - 1} denominator order")
 
+    def sender_gid(self) -> str:
+        """This node's writer gid on /rths/command, sent in ``header.frame_id`` (bridge check).
+
+        '' until the graph shows the writer (it does by the first message); then cached.
+        """
+        if not self.sender:
+            self.sender = ns.own_writer_gid(self.node, topics.COMMAND)
+        return self.sender
+
     def on_displacement(self, msg: InterfaceDisplacement):
         """Filter the interface displacement of step k and publish the command of step k."""
         from rths_compensator.filters import MultiChannelFilter
@@ -119,9 +128,7 @@ class CompensatorNode:
                                              n_channels=max(x.size, 1))
         command = self.filter.step(x)
         out = Command(step=msg.step, command=command.tolist())
-        if not self.sender:
-            self.sender = ns.own_writer_gid(self.node, topics.COMMAND)
-        out.header.frame_id = self.sender
+        out.header.frame_id = self.sender_gid()
         ns.stamp(out.header, ns.now_ns())
         self.pub.publish(out)
         dup = self.own['inject_duplicate_every']
@@ -132,7 +139,6 @@ class CompensatorNode:
             'compensator', msg.step, period_us=self.clock.period_us(t_in), compute_us=compute_us,
             latency_us=(t_in - ns.stamp_ns(msg.header)) * 1e-3, misses=self.clock.misses))
         self.expected += 1
-
 
     def on_displacement_raw(self, data: bytes):
         """Realtime: filter step j (interpolating over lost steps) and publish its command."""
@@ -161,9 +167,8 @@ class CompensatorNode:
         delay = self.own['inject_delay_every']
         if delay > 0 and step > 0 and step % delay == 0:
             time.sleep(self.own['inject_delay_ms'] * 1e-3)  # fault injection: a delay burst
-        if not self.sender:  # once the graph shows this node's writer (found at step 0)
-            self.sender = ns.own_writer_gid(self.node, topics.COMMAND)
-        out = cdr.pack_step_arrays(ns.now_ns(), step, command.tolist(), frame_id=self.sender)
+        out = cdr.pack_step_arrays(ns.now_ns(), step, command.tolist(),
+                                   frame_id=self.sender_gid())
         drop = self.own['inject_drop_every']
         if not (drop > 0 and step > 0 and step % drop == 0):
             self.pub.publish(out)
