@@ -1,5 +1,7 @@
 """The rths command line: every package's commands are registered, errors are clean."""
 
+import argparse
+
 import pytest
 
 from rths_bringup import cli
@@ -32,3 +34,22 @@ def test_help_exits_cleanly():
     with pytest.raises(SystemExit) as exc:
         cli.main(['--help'])
     assert exc.value.code == 0
+
+
+def _all_parsers(parser, path=()):
+    """(command path, parser) of ``parser`` and of every sub-command below it."""
+    yield path, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _all_parsers(sub, path + (name,))
+
+
+def test_every_command_help_formats(capsys):
+    """``rths ... --help`` works for every (sub-)command (a stray '%' in a help text broke
+    ``rths study --help``: argparse %-formats help strings)."""
+    paths = []
+    for path, parser in _all_parsers(cli.build_parser()):
+        assert parser.format_help().startswith('usage:'), path   # what --help prints
+        paths.append(path)
+    assert ('study',) in paths and ('bench', 'distributed') in paths

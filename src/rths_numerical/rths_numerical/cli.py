@@ -323,7 +323,7 @@ def register(commands, benches):
     bf.add_argument('--out', default='out/study')
     bf.set_defaults(func=cmd_study_building_frequency)
     dt_ = studies.add_parser(
-        'dtm-tuning', help='seed 7.2: DTM f_n x zeta for a 2.81 Hz building, mu = 1 %',
+        'dtm-tuning', help='seed 7.2: DTM f_n x zeta for a 2.81 Hz building, mu = 1 %%',
         description='Seed 7.2: DTM natural frequency 0.1-10 Hz x damping 0.5-15 %, mass 1 % of '
                     'the building, BLWN 0-10 Hz with 1 g peak; print the optima next to the '
                     "seed's and Den Hartog's; write OUT/dtm_tuning.json and dtm_tuning.png.")
