@@ -480,6 +480,10 @@ def main(argv=None):
                        f'{shell.clock.misses} deadline miss(es), '
                        f'{shell.bridge.supervisor.rejoins} rejoin(s) after misses, '
                        f'final state {shell.bridge.state}')
+        stats = getattr(shell.bridge.backend, 'stats', None)   # the UDP backend's datagrams
+        if stats:
+            shell.log.info('controller datagrams: '
+                           + ', '.join(f'{k} {v}' for k, v in stats.items()))
     except ValueError as err:
         print(f'bridge_node: error: {ns.params_file_of(argv)}{err}', file=sys.stderr)
         code = 2

@@ -15,6 +15,8 @@ from the actuator state ``q``: ``x_s = C q``, ``xd_s = C A q``,
 
 DTM on the table (seed eq. 44-47, Table 4 via :mod:`rths_numerical.dtm`)::
 
+    m_d xdd_d + c_1 xd_d2s + k_1 x_d2s + (c_v xd_d2s + k_v x_d2s) = 0          (44)
+    m_d xdd_d + c_d xd_d2s + k_d x_d2s = 0,  c_d = c_1 + c_v, k_d = k_1 + k_v  (45)
     m_d xdd_d2s + c_d xd_d2s + k_d x_d2s = -m_d xdd_s                          (46)
     X_d2s(s) / Xdd_s(s) = -m_d / (m_d s^2 + c_d s + k_d)                      (47)
 
