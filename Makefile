@@ -13,10 +13,11 @@ demo: setup  ## run the main job (rths run: identify, design, RTHS of the buildi
 	@source env.sh && rths run
 
 test: setup  ## build and run every test through colcon test; non-zero on any failure
-	@source env.sh && rm -rf build/*/test_results log/latest_test && \
-	  colcon test --base-paths src test --executor sequential --event-handlers console_cohesion+ \
-	    --return-code-on-test-failure --pytest-args -p no:cacheprovider ; rc=$$? ; \
-	  colcon test-result --verbose ; rc2=$$? ; \
+	@# (-e is on: a failing command must be caught with ||, or the summary below never runs)
+	@source env.sh && rm -rf build/*/test_results log/latest_test && rc=0 && rc2=0 && \
+	  { colcon test --base-paths src test --executor sequential --event-handlers console_cohesion+ \
+	    --return-code-on-test-failure --pytest-args -p no:cacheprovider || rc=$$? ; } ; \
+	  { colcon test-result --verbose || rc2=$$? ; } ; \
 	  if [ $$rc -ne 0 ] || [ $$rc2 -ne 0 ]; then echo "make test: FAILED"; exit 1; fi; \
 	  echo "make test: all tests passed"
 

@@ -82,11 +82,40 @@ def test_sigkill_of_a_node_fails_the_run_names_it_and_keeps_the_bag(tmp_path, vi
     # The bag is readable and holds the steps up to the crash, in order, without gaps.
     from rths_bringup.review import step_check
     loop = read_steps(bag)
-    counts = []
     for topic, data in loop['steps'].items():
         check = step_check(data['step'])
         assert check['count'] > 100, (topic, check)
         assert check['first'] == 0 and check['gaps'] == 0 and check['in_order'], (topic, check)
-        counts.append(check['count'])
     if victim == 'recorder':
         assert (bag / 'metadata.yaml').exists()
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_ctrl_c_or_sigterm_stops_every_node_and_closes_the_bag(tmp_path, sig):
+    """Issue 2: the launcher shuts the whole graph down cleanly on Ctrl-C/SIGTERM."""
+    bag = tmp_path / 'bag'
+    proc = launch_background(CONFIG, bag, '--duration', 600.0)
+    try:
+        head = wait_for(proc, 'graph connected')
+        head += wait_for(proc, 'progress: step 1024 ')
+        committed = wait_committed(bag, STEP_TOPICS, 100)   # (the recorder may lag the loop)
+        pids = started_pids(head)
+        proc.send_signal(sig)
+        rest, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    out = head + rest
+    assert proc.returncode == 128 + sig, out[-3000:]       # 130 / 143, as a shell reports it
+    assert f'{signal.Signals(sig).name} received: stopping all nodes' in out
+    assert set(pids) == {'numerical', 'compensator', 'bridge', 'recorder'}
+    for name, pid in pids.items():                          # no node left behind
+        assert not os.path.exists(f'/proc/{pid}') or 'zombie' in open(
+            f'/proc/{pid}/status').read().lower(), name
+    assert (bag / 'metadata.yaml').exists()                 # closed by the recorder itself
+    from rths_bringup.review import step_check
+    loop = read_steps(bag)
+    for topic, data in loop['steps'].items():
+        check = step_check(data['step'])
+        assert check['count'] >= committed[topic] and check['first'] == 0, (topic, check)
+        assert check['gaps'] == 0 and check['in_order'], (topic, check)
