@@ -268,3 +268,71 @@ def test_realtime_long_delay_burst_trips_the_watchdog_into_the_safe_state(tmp_pa
     assert abs(applied[-1]) < 1e-9                     # ramped to the safe position
     steps = [s for s, _ in meas]
     assert steps == list(range(len(steps)))
+
+
+def send_emergency_stop(domain_id: int, how: str, reason: str) -> str:
+    """Stop the bridge by the /rths/emergency_stop topic or service; return its answer."""
+    import rclpy
+    from rclpy.context import Context
+    from std_msgs.msg import String
+
+    from rths_common import topics
+    from rths_msgs.srv import EmergencyStop
+
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = rclpy.create_node('operator', context=context)
+    executor = rclpy.executors.SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        if how == 'topic':
+            pub = node.create_publisher(String, topics.EMERGENCY_STOP, 10)
+            t_end = time.monotonic() + 20.0
+            while pub.get_subscription_count() < 1 and time.monotonic() < t_end:
+                executor.spin_once(timeout_sec=0.05)
+            pub.publish(String(data=reason))
+            executor.spin_once(timeout_sec=0.5)   # let the reliable writer deliver it
+            return 'published'
+        client = node.create_client(EmergencyStop, topics.EMERGENCY_STOP_SERVICE)
+        assert client.wait_for_service(timeout_sec=20.0), 'no emergency-stop service'
+        future = client.call_async(EmergencyStop.Request(reason=reason))
+        executor.spin_until_future_complete(future, timeout_sec=20.0)
+        response = future.result()
+        assert response is not None and response.accepted, response
+        return response.message
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+@pytest.mark.parametrize('how', ['topic', 'service'])
+def test_emergency_stop_mid_run_holds_ramps_and_stops(tmp_path, how):
+    """Issue 4: an operator's emergency stop (topic or service) mid-run: hold, ramp to the
+    safe position, STOPPED, exit 3; the reason is in the status; the bag keeps every step."""
+    config = copy_config(tmp_path / 'config', numerical={'duration_s': 600.0})
+    bag = tmp_path / 'bag'
+    proc = launch_background(config, bag)
+    reason = f'operator pressed stop ({how})'
+    try:
+        head = wait_for(proc, 'graph connected')
+        head += wait_for(proc, 'progress: step 1024 ')
+        answer = send_emergency_stop(int(graph_env()['ROS_DOMAIN_ID']), how, reason)
+        rest, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    out = head + rest
+    if how == 'service':
+        assert answer == 'holding, then ramping to the safe position'
+    assert proc.returncode == 1, out[-3000:]
+    assert 'node bridge died (exit code 3: safety stop)' in out, out[-3000:]
+    status, meas = read_bag(bag)
+    check_recording(bag)
+    assert status[-1][1] == STOPPED and reason in status[-1][3], status[-3:]
+    tripped = next(s for s, state, _, _ in status if state != 0)
+    assert tripped >= 1024                                   # not before the stop was sent
+    assert status[-1][0] - tripped <= (0.25 + 2.0 + 2.0) * 1024   # hold + ramp, in steps
+    applied = np.concatenate([a for _, a in meas if a.size])
+    assert np.all(np.abs(applied) <= 0.254)
+    assert abs(meas[-1][1][0]) < 1e-9                        # ramped to the safe position
