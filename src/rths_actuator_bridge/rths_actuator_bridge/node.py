@@ -10,7 +10,10 @@ publishes the measured displacement and force on ``/rths/measurement`` and a
 
 Lifecycle: the node behaves like a managed node.  It configures the backend
 and the supervisor from its parameters (INACTIVE: nothing moves), then
-activates them (``autostart: true``, the default).  A command is never passed
+activates them (``autostart: true``, the default); with ``autostart: false``
+it waits for ``ros2 lifecycle set /bridge activate`` (the lifecycle_msgs
+``~/change_state`` and ``~/get_state`` services; ``deactivate`` mid-run is a
+safe stop).  A command is never passed
 on unless the supervisor accepts it; after any fault the supervisor holds,
 ramps to the safe position and stops, and the node then deactivates the
 backend and exits with code 3 (the launcher reports a safety stop).
@@ -63,6 +66,8 @@ import time
 
 import numpy as np
 import rclpy
+from lifecycle_msgs.msg import State, Transition
+from lifecycle_msgs.srv import ChangeState, GetState
 from std_msgs.msg import String, UInt64
 
 from rths_common import cdr
@@ -200,6 +205,10 @@ class BridgeNode:
         self.log.info(f'bridge configured: backend {params.get("backend", "simulated")}, '
                       f'{self.backend.n_channels} channel(s), stroke '
                       f'+-{self.backend.limits.stroke_m} m')
+        # the managed-node interface: `ros2 lifecycle get /bridge`, `ros2 lifecycle set /bridge
+        # activate|deactivate` (lifecycle_msgs services on ~/get_state and ~/change_state)
+        self.node.create_service(GetState, '~/get_state', self.on_get_state)
+        self.node.create_service(ChangeState, '~/change_state', self.on_change_state)
         if self.own['autostart']:
             self.activate()
 
@@ -207,6 +216,40 @@ class BridgeNode:
         """INACTIVE -> ACTIVE: from now on commands may move the actuator."""
         self.bridge.activate()
         self.log.info('bridge active')
+
+    def lifecycle_state(self) -> State:
+        """The managed-node state: ACTIVE while the backend is, else INACTIVE (configured)."""
+        if self.backend.lifecycle == 'active':
+            return State(id=State.PRIMARY_STATE_ACTIVE, label='active')
+        return State(id=State.PRIMARY_STATE_INACTIVE, label='inactive')
+
+    def on_get_state(self, _request, response):
+        response.current_state = self.lifecycle_state()
+        return response
+
+    def on_change_state(self, request, response):
+        """activate (INACTIVE -> ACTIVE, not after a safety stop) or deactivate (ACTIVE ->
+        INACTIVE: once a command has moved the actuator, through the safe stop: hold, ramp,
+        stop); other transitions are refused (the node configures itself at start-up and
+        cleans up when it exits)."""
+        transition = request.transition.id
+        active = self.lifecycle_state().id == State.PRIMARY_STATE_ACTIVE
+        response.success = False
+        if transition == Transition.TRANSITION_ACTIVATE and not active and not self.stopped:
+            self.activate()
+            response.success = True
+        elif transition == Transition.TRANSITION_DEACTIVATE and active:
+            if self.step >= 0:
+                self.start_safe_stop('deactivate requested')
+            else:
+                self.bridge.deactivate()
+                self.log.info('bridge inactive')
+            response.success = True
+        else:
+            self.log.warning(f'lifecycle transition {transition} refused in state '
+                             f'{self.lifecycle_state().label}'
+                             f'{" (stopped)" if self.stopped else ""}')
+        return response
 
     # ---------------------------------------------------------------- loop
     def scan_command_publishers(self):
