@@ -115,8 +115,9 @@ def _surface_plot(path, x, y, surfaces, xlabel, ylabel, title):
 def cmd_study_building_frequency(args):
     """Run ``rths study building-frequency``."""
     import numpy as np
+    from .dtm import dtm_configuration
     from .ground_motion import baseline_correct, ground_motion
-    from .studies import CRITERIA, building_frequency_study
+    from .studies import CRITERIA, building_frequency_study, den_hartog, warburton_ground
     model = _building(args.building)
     fs = args.fs_hz
     ag, _, _ = baseline_correct(ground_motion(args.record, fs, args.scale, None), 1 / fs)
@@ -134,6 +135,20 @@ def cmd_study_building_frequency(args):
             best[c] = float(f1[i])
         result[damper]['f1_of_minimum_at_max_ratio_hz'] = best
         print(f'{damper}: f1 minimising each criterion at mass ratio {mu[-1]:.3f}: {best}')
+        # Classical optima for this DTM (its f_n and zeta are fixed, the building is tuned):
+        # the building frequency f1 = f_n / f_ratio, and the damping the DTM would need.
+        dtm = dtm_configuration(damper)
+        classic = {}
+        for name, formula in (('den_hartog', den_hartog), ('warburton_ground', warburton_ground)):
+            f_ratio, zeta_opt = formula(float(mu[-1]))
+            classic[name] = {'f1_hz': dtm.f_n / f_ratio, 'zeta_opt': zeta_opt}
+        classic['dtm_f_n_hz'], classic['dtm_zeta'] = dtm.f_n, dtm.zeta
+        result[damper]['classical_optima_at_max_ratio'] = classic
+        print(f"  Den Hartog: f1 = {classic['den_hartog']['f1_hz']:.2f} Hz with zeta_opt "
+              f"{100 * classic['den_hartog']['zeta_opt']:.1f} %; Warburton (ground): f1 = "
+              f"{classic['warburton_ground']['f1_hz']:.2f} Hz, zeta_opt "
+              f"{100 * classic['warburton_ground']['zeta_opt']:.1f} %; this DTM: f_n "
+              f"{dtm.f_n:.2f} Hz, zeta {100 * dtm.zeta:.1f} %")
         _surface_plot(os.path.join(args.out, f'building_frequency_{damper}.png'), f1, mu, res,
                       'building f1 (Hz)', 'mass ratio', f'seed 7.1, DTM {damper}')
     data = {'record': args.record, 'scale': args.scale, 'f1_hz': f1, 'mass_ratios': mu,

@@ -2,12 +2,13 @@
 
 Equation of the numerical substructure (seed eq. 25)::
 
-    M^N u'' + C^N u' + K^N u + L (force_scale * R^E) = -M^N Gamma a_g + L P_I^E
+    M^N u'' + C^N u' + K^N u + L (force_scale * R^E) = -M^N Gamma a_g + F s(t) + L P_I^E
 
 ``L`` places the interface entries (``interface_dofs``) into the full vector,
 ``R^E`` is the measured force [N] per interface DOF, ``force_scale`` the
 number of identical specimens it represents (seed 6.2: one DTM in the lab
-stands for five, so 5.0).
+stands for five, so 5.0), ``F s(t)`` the model's optional external force
+(``external_force`` of a model YAML file, :class:`.model.LinearModel`).
 
 Lock-step cycle (one loop step k; see :meth:`NumericalSubstructure.advance`)::
 
@@ -126,6 +127,11 @@ class NumericalSubstructure:
         self.specimen_mass = float(specimen_mass_kg)
         self.integ = make_integrator(integrator, model.M, model.C, model.K, self.dt, rho_inf)
         self._mg = model.M @ model.gamma
+        # external force F s(t_k) [N] of steps 0..n_steps (predict() may read step n_steps)
+        self._force_ext = model.external_force if model.has_external_force else None
+        self._force_ext_scale = (model.external_force_scale(np.arange(self.n_steps + 1)
+                                                            * self.dt)
+                                 if self._force_ext is not None else None)
         self._gi = model.gamma[self.iface]
         # per-step constants of advance(): index array, whether predict() reads the load
         self._iface_idx = np.asarray(self.iface, dtype=np.intp)
@@ -142,9 +148,11 @@ class NumericalSubstructure:
         self._cmd[0] = self._command(np.zeros(n), 0)
 
     def load(self, k):
-        """External load vector ``p_k`` [N]: ``-M Gamma a_g`` plus ``P_I^E`` (relative frame)."""
+        """Load vector ``p_k`` [N]: ``-M Gamma a_g + F s(t_k)`` plus ``P_I^E`` (relative frame)."""
         a = self.ag[k] if k < self.n_steps else 0.0
         p = -self._mg * a
+        if self._force_ext is not None:
+            p += self._force_ext * self._force_ext_scale[min(k, self.n_steps)]
         if self._relative_load:
             p[self.iface] -= self.force_scale * self.specimen_mass * self._gi * a
         return p
