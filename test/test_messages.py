@@ -127,8 +127,9 @@ def _rosbags_store():
     for path in sorted(SRV_DIR.glob('*.srv')):
         for text, half in zip(srv_parts(path), ('Request', 'Response')):
             msgtype = f'rths_msgs/srv/{path.stem}_{half}'
-            if msgtype not in store.types:
-                types.update(get_types_from_msg(text, msgtype))
+            if msgtype not in store.types:  # rosbags would name it <pkg>/srv/msg/<Name>
+                [definition] = get_types_from_msg(text, msgtype).values()
+                types[msgtype] = definition
     store.register(types)
     return store
 
