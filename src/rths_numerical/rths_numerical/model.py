@@ -13,10 +13,12 @@ A model YAML file (``load_model_yaml``)::
     K: [[...], [...]]            # N/m
     C: [[...], [...]]            # N s/m, or instead:
     damping: {type: rayleigh, zeta: [0.042, 0.10], modes: [0, 1]}     # modes by index
+    # damping: {type: rayleigh, zeta: [0.042, 0.10], freqs_hz: [2.81, 7.77]}  (by frequency)
     # damping: {type: modal, zeta: [0.02, 0.02]}   (one ratio per mode, or one for all)
     influence: [1, 1]            # Gamma, default all ones
     external_force: [0, 500]     # F [N] per DOF, constant in time; default none
     # external_force: {1: 500}   (same, as DOF index: N, for large models)
+    # (in Python, LinearModel(external_force_time=s) makes it F s(t), s a function of t [s])
     interface_dofs: [1]          # default: last DOF
     output_dof: 1                # DOF reported as "2nd floor", default: last DOF
     dof_names: [floor1, floor2]  # optional
@@ -302,6 +304,9 @@ def model_from_dict(data, source='model'):
             masses = np.asarray(data['masses'], dtype=float).reshape(-1)
         except (TypeError, ValueError):
             raise ValueError(f'{source}: field masses must be a list of numbers in kg') from None
+        if masses.size == 0 or not np.all(np.isfinite(masses) & (masses > 0)):
+            raise ValueError(f'{source}: field masses must list one positive finite mass [kg] '
+                             f'per DOF, got {data["masses"]!r}')
         data = dict(data, M=np.diag(masses).tolist())
         data.pop('masses')
     if 'M' not in data:

@@ -47,21 +47,26 @@ def coupled_model(model: LinearModel, dtm: DTMParameters, n_dtm=5, frame_mass_kg
         mat[n, dof] -= val
     gamma = np.concatenate([model.gamma, [1.0]])
     return LinearModel(M, C, K, gamma, [dof], model.output_dof, model.name + '+dtm',
-                       list(model.dof_names) + ['dtm'])
+                       list(model.dof_names) + ['dtm'],
+                       external_force=np.concatenate([model.external_force, [0.0]]),
+                       external_force_time=model.external_force_time)
 
 
 def integrate_model(model: LinearModel, ag, dt, integrator='cr', rho_inf=0.5):
-    """Integrate ``M u'' + C u' + K u = -M Gamma a_g`` from rest; return (d, a) histories."""
+    """Integrate ``M u'' + C u' + K u = -M Gamma a_g + F s(t)`` from rest; return (d, a)."""
     ag = np.asarray(ag, dtype=float)
     integ = make_integrator(integrator, model.M, model.C, model.K, dt, rho_inf)
     mg = model.M @ model.gamma
     n = ag.size
+    # external force F s(t_k) [N] per step (model.load's term), zero when the model has none
+    force = (np.outer(model.external_force_scale(np.arange(n) * dt), model.external_force)
+             if model.has_external_force else np.zeros((n, model.n)))
     d = np.zeros((n, model.n))
     a = np.zeros((n, model.n))
-    integ.set_state(np.zeros(model.n), np.zeros(model.n), p=-mg * ag[0])
+    integ.set_state(np.zeros(model.n), np.zeros(model.n), p=-mg * ag[0] + force[0])
     a[0] = integ.a
     for k in range(1, n):
-        p = -mg * ag[k]
+        p = -mg * ag[k] + force[k]
         integ.predict(p)
         integ.correct(p, np.zeros(model.n))
         d[k] = integ.d
