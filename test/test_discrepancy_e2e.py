@@ -4,10 +4,12 @@ The node graph runs in lock-step with the 2-story building (Kobe x 0.135, five
 DTMs represented by one, ``force_scale: 5``) against the simulated plant,
 whose DTM (valve #4, seed Table 4) has Coulomb friction on its moving mass
 (``friction_n``) that the numerical reference lacks.  ``rths discrepancy``,
-given only the run's bag (and, since ``rths launch`` stores no run
-information, the params directory of the launch), must name
-``coulomb_friction`` with the right force, and the reference re-run with the
-updated specimen model must match the RTHS better than the nominal one.
+given the run's bag, must name ``coulomb_friction`` with the right force, and
+the reference re-run with the updated specimen model must match the RTHS
+better than the nominal one.  The bag carries the run's parameters as run
+information (``rths launch --bag`` stores them, :mod:`rths_bringup.runinfo`),
+so the nominal damper and the reference come from the bag; the ``--config``
+passed as well is read only for a bag whose run information lacks them.
 """
 
 import json

@@ -167,7 +167,9 @@ def register(commands, benches):
                         'actuator); layouts in rths_discrepancy.models')
     p.add_argument('--config', metavar='DIR',
                    help='params directory the run was launched with (numerical.yaml, '
-                        'bridge.yaml), for a bag of rths launch, which has no run information')
+                        'bridge.yaml), used only for a bag whose run information lacks the '
+                        "run's parameters (a recorder started by hand); bags of rths launch "
+                        '--bag and rths run carry them')
     p.add_argument('--out', required=True, metavar='DIR', help='output directory')
     p.set_defaults(func=run_discrepancy_cmd)
 
@@ -182,11 +184,12 @@ def register(commands, benches):
                     "RTHS 2nd-floor displacement against each (and against rths review's "
                     'linear whole-numerical reference). Writes reference.json and '
                     'reference.png to --out.')
-    r.add_argument('bag', help='RTHS bag directory (rths run, or rths launch with --config)')
+    r.add_argument('bag', help='RTHS bag directory (of rths launch --bag or rths run)')
     r.add_argument('--specimen-model', required=True, metavar='MODEL.yaml',
                    help='specimen model YAML (kind: dtm, m_d, c_d, k_d, effects)')
     r.add_argument('--config', metavar='DIR',
-                   help='params directory of the launch, when the bag has no run information')
+                   help="params directory of the launch, only for a bag whose run information "
+                        "lacks the run's parameters")
     r.add_argument('--out', metavar='DIR',
                    help='output directory (default: reference/ next to the model file)')
     r.set_defaults(func=reference_cmd)

@@ -5,10 +5,11 @@
 * Frequency: residual power per octave band relative to the noise power in
   that band (white noise floor ``sigma^2``).
 * State (restoring-force-surface view): correlation of the residual with the
-  states x, xd, sign(xd), xdd and the input.  For the specimen, also the
-  restoring-force residual ``F_meas - (c_d xd + k_d x)`` (zero for eq. 45-46
-  if the model is right) and the inertia residual ``F_meas + m_d (xdd + xdd_s)``
-  (eq. 45), each against the same states.
+  states x, xd, sign(xd), xdd, the input and, where the record has a ``force``
+  column (the specimen's measured damper force, eq. 45), that force.  For the
+  specimen, also the restoring-force residual ``F_meas - (c_d xd + k_d x)``
+  (zero for eq. 45-46 if the model is right) and the inertia residual
+  ``F_meas + m_d (xdd + xdd_s)`` (eq. 45), each against the same states.
 * Mean: the residual mean against its standard error (a constant sensor bias
   is invisible to whiteness tests).
 """
@@ -55,6 +56,8 @@ def localize(ctx, data) -> dict:
     feats = {'displacement': st['x'], 'velocity': st['v'], 'sign(velocity)': np.sign(st['v']),
              'acceleration': st['a'], 'input': ctx.u, 'displacement^3': st['x'] ** 3,
              'sign(displacement)': np.sign(st['x'])}
+    if 'force' in data:
+        feats['force'] = data['force']
     state = {'output_residual': {k: _corr(r, v) for k, v in feats.items()}}
     if ctx.scenario == 'specimen':
         m = ctx.model

@@ -19,9 +19,11 @@ against each reference, and against the linear whole-numerical reference of
 seed 6.3.4 (:func:`rths_numerical.reference.simulate_reference`) that
 ``rths review`` prints.
 
-The run's parameters come from the bag's run information (bags of ``rths
-run``); a bag of ``rths launch`` carries none, so pass the params directory
-of that launch (``--config DIR``: numerical.yaml and bridge.yaml).
+The run's parameters come from the bag's run information
+(:mod:`rths_bringup.runinfo`: ``rths launch --bag`` and ``rths run`` store
+the numerical and bridge parameters in the bag).  Only a bag whose run
+information lacks them (a recorder started by hand) needs the params
+directory of its launch (``--config DIR``: numerical.yaml and bridge.yaml).
 """
 
 from pathlib import Path
@@ -38,8 +40,9 @@ SUBSTEPS = 16
 def run_parameters(bag, config=None) -> tuple:
     """``(numerical, bridge)`` parameters of the run of ``bag``.
 
-    From the bag's run information when it has them (``rths run``), else
-    from the params files in ``config`` (``rths launch --config DIR``).
+    From the bag's run information when it has them (``rths launch --bag``,
+    ``rths run``), else from the params files in ``config`` (the directory
+    the run was launched with).
     ValueError names the fix when neither is available.
     """
     from rths_bringup import bagio, runinfo
@@ -53,7 +56,8 @@ def run_parameters(bag, config=None) -> tuple:
         numerical = runinfo.load_params(cfg / 'numerical.yaml', 'numerical')
         bridge = runinfo.load_params(cfg / 'bridge.yaml', 'bridge')
     if not numerical:
-        raise ValueError(f'{bag}: the bag has no run information (recorded by rths launch?); '
+        raise ValueError(f"{bag}: the bag's run information has no numerical parameters "
+                         '(recorder started without them?); '
                          'pass --config DIR, the params directory the run was launched with '
                          '(numerical.yaml, bridge.yaml)')
     return core_params(numerical), core_params(bridge)
