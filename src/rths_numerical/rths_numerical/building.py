@@ -26,6 +26,12 @@ floor + the vertical DOF of the 12 joints = 2 x 2 + 12 = 16 DOF.  The
 diaphragm rotations, all node rotations and the inner beam nodes' vertical
 DOFs are condensed out.
 
+240-DOF model: the same frame with the same rigid diaphragms (1), imposed as a
+penalty stiffness so that all 240 DOFs stay (``building_240dof``; the bare frame,
+whose floors flex in plane, is ``building_240dof(diaphragms=False)``).  The two
+models then differ only by the Guyan condensation (2), which neglects the inertia of
+the condensed DOFs in their own dynamics: seed figure 33 (same 2nd-floor response).
+
 Damping (seed 6.2): Rayleigh ``C = a0 M + a1 K`` with 4.2 % and 10 % on the
 first two x-direction modes (identified by effective modal mass in x).
 DOF order of the 16-DOF model: ``[Ux1, Uy1, Ux2, Uy2, uz joints floor 1 (6),
@@ -53,6 +59,10 @@ BUILDING_MASS_KG = N_DTM * TABLE4['valve4'].m_d / MASS_RATIO
 ZETA_MODES = (0.042, 0.10)
 SEED_FREQS_HZ = (2.81, 7.77)
 IX2 = 2  # index of the 2nd-floor x DOF in the 16-DOF model
+# rigid-diaphragm penalty of the 240-DOF model, x the frame's largest in-plane diagonal
+# stiffness (8.5e9 N/m): 1e3 converges the x frequencies to 5e-7 of their alpha -> inf
+# limit at cond(K) = 2.1e7 (1e2: 5e-6 at 2.2e6; 1e5: no gain at 2.1e9).
+DIAPHRAGM_PENALTY = 1e3
 
 
 def _torsion_constant(b, d):
@@ -174,14 +184,13 @@ def _frame(building_mass_kg):
     return K, M, np.array(coords), joints, floor_of
 
 
-def _condensation(building_mass_kg):
-    """Return the 240 -> 16 transformation T (u_240 = T q_16) and the K, M of the frame."""
-    K, M, coords, joints, floor_of = _frame(building_mass_kg)
+def _in_plane_map(coords, floor_of):
+    """Rigid-diaphragm map ``T1``: u_240 = T1 q, q = [Ux1, Uy1, Th1, Ux2, Uy2, Th2, per node
+    (uz, rx, ry, rz)].  The in-plane translations of a floor node follow its floor's
+    (Ux, Uy, Theta) about the plan centre; every other DOF is its own coordinate."""
     nn = len(coords)
     centre = np.array([SPAN_X, SPAN_Y / 2])
-    # reduced coordinates: [Ux1, Uy1, Th1, Ux2, Uy2, Th2] + per node (uz, rx, ry, rz)
-    nq = 6 + 4 * nn
-    T1 = np.zeros((6 * nn, nq))
+    T1 = np.zeros((6 * nn, 6 + 4 * nn))
     for i, (x, y, _) in enumerate(coords):
         f = floor_of[i] - 1
         T1[6 * i, 3 * f] = 1.0
@@ -190,6 +199,14 @@ def _condensation(building_mass_kg):
         T1[6 * i + 1, 3 * f + 2] = x - centre[0]
         for j in range(4):
             T1[6 * i + 2 + j, 6 + 4 * i + j] = 1.0
+    return T1
+
+
+def _condensation(building_mass_kg):
+    """Return the 240 -> 16 transformation T (u_240 = T q_16) and the K, M of the frame."""
+    K, M, coords, joints, floor_of = _frame(building_mass_kg)
+    T1 = _in_plane_map(coords, floor_of)
+    nq = T1.shape[1]
     masters = [0, 1, 3, 4] + [6 + 4 * j for j in joints]
     slaves = [i for i in range(nq) if i not in masters]
     K1 = T1.T @ K @ T1
@@ -199,6 +216,29 @@ def _condensation(building_mass_kg):
     T2[masters, np.arange(len(masters))] = 1.0
     T2[slaves, :] = -np.linalg.solve(kss, ksm)
     return T1 @ T2, K, M, coords, floor_of
+
+
+@lru_cache(maxsize=4)
+def _diaphragm_penalty(building_mass_kg):
+    """Penalty stiffness of the rigid floor diaphragms on the 240 DOF; return (K_pen, alpha).
+
+    For each floor, ``v`` (the u_x, u_y of the floor's 20 nodes) must lie in the span of
+    the rows of the condensation's own map ``T1`` for that floor (rigid in-plane motion
+    Ux, Uy, Theta).  With ``Q`` an orthonormal basis of that 3-D span, the penalty energy
+    is ``alpha / 2 |(I - Q Q^T) v|^2``, so ``K_pen = alpha (I - Q Q^T)``: symmetric,
+    positive semi-definite, zero on rigid floor motions, and no extra DOFs.
+    ``alpha = DIAPHRAGM_PENALTY`` x the largest in-plane diagonal entry of the frame's K.
+    """
+    K, _, coords, _, floor_of = _frame(building_mass_kg)
+    T1 = _in_plane_map(coords, floor_of)
+    in_plane = np.sort(np.r_[0:K.shape[0]:6, 1:K.shape[0]:6])
+    alpha = DIAPHRAGM_PENALTY * float(np.max(np.diag(K)[in_plane]))
+    K_pen = np.zeros_like(K)
+    for f in (1, 2):
+        dofs = [d for d in in_plane if floor_of[d // 6] == f]
+        Q, _ = np.linalg.qr(T1[np.ix_(dofs, [3 * f - 3, 3 * f - 2, 3 * f - 1])])
+        K_pen[np.ix_(dofs, dofs)] = alpha * (np.eye(len(dofs)) - Q @ Q.T)
+    return K_pen, alpha
 
 
 def _damped(M, K, gamma, names, interface, output, name, freqs=None):
@@ -229,13 +269,19 @@ def building_16dof(building_mass_kg=BUILDING_MASS_KG):
     return _damped(Mr.copy(), Kr.copy(), gamma, names, [IX2], IX2, 'building2story-16dof')
 
 
-def building_240dof(building_mass_kg=BUILDING_MASS_KG):
-    """Return the full 240-DOF frame (no diaphragm); output DOF: ux of a 2nd-floor joint.
+def building_240dof(building_mass_kg=BUILDING_MASS_KG, diaphragms=True):
+    """Return the 240-DOF frame; output DOF: ux of the middle 2nd-floor joint at y = 0.
 
+    ``diaphragms=True`` (default) adds the rigid floor diaphragms the 16-DOF
+    condensation assumes (the in-plane u_x, u_y of each floor's nodes follow one rigid
+    (Ux, Uy, Theta) motion) as a penalty stiffness (``_diaphragm_penalty``), keeping all
+    240 DOFs; ``diaphragms=False`` is the bare frame (its floors flex in plane).
     Damping uses the Rayleigh coefficients of the 16-DOF model's x modes so
     that both models are damped alike.  ``gamma`` is 1 on every node's ux.
     """
-    K, M, coords, joints, floor_of = _frame(float(building_mass_kg))
+    mass = float(building_mass_kg)
+    K, M, coords, joints, floor_of = _frame(mass)
+    K = K + _diaphragm_penalty(mass)[0] if diaphragms else K.copy()
     gamma = np.zeros(K.shape[0])
     gamma[0::6] = 1.0
     freqs, _ = building_16dof(building_mass_kg).dominant_frequencies(2)
@@ -243,8 +289,8 @@ def building_240dof(building_mass_kg=BUILDING_MASS_KG):
     mid = int(np.flatnonzero((np.abs(coords[:, 0] - SPAN_X) < 1e-6) & (coords[:, 1] == 0)
                              & (np.abs(coords[:, 2] - 2 * STORY_H) < 1e-6))[0])
     names = [f'n{i}_{c}' for i in range(len(coords)) for c in ('ux', 'uy', 'uz', 'rx', 'ry', 'rz')]
-    return _damped(M.copy(), K.copy(), gamma, names, [6 * mid], 6 * mid, 'building2story-240dof',
-                   freqs)
+    name = 'building2story-240dof' + ('' if diaphragms else '-nodiaphragm')
+    return _damped(M.copy(), K, gamma, names, [6 * mid], 6 * mid, name, freqs)
 
 
 def floor2_x_dofs_240(building_mass_kg=BUILDING_MASS_KG):
