@@ -281,13 +281,26 @@ class SafetySupervisor:
         return self._accept(self.pos + vel / self.limits.fs_hz)
 
     def _approach(self, target, v_cap, acc):
-        """Next position towards ``target`` at speed <= ``v_cap``, acceleration <= ``acc``."""
+        """Next position towards ``target`` at speed <= ``v_cap``, acceleration <= ``acc``.
+
+        The speed stays on the discrete braking curve, so a fixed target is reached without
+        passing it (a safe position at the stroke end stays inside the stroke).  Braking by
+        ``dv = acc / fs`` per step, the speeds ``v, v - dv, ..., v - m dv`` (``m = floor(v /
+        dv)``) cover ``D(v) = ((m + 1) v - m (m + 1) dv / 2) / fs``; the speed is the largest
+        with ``D(v) <= e``, ``e`` the distance to the target: with ``E = e fs / dv`` and
+        ``m = floor((sqrt(1 + 8 E) - 1) / 2)``, ``v = dv (E / (m + 1) + m / 2)``.  (The
+        continuous curve ``sqrt(2 acc e)`` overshot by up to ``0.6 acc / fs^2``, 61 um at
+        100 m/s^2 and 1024 Hz.)
+        """
         fs = self.limits.fs_hz
         err = target - self.pos
-        v_des = np.sign(err) * np.minimum.reduce([
-            v_cap, 0.9 * np.sqrt(2 * acc * np.abs(err)), np.abs(err) * fs])
-        dv = np.clip(v_des - self.vel, -acc / fs, acc / fs)
-        return self.pos + (self.vel + dv) / fs
+        dv = acc / fs
+        e_steps = np.abs(err) * fs / dv
+        m = np.floor(0.5 * (np.sqrt(1.0 + 8.0 * e_steps) - 1.0))
+        v_brake = dv * (e_steps / (m + 1.0) + 0.5 * m)
+        v_des = np.sign(err) * np.minimum(v_cap, v_brake)
+        step = np.clip(v_des - self.vel, -dv, dv)
+        return self.pos + (self.vel + step) / fs
 
     def _ramp(self):
         """One step towards the safe position within velocity/acceleration limits."""

@@ -316,3 +316,160 @@ def test_limits_validation_names_the_key():
         SafetyLimits.from_params({'safe_position_m': 0.3})
     lim = SafetyLimits.from_params({'stroke_m': '0.2'})
     assert lim.stroke_m == 0.2 and lim.force_n == 8000.0
+
+
+# ---------------------------------------------------------------------------------------------
+# Measurement faults through the whole Bridge (simulated backend): nothing unsafe reaches the
+# plant after the fault, the actuator is brought to the safe position and the backend stops.
+
+SAFE = -0.002                      # [m] a safe position != 0, so reaching it is not a coincidence
+#: a low acceleration limit makes the HOLD phase brake over several steps
+BRIDGE_PARAMS = {'dtm': 'valve4', 'hold_time_s': 0.01, 'ramp_time_s': 0.2,
+                 'acceleration_m_s2': 8.0, 'safe_position_m': SAFE}
+
+
+def _offset_sine(n, amp, f):
+    """``amp (1 - cos 2 pi f t)``: starts at rest (zero velocity), oscillates about ``amp``."""
+    t = np.arange(n) / FS
+    return amp * (1.0 - np.cos(2 * np.pi * f * t))
+
+
+def _reference(commands, **params):
+    """Channels the simulated plant measures for ``commands`` (same parameters as the bridge)."""
+    from rths_actuator_bridge.simulated import SimulatedPlant
+    return SimulatedPlant(**dict(BRIDGE_PARAMS, **params)).simulate(commands)
+
+
+def _bridge_to_stop(params, commands, patch=None):
+    """Step a simulated-backend Bridge with ``commands`` (the sender keeps sending them after a
+    fault) until it is STOPPED; return ``(bridge, results)``."""
+    b = Bridge()
+    b.configure(dict(BRIDGE_PARAMS, **params))
+    if patch is not None:
+        patch(b)
+    b.activate()
+    results = []
+    for k, u in enumerate(commands):
+        results.append(b.step(k, u))
+        if b.state == safety.STOPPED:
+            break
+    return b, results
+
+
+def _check_safe_stop(b, results, commands, fault_step):
+    """The common checks of a measurement fault detected in the reading of ``fault_step``."""
+    lim = b.supervisor.limits
+    states = [r.state for r in results]
+    applied = np.array([r.applied[0] for r in results])
+    assert len(applied) == len(results)          # one command written per step until STOPPED
+    # up to the fault the commands pass unchanged, and the fault is seen in its own step
+    assert all(s == safety.ACTIVE for s in states[:fault_step])
+    np.testing.assert_array_equal(applied[:fault_step + 1], commands[:fault_step + 1])
+    assert states[fault_step] == safety.HOLD
+    # then exactly HOLD -> RAMP -> STOPPED, STOPPED once, in the last step
+    phases = [s for i, s in enumerate(states[fault_step:]) if i == 0
+              or s != states[fault_step + i - 1]]
+    assert phases == [safety.HOLD, safety.RAMP, safety.STOPPED]
+    assert states.count(safety.STOPPED) == 1
+    # every command written respects the stroke, velocity and acceleration limits
+    _assert_within_limits(applied, lim)
+    # HOLD: brake (speed never grows), then keep the position for hold_time_s (the step that
+    # ends the hold is already labelled RAMP)
+    hold = applied[fault_step:fault_step + states.count(safety.HOLD) + 1]
+    speed = np.abs(np.diff(hold))
+    assert np.all(np.diff(speed) <= 1e-15)
+    moving = np.flatnonzero(speed > 0)
+    held = len(speed) - (moving[-1] + 1 if moving.size else 0)
+    assert held == int(round(lim.hold_time_s * lim.fs_hz)) + 1
+    # RAMP: monotonically to the safe position, which is reached exactly; the sender's commands
+    # (still arriving) no longer reach the plant
+    ramp = applied[fault_step + states.count(safety.HOLD):]
+    assert np.all(np.diff(ramp) * np.sign(SAFE - ramp[0]) >= -1e-12)
+    assert applied[-1] == pytest.approx(SAFE, abs=1e-12)
+    assert not np.any(applied[fault_step + 1:] == commands[fault_step + 1:len(applied)])
+    # the backend is deactivated: the next step writes nothing and the plant does not advance
+    assert b.backend.lifecycle == 'inactive'
+    written = b.backend.step
+    after = b.step(len(results), commands[len(results)])
+    assert after.applied.size == 0 and after.state == safety.STOPPED
+    assert b.backend.step == written
+
+
+@pytest.mark.parametrize('acc', [100.0, 8.0])
+@pytest.mark.parametrize('safe', [0.254, -0.254, 0.0])
+def test_the_ramp_never_passes_the_safe_position_even_at_the_stroke_end(safe, acc):
+    """A safe position at the stroke end (allowed) must not be overshot out of the stroke."""
+    lim = SafetyLimits(fs_hz=FS, acceleration_m_s2=acc, hold_time_s=0.01, ramp_time_s=0.2,
+                       safe_position_m=safe)
+    for start in np.linspace(-0.25, 0.25, 21):
+        sup = SafetySupervisor(lim)
+        sup.activate(start)
+        sup.emergency_stop('test')
+        sent = []
+        for k in range(5000):
+            out, state, _ = sup.filter(k, None)
+            sent.append(out[0])
+            if state == safety.STOPPED:
+                break
+        assert state == safety.STOPPED
+        _assert_within_limits(sent, lim, start)
+        # monotone, never beyond the safe position (1 pm of rounding)
+        assert np.all(np.diff(sent) * np.sign(safe - start) >= -1e-12)
+        assert np.max(np.abs(np.array(sent) - start)) <= abs(safe - start) + 1e-12
+        assert sent[-1] == safe
+
+
+def test_force_limit_through_the_bridge_holds_ramps_stops_and_deactivates():
+    u = _offset_sine(4000, 0.004, 5.0)
+    ref = _reference(u)['force']
+    force_n = 0.6 * np.max(np.abs(ref))        # well inside the record's force range
+    first = int(np.argmax(np.abs(ref) > force_n))
+    b, results = _bridge_to_stop({'force_n': force_n}, u)
+    assert b.supervisor.fault == (f'force limit: measured force {ref[first]:.6g} N > '
+                                  f'{force_n:.6g} N')
+    assert all(abs(r.force[0]) <= force_n for r in results[:first])
+    _check_safe_stop(b, results, u, first)
+
+
+def test_dtm_range_through_the_bridge_holds_ramps_stops_and_deactivates():
+    from rths_numerical.dtm import TABLE4
+    dtm = TABLE4['valve4']
+    f_n = np.sqrt(dtm.k_d / dtm.m_d) / (2 * np.pi)    # drive the DTM at resonance (eq. 47)
+    u = _offset_sine(6000, 0.002, f_n)
+    ref = _reference(u)
+    limit = 0.5 * np.max(np.abs(ref['rel_disp']))
+    first = int(np.argmax(np.abs(ref['rel_disp']) > limit))
+    assert np.max(np.abs(ref['force'][:first + 1])) < 8000.0    # not the force limit first
+    b, results = _bridge_to_stop({'dtm_rel_disp_m': limit}, u)
+    assert b.supervisor.fault == (f'DTM relative displacement limit: '
+                                  f"{ref['rel_disp'][first]:.6g} m > {limit:.6g} m")
+    _check_safe_stop(b, results, u, first)
+
+
+def test_lost_measurements_through_the_bridge_hold_ramp_stop_and_deactivate():
+    """The sensors go dead (non-finite readings) and never come back."""
+    u = _offset_sine(4000, 0.004, 2.0)
+    first = int(round(FS * 3 / 8 / 2.0))    # the trip falls on a velocity peak: HOLD must brake
+    dead_from = first - (4 - 1)
+
+    def kill_sensors(bridge):
+        plant = bridge.backend.plant
+        measure = plant.measure
+
+        def dead_after(true=None):
+            out = measure(true)
+            if plant.k >= dead_from:
+                out = dict(out, table_disp=float('nan'), force=float('nan'))
+            return out
+        plant.measure = dead_after
+
+    b, results = _bridge_to_stop({'max_invalid_measurements': 4}, u, kill_sensors)
+    assert b.supervisor.fault == 'measurement lost: 4 non-finite readings in a row (limit 4)'
+    assert all(np.isfinite(r.displacement[0]) for r in results[:dead_from])
+    assert all(np.isnan(r.displacement[0]) for r in results[dead_from:])
+    _check_safe_stop(b, results, u, first)
+    # the trip came at full speed: the hold braked at the acceleration limit over many steps
+    v = np.diff([r.applied[0] for r in results[first - 1:]]) * FS
+    a_lim = b.supervisor.limits.acceleration_m_s2
+    assert abs(v[0]) > 4 * a_lim / FS
+    assert abs(v[1]) == pytest.approx(abs(v[0]) - a_lim / FS, rel=1e-9)

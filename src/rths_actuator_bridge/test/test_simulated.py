@@ -1,5 +1,6 @@
 """Simulated plant: Table 1 actuator, eq. 46-47 DTM, force convention, noise, ADC, ARX."""
 
+import os
 import sys
 import types
 
@@ -7,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.signal import cont2discrete, freqs, lfilter
 
+from rths_actuator_bridge.backend import make_backend
 from rths_actuator_bridge.simulated import SimulatedPlant
 from rths_compensator.plants import continuous_actuator
 from rths_numerical.dtm import FRAME_MASS_KG, TABLE4
@@ -115,3 +117,62 @@ def test_arx_actuator_from_plant_yaml(monkeypatch, tmp_path):
     model.fs_hz = 2048.0
     with pytest.raises(ValueError, match='fs_hz'):
         SimulatedPlant(actuator_model='plant.yaml')
+
+
+def _saved_zoh_plant(tmp_path, d):
+    """The 3-pole actuator's exact ZOH model with ``d`` extra samples of dead time, written
+    to a plant.yaml by rths_compensator's own save function (as ``rths identify`` does)."""
+    from rths_compensator.identification import ArxModel, save_plant
+    num, den = continuous_actuator('3pole')
+    b, a, _ = cont2discrete((num, den), 1 / FS, method='zoh')
+    model = ArxModel(a=np.ravel(a), b=np.ravel(b)[1:], d=d, fs_hz=FS)
+    return save_plant(tmp_path / f'plant_d{d}.yaml', model, {'criterion': 'test'})
+
+
+REPO_PLANT = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', '..',
+                          'config', 'plant.yaml')
+
+
+@pytest.mark.parametrize('source', ['saved d=0', 'saved d=2', 'config/plant.yaml'])
+def test_arx_actuator_step_response_from_a_real_plant_yaml(tmp_path, source):
+    """The simulated plant built from a plant.yaml (real load_plant) follows the ARX model."""
+    from rths_compensator.identification import load_plant
+    if source == 'config/plant.yaml':
+        if not os.path.isfile(REPO_PLANT):
+            pytest.skip('no config/plant.yaml in this checkout')
+        path = REPO_PLANT            # read only
+    else:
+        path = _saved_zoh_plant(tmp_path, int(source[-1]))
+    model = load_plant(path)
+    u = np.full(10 * 1024, 0.005)    # a 5 mm step from rest, 10 s
+    expect = model.simulate(u)
+    scale = np.max(np.abs(expect))
+    assert model.dc_gain() == pytest.approx(1.0, abs=0.05)    # a tracking actuator (eq. 3)
+    assert expect[-1] == pytest.approx(0.005 * model.dc_gain(), rel=1e-6)   # settled
+    plant = SimulatedPlant(actuator_model=path, dtm='valve4')
+    m = plant.simulate(u)
+    np.testing.assert_allclose(m['table_disp'], expect, rtol=0, atol=1e-12 * scale)
+    assert np.all(m['table_disp'][:model.d] == 0.0)            # the dead time d
+    # the same through the backend interface, one write/read per step
+    backend = make_backend({'actuator_model': path, 'dtm': 'valve4'})
+    backend.activate()
+    got = []
+    for x in u[:600]:
+        backend.write([x])
+        got.append(backend.read()[0][0])
+    backend.close()
+    np.testing.assert_allclose(got, expect[:600], rtol=0, atol=1e-12 * scale)
+    # the DTM rides on that table: at rest again 10 s after the step (valve #4, Table 4:
+    # f_n 2.8 Hz, zeta 5.4 %, decay time 1 s), it carries no force
+    assert abs(m['rel_disp'][-1]) < 1e-3 * np.max(np.abs(m['rel_disp']))
+    assert abs(m['force'][-1]) < 1e-3 * np.max(np.abs(m['force']))
+    # a loop rate other than the plant's is refused, naming the file and the field
+    with pytest.raises(ValueError, match='fs_hz') as err:
+        SimulatedPlant(actuator_model=path, fs_hz=2048.0)
+    assert os.fspath(path) in str(err.value)
+
+
+def test_arx_plant_yaml_that_is_missing_names_the_file(tmp_path):
+    missing = tmp_path / 'nothing.yaml'
+    with pytest.raises(OSError, match='nothing.yaml'):
+        SimulatedPlant(actuator_model=str(missing))
