@@ -7,9 +7,10 @@
 * ``rths reference BAG --specimen-model M.yaml [--config DIR] [--out DIR]``: re-run the
   reference of an RTHS bag with a specimen model; print the RTHS-vs-reference error
   with the nominal and with that model.
-* ``rths bench discrepancy --out FILE.json [--seeds N] [--quick] [--workers W]``:
-  the self-test benchmark (confusion matrix, correct naming, false effects on
-  controls, median gap closed).
+* ``rths bench discrepancy --out FILE.json [--seeds N] [--quick] [--workers W]
+  [--baselines]``: the self-test benchmark (confusion matrix, correct naming, false
+  effects on controls, median gap closed); ``--baselines`` also runs pysindy and
+  sysidentpy on the same records (:mod:`.baselines`).
 """
 
 import sys
@@ -119,7 +120,7 @@ def bench_discrepancy_cmd(args) -> int:
     if seeds < 1:
         raise ValueError('--seeds must be >= 1')
     summary = selftest.run_bench(seeds=seeds, quick=args.quick, workers=args.workers,
-                                 progress=_say)
+                                 progress=_say, baselines=args.baselines)
     tmp = f'{args.out}.tmp'
     with open(tmp, 'w') as fh:
         json.dump(summary, fh, indent=1)
@@ -137,6 +138,20 @@ def bench_discrepancy_cmd(args) -> int:
     print('confusion matrix (expected -> named: count):')
     for exp, row in sorted(summary['confusion_matrix'].items()):
         print(f'  {exp:45s} ' + ', '.join(f'{k}: {v}' for k, v in sorted(row.items())))
+    bl = summary.get('baselines')
+    if bl:
+        sd, best, nx = bl['sindy_default'], bl['sindy_best_of_sweep'], bl['narx']
+        print(f"workflow: {summary['correct_naming_percent']:.1f} % correct, "
+              f"{summary['false_effects_on_controls']}/{summary['controls']} false effects")
+        print(f"pysindy STLSQ (threshold {sd['threshold']}, finite differences): "
+              f"{sd['correct_naming_percent']:.1f} % correct, {sd['false_effects_on_controls']}/"
+              f"{bl['controls']} false effects; best of sweep ({best['setting']}, tuned on "
+              f"the answers): {best['correct_naming_percent']:.1f} %, "
+              f"{best['false_effects_on_controls']} false")
+        ex = nx['examples'][0]['terms'] if nx['examples'] else []
+        med = nx['median_free_run_nrmse']
+        print(f"sysidentpy FROLS NARX: names no effect (0 %); median free-run NRMSE "
+              f"{med if med is None else round(med, 3)}; e.g. terms {', '.join(ex)}")
     print(f"targets met: {summary['targets_met']}; wall time {summary['wall_time_s']:.0f} s; "
           f'wrote {args.out}')
     return 0
@@ -210,4 +225,7 @@ def register(commands, benches):
                    help='full-strength effects only, two pairs, 8 s records, one seed '
                         '(under a minute)')
     b.add_argument('--workers', type=int, default=2, help='worker processes (default 2)')
+    b.add_argument('--baselines', action='store_true',
+                   help='also run pysindy (SINDy, STLSQ) and sysidentpy (FROLS NARX) on every '
+                        'record and compare (needs pip install pysindy sysidentpy)')
     b.set_defaults(func=bench_discrepancy_cmd)

@@ -137,12 +137,15 @@ def bench_cases(quick=False):
 def run_case(args):
     """Run one benchmark case.
 
-    ``args`` = (scenario, label, hidden, strength, expected, seed[, duration_s]).
+    ``args`` = (scenario, label, hidden, strength, expected, seed[, duration_s[,
+    baselines]]); with ``baselines`` true, pysindy and sysidentpy also run on the
+    same record (:mod:`.baselines`) and the row gets a 'baselines' entry.
     """
     import time
     from rths_discrepancy.workflow import run_discrepancy
     scenario, label, hidden, strength, expected, seed = args[:6]
     duration = args[6] if len(args) > 6 else DURATION_S
+    with_baselines = bool(args[7]) if len(args) > 7 else False
     t0 = time.perf_counter()
     data, truth = make_record(scenario, hidden, seed, strength=strength, duration_s=duration)
     res = run_discrepancy(scenario, data, plots=False)
@@ -152,7 +155,7 @@ def run_case(args):
             continue
         got = res['parameters'][name][fx.LIBRARY[scenario][name].param]
         errors[name] = abs(got - val) / abs(val)
-    return {'scenario': scenario, 'label': label, 'strength': strength, 'seed': seed,
+    row = {'scenario': scenario, 'label': label, 'strength': strength, 'seed': seed,
             'expected': expected, 'named': res['effect'], 'correct': res['effect'] == expected,
             'truth': {k: (list(v) if isinstance(v, tuple) else v) for k, v in truth.items()},
             'parameters': res['parameters'], 'parameter_rel_errors': errors,
@@ -161,18 +164,25 @@ def run_case(args):
             'best_candidate': res['best_candidate'],
             'best_closure_fast': res['best_candidate_gap_closed_fast'],
             'seconds': time.perf_counter() - t0}
+    if with_baselines:
+        from rths_discrepancy import baselines
+        row['baselines'] = baselines.run_baselines(scenario, data)
+    return row
 
 
-def run_bench(seeds=3, quick=False, workers=2, progress=None) -> dict:
+def run_bench(seeds=3, quick=False, workers=2, progress=None, baselines=False) -> dict:
     """Run the self-test benchmark; return the summary (confusion matrix, rates, details).
 
     Targets of issue 7: >= 95 % correct naming, 0 false effects on the
     controls, median gap_closed >= 0.9 (over cases whose answer is an effect).
+    ``baselines``: also run pysindy / sysidentpy on every record; the summary
+    gets a 'baselines' entry (:func:`.baselines.summarize`).
     """
     import time
     t0 = time.perf_counter()
     duration = QUICK_DURATION_S if quick else DURATION_S
-    jobs = [case + (seed, duration) for seed in range(seeds) for case in bench_cases(quick)]
+    jobs = [case + (seed, duration, baselines) for seed in range(seeds)
+            for case in bench_cases(quick)]
     rows = []
     say = progress or (lambda msg: None)
     if workers > 1:
@@ -218,6 +228,9 @@ def run_bench(seeds=3, quick=False, workers=2, progress=None) -> dict:
                     'median_gap_closed': 0.9},
         'rows': rows,
     }
+    if baselines:
+        from rths_discrepancy import baselines as bl
+        summary['baselines'] = bl.summarize(rows)
     summary['targets_met'] = bool(summary['correct_naming_percent'] >= 95.0
                                   and summary['false_effects_on_controls'] == 0
                                   and summary['median_gap_closed'] >= 0.9)
