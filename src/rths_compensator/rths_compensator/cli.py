@@ -55,6 +55,11 @@ def register(commands, benches):
     p.add_argument('--fc', type=float, default=64.0, help='FIR passband edge fc [Hz] (64)')
     p.add_argument('--epsilon', type=float, default=None,
                    help='FIR passband tolerance on |T_com - 1| (0.002)')
+    p.add_argument('--zero-tol', type=float, default=None,
+                   help='FIR (also --auto): zeros of the plant numerator with modulus >= this '
+                        'count as unstable (B-*, eq. 7) and are not cancelled by the '
+                        'denominator B+*; below 1 it keeps lightly damped zeros out of it '
+                        '(1; rths bench compensators uses 0.98)')
     p.add_argument('--alpha', type=float, default=7.0, help='mff: alpha of eq. 4 (7)')
     p.add_argument('--mff-model', default='3pole', choices=('3pole', '4pole'),
                    help='mff: Table 1 continuous-time model (3pole)')
@@ -166,11 +171,19 @@ def cmd_design(args) -> int:
     limit_blas_threads(1)
     plant = load_plant(args.plant)
     eps = dsg.DEFAULT_EPSILON if args.epsilon is None else args.epsilon
+    zero_tol = 1.0 if args.zero_tol is None else args.zero_tol
+    if not 0 < zero_tol <= 1:
+        raise ValueError(f'--zero-tol must lie in (0, 1], got {zero_tol}')
+    if (args.zero_tol is not None and not args.auto and args.scheme
+            and args.scheme not in dsg.FIR_SCHEMES):
+        raise ValueError(f'--zero-tol applies to the FIR schemes (ls, wls, mm) and --auto, '
+                         f'not to --scheme {args.scheme}; drop it')
     if args.auto:
         if not args.bandwidth:
             raise ValueError('--auto needs --bandwidth HZ (the operating bandwidth)')
         _log(f'design --auto: searching for 0-{args.bandwidth} Hz')
-        comp, table = dsg.auto_design(plant, args.bandwidth, epsilon=eps, log=_log)
+        comp, table = dsg.auto_design(plant, args.bandwidth, epsilon=eps, log=_log,
+                                      zero_tol=zero_tol)
         band = args.bandwidth
         print('score = |delay| [ms] + gain error [dB] + 0.1 x max(0, high-pass gain above the '
               'band - 6 dB) + 1e-4 x coefficients (lower is better); top candidates:')
@@ -191,7 +204,8 @@ def cmd_design(args) -> int:
                              'or --auto --bandwidth HZ')
         opts = {}
         if args.scheme in dsg.FIR_SCHEMES:
-            opts = {'n_taps': args.taps, 'fc_hz': args.fc, 'epsilon': eps}
+            opts = {'n_taps': args.taps, 'fc_hz': args.fc, 'epsilon': eps,
+                    'zero_tol': zero_tol}
             band = args.fc
         else:
             band = args.band
@@ -208,8 +222,8 @@ def cmd_design(args) -> int:
             'predicted_delay_ms': pred['delay_ms'],
             'predicted_gain_error_db': pred['gain_error_db'],
             'predicted_highpass_gain_db': pred['highpass_gain_db']}
-    for key in ('n_taps', 'fc_hz', 'epsilon', 'alpha', 'delay_ms', 'a_tilde', 'model', 'q',
-                'solver', 'auto_score', 'bandwidth_hz'):
+    for key in ('n_taps', 'fc_hz', 'epsilon', 'zero_tol', 'alpha', 'delay_ms', 'a_tilde',
+                'model', 'q', 'solver', 'auto_score', 'bandwidth_hz'):
         if key in comp.info:
             prov[key] = comp.info[key]
     write_compensator_params(args.out, comp.taps, comp.denominator, comp.fs_hz, comp.scheme,

@@ -32,8 +32,9 @@ FIR compensator (eq. 28-36)
       least squares (``scipy.optimize.nnls``).  MM is one LP, solved by cutting planes
       (:func:`_minimax_lp`): a subset of its rows, then the violated rows of the full grid
       added until none is violated, each re-solve warm-started from the previous basis
-      (the optimum of the same LP, 3-10x faster than handing HiGHS every row).  No
-      generic NLP is used.
+      (the optimum of the same LP, 3-10x faster than handing HiGHS every row); the first
+      relaxation has at least n real equations so that it bounds h.  No generic NLP is
+      used.
     * The unknown is scaled by B-*(1) (``g = B-*(1) h``) so it is O(1).
 
 Comparison compensators
@@ -184,6 +185,7 @@ class _IncrementalLp:
         self.c = np.asarray(c, dtype=float)
         self.a_eq, self.b_eq = np.atleast_2d(a_eq), np.asarray(b_eq, dtype=float)
         self.rows, self.rhs = [], []
+        self.infeasible = False
         self.lp_method = lp_method
         self.highs = None
         if lp_method == 'highs':
@@ -214,17 +216,49 @@ class _IncrementalLp:
                            np.tile(np.arange(n, dtype=np.int32), num), a.ravel())
 
     def add_rows(self, a, b):
-        """Append the rows ``a x <= b``."""
-        self.rows.append(np.asarray(a, dtype=float))
-        self.rhs.append(np.asarray(b, dtype=float))
-        if self.highs is not None:
+        """Append the rows ``a x <= b``, each scaled to unit Euclidean norm.
+
+        Row equilibration: the minimax rows' coefficients span |B-*(f)/B-*(1)| (0.01 at a
+        lightly damped zero pair to 30 near Nyquist on the bench's plant) times sqrt(n).
+        (The LP on which every HiGHS variant stopped with a solve error, status 4, in the
+        bench's n = 300, fc = 128 Hz design solved once its rows were scaled; the cause of
+        that LP's ill-conditioning is removed in :func:`_minimax_lp`.)  A row with no
+        coefficients is kept out if it holds (``0 <= b``) and makes the problem infeasible
+        otherwise.
+        """
+        a = np.atleast_2d(np.asarray(a, dtype=float))
+        b = np.asarray(b, dtype=float)
+        norm = np.linalg.norm(a, axis=1)
+        empty = norm <= 1e-12 * max(float(norm.max(initial=0.0)), 1.0)
+        if np.any(empty & (b < 0)):
+            self.infeasible = True
+        a, b, norm = a[~empty], b[~empty], norm[~empty]
+        a, b = a / norm[:, None], b / norm
+        self.rows.append(a)
+        self.rhs.append(b)
+        if self.highs is not None and b.size:
             self._add(a, np.full(len(b), -self.highs.getInfinity()), b)
+
+    def _fresh(self, tried=()):
+        """Solve all rows so far afresh (cold start): HiGHS, then its dual simplex and IPM."""
+        a_ub, b_ub = np.vstack(self.rows), np.concatenate(self.rhs)
+        code = 4
+        for method in ('highs', 'highs-ds', 'highs-ipm'):
+            if method in tried:
+                continue
+            x, code = _linprog_free(self.c, a_ub, b_ub, self.a_eq, self.b_eq, method)
+            if code in (0, 2):
+                return x, code
+        return None, code
 
     def solve(self):
         """Return ``(x, status)``: 0 optimal, 2 infeasible, other = failure."""
+        if self.infeasible:
+            return None, 2
         if self.highs is None:
-            return _linprog_free(self.c, np.vstack(self.rows), np.concatenate(self.rhs),
-                                 self.a_eq, self.b_eq, self.lp_method)
+            x, code = _linprog_free(self.c, np.vstack(self.rows), np.concatenate(self.rhs),
+                                    self.a_eq, self.b_eq, self.lp_method)
+            return (x, code) if code in (0, 2) else self._fresh(tried=(self.lp_method,))
         self.highs.run()
         status = self.highs.getModelStatus()
         ms = self._core.HighsModelStatus
@@ -239,12 +273,7 @@ class _IncrementalLp:
         if status == ms.kInfeasible:
             return None, 2
         # numerical trouble in the warm start: solve the same rows afresh
-        for method in ('highs-ds', 'highs-ipm'):
-            x, code = _linprog_free(self.c, np.vstack(self.rows), np.concatenate(self.rhs),
-                                    self.a_eq, self.b_eq, method)
-            if code in (0, 2):
-                break
-        return x, code
+        return self._fresh()
 
 
 def _minimax_lp(m, mp, bound_eps, lp_method='highs', infeasible=None, n_obj_sides=8,
@@ -257,11 +286,16 @@ def _minimax_lp(m, mp, bound_eps, lp_method='highs', infeasible=None, n_obj_side
     ``Re(e^{-j theta_s}(mp_k g - 1)) <= 0.97 epsilon cos(pi/8)`` at every point k of the
     dense passband grid (inscribed 8-gon), and ``sum(g) = 1``.  Instead of handing HiGHS
     all rows at once (up to a minute for n = 300 on a loaded 2-core machine), it starts
-    from every ``coarse``-th point (all sides) plus the grid ends; then every row of the
-    FULL problem is checked at the solution and, per grid point, its most violated side is
-    added, until no row is violated.  A relaxation's optimum that satisfies every row of
-    the full LP is the full LP's optimum, so the result is the same design (to the LP
-    tolerances) as the one-shot LP; each re-solve warm-starts from the previous basis.
+    from the passband's every ``coarse``-th point and the objective grid's every
+    ``min(coarse, 2 N / n)``-th point (at least n/2 points, i.e. n real equations for the
+    n unknowns, so that the first relaxation already bounds g), all sides, plus the grid
+    ends; then every row of the FULL problem is checked at the solution and, per grid
+    point, its most violated side is added, until no row is violated.  A relaxation's
+    optimum that satisfies every row of the full LP is the full LP's optimum, so the
+    result is the same design (to the LP tolerances) as the one-shot LP; each re-solve
+    warm-starts from the previous basis.  Redundant rows (0 Hz, duplicate sides at
+    Nyquist: :func:`_distinct_sides`) are never added, and every row is scaled to unit norm
+    (:meth:`_IncrementalLp.add_rows`).
     """
     n_taps = m.shape[1]
     rot = _polygon(n_obj_sides)
@@ -270,13 +304,24 @@ def _minimax_lp(m, mp, bound_eps, lp_method='highs', infeasible=None, n_obj_side
     bound = 0.97 * bound_eps * np.cos(np.pi / n_obj_sides)
     pass_rows = np.real(rot[:, None, None] * mp[None])
     pass_c0 = np.real(rot)[:, None] * np.ones(mp.shape[0])
+    valid_obj = _distinct_sides(m, rot)
+    valid_pass = _distinct_sides(mp, rot)
     lp = _IncrementalLp(np.r_[np.zeros(n_taps), 1.0], np.r_[np.ones(n_taps), 0.0][None, :],
                         [1.0], lp_method)
     act_obj = np.zeros(obj_c0.shape, dtype=bool)
     act_pass = np.zeros(pass_c0.shape, dtype=bool)
     new_obj, new_pass = act_obj.copy(), act_pass.copy()
-    new_obj[:, ::coarse] = new_obj[:, -1] = True
+    # The first relaxation holds >= n_taps / 2 objective points (>= n_taps real equations for
+    # n_taps unknowns), so t > 0 and g is bounded.  With fewer (every 8th of 257 points for
+    # n = 300: 33 points) the relaxation interpolates: its optimum is t = 0 on an arbitrary
+    # vertex with |g| 10-1e4 times the final |g|, and from such ill-conditioned bases the
+    # warm-started HiGHS and the cold linprog fallbacks failed (status 4, the bench's
+    # fir-mm-n300-fc128).  The extra rows cost little: fewer cut rounds are needed.
+    stride = max(1, min(coarse, 2 * m.shape[0] // n_taps))
+    new_obj[:, ::stride] = new_obj[:, -1] = True
     new_pass[:, ::coarse] = new_pass[:, -1] = True
+    new_obj &= valid_obj
+    new_pass &= valid_pass
     for rounds in range(1, max_rounds + 1):
         act_obj |= new_obj
         act_pass |= new_pass
@@ -292,8 +337,8 @@ def _minimax_lp(m, mp, bound_eps, lp_method='highs', infeasible=None, n_obj_side
         if status != 0:
             raise ValueError(f'mm design LP failed (HiGHS status {status})')
         g, t = x[:n_taps], x[-1]
-        excess_obj = obj_rows @ g - obj_c0 - t
-        excess_pass = pass_rows @ g - pass_c0 - bound
+        excess_obj = np.where(valid_obj, obj_rows @ g - obj_c0 - t, -np.inf)
+        excess_pass = np.where(valid_pass, pass_rows @ g - pass_c0 - bound, -np.inf)
         new_obj = _most_violated(excess_obj, 1e-7 * max(t, 1e-3)) & ~act_obj
         new_pass = _most_violated(excess_pass, 1e-6 * bound) & ~act_pass
         if not (new_obj.any() or new_pass.any()):
@@ -303,6 +348,29 @@ def _minimax_lp(m, mp, bound_eps, lp_method='highs', infeasible=None, n_obj_side
     return g, (f'linear programme (HiGHS), polygon minimax by cutting planes: {rounds} LPs, '
                f'{int(act_obj.sum())} of {act_obj.size} objective rows, '
                f'{int(act_pass.any(axis=0).sum())} passband points')
+
+
+def _distinct_sides(m, rot):
+    """Mask (sides x points) of the polygon rows of ``m`` that are not redundant.
+
+    Where ``m_i`` is real (0 Hz and Nyquist) ``Re(e^{-j theta}(m_i g - 1)) =
+    cos(theta) (m_i g - 1)``: the sides theta and -theta give the same row, the sides with
+    cos(theta) = 0 an empty one, and the two extreme sides (cos = 1 and -1 for an even
+    polygon) imply all others, so only those two are kept.  Where ``m_i`` is moreover a
+    multiple of ``[1, ..., 1]`` (0 Hz: ``m_0 = B-*(1)/B-*(1) = 1`` per tap) every row is
+    implied by the equality ``sum(g) = 1`` and none is kept.  Such duplicate and (nearly)
+    dependent rows only make the LP's bases degenerate.
+    """
+    scale = np.max(np.abs(m), axis=1)
+    real = np.max(np.abs(np.imag(m)), axis=1) <= 1e-12 * scale
+    flat = real & (np.ptp(np.real(m), axis=1) <= 1e-12 * scale)
+    cos = np.real(rot)
+    extreme = np.zeros(rot.size, dtype=bool)
+    extreme[[np.argmax(cos), np.argmin(cos)]] = True
+    valid = np.ones((rot.size, m.shape[0]), dtype=bool)
+    valid[:, real] = extreme[:, None]
+    valid[:, flat] = False
+    return valid
 
 
 def _most_violated(excess, tol, local_max=True):
@@ -372,6 +440,9 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
         raise ValueError(f'--fc {fc_hz} Hz must lie in (0, {fs / 2}) Hz')
     if not epsilon > 0:
         raise ValueError(f'--epsilon must be > 0, got {epsilon}')
+    if not 0 < zero_tol <= 1:
+        raise ValueError(f'--zero-tol must lie in (0, 1], got {zero_tol} (1: only zeros on or '
+                         'outside the unit circle count as unstable)')
     t0 = time.perf_counter()
     b_plus, b_minus = factor_zeros(b_star, zero_tol)
     c = float(np.sum(b_minus))
@@ -451,7 +522,7 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
     tpass = mp @ g
     info = {
         'n_taps': n_taps, 'fc_hz': float(fc_hz), 'epsilon': float(epsilon),
-        'solver': solver, 'design_s': design_s,
+        'zero_tol': float(zero_tol), 'solver': solver, 'design_s': design_s,
         'passband_max_error': float(np.max(np.abs(tpass - 1.0))),
         'max_error_all': float(np.max(np.abs(tcom - 1.0))),
         'dc_gain_error': float(abs(np.sum(g) - 1.0)),
@@ -602,11 +673,13 @@ def auto_score(pred: dict, n_coefficients: int) -> float:
 
 def auto_design(plant, bandwidth_hz: float, fs_hz: float = None, epsilon: float = None,
                 taps=(25, 50, 100, 200), fc_factors=(1.5, 2.0, 3.0, 4.0),
-                schemes=('ls', 'wls', 'mm', 'npz', 'zpetc', 'zmetc'), log=None):
+                schemes=('ls', 'wls', 'mm', 'npz', 'zpetc', 'zmetc'), log=None,
+                zero_tol: float = 1.0):
     """Search scheme, n and fc for the operating ``bandwidth_hz``; return (best, table).
 
     Every candidate is designed on the plant model and scored by :func:`auto_score` from
-    its predicted indicators over ``0 < f <= bandwidth_hz``.  ``table`` lists dicts
+    its predicted indicators over ``0 < f <= bandwidth_hz``; ``zero_tol`` is passed to
+    the FIR candidates (:func:`design_fir`).  ``table`` lists dicts
     (scheme, n_taps, fc_hz, score, delay_ms, gain_error_db, highpass_gain_db,
     n_coefficients, error) sorted best first.
     """
@@ -628,7 +701,7 @@ def auto_design(plant, bandwidth_hz: float, fs_hz: float = None, epsilon: float 
         row = {'scheme': scheme, 'n_taps': n, 'fc_hz': fc}
         try:
             if scheme in FIR_SCHEMES:
-                comp = design_fir(plant, n, fc, scheme, eps, fs_hz=fs_hz)
+                comp = design_fir(plant, n, fc, scheme, eps, fs_hz=fs_hz, zero_tol=zero_tol)
             else:
                 comp = design(plant, scheme, fs_hz=fs_hz, band_hz=bandwidth_hz)
             pred = predict(plant, comp, bandwidth_hz, fs_hz)

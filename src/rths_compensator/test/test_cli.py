@@ -116,3 +116,73 @@ def test_unstable_zeros_command(tmp_path, capsys):
     out = capsys.readouterr().out
     assert '3pole' in out and '41.' in out and '42.' in out
     assert png.stat().st_size > 1000
+
+
+@pytest.fixture(scope='module')
+def damped_zero_plant(tmp_path_factory):
+    """plant.yaml: the 3-pole model times a lightly damped zero pair (|z| = 0.995, 150 Hz)."""
+    from rths_compensator.identification import ArxModel, save_plant
+    from rths_compensator.plants import discrete_actuator
+    fs = 1024.0
+    b, a = discrete_actuator('3pole', fs)
+    r, th = 0.995, 2 * np.pi * 150.0 / fs
+    b = np.convolve(b, [1.0, -2 * r * np.cos(th), r * r])
+    model = ArxModel(a=a, b=b / (np.sum(b) / np.sum(a)), fs_hz=fs)
+    path = tmp_path_factory.mktemp('plant') / 'plant.yaml'
+    save_plant(path, model)
+    return path, model
+
+
+def _max_pole(den):
+    return float(np.max(np.abs(np.roots(den)))) if len(den) > 1 else 0.0
+
+
+def test_design_zero_tol_reproduces_design_fir_and_is_recorded(tmp_path, damped_zero_plant):
+    """--zero-tol 0.98 (the bench's BENCH_ZERO_TOL) keeps the 0.995 pair out of B+*."""
+    from rths_compensator import design as dsg
+    from rths_compensator.bench import BENCH_ZERO_TOL
+    plant_path, model = damped_zero_plant
+    common = ['design', '--plant', str(plant_path), '--scheme', 'wls', '--taps', '50',
+              '--fc', '32', '--epsilon', '0.01']
+    plain, tol = tmp_path / 'plain.yaml', tmp_path / 'tol.yaml'
+    assert _run(common + ['--out', str(plain)]) == 0
+    assert _run(common + ['--zero-tol', str(BENCH_ZERO_TOL), '--out', str(tol)]) == 0
+    p_plain, p_tol = load_compensator_params(plain), load_compensator_params(tol)
+    assert p_plain['zero_tol'] == 1.0 and p_tol['zero_tol'] == BENCH_ZERO_TOL
+    assert _max_pole(p_plain['denominator']) == pytest.approx(0.995, abs=1e-6)
+    assert _max_pole(p_tol['denominator']) < BENCH_ZERO_TOL
+    ref = dsg.design_fir(model, 50, 32.0, 'wls', 0.01, zero_tol=BENCH_ZERO_TOL)
+    np.testing.assert_allclose(p_tol['taps'], ref.taps, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(p_tol['denominator'], ref.denominator, rtol=1e-9)
+
+
+def test_design_auto_passes_zero_tol(tmp_path, damped_zero_plant, monkeypatch):
+    from rths_compensator import design as dsg
+    plant_path, _ = damped_zero_plant
+    seen = []
+    design_fir = dsg.design_fir
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get('zero_tol'))
+        return design_fir(*args, **kwargs)
+
+    monkeypatch.setattr(dsg, 'design_fir', spy)
+    out = tmp_path / 'auto.yaml'
+    assert _run(['design', '--plant', str(plant_path), '--auto', '--bandwidth', '10',
+                 '--zero-tol', '0.97', '--epsilon', '0.01', '--out', str(out)]) == 0
+    assert seen and set(seen) == {0.97}
+    params = load_compensator_params(out)
+    if params['scheme'] in ('ls', 'wls', 'mm'):
+        assert params['zero_tol'] == 0.97
+        assert _max_pole(params['denominator']) < 0.97
+
+
+@pytest.mark.parametrize('extra, match', [
+    (['--scheme', 'npz', '--zero-tol', '0.98'], 'FIR schemes'),
+    (['--scheme', 'ls', '--zero-tol', '1.5'], 'zero-tol'),
+    (['--scheme', 'ls', '--zero-tol', '0'], 'zero-tol')])
+def test_design_refuses_bad_zero_tol(tmp_path, damped_zero_plant, extra, match):
+    out = tmp_path / 'c.yaml'
+    with pytest.raises(ValueError, match=match):
+        _run(['design', '--plant', str(damped_zero_plant[0]), '--out', str(out)] + extra)
+    assert not out.exists()
