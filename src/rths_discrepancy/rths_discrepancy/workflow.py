@@ -27,8 +27,12 @@
    noise variances unexplained, the answer is ``unexplained``.
    Amplitude coverage: training and held-out blocks alternate every ~0.5 s,
    so both see the rare large-amplitude events; an unequal residual excess of
-   the two parts is reported as a coverage warning.  A BIC-style criterion
-   ``N ln S + p ln N`` of every candidate is reported with the evidence.
+   the two parts is reported as a coverage warning.  The held-out error also
+   enters a BIC-style criterion ``IC = N ln S + p ln N`` (N held-out samples,
+   p fitted parameters; the nominal model has p = 0): an effect is named only
+   if it lowers the IC below the nominal model's, and a pair replaces the best
+   single only if it lowers the IC further (so an extra parameter must pay for
+   itself on unseen data); every candidate's IC is reported with the evidence.
 5. The winner is added to the model and the model is re-simulated *without*
    measured states (output error); ``gap_closed = (NRMSE_before^2 -
    NRMSE_after^2) / (NRMSE_before^2 - NRMSE_noise^2)`` on the held-out blocks.
@@ -288,8 +292,15 @@ def select(ctx, progress=None):
     pairs = [k for k in fits if '+' in k]
     best2 = min(pairs, key=lambda k: fits[k][2])
     s2 = fits[best2][2]
+    # information criterion on the held-out score: n ln(score) + p ln(n) (BIC form); the
+    # nominal model ('none') has no parameters.  A more complex answer must lower it.
+    n_test = int(ctx.test.sum())
+    ic = {k: n_test * math.log(max(v[2], 1e-300)) + len(v[0]) * math.log(n_test)
+          for k, v in fits.items()}
+    ic_none = n_test * math.log(max(s0, 1e-300))
     choice, s_c = best1, s1
-    if s1 - s2 > max(PAIR_REL_GAIN * gap, MIN_GAIN) and s1 - s2 > PAIR_REMAINING * (s1 - floor):
+    if (s1 - s2 > max(PAIR_REL_GAIN * gap, MIN_GAIN) and s1 - s2 > PAIR_REMAINING * (s1 - floor)
+            and ic[best2] < ic[best1]):
         choice, s_c = best2, s2
     gain = s0 - s_c
     # closure judged on the output alone (its floor, white noise, is known best) and on
@@ -299,17 +310,14 @@ def select(ctx, progress=None):
     sx0 = ctx.mse(ctx.y_nom, scored) / ctx.sigma2
     sxc = ctx.mse(fits[choice][1], scored) / ctx.sigma2
     closure = (sx0 - sxc) / (sx0 - 1.0) if sx0 > 1.0 else 0.0
-    if gain < MIN_GAIN or gain < MIN_REL_GAIN * gap:
+    if gain < MIN_GAIN or gain < MIN_REL_GAIN * gap or ic[choice] >= ic_none:
         decision = 'none'
     elif closure < NAME_CLOSURE and sxc - 1.0 > UNEXPLAINED_MIN:
         decision = 'unexplained'
     else:
         decision = choice
-    n_test = int(ctx.test.sum())
-    ic = {k: n_test * math.log(max(v[2], 1e-300)) + len(v[0]) * math.log(n_test)
-          for k, v in fits.items()}
     return {'decision': decision, 'best': choice, 'fits': fits, 's0': s0, 'floor': floor,
-            'gap': gap, 'closure_fast': closure, 'ic': ic}
+            'gap': gap, 'closure_fast': closure, 'ic': ic, 'ic_none': ic_none}
 
 
 def coverage(ctx, pred):
@@ -381,6 +389,7 @@ def run_discrepancy(scenario, data, model=None, out_dir=None, rng=None, progress
         'best_candidate': sel['best'],
         'best_candidate_gap_closed_fast': sel['closure_fast'],
         'information_criterion': sel['ic'],
+        'information_criterion_none': sel['ic_none'],
         'coverage': coverage(ctx, sel['fits'][sel['best']][1]),
         'residual_excess_train_heldout': [float(gap_tr), float(gap_te)],
         'coverage_unbalanced': unbalanced,

@@ -35,6 +35,8 @@ def test_each_effect_is_named_and_recovered(scenario, name):
     assert abs(got - truth[name]) <= 0.15 * abs(truth[name])
     assert res['nrmse_after'] < 0.5 * res['nrmse_before']
     assert res['gap_closed'] > 0.9
+    # the named effect pays for its parameters on unseen data (held-out BIC below nominal)
+    assert res['information_criterion'][name] < res['information_criterion_none']
 
 
 @pytest.mark.parametrize('scenario', fx.SCENARIOS)
@@ -50,6 +52,9 @@ def test_controls_name_no_effect(scenario, seed):
 def test_pair_is_named_jointly():
     _, truth, res = _case('specimen', ['coulomb_friction', 'stiffness_error'], seed=2)
     assert res['effect'] == 'coulomb_friction+stiffness_error'
+    ic = res['information_criterion']   # the pair's extra parameter pays for itself
+    assert ic[res['effect']] < min(v for k, v in ic.items() if '+' not in k)
+    assert ic[res['effect']] < res['information_criterion_none']
     for name in ('coulomb_friction', 'stiffness_error'):
         got = res['parameters'][name][fx.LIBRARY['specimen'][name].param]
         assert abs(got - truth[name]) <= 0.15 * abs(truth[name])
