@@ -9,10 +9,8 @@ so no assertion depends on the machine's speed; time bounds are the stated
 ones (``Launcher.safe_stop_bound_s``), with hold and ramp counted in steps.
 """
 
-import os
 from pathlib import Path
 import re
-import signal
 import threading
 import time
 
@@ -20,7 +18,7 @@ import numpy as np
 import pytest
 import yaml
 
-from rths_system_tests import (REPO, graph_env, launch_background, rths, started_pids,
+from rths_system_tests import (REPO, graph_env, launch_background, rths, sigkill_mid_run,
                                wait_for)
 
 CONFIG = REPO / 'config'
@@ -74,14 +72,10 @@ def test_sigkill_mid_run_reaches_the_safe_state_and_keeps_the_bag(tmp_path, vict
     bag = tmp_path / 'bag'
     proc = launch_background(config, bag)
     try:
-        head = wait_for(proc, 'graph connected')
-        head += wait_for(proc, 'progress: step 1024 ')
-        os.kill(started_pids(head)[victim], signal.SIGKILL)
-        rest, _ = proc.communicate(timeout=120)
+        out = sigkill_mid_run(proc, bag, victim)
     finally:
         if proc.poll() is None:
             proc.kill()
-    out = head + rest
     assert proc.returncode == 1, out[-3000:]
     assert f'node {victim} died (killed by SIGKILL)' in out
     status, meas = read_bag(bag)

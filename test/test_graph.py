@@ -12,8 +12,8 @@ import signal
 import pytest
 
 from rths_bringup.review import STEP_TOPICS
-from rths_system_tests import (REPO, launch_background, rths, started_pids, wait_committed,
-                               wait_for)
+from rths_system_tests import (REPO, launch_background, rths, sigkill_mid_run, started_pids,
+                               wait_committed, wait_for)
 
 CONFIG = REPO / 'config'
 FS_HZ = 1024.0
@@ -62,20 +62,10 @@ def test_sigkill_of_a_node_fails_the_run_names_it_and_keeps_the_bag(tmp_path, vi
     bag = tmp_path / 'bag'
     proc = launch_background(CONFIG, bag, '--duration', 600.0)
     try:
-        head = wait_for(proc, 'graph connected')
-        head += wait_for(proc, 'progress: step 1024 ')  # one simulated second is done
-        # The recorder's promise is in wall time (a crash loses at most COMMIT_PERIOD_S plus
-        # one batch), not in steps: under CI load it had committed only 73 steps when the
-        # loop reached step 1024.  Kill only once more than 100 steps of every loop topic
-        # are committed, so the check below tests what a crash keeps, not machine load.
-        wait_committed(bag, STEP_TOPICS, 100)
-        pid = started_pids(head)[victim]
-        os.kill(pid, signal.SIGKILL)
-        rest, _ = proc.communicate(timeout=60)
+        out = sigkill_mid_run(proc, bag, victim, timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
-    out = head + rest
     assert proc.returncode == 1, out[-3000:]
     assert f'node {victim} died (killed by SIGKILL)' in out
     assert f'FAILED: node {victim}' in out

@@ -3,6 +3,7 @@
 import os
 from pathlib import Path
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -109,3 +110,21 @@ def wait_committed(bag, topics, count, timeout=60.0) -> dict:
         if time.monotonic() > t_end:
             raise AssertionError(f'the recorder committed only {have} within {timeout} s')
         time.sleep(0.1)
+
+
+def sigkill_mid_run(proc, bag, victim, timeout=120.0) -> str:
+    """SIGKILL node ``victim`` of a running ``rths launch`` once the loop is under way.
+
+    Waits for step 1024 and then until the bag holds more than 100 committed steps
+    of every loop topic: the recorder lags a lock-step loop under load and promises
+    a loss bound in wall time (COMMIT_PERIOD_S plus one batch), not in steps (CI had
+    committed 73 steps at step 1024).  Returns the launcher's whole output.
+    """
+    from rths_bringup.review import STEP_TOPICS
+
+    head = wait_for(proc, 'graph connected')
+    head += wait_for(proc, 'progress: step 1024 ')  # one simulated second is done
+    wait_committed(bag, STEP_TOPICS, 100)
+    os.kill(started_pids(head)[victim], signal.SIGKILL)
+    rest, _ = proc.communicate(timeout=timeout)
+    return head + rest

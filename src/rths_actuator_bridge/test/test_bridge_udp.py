@@ -6,12 +6,6 @@ unchanged, an over-limit command never reaches the plant (hold, ramp to the safe
 stop, deactivate), and every reply is used exactly once.
 """
 
-import ast
-import os
-import signal
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
@@ -52,36 +46,6 @@ def _run_to_stop(bridge, commands):
         if bridge.state == safety.STOPPED:
             break
     return results
-
-
-@pytest.fixture
-def emulator_process():
-    """``controller-emulator`` in its own process; yields ``(port, stats_of_the_stopped_run)``."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
-    proc = subprocess.Popen(
-        [sys.executable, '-m', 'rths_actuator_bridge.cli', 'controller-emulator', '--port', '0',
-         '--dtm', 'valve2', '--duration-s', '120'],
-        stdout=subprocess.PIPE, text=True, env=env)
-    stats = {}
-
-    def stop():
-        """Interrupt the emulator; return the datagram counts it printed on exit."""
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=20)
-        for line in out.splitlines():
-            if line.startswith('controller emulator stopped: '):
-                stats.update(ast.literal_eval(line.split(': ', 1)[1]))
-        return stats
-
-    try:
-        line = proc.stdout.readline()
-        assert 'listening on 127.0.0.1:' in line, line
-        yield int(line.split('127.0.0.1:')[1].split()[0]), stop
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
 
 
 def test_bridge_over_udp_passes_good_commands_and_stops_safely_on_an_over_limit_one(

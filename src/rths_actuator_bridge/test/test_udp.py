@@ -1,8 +1,5 @@
 """UDP protocol: layout, lost/late/duplicate/out-of-order detection, emulator process."""
 
-import os
-import subprocess
-import sys
 import time
 
 import numpy as np
@@ -109,26 +106,16 @@ def test_emulator_counts_lost_duplicate_and_late_commands():
     assert emu.plant.k == 3       # four samples advanced: steps 0..3
 
 
-def test_emulator_in_its_own_process():
+def test_emulator_in_its_own_process(emulator_process):
     """``controller-emulator`` as a separate process; the hardware path end to end."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
-    proc = subprocess.Popen(
-        [sys.executable, '-m', 'rths_actuator_bridge.cli', 'controller-emulator', '--port', '0',
-         '--dtm', 'valve2', '--duration-s', '30'],
-        stdout=subprocess.PIPE, text=True, env=env)
-    try:
-        line = proc.stdout.readline()
-        assert 'listening on 127.0.0.1:' in line
-        port = int(line.split('127.0.0.1:')[1].split()[0])
-        b = make_backend({'backend': 'udp', 'port': port, 'timeout_s': 2.0})
-        b.activate()
-        for k in range(200):
-            b.write([0.002 * np.sin(k / 20)])
-            disp, force = b.read()
-        assert np.isfinite(disp[0]) and abs(disp[0]) > 1e-4
-        assert b.stats['received'] == 200
-        assert 'rel_disp' in b.channels()
-        b.close()
-    finally:
-        proc.terminate()
-        proc.wait(10)
+    port, stop_emulator = emulator_process
+    b = make_backend({'backend': 'udp', 'port': port, 'timeout_s': 2.0})
+    b.activate()
+    for k in range(200):
+        b.write([0.002 * np.sin(k / 20)])
+        disp, force = b.read()
+    assert np.isfinite(disp[0]) and abs(disp[0]) > 1e-4
+    assert b.stats['received'] == 200
+    assert 'rel_disp' in b.channels()
+    b.close()
+    assert stop_emulator()['commands'] == 200
