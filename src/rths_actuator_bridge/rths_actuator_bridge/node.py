@@ -258,6 +258,10 @@ class BridgeNode:
         gids = set()
         for info in self.node.get_publishers_info_by_topic(topics.COMMAND):
             gid = ns.gid_text(info.endpoint_gid)
+            if info.node_name.startswith('_NODE_NAME_UNKNOWN'):
+                # the graph shows the writer before its node's name (rmw discovery info comes
+                # later): neither source nor named foreign yet; its messages are refused
+                continue
             if info.node_name == source:
                 gids.add(gid)
             elif gid not in self.foreign:
