@@ -219,7 +219,9 @@ class BridgeNode:
 
     def lifecycle_state(self) -> State:
         """The managed-node state: ACTIVE while the backend is, else INACTIVE (configured)."""
-        if self.backend.lifecycle == 'active':
+        from rths_actuator_bridge.backend import ACTIVE
+
+        if self.backend.lifecycle == ACTIVE:
             return State(id=State.PRIMARY_STATE_ACTIVE, label='active')
         return State(id=State.PRIMARY_STATE_INACTIVE, label='inactive')
 

@@ -264,38 +264,40 @@ def cmd_study_dtm_tuning(args):
     return 0
 
 
-def _time_steps(model, name, dt, repeats=5, n=2000):
+def _best_step_us(step, repeats=5, n=2000):
+    """Best over ``repeats`` runs of the mean time [us] of ``n`` calls of ``step()``."""
     import time
+    best = float('inf')
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(n):
+            step()
+        best = min(best, (time.perf_counter() - t0) / n)
+    return best * 1e6
+
+
+def _time_steps(model, name, dt):
+    """Time [us] of one integrator step, ``predict`` + ``correct``."""
     import numpy as np
     from .integrators import make_integrator
     integ = make_integrator(name, model.M, model.C, model.K, dt)
     p = np.zeros(model.n)
     r = np.zeros(model.n)
-    best = float('inf')
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(n):
-            integ.predict(p)
-            integ.correct(p, r)
-        best = min(best, (time.perf_counter() - t0) / n)
-    return best * 1e6
+
+    def step():
+        integ.predict(p)
+        integ.correct(p, r)
+    return _best_step_us(step)
 
 
 def _time_advance(model, name, dt, repeats=5, n=2000):
-    """Best time [us] of one ``NumericalSubstructure.advance`` (what the node pays per step)."""
-    import time
+    """Time [us] of one ``NumericalSubstructure.advance`` (what the node pays per step)."""
     import numpy as np
     from .substructure import NumericalSubstructure
     sub = NumericalSubstructure(model, np.zeros(repeats * n + 2), dt, integrator=name)
     force = np.zeros(sub.n_interface)
     sub.advance(force)          # step 0 sets the integrator state
-    best = float('inf')
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(n):
-            sub.advance(force)
-        best = min(best, (time.perf_counter() - t0) / n)
-    return best * 1e6
+    return _best_step_us(lambda: sub.advance(force), repeats, n)
 
 
 def cmd_bench_numerical(args):
