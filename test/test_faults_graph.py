@@ -18,8 +18,7 @@ import numpy as np
 import pytest
 import yaml
 
-from rths_system_tests import (REPO, graph_env, launch_background, rths, sigkill_mid_run,
-                               wait_for)
+from rths_system_tests import REPO, graph_env, launch_background, rths, sigkill_mid_run, wait_for
 
 CONFIG = REPO / 'config'
 STOPPED = 3
@@ -303,7 +302,8 @@ def send_emergency_stop(domain_id: int, how: str, reason: str) -> str:
 @pytest.mark.parametrize('how', ['topic', 'service'])
 def test_emergency_stop_mid_run_holds_ramps_and_stops(tmp_path, how):
     """Issue 4: an operator's emergency stop (topic or service) mid-run: hold, ramp to the
-    safe position, STOPPED, exit 3; the reason is in the status; the bag keeps every step."""
+    safe position, STOPPED, exit 3; the reason is in the status; the bag keeps every step.
+    """
     config = copy_config(tmp_path / 'config', numerical={'duration_s': 600.0})
     bag = tmp_path / 'bag'
     proc = launch_background(config, bag)

@@ -15,7 +15,8 @@ wrong channel counts and emergency stops at any time.  For every sequence:
 
 import math
 
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 import numpy as np
 
 from rths_actuator_bridge import safety

@@ -12,8 +12,15 @@ import signal
 import pytest
 
 from rths_bringup.review import STEP_TOPICS
-from rths_system_tests import (REPO, launch_background, rths, sigkill_mid_run, started_pids,
-                               wait_committed, wait_for)
+from rths_system_tests import (
+    REPO,
+    launch_background,
+    rths,
+    sigkill_mid_run,
+    started_pids,
+    wait_committed,
+    wait_for,
+)
 
 CONFIG = REPO / 'config'
 FS_HZ = 1024.0

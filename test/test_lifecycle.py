@@ -22,9 +22,9 @@ class LifecycleClient:
     """A node calling ``/bridge/get_state`` and ``/bridge/change_state``."""
 
     def __init__(self, domain_id: int):
+        from lifecycle_msgs.srv import ChangeState, GetState
         import rclpy
         from rclpy.context import Context
-        from lifecycle_msgs.srv import ChangeState, GetState
 
         self.rclpy, self.ChangeState, self.GetState = rclpy, ChangeState, GetState
         self.context = Context()

@@ -12,9 +12,8 @@ from rths_system_tests import REPO, rths
 
 
 def test_lockstep_run_equals_offline_coupled_simulation(tmp_path):
-    from rths_bringup import runinfo
+    from rths_bringup import bagio, runinfo
     from rths_bringup.offline import offline_rths
-    from rths_bringup import bagio
     from rths_common import topics
 
     config = REPO / 'config'

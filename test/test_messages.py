@@ -114,12 +114,13 @@ def test_every_message_and_service_field_is_covered():
 
 
 def _rosbags_store():
-    """bagio's typestore, with the service request/response types registered as messages.
+    """Bagio's typestore, with the service request/response types registered as messages.
 
     rosbags has no .srv parser; the two halves of a .srv are .msg texts, and the
     rosidl names are ``<pkg>/srv/<Name>_Request`` / ``_Response``.
     """
     from rosbags.typesys import get_types_from_msg
+
     from rths_bringup import bagio
 
     store = bagio.typestore()
@@ -183,12 +184,13 @@ def _spin_until(executor, done, timeout_s=20.0):
 
 
 def test_rclpy_publish_subscribe_round_trip():
-    import rclpy
     from builtin_interfaces.msg import Time
+    import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from rths_msgs import msg as rths_msg
     from std_msgs.msg import Header
+
+    from rths_msgs import msg as rths_msg
 
     rclpy.init()
     try:
@@ -224,6 +226,7 @@ def test_rclpy_publish_subscribe_round_trip():
 def test_rclpy_service_round_trip():
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
+
     from rths_msgs import srv as rths_srv
 
     rclpy.init()

@@ -1,9 +1,9 @@
 """Replay -> record round trip gives the same messages (issue 6, "Replay and review")."""
 
+from pathlib import Path
 import signal
 import subprocess
 import time
-from pathlib import Path
 
 from rths_system_tests import REPO, graph_env, rths
 

@@ -28,7 +28,7 @@ sine tests), as the seed did with the MATLAB optimisation toolbox:
 The experimental vs fitted transfer-function plot mirrors figures 18-21.
 """
 
-from dataclasses import dataclass, asdict
+from dataclasses import asdict, dataclass
 import math
 
 import numpy as np
@@ -73,7 +73,7 @@ def transfer_function(m_d: float, c_d: float, k_d: float, freqs_hz) -> np.ndarra
 
 def frf_estimate(record: DTMRecord, nperseg: int = None):
     """H1 estimate of X_d2s / Xdd_s: ``(freqs [Hz], H, coherence)``."""
-    from scipy.signal import csd, welch, coherence
+    from scipy.signal import coherence, csd, welch
     fs = record.fs_hz
     n = len(record.base_accel)
     nperseg = nperseg or int(min(n, round(20 * fs)))
@@ -361,6 +361,7 @@ def simulated_test(dtm: str, kind: str, band_hz: float, peak_in: float, seed: in
                    duration_s: float = 60.0, fs_hz: float = 1024.0, noise: dict = None):
     """One simulated shake-table test of ``dtm`` through the full plant -> :class:`DTMRecord`."""
     from rths_numerical.signals import blwn
+
     from .simulated import SimulatedPlant
     rng = np.random.default_rng(seed)
     peak = peak_in * INCH

@@ -40,6 +40,7 @@ def _add_plant_options(p):
 def run_emulator(args) -> int:
     """Serve the simulated plant over UDP until interrupted or --duration-s elapses."""
     import time
+
     from .udp import ControllerEmulator
     params = {'actuator_model': args.actuator_model, 'dtm': args.dtm, 'fs_hz': args.fs_hz,
               'seed': args.seed, 'displacement_noise_m': args.displacement_noise_m,

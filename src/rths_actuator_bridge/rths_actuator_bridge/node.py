@@ -64,15 +64,14 @@ clock (counted as an overrun) instead of bursting.
 import sys
 import time
 
-import numpy as np
-import rclpy
 from lifecycle_msgs.msg import State, Transition
 from lifecycle_msgs.srv import ChangeState, GetState
+import numpy as np
+import rclpy
 from std_msgs.msg import String, UInt64
 
-from rths_common import cdr
+from rths_common import cdr, topics
 from rths_common import node_support as ns
-from rths_common import topics
 from rths_common.qos import loop_qos, run_info_qos, status_qos
 from rths_msgs.msg import Command, LoopStatus, Measurement, Specimen
 from rths_msgs.srv import EmergencyStop
@@ -230,10 +229,11 @@ class BridgeNode:
         return response
 
     def on_change_state(self, request, response):
-        """activate (INACTIVE -> ACTIVE, not after a safety stop) or deactivate (ACTIVE ->
+        """Activate (INACTIVE -> ACTIVE, not after a safety stop) or deactivate (ACTIVE ->
         INACTIVE: once a command has moved the actuator, through the safe stop: hold, ramp,
         stop); other transitions are refused (the node configures itself at start-up and
-        cleans up when it exits)."""
+        cleans up when it exits).
+        """
         transition = request.transition.id
         active = self.lifecycle_state().id == State.PRIMARY_STATE_ACTIVE
         response.success = False

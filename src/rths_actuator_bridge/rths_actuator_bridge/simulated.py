@@ -191,6 +191,7 @@ def _dtm_params(name: str):
 def _actuator_ss(kind: str):
     """Controllable state space (A, B, C) of a Table 1 actuator model."""
     from scipy.signal import tf2ss
+
     from rths_compensator.plants import continuous_actuator
     try:
         num, den = continuous_actuator(kind)

@@ -1,11 +1,11 @@
 """Contract tests of the backend interface, run against both backends."""
 
+from conftest import PLANT
 import numpy as np
 import pytest
 
 from rths_actuator_bridge.backend import make_backend
 from rths_actuator_bridge.simulated import SimulatedPlant
-from conftest import PLANT
 
 
 def _sine(n=1500, amp=0.005, f=3.0, fs=1024.0):

@@ -12,7 +12,7 @@ import pytest
 from rths_actuator_bridge import safety
 from rths_actuator_bridge.bridge import Bridge
 from rths_actuator_bridge.simulated import SimulatedPlant
-from rths_actuator_bridge.udp import ControllerEmulator, STAT_KEYS
+from rths_actuator_bridge.udp import STAT_KEYS, ControllerEmulator
 
 FS = 1024.0
 SAFE = -0.002          # [m] safe position != 0, so ending there is no coincidence

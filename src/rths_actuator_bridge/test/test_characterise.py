@@ -8,7 +8,7 @@ from scipy.signal import lsim
 
 from rths_actuator_bridge import characterise as ch
 from rths_actuator_bridge.cli import main
-from rths_numerical.dtm import DTMParameters, TABLE4, TABLE4_PRINTED
+from rths_numerical.dtm import TABLE4, TABLE4_PRINTED, DTMParameters
 from rths_numerical.signals import blwn
 
 FS = 512.0

@@ -1,8 +1,9 @@
 """Every safety rule is violated once; nothing unsafe may reach the plant."""
 
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
 
 from rths_actuator_bridge import safety
 from rths_actuator_bridge.bridge import Bridge
@@ -342,7 +343,8 @@ def _reference(commands, **params):
 
 def _bridge_to_stop(params, commands, patch=None):
     """Step a simulated-backend Bridge with ``commands`` (the sender keeps sending them after a
-    fault) until it is STOPPED; return ``(bridge, results)``."""
+    fault) until it is STOPPED; return ``(bridge, results)``.
+    """
     b = Bridge()
     b.configure(dict(BRIDGE_PARAMS, **params))
     if patch is not None:

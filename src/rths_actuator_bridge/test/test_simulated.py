@@ -121,7 +121,8 @@ def test_arx_actuator_from_plant_yaml(monkeypatch, tmp_path):
 
 def _saved_zoh_plant(tmp_path, d):
     """The 3-pole actuator's exact ZOH model with ``d`` extra samples of dead time, written
-    to a plant.yaml by rths_compensator's own save function (as ``rths identify`` does)."""
+    to a plant.yaml by rths_compensator's own save function (as ``rths identify`` does).
+    """
     from rths_compensator.identification import ArxModel, save_plant
     num, den = continuous_actuator('3pole')
     b, a, _ = cont2discrete((num, den), 1 / FS, method='zoh')

@@ -2,13 +2,13 @@
 
 import time
 
+from conftest import PLANT
 import numpy as np
 import pytest
 
 from rths_actuator_bridge import udp
 from rths_actuator_bridge.backend import make_backend
 from rths_actuator_bridge.udp import ControllerEmulator
-from conftest import PLANT
 
 
 def test_datagram_layout_is_fixed_little_endian():

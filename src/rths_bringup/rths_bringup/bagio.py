@@ -20,6 +20,7 @@ import time
 
 from rths_common import topics
 
+
 def _msg_dir() -> Path:
     """Directory holding the rths_msgs .msg files (installed share dir, else the source tree)."""
     try:
@@ -40,7 +41,7 @@ def _msg_dir() -> Path:
 @lru_cache(maxsize=1)
 def typestore():
     """Return a ROS 2 Jazzy typestore with the rths_msgs types registered."""
-    from rosbags.typesys import get_types_from_msg, get_typestore, Stores
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
     types = {}

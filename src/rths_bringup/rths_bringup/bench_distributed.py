@@ -277,8 +277,8 @@ def _loop_tracking(bag) -> dict:
     """Delay (eq. 42, PSD-weighted) and relative RMS error, interface displacement -> measured."""
     from rths_bringup import bagio
     from rths_bringup.review import weighted_delay_ms
-    from rths_compensator.indicators import relative_rms_pct
     from rths_common import topics
+    from rths_compensator.indicators import relative_rms_pct
 
     fs = bagio.sampling_rate(bag)
     disp = bagio.step_arrays(bag, topics.INTERFACE_DISPLACEMENT, ('displacement',))

@@ -54,7 +54,7 @@ OWNER = 'numerical'  # the node whose clean exit ends the run
 
 def executable(package: str, name: str) -> Path:
     """Path of an installed node executable, found through the ament index like ``ros2 run``."""
-    from ament_index_python.packages import get_package_prefix, PackageNotFoundError
+    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
     try:
         path = Path(get_package_prefix(package)) / 'lib' / package / name
@@ -391,7 +391,9 @@ class Launcher:
     def deactivate_udp_controller(self) -> str:
         """Send DEACTIVATE to the bridge's UDP servo controller; describe the outcome."""
         import socket
+
         import yaml
+
         from rths_actuator_bridge import udp
 
         data = yaml.safe_load((self.config_dir / 'bridge.yaml').read_text()) or {}

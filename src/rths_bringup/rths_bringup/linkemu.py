@@ -104,6 +104,7 @@ def _qos(kind: str, mode: str):
 
 def _msg_type(topic: str):
     from std_msgs.msg import UInt64
+
     from rths_msgs.msg import InterfaceDisplacement, LoopStatus, Measurement
 
     return {'/rths/interface_displacement': InterfaceDisplacement, '/rths/run_steps': UInt64,
@@ -117,7 +118,8 @@ class Relay:
                  seed=0, mode='realtime', readers_b: int = 0, timeout_s: float = 60.0):
         """Join the domains; ``readers_b`` > 0: first wait until that many readers in B
         (compensator, recorder) and one in A (numerical) match the relayed loop topics, so no
-        lock-step message is relayed before its readers exist."""
+        lock-step message is relayed before its readers exist.
+        """
         import rclpy
         from rclpy.context import Context
 

@@ -83,7 +83,7 @@ class LabNetwork:
         return self
 
     def prefix(self, host: str) -> list:
-        """argv prefix that runs a command on ``host``."""
+        """Argv prefix that runs a command on ``host``."""
         return ['ip', 'netns', 'exec', self.ns[host]]
 
     def dds_env(self, host: str, domain_id: int) -> dict:

@@ -28,7 +28,6 @@ from rths_common import node_support as ns
 from rths_common import topics
 from rths_common.qos import recorder_qos, status_qos
 
-
 #: Recorder parameters that are not run information (everything else is kept in the bag).
 RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s')
 #: Longest time between two commits of the bag [s] (what a crash can lose).

@@ -31,6 +31,7 @@ def cmd_replay(args) -> int:
     import rclpy
     from rclpy.duration import Duration
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
     from rths_bringup import bagio
     from rths_common.node_support import message_class
 

@@ -100,6 +100,7 @@ def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
     loop actually experiences and equals the plain average for a flat spectrum.
     """
     from scipy import signal
+
     from rths_compensator.indicators import frf_h1
 
     d = np.asarray(desired, dtype=float)
@@ -128,8 +129,11 @@ def review_rths(bag, out_dir) -> dict:
 
     from rths_bringup import runinfo
     from rths_compensator.indicators import relative_rms_pct
-    from rths_numerical.reference import (relative_rms_error, simulate_reference,
-                                          simulate_uncontrolled)
+    from rths_numerical.reference import (
+        relative_rms_error,
+        simulate_reference,
+        simulate_uncontrolled,
+    )
     from rths_numerical.substructure import make_substructure
 
     bag, out_dir = Path(bag), Path(out_dir)
@@ -263,6 +267,7 @@ def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
+
     from rths_compensator.indicators import frf_h1
 
     t = np.arange(desired.size) / fs

@@ -186,6 +186,7 @@ def read_safety_stop(bag):
     every distinct fault the bridge reported (``safety_faults``).
     """
     import numpy as np
+
     from rths_bringup import bagio
     from rths_common import topics
 
@@ -274,7 +275,7 @@ def cmd_run(args) -> int:
 
 def _run(args) -> int:
     from rths_bringup.cli import main as rths_main
-    from rths_bringup.review import review_rths, print_review
+    from rths_bringup.review import print_review, review_rths
 
     if not args.force_scale > 0:
         raise ValueError(f'--force-scale must be > 0 (DTMs the one in the lab stands for), '
@@ -365,6 +366,7 @@ def _run(args) -> int:
 def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path) -> int:
     """Write and print the summary of an RTHS run the bridge stopped; return EXIT_SAFETY_STOP."""
     import json
+
     from rths_bringup.offline import core_params
     from rths_numerical.substructure import make_substructure
 
@@ -381,7 +383,7 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path) -> in
 
 
 def cmd_review(args) -> int:
-    from rths_bringup.review import review_rths, print_review
+    from rths_bringup.review import print_review, review_rths
 
     bag = Path(args.bag)
     out = Path(args.out) if args.out else bag.parent

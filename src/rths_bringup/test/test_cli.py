@@ -47,7 +47,8 @@ def _all_parsers(parser, path=()):
 
 def test_every_command_help_formats(capsys):
     """``rths ... --help`` works for every (sub-)command (a stray '%' in a help text broke
-    ``rths study --help``: argparse %-formats help strings)."""
+    ``rths study --help``: argparse %-formats help strings).
+    """
     paths = []
     for path, parser in _all_parsers(cli.build_parser()):
         assert parser.format_help().startswith('usage:'), path   # what --help prints

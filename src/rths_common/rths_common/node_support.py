@@ -19,7 +19,6 @@ from rclpy.node import Node
 
 from rths_msgs.msg import LoopStatus
 
-
 #: Parameters every rclpy node has; they are not passed to the plain-Python cores.
 ROS_BUILTIN_PARAMS = ('use_sim_time', 'start_type_description_service')
 

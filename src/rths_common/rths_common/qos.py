@@ -20,7 +20,6 @@ stays reliable in both modes: it is how misses are accounted for.
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-
 #: History depth of the lock-step loop topics (writers and the recorder's readers).
 LOCKSTEP_DEPTH = 10000
 

@@ -49,7 +49,7 @@ def test_tune_process_affinity_and_priority_fall_back_cleanly():
 
 
 def test_qos_per_mode():
-    from rclpy.qos import ReliabilityPolicy, DurabilityPolicy
+    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 
     rt = qos.loop_qos('realtime')
     assert rt.reliability == ReliabilityPolicy.BEST_EFFORT and rt.depth == 1

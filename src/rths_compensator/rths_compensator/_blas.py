@@ -1,5 +1,6 @@
 """Limit the BLAS thread pool: on small dense problems (the FIR designs, n <= 300) a
-multi-threaded OpenBLAS on a loaded 2-core machine is several times SLOWER than one thread."""
+multi-threaded OpenBLAS on a loaded 2-core machine is several times SLOWER than one thread.
+"""
 
 import ctypes
 

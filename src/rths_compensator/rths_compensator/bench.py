@@ -301,6 +301,7 @@ def make_plots(result: dict, directory: str) -> list:
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
+
     from .indicators import bode
     os.makedirs(directory, exist_ok=True)
     extra = result['_extra']

@@ -126,9 +126,9 @@ def read_bag_run(bag_path):
 
 def cmd_identify(args) -> int:
     """``rths identify``."""
+    from ._blas import limit_blas_threads
     from .identification import identify, save_plant, split_records
     from .io import sampling_rate_hz
-    from ._blas import limit_blas_threads
     limit_blas_threads(1)
     if args.bag:
         t, u, y = read_bag_run(args.bag)
@@ -163,11 +163,13 @@ def cmd_identify(args) -> int:
 def cmd_design(args) -> int:
     """``rths design``."""
     import os
+
     import numpy as np
+
     from . import design as dsg
+    from ._blas import limit_blas_threads
     from .identification import load_plant
     from .params import write_compensator_params
-    from ._blas import limit_blas_threads
     limit_blas_threads(1)
     plant = load_plant(args.plant)
     eps = dsg.DEFAULT_EPSILON if args.epsilon is None else args.epsilon
@@ -258,6 +260,7 @@ def cmd_compensate(args) -> int:
 def cmd_unstable_zeros(args) -> int:
     """``rths unstable-zeros``."""
     import numpy as np
+
     from .plants import discrete_zeros, unstable_zero_threshold_hz
     seed = {'3pole': 41.0, '4pole': 42.0}
     for kind in ('3pole', '4pole'):
@@ -307,6 +310,7 @@ def cmd_bench_compensators(args) -> int:
     print(f'wrote {args.out}')
     if args.plots:
         import os
+
         from .identification import save_plant
         for path in bench.make_plots(result, args.plots):
             print(f'wrote {path}')

@@ -35,9 +35,9 @@ import os
 import warnings
 
 import numpy as np
-import yaml
 from numpy.lib.stride_tricks import sliding_window_view
 from scipy import linalg, signal
+import yaml
 
 from rths_numerical.files import atomic_open
 

@@ -40,10 +40,8 @@ import time
 import numpy as np
 import rclpy
 
-from rths_common import cdr
-from rths_common import gaps
+from rths_common import cdr, gaps, topics
 from rths_common import node_support as ns
-from rths_common import topics
 from rths_common.qos import loop_qos, status_qos
 from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus
 

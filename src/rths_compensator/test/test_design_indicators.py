@@ -6,8 +6,7 @@ from scipy import signal
 
 from rths_compensator import design as dsg
 from rths_compensator.identification import ArxModel, factor_zeros
-from rths_compensator.indicators import (bode, relative_rms_pct, time_delay_from_data,
-                                         time_delay_ms)
+from rths_compensator.indicators import bode, relative_rms_pct, time_delay_from_data, time_delay_ms
 from rths_compensator.plants import discrete_actuator
 
 FS = 1024.0

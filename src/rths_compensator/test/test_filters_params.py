@@ -2,12 +2,15 @@
 
 import numpy as np
 import pytest
-import yaml
 from scipy import signal
+import yaml
 
 from rths_compensator.filters import CausalFilter, MultiChannelFilter
-from rths_compensator.params import (identity_params, load_compensator_params,
-                                     write_compensator_params)
+from rths_compensator.params import (
+    identity_params,
+    load_compensator_params,
+    write_compensator_params,
+)
 
 
 @pytest.mark.parametrize('nb, den', [(1, [1.0]), (400, [1.0]), (7, [2.0, -0.9, 0.2]),

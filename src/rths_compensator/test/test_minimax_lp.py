@@ -89,7 +89,8 @@ def test_distinct_sides_drop_redundant_rows():
 
 def test_incremental_lp_scales_rows_and_handles_empty_rows():
     """Rows are stored at unit norm; an empty row that holds is dropped, one that cannot
-    hold (0 <= negative) makes the LP infeasible."""
+    hold (0 <= negative) makes the LP infeasible.
+    """
     lp = dsg._IncrementalLp([0.0, 1.0], [[1.0, 0.0]], [2.0])
     lp.add_rows([[300.0, -300.0], [0.0, 0.0], [-0.01, -0.01]], [0.0, 1.0, 0.0])
     assert lp.rows[0].shape == (2, 2)

@@ -4,10 +4,20 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from rths_compensator.identification import (ArxModel, arx_grid, factor_zeros, fit_arx,
-                                             load_plant, model_from_grid, save_plant)
-from rths_compensator.plants import (continuous_actuator, discrete_actuator,
-                                     unstable_zero_threshold_hz)
+from rths_compensator.identification import (
+    ArxModel,
+    arx_grid,
+    factor_zeros,
+    fit_arx,
+    load_plant,
+    model_from_grid,
+    save_plant,
+)
+from rths_compensator.plants import (
+    continuous_actuator,
+    discrete_actuator,
+    unstable_zero_threshold_hz,
+)
 
 
 @pytest.mark.parametrize('kind', ['3pole', '4pole'])

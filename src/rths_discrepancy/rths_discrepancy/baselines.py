@@ -131,6 +131,7 @@ def sindy_fit(theta, target, threshold=DEFAULT_THRESHOLD, dt=1.0, names=TERMS):
     candidate function) with the residual as the derivative target.
     """
     import warnings
+
     import pysindy as ps
     mdl = ps.SINDy(optimizer=ps.STLSQ(threshold=threshold),
                    feature_library=ps.IdentityLibrary())
@@ -168,6 +169,7 @@ def narx_baseline(scenario, data, degree=2, ylag=2, xlag=2, max_terms=10):
     on the second half; NRMSE = rms error / std of the measured output there.
     """
     import warnings
+
     from sysidentpy.basis_function import Polynomial
     from sysidentpy.model_structure_selection import FROLS
     from sysidentpy.parameter_estimation import LeastSquares

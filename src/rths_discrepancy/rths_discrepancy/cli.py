@@ -28,6 +28,7 @@ def _is_bag(path):
 def _read_measured(path, scenario):
     """CSV path -> validated columns; a bag directory/.mcap/.db3 goes to rths_bringup.bagio."""
     import os
+
     from rths_discrepancy import io as dio
     if _is_bag(path):
         try:
@@ -45,6 +46,7 @@ def _read_measured(path, scenario):
 def run_discrepancy_cmd(args) -> int:
     """``rths discrepancy``: run the workflow and write DIR/result.json, report.md, plots."""
     import os
+
     from rths_discrepancy import models
     from rths_discrepancy.workflow import run_discrepancy
     data = _read_measured(args.measured, args.scenario)
@@ -87,6 +89,7 @@ def run_discrepancy_cmd(args) -> int:
 
 def _write_reference(cmp, out_dir):
     import os
+
     from rths_discrepancy import rerun
     for line in rerun.summary_lines(cmp):
         print(line)
@@ -99,6 +102,7 @@ def _write_reference(cmp, out_dir):
 def reference_cmd(args) -> int:
     """``rths reference``: RTHS-vs-reference error with the nominal and an updated specimen."""
     import os
+
     from rths_discrepancy import models, rerun
     if not os.path.isdir(args.bag):
         raise OSError(f'{args.bag}: no such bag directory')
@@ -115,6 +119,7 @@ def bench_discrepancy_cmd(args) -> int:
     """``rths bench discrepancy``: self-test benchmark, prints the summary, writes JSON."""
     import json
     import os
+
     from rths_discrepancy import selftest
     seeds = args.seeds if args.seeds is not None else (1 if args.quick else 3)
     if seeds < 1:

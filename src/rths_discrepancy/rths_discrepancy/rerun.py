@@ -123,8 +123,7 @@ def compare(bag, updated_model, config=None, nominal_model=None) -> dict:
     ``nominal_model`` defaults to the run's Table 4 damper.
     """
     from rths_numerical.dtm import FRAME_MASS_KG
-    from rths_numerical.reference import (coupled_rths, relative_rms_error,
-                                          simulate_reference)
+    from rths_numerical.reference import coupled_rths, relative_rms_error, simulate_reference
     from rths_numerical.substructure import make_substructure
 
     numerical, bridge = run_parameters(bag, config)

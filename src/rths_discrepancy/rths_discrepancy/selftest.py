@@ -142,6 +142,7 @@ def run_case(args):
     same record (:mod:`.baselines`) and the row gets a 'baselines' entry.
     """
     import time
+
     from rths_discrepancy.workflow import run_discrepancy
     scenario, label, hidden, strength, expected, seed = args[:6]
     duration = args[6] if len(args) > 6 else DURATION_S

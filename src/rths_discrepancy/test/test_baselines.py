@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from rths_discrepancy import baselines as bl
-from rths_discrepancy import models
-from rths_discrepancy import selftest
+from rths_discrepancy import models, selftest
 
 pytest.importorskip('pysindy')
 pytest.importorskip('sysidentpy')

@@ -13,8 +13,7 @@ import yaml
 
 from rths_discrepancy import effects as fx
 from rths_discrepancy import io as dio
-from rths_discrepancy import models
-from rths_discrepancy import selftest
+from rths_discrepancy import models, selftest
 from rths_discrepancy.workflow import run_discrepancy
 
 SHORT_S = 8.0
@@ -126,6 +125,7 @@ def test_seed_models_and_timing_convention():
 
 def test_bag_input_without_bagio(tmp_path, monkeypatch):
     import sys
+
     from rths_discrepancy import cli
     monkeypatch.setitem(sys.modules, 'rths_bringup.bagio', None)
     with pytest.raises(ValueError, match='bag input needs rths_bringup.bagio'):

@@ -187,7 +187,8 @@ def _frame(building_mass_kg):
 def _in_plane_map(coords, floor_of):
     """Rigid-diaphragm map ``T1``: u_240 = T1 q, q = [Ux1, Uy1, Th1, Ux2, Uy2, Th2, per node
     (uz, rx, ry, rz)].  The in-plane translations of a floor node follow its floor's
-    (Ux, Uy, Theta) about the plan centre; every other DOF is its own coordinate."""
+    (Ux, Uy, Theta) about the plan centre; every other DOF is its own coordinate.
+    """
     nn = len(coords)
     centre = np.array([SPAN_X, SPAN_Y / 2])
     T1 = np.zeros((6 * nn, 6 + 4 * nn))

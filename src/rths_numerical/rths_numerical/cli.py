@@ -53,6 +53,7 @@ def _building(name, mass=None):
 def cmd_simulate(args):
     """Run ``rths simulate``."""
     import numpy as np
+
     from .ground_motion import baseline_correct, ground_motion, peak_g
     from .reference import INCH, simulate_reference, simulate_uncontrolled
     model = _building(args.building)
@@ -99,6 +100,7 @@ def _surface_plot(path, x, y, surfaces, xlabel, ylabel, title):
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
     import numpy as np
+
     from .studies import CRITERIA
     fig, axes = plt.subplots(2, 2, figsize=(10, 8))
     for ax, c in zip(axes.ravel(), CRITERIA):
@@ -115,6 +117,7 @@ def _surface_plot(path, x, y, surfaces, xlabel, ylabel, title):
 def cmd_study_building_frequency(args):
     """Run ``rths study building-frequency``."""
     import numpy as np
+
     from .dtm import dtm_configuration
     from .ground_motion import baseline_correct, ground_motion
     from .studies import CRITERIA, building_frequency_study, den_hartog, warburton_ground
@@ -162,6 +165,7 @@ def run_dtm_tuning(n_fn=100, n_zeta=30, duration_s=60.0, fs_hz=256.0, seed=0, ma
                    f1_hz=2.81, progress=None):
     """Seed 7.2 study on the 16-DOF building with BLWN 0-10 Hz, 1 g peak; return the result."""
     import numpy as np
+
     from .building import building_16dof
     from .ground_motion import G
     from .signals import blwn
@@ -179,6 +183,7 @@ def cmd_study_model_reduction(args):
     bare 240-DOF frame (``diaphragms=False``, floors flexible in plane).
     """
     import numpy as np
+
     from . import building as bld
     from .ground_motion import baseline_correct, ground_motion
     from .reference import integrate_model, relative_rms_error
@@ -279,6 +284,7 @@ def _best_step_us(step, repeats=5, n=2000):
 def _time_steps(model, name, dt):
     """Time [us] of one integrator step, ``predict`` + ``correct``."""
     import numpy as np
+
     from .integrators import make_integrator
     integ = make_integrator(name, model.M, model.C, model.K, dt)
     p = np.zeros(model.n)
@@ -293,6 +299,7 @@ def _time_steps(model, name, dt):
 def _time_advance(model, name, dt, repeats=5, n=2000):
     """Time [us] of one ``NumericalSubstructure.advance`` (what the node pays per step)."""
     import numpy as np
+
     from .substructure import NumericalSubstructure
     sub = NumericalSubstructure(model, np.zeros(repeats * n + 2), dt, integrator=name)
     force = np.zeros(sub.n_interface)
@@ -303,6 +310,7 @@ def _time_advance(model, name, dt, repeats=5, n=2000):
 def cmd_bench_numerical(args):
     """Run ``rths bench numerical``."""
     import time
+
     from .building import building_16dof, building_240dof, x_frequencies
     b16 = building_16dof()
     b240 = building_240dof()

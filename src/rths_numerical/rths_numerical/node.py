@@ -48,10 +48,8 @@ import numpy as np
 import rclpy
 from std_msgs.msg import UInt64
 
-from rths_common import cdr
-from rths_common import gaps
+from rths_common import cdr, gaps, topics
 from rths_common import node_support as ns
-from rths_common import topics
 from rths_common.qos import loop_qos, run_info_qos, status_qos
 from rths_msgs.msg import InterfaceDisplacement, LoopStatus, Measurement
 

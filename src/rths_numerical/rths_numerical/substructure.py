@@ -80,7 +80,7 @@ import math
 import numpy as np
 
 from .dtm import FRAME_MASS_KG, TABLE4
-from .ground_motion import G, baseline_correct, integrate, ground_motion
+from .ground_motion import G, baseline_correct, ground_motion, integrate
 from .integrators import INTEGRATORS, make_integrator
 from .model import LinearModel, load_model_yaml, sdof_model
 

@@ -21,7 +21,7 @@ def test_sizes_and_mass_from_mass_ratio():
 
 
 def test_x_frequencies_near_seed():
-    """x modes vs the seed's 2.81 Hz / 7.77 Hz (the masses are our assumption: within 8 %)."""
+    """X modes vs the seed's 2.81 Hz / 7.77 Hz (the masses are our assumption: within 8 %)."""
     f1, f2 = bld.x_frequencies()
     assert f1 == pytest.approx(bld.SEED_FREQS_HZ[0], rel=0.08)
     assert f2 == pytest.approx(bld.SEED_FREQS_HZ[1], rel=0.08)

@@ -8,7 +8,7 @@ from rths_numerical import ground_motion as gm
 
 @pytest.mark.parametrize('name', ['kobe', 'northridge', 'imperial_valley'])
 def test_gmspy_records_units(name):
-    """gmspy files: 0.01 s step, acceleration in g -> m/s^2 (peaks between 0.1 g and 1.5 g)."""
+    """Gmspy files: 0.01 s step, acceleration in g -> m/s^2 (peaks between 0.1 g and 1.5 g)."""
     dt, acc = gm.load_record(name)
     assert dt == pytest.approx(0.01)
     assert 0.1 * gm.G < np.max(np.abs(acc)) < 1.5 * gm.G

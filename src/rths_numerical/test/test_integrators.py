@@ -5,15 +5,20 @@ import math
 import numpy as np
 import pytest
 
-from rths_numerical.integrators import (amplification_matrix, generalized_alpha_matrix,
-                                        make_integrator, numerical_properties)
+from rths_numerical.integrators import (
+    amplification_matrix,
+    generalized_alpha_matrix,
+    make_integrator,
+    numerical_properties,
+)
 
 
 @pytest.mark.parametrize('name', ['cr', 'newmark'])
 @pytest.mark.parametrize('omega_dt', [0.05, 0.3, 1.0, 2.5])
 def test_trapezoidal_period_elongation_and_no_damping(name, omega_dt):
     """CR and Newmark avg. acc.: T'/T = (Omega/2)/atan(Omega/2), spectral radius 1 (Chen-Ricles
-    2008; Newmark 1959)."""
+    2008; Newmark 1959).
+    """
     rho, xi, pe = numerical_properties(amplification_matrix(name, omega_dt, 1.0), omega_dt)
     expected = (omega_dt / 2) / math.atan(omega_dt / 2) - 1
     assert pe == pytest.approx(expected, rel=1e-9)
@@ -52,7 +57,8 @@ def test_unconditionally_stable_on_stiff_system(name):
     """Spectral radius <= 1 for every Omega up to 1e6; a stiff 2-DOF system stepped at 50 x its
     shortest period (central difference needs dt < T/pi) stays bounded over many beat periods.
     (CR overshoots by O(Omega) in a stiff mode started with an equilibrium acceleration, a known
-    property of explicit model-based schemes, but does not grow.)"""
+    property of explicit model-based schemes, but does not grow.)
+    """
     for omega_dt in np.logspace(-2, 6, 33):
         rho, _, _ = numerical_properties(amplification_matrix(name, omega_dt, 1.0, zeta=0.0,
                                                               rho_inf=0.5), omega_dt)
@@ -105,7 +111,8 @@ def test_predict_is_explicit(name):
 
 def test_measured_force_enters_equilibrium():
     """A spring specimen r = k_e d through correct() shifts the SDOF frequency to
-    sqrt((k + k_e)/m) (CR, 1024 Hz, 4 s)."""
+    sqrt((k + k_e)/m) (CR, 1024 Hz, 4 s).
+    """
     m, k, ke = 1.0, (2 * math.pi * 2) ** 2, (2 * math.pi * 2) ** 2 * 1.25
     dt = 1 / 1024
     integ = make_integrator('cr', [[m]], [[0.0]], [[k]], dt)

@@ -8,8 +8,14 @@ from rths_numerical.dtm import TABLE4
 from rths_numerical.ground_motion import baseline_correct, ground_motion
 from rths_numerical.reference import relative_rms_error, simulate_reference
 from rths_numerical.signals import blwn
-from rths_numerical.studies import (ModalBuilding, building_frequency_study, coupled_response,
-                                    den_hartog, dtm_tuning_study, warburton_ground)
+from rths_numerical.studies import (
+    ModalBuilding,
+    building_frequency_study,
+    coupled_response,
+    den_hartog,
+    dtm_tuning_study,
+    warburton_ground,
+)
 
 
 def test_frequency_domain_matches_time_domain():
@@ -36,7 +42,8 @@ def test_den_hartog_formulas():
 
 def test_tuning_optimum_near_den_hartog_small_grid():
     """Seed 7.2 on a small grid: the RMS-displacement optimum lies near the building frequency
-    (Den Hartog), not at the seed's 1.8 Hz."""
+    (Den Hartog), not at the seed's 1.8 Hz.
+    """
     fs = 128.0
     ag = blwn(30.0, fs, 10.0, 9.80665, rng=1)
     res = dtm_tuning_study(building_16dof(), ag, 1 / fs, np.linspace(1.5, 4.0, 26),
