@@ -122,7 +122,8 @@ class PlantConfig:
 #: Simulated-backend parameters: key -> (type, default, unit/meaning).
 SIM_PARAMS = {
     'fs_hz': (float, 1024.0, '[Hz] loop sampling frequency (seed: 1024 Hz)'),
-    'actuator_model': (str, '3pole', "'3pole' | '4pole' (Table 1) | path to an ARX plant.yaml"),
+    'actuator_model': (str, '3pole', "'3pole' | '4pole' (Table 1) | 'silva2020' (benchmark "
+                       'plant with its specimen, see silva2020.py) | path to an ARX plant.yaml'),
     'dtm': (str, 'valve4', "'valve1'..'valve4' | 'novalve' (Table 4) | 'none' (bare table)"),
     'frame_mass_kg': (float, float('nan'),
                       '[kg] DTM supporting-frame mass (default 250.0 lbm = 113.4 kg)'),
@@ -210,6 +211,9 @@ class SimulatedPlant:
     Use :meth:`step` in a loop, or :meth:`simulate` for a whole command record.
     """
 
+    #: Parameters of the 'silva2020' plant (None: nominal; see :class:`.silva2020.Silva2020Plant`)
+    silva2020_params = None
+
     def __init__(self, config: PlantConfig = None, **params):
         """Build from a :class:`PlantConfig` or flat parameters (see :data:`SIM_PARAMS`)."""
         self.config = config if config is not None else plant_config(params)
@@ -227,6 +231,8 @@ class SimulatedPlant:
                            and cfg.accel_noise_m_s2 <= 0)
         if cfg.actuator_model in ('3pole', '4pole'):
             self._build_continuous(cfg.actuator_model)
+        elif cfg.actuator_model == 'silva2020':
+            self._build_silva2020()
         else:
             self._build_arx(cfg.actuator_model)
         self.reset()
@@ -271,7 +277,16 @@ class SimulatedPlant:
         d[5, 0] = self.frame_mass * d_acc
         d[5, 1] = -1.0 if self.dtm is not None else 0.0
         self._i_rel_vel = n + 1
-        a, b, c, d = self._add_daq_filter(a, b, c, d)
+        self._set_linear(*self._add_daq_filter(a, b, c, d))
+
+    def _build_silva2020(self):
+        """Benchmark plant of :mod:`.silva2020` with its own SDOF specimen (``dtm`` ignored)."""
+        from .silva2020 import channel_model
+        self.dtm, self.frame_mass = None, 0.0
+        self._set_linear(*channel_model(self.silva2020_params))
+
+    def _set_linear(self, a, b, c, d):
+        """Keep the continuous model (inputs [u, f_c], CHANNELS outputs) and its ZOH form."""
         self.a_c, self.b_c, self.c, self.d = a, b, c, d
         self.n_states = a.shape[0]
         self._ad, self._bd = _zoh(a, b, self.dt)

@@ -48,7 +48,8 @@ Parameters of :func:`make_substructure` (flat dict, as ROS parameters)
 =================  ========================================================  ==============
 key                meaning                                                   default
 =================  ========================================================  ==============
-model              'sdof', 'building2story' (16-DOF) or a model YAML path    'sdof'
+model              'sdof', 'building2story' (16-DOF), 'silva2020_case1'..4   'sdof'
+                   (benchmark, :mod:`.silva2020`) or a model YAML path
 integrator         'cr', 'kr_alpha' or 'newmark'                             'cr'
 rho_inf            KR-alpha spectral radius at infinity, 0..1                0.5
 fs_hz              loop rate [Hz] (time step 1/fs_hz)                        1024.0
@@ -234,6 +235,9 @@ def build_model(params) -> LinearModel:
         from .building import BUILDING_MASS_KG, building_16dof
         mass = params.get('building_mass_kg') or BUILDING_MASS_KG
         return building_16dof(float(mass))
+    if name.startswith('silva2020_case'):
+        from .silva2020 import model_by_name
+        return model_by_name(name)
     if name.endswith(('.yaml', '.yml')):
         try:
             return load_model_yaml(name)
