@@ -8,8 +8,9 @@ Pieces, from the packages below:
 * structure: :mod:`rths_numerical.silva2020` (3-story reference, numerical substructure
   per case), discretised exactly (force held, ground acceleration linear in a sample);
 * controllers: ``example`` (the paper's PI tracking controller with phase lead,
-  Tustin at 1/fs) and ``fir`` (the project's ARX identification from a BLWN test of the
-  plant plus the WLS FIR design of :mod:`rths_compensator.design`, feed-forward).
+  Tustin at 1/fs) and ``fir`` (the project's ARX identification from BLWN tests of the
+  plant plus the FIR design of :mod:`rths_compensator.design`, feed-forward;
+  :func:`identify_and_design`).
 
 Loop of one sample k (the benchmark's Simulink timing)::
 
@@ -24,6 +25,13 @@ the correlation of x_m(i) with y_n(i - lag), times dt, rounded to 0.1 ms; J2/J3 
 RMS/peak tracking errors of x_m against y_n; J4/J5 the RMS/peak errors of x_m against
 the reference floor 1; J6/J7 the RMS errors and J8/J9 the peak errors of the numerical
 floors 2/3 against the reference (all in %, RMS as std ratios).
+
+The same scenario also runs through the project's node cores (:func:`run_cores`, i.e.
+:func:`.offline.offline_rths`) and the ROS 2 node graph in lock-step
+(:func:`launch_graph`), with the project's timing (the measurement of step k at the end
+of its sample, no extra force delay) and the numerical node's integrator and record
+resampling; the feedback ``example`` controller cannot run there, since the compensator
+node does not receive the measurement.
 """
 
 import json
@@ -197,18 +205,26 @@ class ExampleController:
 
 
 class FirController:
-    """Feed-forward compensator on the desired displacement: ``u = G A/D(y_n)``.
+    """Feed-forward compensator on the desired displacement: ``u = D/A(G y_n)``.
 
-    ``G = taps / denominator`` (direct form, one history per run).
+    ``G = taps / denominator`` (direct form, one history per run).  The desired
+    displacement comes from the numerical substructure on the same real-time computer,
+    a floating-point number: no converter lies between them (the benchmark's converters
+    sit on the command and the measured displacement).  Quantising it to 2^-18 m first
+    (``quantise_desired``, as the sample controller's Simulink block does) would feed
+    the compensator white quantisation noise, which it amplifies at high frequency
+    (|G| ~1e5 at 1 kHz, where the plant has no gain left) into a command that the plant
+    filters out but no actuator could follow.
     """
 
     name = 'fir'
     feedback = False
 
-    def __init__(self, design, batch, info=None):
+    def __init__(self, design, batch, info=None, quantise_desired: bool = False):
         """Use the designed compensator ``design`` (:class:`rths_compensator.design.Design`)."""
         from rths_actuator_bridge.silva2020 import converter
         self.conv = converter
+        self.quantise_desired = quantise_desired
         self.design = design
         den = np.asarray(design.denominator, float)
         self.taps = np.asarray(design.taps, float) / den[0]
@@ -220,7 +236,7 @@ class FirController:
     def step(self, desired, measured):
         """Command [m] for this sample."""
         self.x_hist[:, 1:] = self.x_hist[:, :-1]
-        self.x_hist[:, 0] = self.conv(desired)
+        self.x_hist[:, 0] = self.conv(desired) if self.quantise_desired else desired
         y = self.x_hist @ self.taps
         if self.fb.size:
             y -= self.y_hist @ self.fb
@@ -231,7 +247,7 @@ class FirController:
     def describe(self) -> dict:
         """Return the settings for the JSON."""
         return {'n_numerator': int(self.taps.size), 'n_denominator': int(self.fb.size + 1),
-                **self.info}
+                'quantise_desired': self.quantise_desired, **self.info}
 
 
 def target_lowpass(order: int, cutoff_hz: float, fs_hz: float):
@@ -241,21 +257,30 @@ def target_lowpass(order: int, cutoff_hz: float, fs_hz: float):
     return float(np.sum(a_l)), a_l
 
 
-def identify_and_design(seed: int = 7, duration_s: float = 60.0, band_hz: float = 50.0,
+def _identify_once(seed: int = 7, record_s: float = 20.0, band_hz: float = 50.0,
                         peak_m: float = 10e-3, prefilter_hz: float = 100.0, n_taps: int = 200,
                         fc_hz: float = 30.0, scheme: str = 'ls', epsilon: float = 0.002,
                         lowpass_order: int = 4, lowpass_hz: float = 400.0,
-                        na_max: int = 8, nb_max: int = 1, d_max: int = 4, log=_log):
-    """Run the lab procedure on the nominal benchmark plant: BLWN test, ARX, FIR design.
+                        na_min: int = 4, na_max: int = 8, nb_max: int = 1, d_min: int = 0,
+                        d_max: int = 4,
+                        timing: str = 'benchmark', criterion: str = 'bic',
+                        n_train: int = 2, n_validation: int = 1, n_candidates: int = 10,
+                        log=_log):
+    """One identification test, ARX grid, candidate designs and verification (below).
 
     The test drives the simulated plant (sensor noise and converters included) with a
     BLWN command; the records pair the command u(k) with the measured x_m(k) of the same
-    tick.  Command and measurement pass the same zero-phase 4th-order Butterworth
-    low-pass at ``prefilter_hz`` (it leaves their relation alone and keeps the 4096 Hz
-    sensor noise out of the equation error), and the ARX grid looks for an all-pole model
-    with dead time (``nb_max`` 1, d <= ``d_max``): the plant has no finite zero, and
-    free numerator zeros fit noise into spurious 25-45 Hz notches that the compensator
-    would then invert.
+    tick (``timing='graph'``: the project's bridge convention instead, the measurement of
+    step k taken at the end of the sample that held u(k)).  Command and measurement pass
+    the same zero-phase 4th-order Butterworth low-pass at ``prefilter_hz`` (it leaves
+    their relation alone and keeps the 4096 Hz sensor noise out of the equation error),
+    and the ARX grid looks for an all-pole model with dead time (``nb_max`` 1, na from
+    ``na_min`` = 5, the plant's order; free numerator zeros fit noise into spurious
+    25-45 Hz notches that the compensator would then invert).  The ``n_candidates``
+    best models by ``criterion`` each get a compensator, and a verification test on the
+    plant (10 s of BLWN 0-20 Hz through the compensator) picks the one that tracks
+    best: the grid's own choice alone is fragile at 4096 Hz (one seed in five picked a
+    model whose compensator tracked 5-7 % instead of ~1 %).
 
     Design: the plant of the FIR design is the identified model divided by a target
     low-pass ``L`` (:func:`target_lowpass`, order ``lowpass_order`` at ``lowpass_hz``), so
@@ -266,37 +291,94 @@ def identify_and_design(seed: int = 7, duration_s: float = 60.0, band_hz: float 
     """
     from rths_actuator_bridge.silva2020 import FS_HZ, converter, simulated_plant
     from rths_compensator.design import design_fir, predict
-    from rths_compensator.identification import identify
+    from rths_compensator.identification import ArxModel, arx_grid
     from rths_numerical.signals import blwn
     rng = np.random.default_rng(seed)
     plant = simulated_plant(seed=seed)
     sos = signal.butter(4, prefilter_hz, fs=FS_HZ, output='sos')
     records = []
-    for _ in range(3):
-        u = converter(blwn(duration_s / 3, FS_HZ, band_hz, peak_m, rng, 0.5))
+    for _ in range(n_train + n_validation):
+        u = converter(blwn(record_s, FS_HZ, band_hz, peak_m, rng, 0.5))
         meas = plant.simulate(u)['table_disp']
         plant.reset()
-        x_m = converter(np.concatenate([[0.0], meas[:-1]]))   # x_m(k) = x(t_k)
+        if timing == 'benchmark':
+            meas = np.concatenate([[0.0], meas[:-1]])   # x_m(k) = x(t_k)
+        x_m = converter(meas)
         records.append((signal.sosfiltfilt(sos, u), signal.sosfiltfilt(sos, x_m)))
-    log(f'  identification: 3 BLWN records 0-{band_hz:g} Hz, peak {peak_m * 1e3:g} mm, '
-        f'pre-filter {prefilter_hz:g} Hz, ARX grid na <= {na_max}, nb <= {nb_max}, '
-        f'd <= {d_max} (BIC)')
-    model, _, _ = identify(records[:2], records[2:], FS_HZ, na_max, nb_max, d_max, 'bic')
-    log(f'  selected ARX na={model.na} nb={model.nb} d={model.d}')
+    log(f'  identification: {n_train} + {n_validation} BLWN records of {record_s:g} s, '
+        f'0-{band_hz:g} Hz, peak {peak_m * 1e3:g} mm, '
+        f'pre-filter {prefilter_hz:g} Hz, ARX grid na = {na_min}..{na_max}, nb <= {nb_max}, '
+        f'd = {d_min}..{d_max} ({criterion})')
+    grid = arx_grid(records[:n_train], records[n_train:], range(na_min, na_max + 1),
+                    range(1, nb_max + 1), range(d_min, d_max + 1), fs_hz=FS_HZ)
     gain, a_l = target_lowpass(lowpass_order, lowpass_hz, FS_HZ)
-    b_model = np.concatenate([np.zeros(model.d), model.b])
-    design = design_fir((np.convolve(b_model, a_l), gain * np.asarray(model.a)), n_taps, fc_hz,
-                        scheme, epsilon, fs_hz=FS_HZ, zero_tol=0.98)
+    score = np.nanmean(np.where(np.isfinite(grid['scores'][criterion]),
+                                grid['scores'][criterion], np.inf), axis=0)
+    verify = converter(blwn(10.0, FS_HZ, 20.0, 5e-3, rng, 0.5))
+    best = None
+    for k in np.argsort(score)[:n_candidates]:
+        na, _, d = (int(v) for v in grid['orders'][k])
+        theta = np.asarray(grid['thetas'][k], float)
+        if not (np.isfinite(score[k]) and np.all(np.isfinite(theta))):
+            continue
+        model = ArxModel(a=np.r_[1.0, theta[:na]], b=theta[na:], d=d, fs_hz=FS_HZ)
+        b_model = np.concatenate([np.zeros(model.d), model.b])
+        try:
+            design = design_fir((np.convolve(b_model, a_l), gain * np.asarray(model.a)),
+                                n_taps, fc_hz, scheme, epsilon, fs_hz=FS_HZ, zero_tol=0.98)
+        except ValueError:
+            continue
+        meas = plant.simulate(converter(signal.lfilter(design.taps, design.denominator,
+                                                       verify)))['table_disp']
+        plant.reset()
+        if timing == 'benchmark':
+            meas = np.concatenate([[0.0], meas[:-1]])
+        err = 100.0 * float(np.std(meas - verify) / np.std(verify))
+        log(f'    candidate na={model.na} d={model.d} ({criterion} {score[k]:.4g}): '
+            f'verification tracking error {err:.2f} %')
+        if best is None or err < best[0]:
+            best = (err, model, design, b_model)
+    if best is None:
+        raise ValueError('no identified candidate gave a feasible FIR design; raise --epsilon')
+    err, model, design, b_model = best
+    log(f'  selected ARX na={model.na} nb={model.nb} d={model.d} (verification {err:.2f} %)')
     pred = predict((b_model, model.a), design, 20.0, FS_HZ)
-    info = {'arx': {'na': model.na, 'nb': model.nb, 'd': model.d}, 'scheme': scheme,
+    info = {'arx': {'na': model.na, 'nb': model.nb, 'd': model.d,
+                    'a': [float(v) for v in model.a], 'b': [float(v) for v in model.b]},
+            'scheme': scheme,
             'fc_hz': fc_hz, 'epsilon': epsilon, 'blwn_band_hz': band_hz,
             'blwn_peak_m': peak_m, 'prefilter_hz': prefilter_hz, 'identification_seed': seed,
             'target_lowpass': {'order': lowpass_order, 'cutoff_hz': lowpass_hz},
+            'timing': timing, 'verification_error_pct': round(err, 3),
+            'n_train': n_train, 'n_validation': n_validation, 'record_s': record_s,
+            'n_candidates': n_candidates,
             'predicted_0_20hz': {k: float(v) for k, v in pred.items()
                                  if isinstance(v, (int, float))}}
     log(f'  designed {scheme} FIR n={n_taps} fc={fc_hz:g} Hz: predicted 0-20 Hz '
         + ', '.join(f'{k} {v:.4g}' for k, v in info['predicted_0_20hz'].items()))
     return design, info
+
+
+def identify_and_design(seed: int = 7, attempts: int = 3, accept_pct: float = 5.0, log=_log,
+                        **options):
+    """Run the lab procedure on the nominal benchmark plant: BLWN test, ARX, FIR design.
+
+    One attempt is :func:`_identify_once` (its docstring gives the procedure).  When the
+    verification tracking error of the chosen compensator exceeds ``accept_pct``, the
+    lab repeats the test with fresh BLWN records (seed + 1, ...), up to ``attempts``
+    times, and keeps the best.
+    """
+    best = None
+    for i in range(attempts):
+        design, info = _identify_once(seed=seed + i, log=log, **options)
+        info['attempt'] = i + 1
+        if best is None or info['verification_error_pct'] < best[1]['verification_error_pct']:
+            best = (design, info)
+        if info['verification_error_pct'] <= accept_pct:
+            break
+        log(f'  verification {info["verification_error_pct"]:.2f} % > {accept_pct:g} %: '
+            'repeating the identification test with new records')
+    return best
 
 
 # ----------------------------------------------------------------------------- the loop
@@ -351,6 +433,155 @@ def run_batch(runs, ag, controller, seed: int = 0, progress=None) -> dict:
     return {'y_n': y_n.transpose(1, 0, 2), 'x_m': x_m.T, 'u': u_out.T}
 
 
+# ----------------------------------------------------------------------------- the graph
+#: Bridge safety limits for the benchmark plant: the actuator's 8900 N capacity; the
+#: specimen force (k_e x, several kN) is the loop's normal signal, not an oscillation;
+#: the command acceleration (second difference at 4096 Hz) carries the force-sensor noise
+#: that the structure passes to y_n and the compensator amplifies (~|G| 1e5 at 1 kHz):
+#: ~400 m/s^2 peaks, above the seed table's 400 m/s^2 default.
+GRAPH_SAFETY = {'force_n': 8900.0, 'instability_force_n': 1e5, 'stroke_m': 0.254,
+                'velocity_m_s': 1.0, 'acceleration_m_s2': 5000.0}
+
+
+def write_at2(path: str, t, acc) -> str:
+    """Write an acceleration record [m/s^2] sampled at ``t`` as a PEER AT2 file (in g)."""
+    from rths_numerical.ground_motion import G
+    dt = float(t[1] - t[0])
+    lines = ['rths: benchmark record converted for the numerical node', 'not for redistribution',
+             'ACCELERATION TIME SERIES IN UNITS OF G', f'NPTS= {len(acc)}, DT= {dt:.6f} SEC']
+    vals = np.asarray(acc, float) / G
+    lines += [' '.join(f'{v:.8e}' for v in vals[i:i + 5]) for i in range(0, len(vals), 5)]
+    with open(path, 'w') as fh:
+        fh.write('\n'.join(lines) + '\n')
+    return path
+
+
+def graph_params(case: str, design, record_at2: str, scale: float, seed: int = 1,
+                 duration_s: float = 0.0) -> dict:
+    """Params of the three nodes for one case (``numerical``, ``compensator``, ``bridge``).
+
+    The specimen force is relative (``interface_frame: relative``, no specimen ground
+    term: the model's influence vector carries the reference masses).
+    """
+    from rths_actuator_bridge.silva2020 import BRIDGE_PARAMS, FS_HZ
+    numerical = {'model': f'silva2020_case{case}', 'integrator': 'cr', 'fs_hz': FS_HZ,
+                 'record': record_at2, 'scale': float(scale), 'duration_s': float(duration_s),
+                 'force_scale': 1.0, 'interface_frame': 'relative', 'specimen_mass_kg': 0.0}
+    compensator = {'scheme': design.scheme, 'fs_hz': FS_HZ,
+                   'taps': [float(v) for v in design.taps],
+                   'denominator': [float(v) for v in design.denominator]}
+    bridge = dict(BRIDGE_PARAMS, backend='simulated', seed=int(seed), **GRAPH_SAFETY)
+    return {'numerical': numerical, 'compensator': compensator, 'bridge': bridge}
+
+
+def run_cores(params: dict) -> dict:
+    """Run one case with the node cores (:func:`.offline.offline_rths`); arrays for criteria.
+
+    The lock-step node graph reproduces this to round-off (test_lockstep_equivalence).
+    Returns ``x_m`` (N,), ``y_n`` (N x 3 floors) and ``ag`` (the ground acceleration the
+    numerical substructure used: the project's band-limited resampling and baseline
+    correction of the record).
+    """
+    from .offline import offline_rths
+    out = offline_rths(params['numerical'], params['compensator'], params['bridge'])
+    hist = out['history']
+    return {'x_m': out['displacement'][:, 0], 'y_n': hist['displacements'],
+            'ag': hist['ground_accel'], 'safety_state': out['safety_state']}
+
+
+def launch_graph(params: dict, out_dir: str, log=_log) -> dict:
+    """Run one case through the ROS 2 node graph in lock-step (:func:`.commands.launch`).
+
+    Writes the three params files under ``out_dir/config`` (the repository's config files
+    with ``params`` on top), records ``out_dir/bag`` and the numerical node's history;
+    returns the same arrays as :func:`run_cores`.
+    """
+    from pathlib import Path
+
+    from rths_common import topics
+
+    from . import bagio, runinfo
+    from .bench_loop import domain_id
+    from .commands import default_config_dir, launch
+    from .run import NODE_FILES
+    os.environ['ROS_DOMAIN_ID'] = str(domain_id(-1))   # a private DDS domain for the nodes
+    out = Path(out_dir)
+    base = default_config_dir()
+    cfg = out / 'config'
+    for node, fname in NODE_FILES.items():
+        section = runinfo.load_params(base / fname, node)
+        if node == 'numerical':
+            section = {k: v for k, v in section.items()
+                       if k in ('mode', 'executor', 'remote_graph')}
+        if node == 'compensator':
+            section = {k: v for k, v in section.items() if k in ('executor',)}
+        section.update(params[node], mode='lockstep')
+        runinfo.write_params(cfg / fname, node, section)
+    history = (out / 'numerical_history.npz').resolve()
+    log(f'  launching the node graph (lock-step) with {cfg}, bag {out / "bag"}')
+    code = launch(cfg, bag=out / 'bag', timeout=7200.0,
+                  overrides={'numerical': {'history_out': str(history)}})
+    if code != 0:
+        raise RuntimeError(f'the node graph run failed (launcher exit {code}); see {out}')
+    hist = np.load(history)
+    meas = bagio.step_arrays(out / 'bag', topics.MEASUREMENT, ('displacement',))
+    x_m = np.full(len(hist['displacements']), np.nan)
+    x_m[meas['step']] = meas['displacement'][:, 0]
+    return {'x_m': x_m, 'y_n': hist['displacements'], 'ag': hist['ground_accel']}
+
+
+def run_graph_benchmark(via: str = 'cores', record: str = 'elcentro', data_dir: str = None,
+                        out_dir: str = '.', cases=CASES, duration_s: float = None,
+                        seed: int = 2020, fir_options: dict = None, log=_log) -> dict:
+    """Run ``fir`` through the node cores or the node graph (``via``) for the nominal cases.
+
+    The compensator is identified and designed in the graph's timing (the measurement
+    of step k at the end of the sample that held command k).  ``via='graph'`` also runs
+    the cores and records the largest difference (the lock-step graph must equal them).
+    """
+    from rths_actuator_bridge.silva2020 import FS_HZ
+    if via not in ('cores', 'graph'):
+        raise ValueError(f'--via {via!r}: use loop, cores or graph')
+    dt = 1.0 / FS_HZ
+    t0, c0 = time.perf_counter(), time.process_time()
+    t_rec, acc, scale = load_record(record, data_dir)
+    os.makedirs(out_dir, exist_ok=True)
+    at2 = write_at2(os.path.join(out_dir, 'record.AT2'), t_rec, acc)
+    log(f'rths-benchmark via {via}: controller fir, record {record}, cases {", ".join(cases)}')
+    design, info = identify_and_design(log=log, timing='graph', **(fir_options or {}))
+    summary = {'controller': 'fir', 'cases': {},
+               'perturbed': {'n': 0, 'J1_max': None, 'J2_max': None, 'J3_max': None,
+                             'unstable': 0}}
+    diffs, extra = {}, {'cases': list(cases), 'refs': {}, 'out': {'x_m': [], 'y_n': []}}
+    for c in cases:
+        t1 = time.perf_counter()
+        params = graph_params(c, design, at2, scale, seed, duration_s or 0.0)
+        res = run_cores(params)
+        if via == 'graph':
+            graph = launch_graph(params, os.path.join(out_dir, f'graph_case{c}'), log)
+            diffs[c] = float(max(np.nanmax(np.abs(graph['x_m'] - res['x_m'])),
+                                 np.max(np.abs(graph['y_n'] - res['y_n']))))
+            res = graph
+        ref = reference_response(c, res['ag'], dt)
+        summary['cases'][c] = criteria(res['x_m'], res['y_n'], ref, dt)
+        extra['refs'][c] = ref
+        extra['out']['x_m'].append(res['x_m'])
+        extra['out']['y_n'].append(res['y_n'])
+        log(f"  case {c}: {len(res['x_m'])} steps in {time.perf_counter() - t1:.1f} s: "
+            + ', '.join(f'{k} {v}' for k, v in summary['cases'][c].items()))
+    extra['t'] = np.arange(len(extra['out']['x_m'][0])) * dt
+    summary['settings'] = {'via': via, 'record': record, 'scale': scale,
+                           'duration_s': float(extra['t'][-1]), 'fs_hz': FS_HZ, 'seed': seed,
+                           'controller': info, 'total_s': round(time.perf_counter() - t0, 2),
+                           'cpu_s': round(time.process_time() - c0, 2),
+                           'load_average_1min': round(os.getloadavg()[0], 2)}
+    if diffs:
+        summary['settings']['graph_vs_cores_max_abs_diff_m'] = diffs
+    summary['draws'] = []
+    summary['_extra'] = extra
+    return summary
+
+
 # ----------------------------------------------------------------------------- criteria
 def j1_ms(desired, measured, dt, max_lag: int = 49) -> float:
     """Lag (0..max_lag samples) of best correlation of measured(i) with desired(i - lag) [ms]."""
@@ -373,6 +604,15 @@ def criteria(x_m, y_n, ref, dt) -> dict:
           rms(y_n[:, 1], ref[:, 1]), rms(y_n[:, 2], ref[:, 2]),
           peak(y_n[:, 1], ref[:, 1]), peak(y_n[:, 2], ref[:, 2])]
     return {name: round(v, 2) if name != 'J1' else v for name, v in zip(J_NAMES, js, strict=True)}
+
+
+def command_stats(u, fs_hz: float) -> dict:
+    """RMS [m], RMS above 100 Hz [m] and largest second difference [m/s^2] of a command."""
+    spec = np.fft.rfft(u - np.mean(u))
+    f = np.fft.rfftfreq(len(u), 1.0 / fs_hz)
+    high = np.sqrt(2.0 * np.sum(np.abs(spec[f > 100.0]) ** 2)) / len(u)
+    return {'rms_m': float(np.std(u)), 'rms_above_100hz_m': float(high),
+            'max_accel_m_s2': float(np.max(np.abs(np.diff(u, 2))) * fs_hz ** 2)}
 
 
 def unstable(x_m, ref) -> bool:
@@ -436,6 +676,7 @@ def run_benchmark(controller: str = 'example', record: str = 'elcentro', n_draws
                            'total_s': round(time.perf_counter() - t0, 2),
                            'cpu_s': round(time.process_time() - c0, 2),
                            'load_average_1min': round(os.getloadavg()[0], 2)}
+    summary['command'] = {c: command_stats(out['u'][i], FS_HZ) for i, c in enumerate(cases)}
     summary['draws'] = [{k: round(float(getattr(p, k)), 6) for k in ('b1', 'b2', 'a3', 'k_e')}
                         for p in draws]
     summary['_extra'] = {'t': t, 'ag': ag, 'out': out, 'refs': refs, 'cases': list(cases)}
@@ -457,14 +698,18 @@ def comparison(summary: dict, published: dict = None) -> dict:
 
 def table_markdown(summary: dict) -> str:
     """Format the paper's Table 3 layout (plus the published values for the example)."""
+    via = summary['settings'].get('via', 'loop')
     lines = [f"Virtual RTHS evaluation criteria, controller `{summary['controller']}`, record "
-             f"{summary['settings']['record']} x {summary['settings']['scale']}",
+             f"{summary['settings']['record']} x {summary['settings']['scale']}"
+             + ('' if via == 'loop'
+                else f", via {via} ({summary['settings']['duration_s']:.2f} s)"),
              '', '| Case | J1 (ms) | J2 (%) | J3 (%) | J4 (%) | J5 (%) | J6 (%) | J7 (%) '
              '| J8 (%) | J9 (%) |', '|---' * 10 + '|']
     for c, row in summary['cases'].items():
         lines.append(f'| {c} | ' + ' | '.join(f'{row[n]:.1f}' if n == 'J1' else f'{row[n]:.2f}'
                                                for n in J_NAMES) + ' |')
-    if summary['controller'] == 'example' and summary['settings']['record'] == 'elcentro':
+    if summary['controller'] == 'example' and summary['settings']['record'] == 'elcentro' \
+            and not summary['settings'].get('duration_s', 41.18) < 41.0:
         lines += ['', 'Published (Silva et al. 2020, Table 3):', '',
                   '| Case | J1 | J2 | J3 | J4 | J5 | J6 | J7 | J8 | J9 |', '|---' * 10 + '|']
         for c, vals in PUBLISHED_EXAMPLE.items():
@@ -486,7 +731,7 @@ def make_plots(summary: dict, directory: str) -> list:
     files = []
     fig, axes = plt.subplots(2, 1, figsize=(9, 5.5))
     i = 0
-    sel = (t >= 2.0) & (t <= 6.0)
+    sel = (t >= min(5.0, t[-1] / 2)) & (t <= min(9.0, t[-1]))
     axes[0].plot(t[sel], 1e3 * out['y_n'][i][sel, 0], label='desired y_n (floor 1)')
     axes[0].plot(t[sel], 1e3 * out['x_m'][i][sel], '--', label='measured x_m')
     axes[0].set_ylabel('displacement [mm]')
@@ -501,7 +746,7 @@ def make_plots(summary: dict, directory: str) -> list:
     plt.close(fig)
     files.append(path)
     fig, axes = plt.subplots(3, len(ex['cases']), figsize=(12, 6), sharex=True, squeeze=False)
-    sel = (t >= 0.0) & (t <= 20.0)
+    sel = (t >= min(5.0, t[-1] / 2)) & (t <= 15.0)
     for j, c in enumerate(ex['cases']):
         for fl in range(3):
             ax = axes[2 - fl, j]
@@ -526,7 +771,8 @@ def write_outputs(summary: dict, directory: str, plots: bool = True) -> list:
     """Write ``summary.json`` (issue 13 layout), ``details.json``, ``table.md`` and plots."""
     os.makedirs(directory, exist_ok=True)
     data = {k: summary[k] for k in ('controller', 'cases', 'perturbed')}
-    details = {'settings': summary['settings'], 'draws': summary['draws']}
+    details = {'settings': summary['settings'], 'command': summary.get('command', {}),
+               'draws': summary['draws']}
     if summary['controller'] == 'example' and summary['settings']['record'] == 'elcentro':
         details['published_comparison'] = comparison(summary)
     files = [os.path.join(directory, name) for name in ('summary.json', 'details.json',
@@ -543,17 +789,34 @@ def write_outputs(summary: dict, directory: str, plots: bool = True) -> list:
 
 
 # ----------------------------------------------------------------------------- CLI
+def _cases(text: str) -> tuple:
+    cases = tuple(c.strip() for c in text.split(',') if c.strip())
+    bad = [c for c in cases if c not in CASES]
+    if bad or not cases:
+        raise ValueError(f'--cases {text!r}: give a comma-separated subset of 1,2,3,4')
+    return cases
+
+
 def _cmd(args) -> int:
     fir = {'n_taps': args.taps, 'fc_hz': args.fc, 'scheme': args.scheme,
            'epsilon': args.epsilon, 'lowpass_hz': args.lowpass}
-    summary = run_benchmark(args.controller, args.record, args.draws, args.seed,
-                            args.duration or None, args.data_dir, fir)
+    if args.via == 'loop':
+        summary = run_benchmark(args.controller, args.record, args.draws, args.seed,
+                                args.duration or None, args.data_dir, fir, _cases(args.cases))
+    elif args.controller != 'fir':
+        raise ValueError(f'--via {args.via} runs the feed-forward fir controller only: the '
+                         'example controller needs the measured displacement in the '
+                         'compensator, which the compensator node does not receive')
+    else:
+        summary = run_graph_benchmark(args.via, args.record, args.data_dir, args.out,
+                                      _cases(args.cases), args.duration or None, args.seed,
+                                      fir)
     print(table_markdown(summary))
     for f in write_outputs(summary, args.out, plots=not args.no_plots):
         print(f'wrote {f}')
     st = summary['settings']
-    print(f"loop {st['loop_s']} s, total {st['total_s']} s (CPU {st['cpu_s']} s), "
-          f"load average {st['load_average_1min']}")
+    print(f"total {st['total_s']} s (CPU {st['cpu_s']} s), load average "
+          f"{st['load_average_1min']}" + (f", loop {st['loop_s']} s" if 'loop_s' in st else ''))
     return 0
 
 
@@ -588,5 +851,12 @@ def register(commands, benches):
     p.add_argument('--lowpass', type=float, default=400.0,
                    help='fir: cut-off [Hz] of the target low-pass (order 4) that bounds |G|')
     p.add_argument('--epsilon', type=float, default=0.002, help='fir: passband tolerance')
+    p.add_argument('--cases', default='1,2,3,4', help='cases to run (default 1,2,3,4)')
+    p.add_argument('--via', default='loop', choices=('loop', 'cores', 'graph'),
+                   help='loop (default): the vectorised benchmark loop (benchmark timing, all '
+                        'draws); cores: fir through the node cores (offline_rths, the '
+                        "project's timing, nominal cases); graph: fir through the ROS 2 node "
+                        'graph in lock-step (slow: ~350 steps/s here; use --duration), '
+                        'checked against the cores')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
     p.set_defaults(func=_cmd)

@@ -73,3 +73,26 @@ def test_missing_record_names_the_fix(tmp_path, monkeypatch):
     monkeypatch.setenv(rb.DATA_ENV, str(tmp_path))
     with pytest.raises(OSError, match='ElCentroAccelNoScaling.mat'):
         rb.record_path('elcentro')
+
+
+def test_graph_params_build_the_node_cores(tmp_path, capsys):
+    from rths_actuator_bridge.bridge import Bridge
+    from rths_compensator.design import design_inverse
+    from rths_numerical.ground_motion import read_at2
+    from rths_numerical.substructure import make_substructure
+
+    t = np.arange(0, 2.0, 0.02)
+    acc = np.sin(2 * np.pi * 1.5 * t)
+    path = rb.write_at2(str(tmp_path / 'r.AT2'), t, acc)
+    dt, back = read_at2(path)
+    assert dt == 0.02 and np.allclose(back, acc, rtol=1e-7, atol=1e-9)
+    params = rb.graph_params('3', design_inverse(4096.0, 10.0), path, 0.4, duration_s=0.25)
+    sub = make_substructure(params['numerical'])
+    assert sub.n_steps == 1024 and sub.model.name == 'silva2020_case3'
+    lab = Bridge()
+    lab.configure(params['bridge'])
+    assert lab.backend.plant.n_states == 5
+    # the feedback example controller cannot run through the nodes: a clear error
+    assert main(['bench', 'rths-benchmark', '--controller', 'example', '--via', 'cores',
+                 '--out', str(tmp_path / 'x')]) == 2
+    assert 'fir controller only' in capsys.readouterr().err
