@@ -58,3 +58,8 @@ def test_bad_retune_is_refused():
         plant.retune(stiffness=0.5)
     with pytest.raises(ValueError, match='finite factor'):
         plant.retune(actuator_gain=0.0)
+
+
+def test_retune_refuses_models_it_cannot_map():
+    with pytest.raises(ValueError, match='continuous Table 1'):
+        SimulatedPlant(dtm='mr').retune(actuator_gain=0.9)
