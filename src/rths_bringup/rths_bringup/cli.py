@@ -23,6 +23,7 @@ CLI_MODULES = (
     'rths_bringup.bench_loop',
     'rths_bringup.bench_distributed',
     'rths_bringup.run',
+    'rths_bringup.install',
     'rths_bringup.replay',
     'rths_numerical.cli',
     'rths_compensator.cli',

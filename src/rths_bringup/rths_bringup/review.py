@@ -123,7 +123,11 @@ def _numerical_params(info: dict) -> dict:
 
 
 def review_rths(bag, out_dir) -> dict:
-    """Tables 5-9 of an RTHS bag: JSON summary, text report and PNG plots in ``out_dir``."""
+    """Tables 5-9 of an RTHS bag: JSON summary, text report, PNG plots and ``report.html``.
+
+    ``report.html`` (:mod:`rths_bringup.report_html`) holds the tables and every
+    plot in one self-contained file.
+    """
     import json
     from pathlib import Path
 
@@ -219,6 +223,8 @@ def review_rths(bag, out_dir) -> dict:
     (out_dir / 'review.txt').write_text(review_text(summary))
     _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp,
            uncontrolled['disp'][:n])
+    from rths_bringup.report_html import write_report
+    write_report(out_dir, summary)
     return summary
 
 
