@@ -6,6 +6,10 @@ path: it subscribes to the loop topics like any other reader (best effort,
 depth 1), keeps only what the display needs and forwards it to the
 ``foxglove-sdk`` server on localhost:
 
+The server (subprotocol ``foxglove.sdk.v1``) sits behind :class:`SubprotocolBridge`,
+so clients that offer only the protocol's older name ``foxglove.websocket.v1``
+connect too.  What it streams:
+
 * the loop topics as their recorded CDR bytes with their ``ros2msg`` schemas
   (``/rths/interface_displacement``, ``/rths/command``, ``/rths/measurement``,
   ``/rths/status`` per node), each decimated to ``--rate`` (default 50 Hz);
@@ -20,6 +24,7 @@ tracking error and deadline misses; :func:`layout` generates it.
 """
 
 import argparse
+import asyncio
 from collections import deque
 import contextlib
 import json
@@ -28,6 +33,7 @@ from pathlib import Path
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 from rths_common import topics
@@ -122,6 +128,102 @@ class LiveState:
             if target is not None:
                 out.update(target_m=target, tracking_error_m=target - measured)
         return out
+
+
+#: The subprotocol the foxglove-sdk server speaks, and its older name (same protocol).
+SDK_SUBPROTOCOL, LEGACY_SUBPROTOCOL = 'foxglove.sdk.v1', 'foxglove.websocket.v1'
+
+
+def rewrite_handshake(head: bytes, old: str, new: str) -> tuple:
+    """Return ``(head, changed)`` with ``old`` replaced by ``new`` in Sec-WebSocket-Protocol.
+
+    Only when the header offers ``old`` and not ``new`` (a client that offers
+    both is left alone).  The accept key depends on Sec-WebSocket-Key only, so
+    the handshake stays valid.
+    """
+    lines = head.split(b'\r\n')
+    for i, text in enumerate(lines):
+        name, sep, value = text.partition(b':')
+        if sep and name.strip().lower() == b'sec-websocket-protocol':
+            offered = [v.strip() for v in value.decode('latin-1').split(',')]
+            if old in offered and new not in offered:
+                offered = [new if v == old else v for v in offered]
+                lines[i] = name + b': ' + ', '.join(offered).encode('latin-1')
+                return b'\r\n'.join(lines), True
+    return head, False
+
+
+class SubprotocolBridge:
+    """Accept clients that offer only ``foxglove.websocket.v1`` (older Foxglove, Lichtblick).
+
+    The foxglove-sdk server answers HTTP 400 to them although the protocol is
+    the same under its new name ``foxglove.sdk.v1``.  This TCP relay listens on
+    the user's port, renames the subprotocol in the handshake (request and
+    answer) when a client offers only the old name, and copies every other byte
+    between the client and the server on its private port.
+    """
+
+    def __init__(self, host: str, port: int, target_port: int):
+        self.target_port = target_port
+        self.loop = asyncio.new_event_loop()
+        started = threading.Event()
+        self.error = None
+
+        async def start():
+            try:
+                self.server = await asyncio.start_server(self._client, host, port)
+            except OSError as err:
+                self.error = err
+            started.set()
+
+        self.thread = threading.Thread(target=self._run, args=(start,), daemon=True)
+        self.thread.start()
+        started.wait()
+        if self.error is not None:
+            raise self.error
+        self.port = self.server.sockets[0].getsockname()[1]
+
+    def _run(self, start):
+        self.loop.run_until_complete(start())
+        self.loop.run_forever()
+
+    async def _client(self, reader, writer):
+        try:
+            head = await reader.readuntil(b'\r\n\r\n')
+            head, legacy = rewrite_handshake(head, LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL)
+            up_reader, up_writer = await asyncio.open_connection('127.0.0.1', self.target_port)
+            up_writer.write(head)
+            answer = await up_reader.readuntil(b'\r\n\r\n')
+            if legacy:
+                answer, _ = rewrite_handshake(answer, SDK_SUBPROTOCOL, LEGACY_SUBPROTOCOL)
+            writer.write(answer)
+            await asyncio.gather(self._pipe(reader, up_writer), self._pipe(up_reader, writer))
+        except (OSError, asyncio.IncompleteReadError, asyncio.LimitOverrunError):
+            pass
+        finally:
+            writer.close()
+
+    @staticmethod
+    async def _pipe(src, dst):
+        try:
+            while data := await src.read(65536):
+                dst.write(data)
+                await dst.drain()
+        except OSError:
+            pass
+        finally:
+            dst.close()
+
+    def stop(self):
+        """Close the listening socket and every relayed connection."""
+        async def close():
+            self.server.close()
+            for task in asyncio.all_tasks():
+                if task is not asyncio.current_task():
+                    task.cancel()
+        asyncio.run_coroutine_threadsafe(close(), self.loop).result(5)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(5)
 
 
 def layout() -> dict:
@@ -242,7 +344,13 @@ class LiveView:
         from rths_bringup import bagio
         from rths_common.node_support import message_class
 
-        self.server = foxglove.start_server(name='rths live view', host=host, port=port)
+        # the SDK server on a private port; the bridge on the user's also takes the old name
+        self.server = foxglove.start_server(name='rths live view', host='127.0.0.1', port=0)
+        try:
+            self.bridge = SubprotocolBridge(host, port, self.server.port)
+        except OSError:
+            self.server.stop()
+            raise
         store = bagio.typestore()
         self.channels = {
             topic: foxglove.Channel(topic, message_encoding='cdr', schema=foxglove.Schema(
@@ -295,6 +403,7 @@ class LiveView:
         self._publish_live('stopped')
         time.sleep(0.2)                       # let the last message reach the clients
         self.server.stop()
+        self.bridge.stop()
         self.node.destroy_node()
 
 
@@ -314,7 +423,7 @@ def main(argv=None) -> int:
     except (OSError, RuntimeError, ValueError) as err:
         print(f'live view: error: {err}', file=sys.stderr, flush=True)
         return 2
-    print(f'{READY_LINE} ws://{args.host}:{view.server.port} (Foxglove: Open connection -> '
+    print(f'{READY_LINE} ws://{args.host}:{view.bridge.port} (Foxglove: Open connection -> '
           f'Foxglove WebSocket; layout {layout_path()})', flush=True)
     view.spin()
     print('live view: stopped', flush=True)

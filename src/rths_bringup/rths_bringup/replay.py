@@ -46,6 +46,7 @@ def _replay(args) -> int:
     from rths_bringup import bagio
     from rths_common import topics
     from rths_common.node_support import message_class
+    from rths_common.progress import Progress
 
     if not args.rate_scale > 0:
         raise ValueError(f'--rate-scale must be > 0, got {args.rate_scale}')
@@ -78,7 +79,9 @@ def _replay(args) -> int:
         print(f'replaying {sum(c.msgcount for c in conns)} messages on {len(pubs)} topics '
               f'at x{args.rate_scale:g}', flush=True)
         t0_bag = t0_wall = None
+        bar = Progress(sum(c.msgcount for c in conns), 'replay', 'messages')
         for conn, stamp, raw in reader.messages(connections=conns):
+            bar.advance()
             if t0_bag is None:
                 t0_bag, t0_wall = stamp, time.monotonic()
             wait = t0_wall + (stamp - t0_bag) * 1e-9 / args.rate_scale - time.monotonic()
@@ -86,6 +89,7 @@ def _replay(args) -> int:
                 time.sleep(wait)
             pubs[conn.topic].publish(bytes(raw))
             counts[conn.topic] += 1
+        bar.close()
         for pub in pubs.values():  # let reliable readers receive everything before exiting
             pub.wait_for_all_acked(Duration(seconds=5))
     finally:

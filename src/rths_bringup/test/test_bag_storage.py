@@ -134,3 +134,18 @@ def test_repair_refuses_a_file_that_is_not_mcap(tmp_path):
     path.write_bytes(b'not an mcap file at all, not at all')
     with pytest.raises(OSError, match='not an MCAP file'):
         bagstore.repair_mcap(path)
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_committed_counts_of_a_bag_still_being_written(tmp_path, storage):
+    bag = tmp_path / 'bag'
+    assert bagstore.committed_counts(bag) == {}
+    w = bagio.BagWriter(bag, storage=storage, commit_period_s=3600.0)
+    for k in range(100):
+        w.write_msg(topics.MEASUREMENT, 10 + k, _measurement(k))
+    w.commit()
+    for k in range(100, 150):                       # written, not committed
+        w.write_msg(topics.MEASUREMENT, 10 + k, _measurement(k))
+    assert bagstore.committed_counts(bag) == {topics.MEASUREMENT: 100}
+    w.close()
+    assert bagstore.committed_counts(bag) == {topics.MEASUREMENT: 150}

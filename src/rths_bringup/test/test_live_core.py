@@ -41,6 +41,17 @@ def test_status_fields_parse_the_lean_cdr():
     assert live._status_fields(raw) == ('bridge', 9, 2, 'ramp: watchdog')
 
 
+def test_handshake_rename_only_for_clients_offering_the_old_name_alone():
+    req = (b'GET / HTTP/1.1\r\nHost: x\r\nSec-WebSocket-Protocol: foxglove.websocket.v1\r\n'
+           b'Sec-WebSocket-Key: abc\r\n\r\n')
+    new, changed = live.rewrite_handshake(req, live.LEGACY_SUBPROTOCOL, live.SDK_SUBPROTOCOL)
+    assert changed and b'Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n' in new
+    assert b'Sec-WebSocket-Key: abc' in new
+    both = req.replace(b'foxglove.websocket.v1', b'foxglove.sdk.v1, foxglove.websocket.v1')
+    assert live.rewrite_handshake(both, live.LEGACY_SUBPROTOCOL,
+                                  live.SDK_SUBPROTOCOL) == (both, False)
+
+
 def test_shipped_layout_is_the_generated_one_and_plots_the_four_quantities():
     shipped = Path(__file__).resolve().parents[1] / 'foxglove' / 'rths_live.json'
     layout = json.loads(shipped.read_text())

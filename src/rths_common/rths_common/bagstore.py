@@ -12,7 +12,9 @@
   summary, which every MCAP reader (rosbags, the ``mcap`` library, Foxglove)
   reads by scanning;
 * the ``metadata.yaml`` topic table of such a file (:func:`mcap_topics`), for
-  ``bagio.reindex``.
+  ``bagio.reindex``;
+* the messages per topic already committed to a bag that is still being
+  written (:func:`committed_counts`), read without touching the file.
 """
 
 import os
@@ -147,3 +149,87 @@ def mcap_topics(path) -> dict:
                 'end_ns': int(stats.end_time) if count else 0}
     finally:
         reader.close()
+
+
+_OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x04, 0x05, 0x06
+
+
+def _channel_topic(content: bytes) -> tuple:
+    """Return ``(channel id, topic)`` of a Channel record's content."""
+    (cid,) = struct.unpack_from('<H', content, 0)
+    (n,) = struct.unpack_from('<I', content, 4)
+    return cid, content[8:8 + n].decode()
+
+
+def _chunk_records(content: bytes) -> bytes:
+    """Return the (decompressed) records of a Chunk record's content."""
+    (n,) = struct.unpack_from('<I', content, 28)
+    compression = content[32:32 + n].decode()
+    (size,) = struct.unpack_from('<Q', content, 32 + n)
+    data = content[40 + n:40 + n + size]
+    if compression == 'zstd':
+        import zstandard
+        return zstandard.ZstdDecompressor().decompress(
+            data, max_output_size=struct.unpack_from('<Q', content, 16)[0])
+    if compression == 'lz4':
+        import lz4.frame
+        return lz4.frame.decompress(data)
+    return data
+
+
+def _scan(data: bytes, start: int, end: int, topics: dict, counts: dict):
+    """Count messages per channel in the complete records of ``data[start:end]``."""
+    pos = start
+    while pos + _RECORD.size <= end:
+        opcode, length = _RECORD.unpack_from(data, pos)
+        body = pos + _RECORD.size
+        if opcode in (_OP_DATA_END, _OP_FOOTER) or body + length > end:
+            return
+        if opcode == _OP_CHANNEL:
+            cid, topic = _channel_topic(data[body:body + length])
+            topics[cid] = topic
+        elif opcode == _OP_MESSAGE:
+            (cid,) = struct.unpack_from('<H', data, body)
+            counts[cid] = counts.get(cid, 0) + 1
+        elif opcode == _OP_CHUNK:
+            records = _chunk_records(data[body:body + length])
+            _scan(records, 0, len(records), topics, counts)
+        pos = body + length
+
+
+def committed_counts(bag) -> dict:
+    """Return ``{topic: messages}`` already committed to a bag, even one still being written.
+
+    MCAP: the complete records of the file (a chunk still being written does not
+    count); sqlite3: the committed rows (read-only).  A bag with no data file
+    yet, or a database that is busy, counts as empty.
+    """
+    bag = Path(bag)
+    try:
+        storage = storage_of(bag)
+    except OSError:
+        return {}
+    path = data_file(bag)
+    if storage == 'sqlite3':
+        return _sqlite_counts(path)
+    data = path.read_bytes()
+    if data[:len(MAGIC)] != MAGIC:
+        return {}
+    topics, counts = {}, {}
+    _scan(data, len(MAGIC), len(data), topics, counts)
+    return {topics.get(cid, str(cid)): n for cid, n in counts.items()}
+
+
+def _sqlite_counts(path: Path) -> dict:
+    import sqlite3
+
+    try:
+        conn = sqlite3.connect(f'file:{path}?mode=ro', uri=True, timeout=1.0)
+        try:
+            rows = conn.execute('SELECT topics.name, count(*) FROM messages JOIN topics '
+                                'ON topics.id = messages.topic_id GROUP BY topics.name')
+            return dict(rows.fetchall())
+        finally:
+            conn.close()
+    except sqlite3.Error:
+        return {}
