@@ -16,6 +16,7 @@ PLOTS = {
     'tracking_zoom.png': 'Actuator tracking around the peak: interface displacement, '
                          'compensated command and measured displacement (table 5)',
     'bode_actuator.png': 'Measured FRF of the actuator during the RTHS (table 5)',
+    'mr_hysteresis.png': 'MR-damper specimen: measured force against displacement',
 }
 
 _STYLE = ('body{font-family:sans-serif;max-width:60em;margin:1em auto;color:#222}'
