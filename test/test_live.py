@@ -1,9 +1,11 @@
-"""Live view (issue 17): ``rths replay BAG --live --port P`` serves the run to a Foxglove client.
+"""Live view (issue 17): ``rths replay|launch ... --live --port P`` serves the run to Foxglove.
 
 A WebSocket client (the ``websockets`` library, as Foxglove's app connects)
 must see the loop topics and the ``/rths/live`` status channel advertised,
 receive messages after it subscribes, and see the server close when the
-replay ends.  The bag is written here: 4 s of a 1024 Hz loop.
+replay (or the run) ends.  The replayed bag is written here: 4 s of a 1024 Hz
+loop.  ``rths launch --live`` runs the graph for 2 s in lock-step: the bag
+still starts at step 0 (the loop arms only after the live view subscribed).
 """
 
 import asyncio
@@ -14,7 +16,7 @@ import subprocess
 
 import numpy as np
 
-from rths_system_tests import graph_env, rths_executable
+from rths_system_tests import REPO, graph_env, rths_executable
 
 FS = 1024.0
 SECONDS = 4.0
@@ -45,7 +47,7 @@ def _write_bag(bag):
                                                              misses=k // 1000))
 
 
-async def _client(port, proc):
+async def _client(port, topic='/rths/measurement'):
     import websockets
 
     uri = f'ws://127.0.0.1:{port}'
@@ -53,11 +55,11 @@ async def _client(port, proc):
         assert json.loads(await asyncio.wait_for(ws.recv(), 10))['op'] == 'serverInfo'
     async with websockets.connect(uri, subprotocols=LEGACY, max_size=None) as ws:
         channels = {}
-        while not {'/rths/live', '/rths/measurement'} <= set(channels):
+        while not {'/rths/live', topic} <= set(channels):
             frame = json.loads(await asyncio.wait_for(ws.recv(), 10))
             if frame.get('op') == 'advertise':
                 channels.update({c['topic']: c for c in frame['channels']})
-        wanted = {1: channels['/rths/live'], 2: channels['/rths/measurement']}
+        wanted = {1: channels['/rths/live'], 2: channels[topic]}
         await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
             {'id': sid, 'channelId': c['id']} for sid, c in wanted.items()]}))
         received = {1: [], 2: []}
@@ -84,7 +86,7 @@ def test_replay_live_is_seen_by_a_foxglove_websocket_client(tmp_path):
         for line in proc.stdout:                      # the server is up before the replay
             if line.startswith('live view: serving'):
                 break
-        channels, received, closed, subprotocol = asyncio.run(_client(port, proc))
+        channels, received, closed, subprotocol = asyncio.run(_client(port))
         out = line + proc.stdout.read()
         assert proc.wait(30) == 0, out
     finally:
@@ -102,3 +104,30 @@ def test_replay_live_is_seen_by_a_foxglove_websocket_client(tmp_path):
     assert max(m['deadline_misses'] for m in live) >= 3      # the bridge's count, 4 s of steps
     assert closed and live[-1]['run_state'] == 'stopped'     # the server stops with the replay
     assert 'live view: stopped' in out
+
+
+def test_launch_live_streams_the_run_and_the_bag_still_starts_at_step_0(tmp_path):
+    from rths_bringup.review import read_loop, step_check
+
+    bag, port = tmp_path / 'bag', _free_port()
+    proc = subprocess.Popen([rths_executable(), 'launch', '--config', str(REPO / 'config'),
+                             '--duration', '2', '--bag', str(bag), '--live', '--port',
+                             str(port)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, env=graph_env())
+    try:
+        for line in proc.stdout:
+            if line.startswith('live view: serving'):
+                break
+        _, received, closed, _ = asyncio.run(_client(port, '/rths/status'))
+        out = line + proc.stdout.read()
+        assert proc.wait(60) == 0, out[-3000:]
+    finally:
+        proc.kill()
+    live = [json.loads(m) for m in received[1]]
+    assert closed and live[-1]['run_state'] == 'stopped' and live[-1]['step'] == 2047
+    assert set(live[-1]['misses_by_node']) == {'numerical', 'compensator', 'bridge'}
+    assert abs(live[-1]['tracking_error_m']) < 1e-4          # the designed taps track
+    assert received[2]                                        # per-node status, decimated
+    for topic, data in read_loop(bag)['steps'].items():
+        check = step_check(data['step'])
+        assert (check['first'], check['last'], check['gaps']) == (0, 2047, 0), (topic, check)
