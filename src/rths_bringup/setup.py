@@ -23,6 +23,7 @@ setup(
         'console_scripts': [
             'rths = rths_bringup.cli:main',
             'recorder = rths_bringup.recorder:main',
+            'container = rths_bringup.container:main',
         ],
     },
 )

@@ -1,7 +1,9 @@
-"""``rths bench loop``: the realtime loop of the three node processes, measured.
+"""``rths bench loop``: the realtime loop of the three nodes, measured, in either layout.
 
 Runs the numerical node, the compensator and the actuator bridge (simulated
-plant) as separate processes through the launcher, in realtime mode at
+plant) through the launcher, composed in one process (``--layout composed``,
+the default: :mod:`rths_bringup.container`) or as separate processes
+(``--layout processes``; the JSON's ``layout`` says which), in realtime mode at
 ``--rate`` Hz for ``--duration`` s, from a config generated into a temporary
 directory, recording a bag; then reads the nodes' timing files and the bag
 and writes JSON:
@@ -14,11 +16,14 @@ and writes JSON:
   apart); ``use_latency_us_*`` to the tick that used it; ``loop_us_*`` the
   round trip from tick k's measurement to the receipt of command k+1 (must be
   below one period); ``tick_late_us_*`` the clock's jitter;
-* ``cpu_pct``: CPU time of the three node processes over the run's wall time
-  (100 = one core; the machine has ``nproc`` cores), per node in
-  ``cpu_pct_per_node`` (recorder included);
+* ``cpu_pct``: CPU time of the three node processes (composed: the container)
+  over the run's wall time (100 = one core; the machine has ``nproc`` cores),
+  per process in ``cpu_pct_per_node`` (recorder included);
+* ``clock_overruns`` / ``clock_overrun_pct``: ticks that came more than a
+  period late (the bridge's process itself stalled; the clock re-anchors);
 * ``recorder_loss``: per loop topic, steps of the run missing from the bag
-  (the recorder subscribes best-effort in realtime), and the consistency of
+  (processes: the recorder subscribes best-effort in realtime; composed: it
+  reads the container's recording pipe and must lose nothing), and the consistency of
   the bridge's status accounting with the bag;
 * machine info: ``nproc``, ``cpu_model``, load average before and after;
 * ``platform_floor`` (``--floor S``, default 10 s, before the runs): one
@@ -52,10 +57,14 @@ FIND_MAX_RATES = (1024, 1536, 2048, 2560, 3072, 4096)
 def register(commands, benches):
     """Add ``rths bench loop``."""
     p = benches.add_parser(
-        'loop', help='realtime loop of the three node processes: deadline misses, latency, CPU',
+        'loop', help='realtime loop of the three nodes: deadline misses, latency, CPU',
         description='Run the three nodes (simulated plant) in realtime mode through the '
-                    'launcher and measure deadline misses, numerical-to-bridge latency, clock '
-                    'jitter, CPU and recorder loss; write JSON to --out.')
+                    'launcher, composed in one process (default) or as three processes, and '
+                    'measure deadline misses, numerical-to-bridge latency, clock jitter, CPU '
+                    'and recorder loss; write JSON to --out.')
+    p.add_argument('--layout', default='composed', choices=('composed', 'processes'),
+                   help='composed: the three nodes in one process on one executor (default); '
+                        'processes: one process per node')
     p.add_argument('--rate', type=float, default=1024.0, help='loop rate [Hz] (default 1024)')
     p.add_argument('--duration', type=float, default=10.0, help='run length [s] (default 10)')
     p.add_argument('--out', default=None, help='JSON file to write')
@@ -211,6 +220,7 @@ def analyse(bridge_npz, numerical_npz, cpu_samples=(), bag=None, rate_hz=None) -
         'commands_lost': lost,
         'commands_late': int(br['late']),
         'clock_overruns': int(br['overruns']),
+        'clock_overrun_pct': round(100.0 * int(br['overruns']) / steps, 4) if steps else None,
         **_stats('use_latency_us', use),
         **_stats('loop_us', loop),
         'period_us': period_ns * 1e-3,
@@ -235,7 +245,8 @@ def _cpu(samples, tick_wall) -> dict:
     wall = (tb - ta) * 1e-9
     per = {name: round(100.0 * (b[name] - a[name]) / wall, 1) for name in b
            if a.get(name) is not None and b[name] is not None}
-    loop_nodes = [per[n] for n in ('bridge', 'compensator', 'numerical') if n in per]
+    loop_nodes = [per[n] for n in ('bridge', 'compensator', 'numerical', 'container')
+                  if n in per]
     return {'cpu_pct': round(sum(loop_nodes), 1), 'cpu_pct_per_node': per,
             'cpu_window_s': round(wall, 2)}
 
@@ -343,7 +354,7 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log) -> dict:
             overrides['recorder']['cpus'] = f'"{args.recorder_cpus}"'
     load_before = [round(x, 2) for x in os.getloadavg()]
     launcher = Launcher(config, bag=bag, overrides=overrides, out=log,
-                        timeout_s=duration_s * 3 + 120)
+                        timeout_s=duration_s * 3 + 120, layout=args.layout)
     t0 = time.monotonic()
     code = launcher.run()
     wall = time.monotonic() - t0
@@ -353,7 +364,8 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log) -> dict:
     result = analyse(timing['bridge'], timing['numerical'], launcher.cpu_samples, bag, rate_hz)
     # a safety stop (e.g. the watchdog after consecutive misses) ends the run early
     result['run_completed'] = code == 0
-    result.update(duration_s=duration_s, taps=args.taps, model=args.model, clock=args.clock,
+    result.update(layout=args.layout, duration_s=duration_s, taps=args.taps, model=args.model,
+                  clock=args.clock,
                   spin_margin_us=args.margin, status_every=args.status_every,
                   executor=args.executor, rt_priority=args.priority, cpus=args.cpus,
                   gc=args.gc, recorded=bag is not None, wall_s=round(wall, 1),
@@ -369,10 +381,11 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log) -> dict:
 
 
 def print_result(r: dict):
-    print(f"{r['rate_hz']:g} Hz x {r['duration_s']:g} s: {r['steps']} steps, "
+    print(f"{r['layout']}, {r['rate_hz']:g} Hz x {r['duration_s']:g} s: {r['steps']} steps, "
           f"deadline misses {r['deadline_misses']} ({r['deadline_miss_pct']} %), latency "
           f"p50/p99/max {r['latency_us_p50']}/{r['latency_us_p99']}/{r['latency_us_max']} us, "
           f"loop p99 {r['loop_us_p99']} us, tick late p99 {r['tick_late_us_p99']} us, "
+          f"clock overruns {r['clock_overruns']}, "
           f"cpu {r.get('cpu_pct')} %, load {r['loadavg_before']}"
           f"{'' if r['run_completed'] else ', RUN ABORTED (safety stop)'}", flush=True)
     if 'bag' in r:

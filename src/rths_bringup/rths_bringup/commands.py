@@ -7,12 +7,15 @@ from pathlib import Path
 def register(commands, benches):
     """Add ``rths launch`` and ``rths bag info|reindex``."""
     p = commands.add_parser(
-        'launch', help='start the node graph (one process per node) and supervise it',
-        description='Start the actuator bridge, compensator and numerical node as separate '
-                    'processes (as ros2 run would), each with its params file from --config; '
-                    'stream their logs prefixed with the node name; record every loop topic to '
-                    '--bag. Ends when the numerical node finishes the run, on Ctrl-C/SIGTERM, or '
-                    'when a node dies (exit code 1, naming the node).')
+        'launch', help='start the node graph (composed or one process per node), supervise it',
+        description='Start the actuator bridge, compensator and numerical node, each with its '
+                    'params file from --config: composed in one process on one executor '
+                    '(--layout composed, the default in realtime mode) or as separate processes '
+                    '(--layout processes, as ros2 run would; the default in lock-step); stream '
+                    'their logs prefixed with the node name; record every loop topic to --bag '
+                    '(composed: through a pipe from the container, nothing lost). Ends when the '
+                    'numerical node finishes the run, on Ctrl-C/SIGTERM, or when a node dies '
+                    '(exit code 1, naming the node).')
     add_launch_args(p)
     p.set_defaults(func=cmd_launch)
 
@@ -42,6 +45,10 @@ def add_launch_args(p):
     p.add_argument('--duration', type=float, default=None,
                    help='simulated duration of the run [s] (overrides numerical duration_s)')
     p.add_argument('--bag', default=None, help='record every loop topic to this new bag directory')
+    p.add_argument('--layout', choices=('composed', 'processes'), default=None,
+                   help='composed: the three nodes in one process on one executor (the bridge '
+                        'is its clock); processes: one process per node. Default: composed in '
+                        'realtime mode, processes in lock-step')
     p.add_argument('--timeout', type=float, default=600.0,
                    help='wall-clock limit [s] after which the run is stopped as failed '
                         '(default 600)')
@@ -67,7 +74,7 @@ def run_info_of(config, overrides) -> dict:
                            numerical.get('mode', 'lockstep'), sections)
 
 
-def launch(config, duration=None, bag=None, timeout=600.0, overrides=None):
+def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, layout=None):
     """Run the graph; return the launcher's exit code.
 
     With a bag, the run's parameters (the three params files with the
@@ -85,17 +92,47 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None):
     if bag and 'kind' not in overrides.get('recorder', {}):
         overrides['recorder'] = dict(run_info_of(config, overrides),
                                      **overrides.get('recorder', {}))
-    launcher = Launcher(config, bag=bag, overrides=overrides, timeout_s=timeout)
+    launcher = Launcher(config, bag=bag, overrides=overrides, timeout_s=timeout, layout=layout)
     return launcher.run()
 
 
 def cmd_launch(args) -> int:
-    code = launch(args.config, args.duration, args.bag, args.timeout)
+    """Run ``rths launch``; then print the bag's topics and the loop summary."""
+    code = launch(args.config, args.duration, args.bag, args.timeout, layout=args.layout)
     if args.bag and Path(args.bag).exists():
         from rths_bringup.review import loop_summary
         print_bag_info(args.bag)
-        print_summary(loop_summary(args.bag))
+        summary = loop_summary(args.bag)
+        missing = bag_missing(summary)
+        summary['bag_complete'] = not missing
+        print_summary(summary)
+        for text in missing:
+            print(f'BAG INCOMPLETE: {text}')
     return code
+
+
+def bag_missing(summary: dict) -> list:
+    """What a run's bag lacks: the bridge writes a measurement and a status every tick.
+
+    ``summary`` is :func:`rths_bringup.review.loop_summary`'s; returns one text
+    per incomplete stream (empty: every tick the bridge ran is in the bag).
+    (Commands and interface displacements may be missing by design: lost or
+    dropped ones are deadline misses, counted in the status.)
+    """
+    from rths_common import topics
+
+    status = summary.get('status bridge', {})
+    meas = summary.get(topics.MEASUREMENT, {})
+    ticks = max(int(status.get('steps', 0)), (meas.get('last') or -1) + 1)
+    out = []
+    if int(status.get('steps', 0)) < ticks:
+        out.append(f"the bridge status of {ticks - int(status.get('steps', 0))} of {ticks} "
+                   'ticks is not in the bag')
+    if int(meas.get('count', 0)) - int(meas.get('duplicates', 0)) < ticks:
+        lost = ticks - int(meas.get('count', 0)) + int(meas.get('duplicates', 0))
+        out.append(f'{topics.MEASUREMENT} lacks {lost} of {ticks} steps (the recorder lost '
+                   'them)')
+    return out
 
 
 def print_bag_info(bag, as_json=False):
