@@ -21,10 +21,16 @@ test: setup  ## build and run every test through colcon test; non-zero on any fa
 	  if [ $$rc -ne 0 ] || [ $$rc2 -ne 0 ]; then echo "make test: FAILED"; exit 1; fi; \
 	  echo "make test: all tests passed"
 
+setup-opensees: setup  ## optional: install OpenSeesPy (backend: opensees; not open source for commercial use)
+	@v=$$(.venv/bin/python -c 'import sys; print("3.8.0.0" if sys.version_info >= (3, 12) else "3.7.1.2")'); \
+	  echo "[setup-opensees] installing openseespy==$$v (licence: see README, 'OpenSeesPy')"; \
+	  .venv/bin/python -m pip install --quiet --disable-pip-version-check "openseespy==$$v" && \
+	  source env.sh && python -c 'from rths_numerical.opensees_backend import opensees_available as a; ok, v = a(); print("[setup-opensees]", "openseespy", v if ok else "FAILED: " + v); raise SystemExit(0 if ok else 1)'
+
 clean:  ## remove build products (keeps .venv)
 	rm -rf build install log
 
 distclean: clean  ## remove build products and the venv
 	rm -rf .venv
 
-.PHONY: help setup demo test clean distclean
+.PHONY: help setup setup-opensees demo test clean distclean

@@ -84,7 +84,7 @@ def cmd_simulate(args):
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(len(rows), 1, sharex=True, figsize=(9, 2.2 * len(rows) + 1))
     axes = np.atleast_1d(axes)
-    for ax, (name, res) in zip(axes, rows.items()):
+    for ax, (name, res) in zip(axes, rows.items(), strict=True):
         ax.plot(res['time'], res['disp'] / INCH, lw=0.8)
         ax.set_ylabel('2nd floor (in)')
         ax.set_title(name, fontsize=9)
@@ -103,7 +103,7 @@ def _surface_plot(path, x, y, surfaces, xlabel, ylabel, title):
 
     from .studies import CRITERIA
     fig, axes = plt.subplots(2, 2, figsize=(10, 8))
-    for ax, c in zip(axes.ravel(), CRITERIA):
+    for ax, c in zip(axes.ravel(), CRITERIA, strict=True):
         cs = ax.contourf(x, y, np.asarray(surfaces[c]).T, 30)
         fig.colorbar(cs, ax=ax)
         ax.set_title(c.replace('_', ' ') + (' (m)' if 'disp' in c else ' (m/s^2)'), fontsize=9)
@@ -307,11 +307,56 @@ def _time_advance(model, name, dt, repeats=5, n=2000):
     return _best_step_us(lambda: sub.advance(force), repeats, n)
 
 
+def _advance_p50_us(sub, specimen):
+    """Median [us] of the per-step ``advance`` time over a whole coupled run (and the history)."""
+    import time
+
+    import numpy as np
+    times = np.zeros(sub.n_steps)
+    command = sub.first_displacement()
+    k = 0
+    while not sub.done():
+        force = specimen(command)
+        t0 = time.perf_counter_ns()
+        command = sub.advance(force)
+        times[k] = time.perf_counter_ns() - t0
+        k += 1
+    return float(np.median(times) * 1e-3), sub.history()
+
+
+def _backend_comparison(backend, record, scale, duration_s, fs_hz):
+    """Backend ``backend`` vs builtin on the 16-DOF building with the valve #4 DTM specimen."""
+    from .reference import DTMSpecimen, relative_rms_error
+    from .substructure import make_substructure
+    base = {'model': 'building2story', 'record': record, 'scale': scale,
+            'duration_s': duration_s, 'fs_hz': fs_hz}
+    keys = ('output_disp', 'measured_force', 'command')
+    out = {'record': record, 'scale': scale, 'duration_s': duration_s, 'compared': list(keys)}
+    runs = {}
+    for label, be, integ in (('builtin_cd', 'builtin', 'central_difference'),
+                             ('builtin_cr', 'builtin', 'cr'),
+                             (backend, backend, 'central_difference')):
+        sub = make_substructure(dict(base, backend=be, integrator=integ))
+        p50, runs[label] = _advance_p50_us(sub, DTMSpecimen('valve4', sub.dt))
+        out[f'step_us_p50_{label}'] = p50
+
+    def diff(a, b):
+        return max(relative_rms_error(runs[a][k], runs[b][k]) / 100 for k in keys)
+    out['max_rel_diff_vs_builtin'] = diff(backend, 'builtin_cd')
+    out['max_rel_diff_vs_builtin_cr'] = diff(backend, 'builtin_cr')
+    out['step_us_p50'] = out[f'step_us_p50_{backend}']
+    return out
+
+
 def cmd_bench_numerical(args):
     """Run ``rths bench numerical``."""
     import time
 
     from .building import building_16dof, building_240dof, x_frequencies
+    load_start = list(os.getloadavg())
+    if args.backend != 'builtin':
+        from .opensees_backend import import_opensees
+        import_opensees()   # OSError naming the fix, before minutes of other work
     b16 = building_16dof()
     b240 = building_240dof()
     f1, f2 = x_frequencies(b16)
@@ -339,14 +384,120 @@ def cmd_bench_numerical(args):
     print(f'step_us_16dof {data["step_us_16dof"]:.1f} (target <= 20), step_us_240dof '
           f'{data["step_us_240dof"]:.1f} (target <= 100)')
     print(f'dtm_tuning_s {tuning_s:.2f} for {args.n_fn} x {args.n_zeta} grid (target <= 60)')
+    data['backend'] = args.backend
+    data['load_average_start'] = load_start
+    if args.backend != 'builtin':
+        span = f'{args.duration_s:g} s' if args.duration_s else 'whole record'
+        print(f'{args.backend} vs builtin: 16-DOF building + valve #4 DTM, '
+              f'{args.record} x {args.scale}, {span}', flush=True)
+        cmp = _backend_comparison(args.backend, args.record, args.scale, args.duration_s,
+                                  args.fs_hz)
+        data.update(max_rel_diff_vs_builtin=cmp['max_rel_diff_vs_builtin'],
+                    step_us_p50=cmp['step_us_p50'], backend_comparison=cmp)
+        print(f'max_rel_diff_vs_builtin {cmp["max_rel_diff_vs_builtin"]:.2e} (central difference '
+              f'in both; target <= 1e-3), vs builtin cr {cmp["max_rel_diff_vs_builtin_cr"]:.2e}')
+        print(f'step_us_p50 {cmp["step_us_p50"]:.1f} (advance, 16 DOF; target <= 100); builtin '
+              f'central difference {cmp["step_us_p50_builtin_cd"]:.1f}, cr '
+              f'{cmp["step_us_p50_builtin_cr"]:.1f}')
+    data['load_average_end'] = list(os.getloadavg())
+    print(f'load average {load_start[0]:.1f} at the start, {data["load_average_end"][0]:.1f} at '
+          'the end (timings are noisy on a shared machine)')
     _write_json(args.out, data)
     print(f'wrote {args.out}')
     return 0
 
 
+def cmd_fit_mr(args):
+    """Run ``rths fit-mr``: fit the Spencer et al. (1997) model to real sinusoid tests."""
+    import time
+
+    import numpy as np
+
+    from . import mr_fit
+    from .mr_damper import SPENCER_1997
+    tests = mr_fit.load_tests(mr_fit.data_dir(args.data))
+    print(f'{len(tests)} sinusoid tests, currents '
+          f'{sorted({t["current_a"] for t in tests})} A; fitting (about a minute)', flush=True)
+    t0 = time.perf_counter()
+    best, errors, nfev = mr_fit.fit(tests, max_nfev=args.max_nfev)
+    names = [t['name'] for t in tests]
+    worst = names[int(np.argmax(errors))]
+    print(f'fitted in {time.perf_counter() - t0:.1f} s ({nfev} evaluations): relative RMS '
+          f'force error mean {errors.mean():.1f} %, worst {errors.max():.1f} % ({worst})')
+    paper = mr_fit.paper_errors(tests)
+    print('the paper\'s parameters (best constant voltage per current): ' + ', '.join(
+        f'{c} A -> {v["best_voltage_v"]:.2f} V, mean '
+        f'{np.mean(list(v["errors_pct"].values())):.1f} %' for c, v in paper.items()))
+    fitted = best.as_dict()
+    data = {
+        'source': mr_fit.SOURCE,
+        'model': 'Spencer, Dyke, Sain and Carlson (1997) phenomenological Bouc-Wen, current [A] '
+                 'in place of voltage; n = 2 fixed; x0 and eta not identifiable (tared force, '
+                 'constant current)',
+        'fitted': {k: fitted[k] for k in mr_fit.FIT_KEYS} | {'n': fitted['n']},
+        'paper_spencer_1997_per_volt': {k: getattr(SPENCER_1997, k)
+                                        for k in mr_fit.FIT_KEYS} | {'n': SPENCER_1997.n},
+        'units': 'SI: N, m, s; the *_b coefficients per A (fitted) or per V (paper)',
+        'fit_errors_pct': dict(zip(names, errors.tolist(), strict=True)),
+        'fit_error_mean_pct': float(errors.mean()), 'fit_error_max_pct': float(errors.max()),
+        'paper_errors_at_best_voltage': paper,
+        'paper_error_mean_pct': float(np.mean([e for v in paper.values()
+                                                for e in v['errors_pct'].values()])),
+        'evaluations': nfev,
+        'comparable_fitted_0_to_1_A': mr_fit.comparable(best, 1.0),
+        'comparable_paper_0_to_2_25_V': mr_fit.comparable(SPENCER_1997, 2.25),
+    }
+    _write_json(args.out, data)
+    if args.plot:
+        _mr_fit_plot(args.plot, tests, best)
+        print(f'wrote {args.plot}')
+    print(f'wrote {args.out}')
+    return 0
+
+
+def _mr_fit_plot(path, tests, params):
+    """Force-stroke loops of the 1 A and 0 A tests: measured and fitted."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    from .mr_fit import _inputs, simulate_tests
+    inputs = _inputs(tests, 1000, 1.25)
+    model, meas = simulate_tests(params, tests, inputs=inputs)
+    x = inputs[0]
+    pick = [i for i, t in enumerate(tests) if t['current_a'] in (0.0, 0.5, 1.0)]
+    cols = 6
+    rows = -(-len(pick) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3 * cols, 2.6 * rows), squeeze=False)
+    for ax, i in zip(axes.ravel(), pick, strict=False):
+        ax.plot(x[-1000:, i] * 1e3, meas[-1000:, i], 'k', lw=0.8, label='measured')
+        ax.plot(x[-1000:, i] * 1e3, model[-1000:, i], 'r--', lw=0.8, label='fitted model')
+        ax.set_title(tests[i]['name'], fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[0, 0].legend(fontsize=7)
+    fig.supxlabel('stroke [mm]')
+    fig.supylabel('force [N]')
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def register(commands, benches):
     """Add this package's ``rths <command>`` and ``rths bench <name>`` parsers."""
     from .dtm import TABLE4
+    fm = commands.add_parser(
+        'fit-mr', help='fit the MR-damper model (Spencer et al. 1997) to real sinusoid tests',
+        description='Fit the phenomenological Bouc-Wen MR-damper model of Spencer, Dyke, Sain '
+                    'and Carlson (1997) to the sinusoid tests (0-1 A) of '
+                    'github.com/DanielMaurelE/vRTHS_AMBC_MRdamper (MIT; the Preprocesados/*.txt '
+                    'files: t, x [mm], v [mm/s], F [N]); print the errors, compare with the '
+                    "paper's parameters, write JSON (and a PNG of the loops).")
+    fm.add_argument('--data', default=None,
+                    help='directory of the test files (default: $RTHS_DATA_DIR/mr_damper)')
+    fm.add_argument('--out', default='out/mr_fit.json', help='JSON results')
+    fm.add_argument('--plot', default=None, help='PNG of measured and fitted loops')
+    fm.add_argument('--max-nfev', type=int, default=200, help='least-squares evaluations')
+    fm.set_defaults(func=cmd_fit_mr)
     sim = commands.add_parser(
         'simulate', help='whole building + DTMs numerically (seed 6.3.4), tables 6-8 metrics',
         description='Simulate the building uncontrolled and with 5 DTMs (all numerical, seed '
@@ -422,9 +573,20 @@ def register(commands, benches):
         'numerical', help='integrator step times (16/240 DOF) and dtm-tuning run time',
         description='Measure one CR/KR-alpha/Newmark step of the 16- and 240-DOF building, the '
                     'x frequencies, and the dtm-tuning study time; print and write JSON with '
-                    'f1_hz, f2_hz, step_us_16dof, step_us_240dof, dtm_tuning_s.')
+                    'f1_hz, f2_hz, step_us_16dof, step_us_240dof, dtm_tuning_s, backend. '
+                    'With --backend opensees also the RTHS of the 16-DOF building with the '
+                    'valve #4 DTM on OpenSees and builtin (central difference in both): '
+                    'max_rel_diff_vs_builtin and step_us_p50.')
     bn.add_argument('--out', default='out/bench_numerical.json')
     bn.add_argument('--fs-hz', type=float, default=1024.0)
     bn.add_argument('--n-fn', type=int, default=40)
     bn.add_argument('--n-zeta', type=int, default=30)
+    bn.add_argument('--backend', default='builtin', choices=['builtin', 'opensees'],
+                    help='opensees (OpenSeesPy, `make setup-opensees`): also run the 16-DOF '
+                         'building with the valve #4 DTM on both backends and report backend, '
+                         'max_rel_diff_vs_builtin and step_us_p50 (median advance time, us)')
+    bn.add_argument('--record', default='kobe', help='record of the backend comparison')
+    bn.add_argument('--scale', type=float, default=0.135, help='record scale factor')
+    bn.add_argument('--duration-s', type=float, default=0.0,
+                    help='seconds of record in the backend comparison; 0 = whole record')
     bn.set_defaults(func=cmd_bench_numerical)
