@@ -399,7 +399,7 @@ class LiveView:
         """Serve until SIGINT or SIGTERM; then send the final status and stop the server."""
         from rths_common import node_support as ns
 
-        ns.spin_until_done(self.node, ns.make_executor('single'))
+        ns.spin_until_done(self.node, ns.make_executor('events'))   # the cheapest per message
         self._publish_live('stopped')
         time.sleep(0.2)                       # let the last message reach the clients
         self.server.stop()
