@@ -50,7 +50,8 @@ key                meaning                                                   def
 =================  ========================================================  ==============
 backend            'builtin' (this package's integrators) or 'opensees'      'builtin'
                    (OpenSeesPy, optional: :mod:`.opensees_backend`)
-model              'sdof', 'building2story' (16-DOF) or a model YAML path;   'sdof'
+model              'sdof', 'building2story' (16-DOF), 'silva2020_case1'..4   'sdof'
+                   (benchmark, :mod:`.silva2020`) or a model YAML path;
                    opensees also: an OpenSeesPy model script (.py path, or a
                    name in config/models/, e.g. 'frame-steel01')
 integrator         builtin: 'cr', 'kr_alpha', 'newmark', 'central_difference' 'cr' /
@@ -255,6 +256,9 @@ def build_model(params) -> LinearModel:
         from .building import BUILDING_MASS_KG, building_16dof
         mass = params.get('building_mass_kg') or BUILDING_MASS_KG
         return building_16dof(float(mass))
+    if name.startswith('silva2020_case'):
+        from .silva2020 import model_by_name
+        return model_by_name(name)
     if name.endswith(('.yaml', '.yml')):
         try:
             return load_model_yaml(name)
