@@ -21,10 +21,16 @@ test: setup  ## build and run every test through colcon test; non-zero on any fa
 	  if [ $$rc -ne 0 ] || [ $$rc2 -ne 0 ]; then echo "make test: FAILED"; exit 1; fi; \
 	  echo "make test: all tests passed"
 
+lint: setup  ## ruff over src/ and test/ (ruff.toml), mypy on rths_common and the three step cores (mypy.ini)
+	@source env.sh && ruff check src test && \
+	  mypy --config-file mypy.ini -p rths_common -p rths_numerical.substructure \
+	    -p rths_compensator.filters -p rths_actuator_bridge.bridge && \
+	  echo "make lint: clean"
+
 clean:  ## remove build products (keeps .venv)
 	rm -rf build install log
 
 distclean: clean  ## remove build products and the venv
 	rm -rf .venv
 
-.PHONY: help setup demo test clean distclean
+.PHONY: help setup demo test lint clean distclean

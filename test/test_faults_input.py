@@ -18,7 +18,7 @@ CONFIG = REPO / 'config'
 
 
 def write_config(directory: Path, node=None, changes=None, drop=()) -> Path:
-    """A copy of config/ with ``changes`` made to (and keys ``drop``ped from) ``node``'s file."""
+    """Copy config/ with ``changes`` made to (and keys ``drop``ped from) ``node``'s file."""
     directory.mkdir(parents=True, exist_ok=True)
     for name in ('bridge', 'compensator', 'numerical'):
         data = yaml.safe_load((CONFIG / f'{name}.yaml').read_text())
@@ -115,7 +115,7 @@ def test_good_building_model_file_passes(tmp_path):
 
 def write_dat(path, t, a):
     lines = ['event', 'source', 'station', 'band', 'Time[s] Accel[g]']
-    lines += [f'{ti:.4f} {ai:.6f}' for ti, ai in zip(t, a)]
+    lines += [f'{ti:.4f} {ai:.6f}' for ti, ai in zip(t, a, strict=True)]
     path.write_text('\n'.join(lines) + '\n')
     return path
 

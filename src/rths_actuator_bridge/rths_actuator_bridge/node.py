@@ -38,7 +38,8 @@ controller is.  The first command (step 0) starts the clock; tick k comes at
 ``t0 + k / fs`` (steady clock) and writes the command of step k, then publishes
 measurement k.  The command of step k must have arrived before tick k
 (with ``command_delay_steps`` = D > 0: before tick k + D, which writes it;
-see :mod:`rths_actuator_bridge.bridge`), otherwise the tick is a *deadline miss*: counted, flagged in that step's status
+see :mod:`rths_actuator_bridge.bridge`), otherwise the tick is a *deadline
+miss*: counted, flagged in that step's status
 (``deadline_missed``, running ``deadline_misses``) and handled by the
 **extrapolation policy**: ``Bridge.step(k, None)``, i.e. the safety
 supervisor continues the last command at constant velocity (checked against
@@ -102,8 +103,7 @@ def check_bridge_params(params: dict) -> dict:
     naming the field and the fix.  Used by the node and by ``rths launch``'s
     pre-flight check (:mod:`rths_bringup.preflight`).
     """
-    from rths_actuator_bridge.backend import BACKENDS
-    from rths_actuator_bridge.bridge import DelayLine
+    from rths_actuator_bridge.bridge import BACKENDS, DelayLine
     from rths_actuator_bridge.safety import SAFETY_PARAMS, SafetyLimits
     from rths_actuator_bridge.simulated import SIM_PARAMS
     from rths_actuator_bridge.udp import UDP_PARAMS
@@ -217,7 +217,7 @@ class BridgeNode:
         self.log.info('bridge active')
 
     def lifecycle_state(self) -> State:
-        """The managed-node state: ACTIVE while the backend is, else INACTIVE (configured)."""
+        """Return the managed-node state: ACTIVE while the backend is, else INACTIVE."""
         from rths_actuator_bridge.backend import ACTIVE
 
         if self.backend.lifecycle == ACTIVE:
@@ -225,11 +225,14 @@ class BridgeNode:
         return State(id=State.PRIMARY_STATE_INACTIVE, label='inactive')
 
     def on_get_state(self, _request, response):
+        """Answer ``~/get_state`` with the current lifecycle state."""
         response.current_state = self.lifecycle_state()
         return response
 
     def on_change_state(self, request, response):
-        """Activate (INACTIVE -> ACTIVE, not after a safety stop) or deactivate (ACTIVE ->
+        """Change the lifecycle state (the ``~/change_state`` service).
+
+        Activate (INACTIVE -> ACTIVE, not after a safety stop) or deactivate (ACTIVE ->
         INACTIVE: once a command has moved the actuator, through the safe stop: hold, ramp,
         stop); other transitions are refused (the node configures itself at start-up and
         cleans up when it exits).
@@ -274,7 +277,7 @@ class BridgeNode:
         self.source_gids = gids
 
     def command_from_source(self, sender: str, step: int) -> bool:
-        """True if ``sender`` (a command's ``header.frame_id``) is the command source's writer gid.
+        """Return True if ``sender`` (a ``header.frame_id``) is the command source's writer gid.
 
         An unknown sender triggers a rescan of the graph (a new source writer may
         have just matched; the graph can show it after its first messages): always
@@ -319,6 +322,7 @@ class BridgeNode:
 
     # ---------------------------------------------------------------- realtime
     def on_run_steps(self, msg: UInt64):
+        """Take the number of steps of the run (lock-step: the loop ends there)."""
         self.n_steps = int(msg.data)
 
     def on_command_raw(self, data: bytes):
@@ -380,6 +384,7 @@ class BridgeNode:
         return self.t0_ns + self.k * self.period_ns
 
     def timer_tick(self):
+        """Run the ticks that are due (the timer clock)."""
         if self.next_due_ns() is not None:
             self.tick()
 
@@ -491,9 +496,11 @@ class BridgeNode:
             self.start_safe_stop(f"watchdog: no command for {self.own['watchdog_timeout_s']:g} s")
 
     def on_estop_topic(self, msg: String):
+        """Start the safe stop on an emergency-stop message."""
         self.start_safe_stop(msg.data or 'emergency stop topic')
 
     def on_estop_srv(self, request, response):
+        """Start the safe stop on an emergency-stop service call."""
         response.accepted = True
         if self.stopped:
             response.message = 'already stopped'

@@ -189,7 +189,7 @@ def _dtm_params(name: str):
 
 
 def _actuator_ss(kind: str):
-    """Controllable state space (A, B, C) of a Table 1 actuator model."""
+    """Return the controllable state space (A, B, C) of a Table 1 actuator model."""
     from scipy.signal import tf2ss
 
     from rths_compensator.plants import continuous_actuator
@@ -381,7 +381,7 @@ class SimulatedPlant:
             np.multiply(self._d_u, u, out=tmp)
             np.add(y, tmp, out=y)
         self.k += 1
-        self.true = dict(zip(CHANNELS, y.tolist()))
+        self.true = dict(zip(CHANNELS, y.tolist(), strict=True))
         return self.true
 
     def _step_arx(self, u: float) -> dict:
@@ -401,7 +401,8 @@ class SimulatedPlant:
         rel_vel = self._z[1] - slope if self.dtm is not None else 0.0
         force = self.frame_mass * accel - (c_d * rel_vel + k_d * rel_disp)
         self.k += 1
-        self.true = dict(zip(CHANNELS, (xs_new, slope, accel, rel_disp, rel_vel, force)))
+        values = (xs_new, slope, accel, rel_disp, rel_vel, force)
+        self.true = dict(zip(CHANNELS, values, strict=True))
         return self.true
 
     def measure(self, true: dict = None) -> dict:
@@ -471,6 +472,9 @@ class SimulatedBackend(Backend):
     def _activate(self):
         self.plant.reset()
         self._last = None
+
+    def _deactivate(self):
+        """Nothing to stop: the plant advances only when written to."""
 
     def _write(self, command):
         self.plant.step(float(command[0]))

@@ -48,15 +48,15 @@ def add_launch_args(p):
 
 
 def default_config_dir() -> Path:
-    """The repo's config/ (RTHS_ROOT is set by env.sh), else ./config."""
+    """Return the repo's config/ (RTHS_ROOT is set by env.sh), else ./config."""
     import os
     root = os.environ.get('RTHS_ROOT')
     return Path(root) / 'config' if root else Path('config')
 
 
 def run_info_of(config, overrides) -> dict:
-    """The recorder's run information for a run of ``config`` with ``overrides`` applied."""
-    from rths_bringup import runinfo
+    """Return the recorder's run information for a run of ``config`` with ``overrides`` applied."""
+    from rths_common import runinfo
 
     sections = {node: dict(runinfo.load_params(Path(config) / f'{node}.yaml', node),
                            **overrides.get(node, {}))
@@ -90,6 +90,7 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None):
 
 
 def cmd_launch(args) -> int:
+    """``rths launch``."""
     code = launch(args.config, args.duration, args.bag, args.timeout)
     if args.bag and Path(args.bag).exists():
         from rths_bringup.review import loop_summary
@@ -100,7 +101,7 @@ def cmd_launch(args) -> int:
 
 def print_bag_info(bag, as_json=False):
     """Print a bag's topics and counts."""
-    from rths_bringup.bagio import info
+    from rths_common.bagio import info
 
     data = info(bag)
     if as_json:
@@ -115,12 +116,14 @@ def print_bag_info(bag, as_json=False):
 
 
 def cmd_bag_info(args) -> int:
+    """``rths bag info``."""
     print_bag_info(args.bag, args.json)
     return 0
 
 
 def cmd_bag_reindex(args) -> int:
-    from rths_bringup.bagio import reindex
+    """``rths bag reindex``."""
+    from rths_common.bagio import reindex
     print(f'wrote {reindex(args.bag)}')
     return 0
 

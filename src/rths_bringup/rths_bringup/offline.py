@@ -13,18 +13,7 @@ Anyone can run a coupled simulation with it, without ROS.
 
 import numpy as np
 
-#: Parameters that configure a node itself, not its core: the union of the nodes'
-#: NODE_PARAMS (test_offline_node_keys checks this list against the nodes).
-NODE_KEYS = {'mode', 'executor', 'wait_for_subscribers', 'history_out', 'timing_out',
-             'status_every', 'autostart', 'watchdog_timeout_s', 'clock', 'spin_margin_us',
-             'publish_specimen', 'inject_drop_every', 'rt_priority', 'cpus', 'gc',
-             'command_source', 'inject_duplicate_every', 'inject_delay_every',
-             'inject_delay_ms', 'remote_graph'}
-
-
-def core_params(params: dict) -> dict:
-    """``params`` without the node-level keys."""
-    return {k: v for k, v in params.items() if k not in NODE_KEYS}
+from rths_common.runinfo import core_params
 
 
 def offline_rths(numerical: dict, compensator: dict, bridge: dict) -> dict:

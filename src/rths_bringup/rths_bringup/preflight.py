@@ -12,7 +12,7 @@ checked by the same plain-Python core its node uses:
   (finite taps, stable denominator);
 * ``bridge.yaml`` -> :func:`rths_actuator_bridge.node.check_bridge_params`
   (known keys, finite limits in SI units) and, for the simulated backend,
-  :func:`rths_actuator_bridge.backend.make_backend`.
+  :func:`rths_actuator_bridge.bridge.make_backend`.
 
 On top of that every file is scanned for values no node can use: ``.nan`` /
 ``.inf`` and numbers written with a unit (``'0.254 m'``: the files hold SI
@@ -102,7 +102,7 @@ def check_bridge(path) -> dict:
     params = load_params_file(path, 'bridge')
     core = _wrap(path, 'bridge', check_bridge_params, params)
     if core.get('backend', 'simulated') == 'simulated':
-        from rths_actuator_bridge.backend import make_backend
+        from rths_actuator_bridge.bridge import make_backend
         _wrap(path, 'bridge', make_backend, core).close()
     return params
 

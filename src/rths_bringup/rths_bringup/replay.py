@@ -28,11 +28,12 @@ def register(commands, benches):
 
 
 def cmd_replay(args) -> int:
+    """``rths replay``."""
     import rclpy
     from rclpy.duration import Duration
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    from rths_bringup import bagio
+    from rths_common import bagio
     from rths_common.node_support import message_class
 
     if not args.rate_scale > 0:

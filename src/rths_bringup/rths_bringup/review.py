@@ -2,8 +2,7 @@
 
 import numpy as np
 
-from rths_bringup import bagio
-from rths_common import topics
+from rths_common import bagio, topics
 
 #: Loop topics that carry one message per step, and the array field to summarise.
 STEP_TOPICS = {
@@ -59,7 +58,7 @@ def _pct(values, q):
 
 
 def loop_summary(bag) -> dict:
-    """The printed/JSON summary of a run: steps per topic, extremes, per-node timing."""
+    """Return the printed/JSON summary of a run: steps per topic, extremes, per-node timing."""
     loop = read_loop(bag)
     summary = {'bag': str(bag)}
     for topic, (field, unit) in STEP_TOPICS.items():
@@ -116,9 +115,9 @@ def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
 
 
 def _numerical_params(info: dict) -> dict:
-    """The run's numerical core parameters (the node-level keys stripped, as offline does)."""
-    from rths_bringup import runinfo
-    from rths_bringup.offline import core_params
+    """Return the run's numerical core parameters (node-level keys stripped, as offline does)."""
+    from rths_common import runinfo
+    from rths_common.runinfo import core_params
     return core_params(runinfo.section(info, 'numerical'))
 
 
@@ -127,7 +126,7 @@ def review_rths(bag, out_dir) -> dict:
     import json
     from pathlib import Path
 
-    from rths_bringup import runinfo
+    from rths_common import runinfo
     from rths_compensator.indicators import relative_rms_pct
     from rths_numerical.reference import (
         relative_rms_error,
@@ -169,7 +168,8 @@ def review_rths(bag, out_dir) -> dict:
     measured = meas['displacement'][:n, 0]
     ok = np.isfinite(applied) & np.isfinite(measured)
     status = read_loop(bag)['status'].get('bridge', {})
-    tripped = [k for k, state in zip(status.get('step', []), status.get('safety_state', []))
+    states = zip(status.get('step', []), status.get('safety_state', []), strict=True)
+    tripped = [k for k, state in states
                if state != 0]
     if tripped and min(tripped) < n:  # a safety stop: review what ran before the fault
         ok[int(min(tripped)):] = False  # (then the plant holds and ramps to the safe position)
@@ -223,7 +223,7 @@ def review_rths(bag, out_dir) -> dict:
 
 
 def review_text(s: dict) -> str:
-    """The review as text, in the layout of the seed's tables 5-9."""
+    """Return the review as text, in the layout of the seed's tables 5-9."""
     inch = 0.0254
     lines = [
         f"RTHS review: {s['record']} x {s['scale']}, DTM {s['damper']}, {s['mode']}, "

@@ -29,8 +29,8 @@ from pathlib import Path
 import shutil
 import sys
 
-from rths_bringup import runinfo
 from rths_bringup.commands import default_config_dir, launch
+from rths_common import runinfo
 
 NODE_FILES = {'numerical': 'numerical.yaml', 'compensator': 'compensator.yaml',
               'bridge': 'bridge.yaml'}
@@ -45,8 +45,9 @@ def register(commands, benches):
     """Add ``rths run`` and ``rths review``."""
     p = commands.add_parser(
         'run', help='the main job: identify, design, run the RTHS, review (seed chapter 6)',
-        description='Perform the whole lab procedure of seed chapter 6: (1) identification run with BLWN, '
-        '(2) ARX identification and FIR design written to CONFIG/compensator.yaml, (3) the '
+        description='Perform the whole lab procedure of seed chapter 6: (1) identification '
+        'run with BLWN, (2) ARX identification and FIR design written to '
+        'CONFIG/compensator.yaml, (3) the '
         'RTHS of the 2-story building with the simulated DTM, (4) the review: actuator delay '
         'and tracking error before/after compensation (table 5), 2nd-floor response and '
         'reductions vs the uncontrolled building (tables 6-8), RTHS vs whole-numerical '
@@ -179,7 +180,7 @@ def safety_stop_summary(step, state, fault, applied, displacement, force, fs_hz:
 
 
 def read_safety_stop(bag):
-    """The bridge's safety stop recorded in a bag (:func:`safety_stop_summary`), else None.
+    """Return the bridge's safety stop recorded in a bag (:func:`safety_stop_summary`), else None.
 
     None when the bridge never reported STOPPED in ``/rths/status``.  The
     summary also holds the run's parameters from the bag's run information and
@@ -187,8 +188,7 @@ def read_safety_stop(bag):
     """
     import numpy as np
 
-    from rths_bringup import bagio
-    from rths_common import topics
+    from rths_common import bagio, topics
 
     status = {}
     faults = []
@@ -226,7 +226,7 @@ def read_safety_stop(bag):
 
 
 def safety_stop_text(s: dict) -> str:
-    """The printed report of a run stopped by the bridge's safety supervisor."""
+    """Return the printed report of a run stopped by the bridge's safety supervisor."""
     scheme = (s.get('compensator') or {}).get('scheme', '?')
 
     def metres(value, spec):
@@ -266,6 +266,7 @@ def _install_compensator(designed: Path, target: Path, external_plant: bool):
 
 
 def cmd_run(args) -> int:
+    """``rths run``."""
     try:
         return _run(args)
     except RuntimeError as err:
@@ -367,7 +368,7 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path) -> in
     """Write and print the summary of an RTHS run the bridge stopped; return EXIT_SAFETY_STOP."""
     import json
 
-    from rths_bringup.offline import core_params
+    from rths_common.runinfo import core_params
     from rths_numerical.substructure import make_substructure
 
     stop['planned_steps'] = int(make_substructure(core_params(numerical)).n_steps)
@@ -383,6 +384,7 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path) -> in
 
 
 def cmd_review(args) -> int:
+    """``rths review``."""
     from rths_bringup.review import print_review, review_rths
 
     bag = Path(args.bag)

@@ -12,6 +12,7 @@ import os
 import signal
 import threading
 import time
+from typing import Any
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
@@ -32,7 +33,9 @@ def make_node(name: str) -> Node:
 def parameters(node: Node) -> dict:
     """All parameters of ``node`` as a flat ``{name: python value}`` dict."""
     out = {}
-    for name, param in node.get_parameters_by_prefix('').items():
+    # rclpy annotates the values as parameter values; they are Parameter objects
+    by_name: dict[str, Any] = node.get_parameters_by_prefix('')
+    for name, param in by_name.items():
         if name in ROS_BUILTIN_PARAMS or name.startswith('qos_overrides.'):
             continue
         value = param.value
@@ -84,7 +87,7 @@ class StepClock:
 
 def parse_cpus(spec: str) -> set:
     """CPU set of an affinity spec such as ``'1'``, ``'0,1'`` or ``'0-1'`` ('' = all CPUs)."""
-    cpus = set()
+    cpus: set[int] = set()
     for part in str(spec).replace(' ', '').split(','):
         if not part:
             continue
@@ -276,10 +279,11 @@ class TickThread:
         self.tick = tick
         self.poll_s = poll_s
         self.running = True
-        self.error = None
+        self.error: Exception | None = None
         self.thread = threading.Thread(target=self._run, name='rths-clock', daemon=True)
 
     def start(self):
+        """Start the clock thread; return self."""
         self.thread.start()
         return self
 
@@ -299,6 +303,7 @@ class TickThread:
             self.error = err
 
     def stop(self):
+        """Stop the clock thread and wait for it (2 s at most)."""
         self.running = False
         self.thread.join(timeout=2.0)
 

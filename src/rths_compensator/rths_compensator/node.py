@@ -101,7 +101,7 @@ class CompensatorNode:
                       f"{len(self.params['denominator']) - 1} denominator order")
 
     def sender_gid(self) -> str:
-        """This node's writer gid on /rths/command, sent in ``header.frame_id`` (bridge check).
+        """Return this node's writer gid on /rths/command, sent in ``header.frame_id``.
 
         '' until the graph shows the writer (it does by the first message); then cached.
         """

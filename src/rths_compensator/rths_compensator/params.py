@@ -23,7 +23,7 @@ import os
 import numpy as np
 import yaml
 
-from rths_numerical.files import atomic_open
+from rths_common.files import atomic_open
 
 SCHEMES = ('ls', 'wls', 'mm', 'inverse', 'mff', 'npz', 'zpetc', 'zmetc', 'identity')
 

@@ -26,7 +26,7 @@ def _run(argv):
 
 @pytest.fixture(scope='module')
 def run_csv(tmp_path_factory):
-    """A 60 s identification run of a known 2nd-order, unit-DC-gain ARX plant."""
+    """Return a 60 s identification run of a known 2nd-order, unit-DC-gain ARX plant."""
     rng = np.random.default_rng(0)
     a = np.array([1.0, -1.6, 0.68])
     b = np.array([0.02, 0.06])  # zero at z = -3: non-minimum phase
@@ -94,20 +94,6 @@ def test_identify_reports_missing_column(tmp_path):
     bad.write_text('time,command\n0,0\n0.1,1\n')
     with pytest.raises(ValueError, match='measured'):
         _run(['identify', '--csv', str(bad), '--out', str(tmp_path / 'p.yaml')])
-
-
-def test_identify_bag_without_bagio(tmp_path, monkeypatch):
-    import builtins
-    real_import = builtins.__import__
-
-    def fake_import(name, *args, **kwargs):
-        if name.startswith('rths_bringup.bagio'):
-            raise ImportError(name)
-        return real_import(name, *args, **kwargs)
-
-    monkeypatch.setattr(builtins, '__import__', fake_import)
-    with pytest.raises(ValueError, match='export a CSV'):
-        _run(['identify', '--bag', str(tmp_path), '--out', str(tmp_path / 'p.yaml')])
 
 
 def test_unstable_zeros_command(tmp_path, capsys):

@@ -74,7 +74,7 @@ def _plots(out_dir, ctx, after_pred):
 
 
 def markdown(result, files) -> str:
-    """The report.md text."""
+    """Return the report.md text."""
     lines = [f"# Discrepancy report ({result['scenario']})", '',
              f"**Effect: `{result['effect']}`**", '']
     for name, par in result['parameters'].items():

@@ -30,7 +30,7 @@ NOISE = 0.005
 
 
 def excitation(scenario, duration_s, fs, rng):
-    """The input of a synthetic record (BLWN with 0.5 s tapers)."""
+    """Return the input of a synthetic record (BLWN with 0.5 s tapers)."""
     from rths_numerical.signals import blwn
     if scenario == 'specimen':
         return blwn(duration_s, fs, 10.0, 1.0, rng=rng, taper_s=0.5)

@@ -119,7 +119,7 @@ class Context:
             k in self.out_eff for k in ('backlash', 'velocity_saturation'))
 
     def column(self, name):
-        """Filtered regressor ``G[s phi]`` of a linear loop effect (cached)."""
+        """Return the filtered regressor ``G[s phi]`` of a linear loop effect (cached)."""
         if name not in self._cols:
             phi = fx.loop_regressor(self.scenario, name, self.states, self.model)
             self._cols[name] = lfilter(self.b, self.a, self.sign * phi)
@@ -206,7 +206,7 @@ def _solve_linear(ctx, names_lin, pnl):
         lhs = np.vstack([lhs, fmat[tr] * wf])
         rhs = np.concatenate([rhs, (ctx.e_r - base_f)[tr] * wf])
     theta = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
-    params = {**pnl, **{n: float(t) for n, t in zip(names_lin, theta)}}
+    params = {**pnl, **{n: float(t) for n, t in zip(names_lin, theta, strict=True)}}
     pred_f = base_f + fmat @ theta if ctx.force_rows else None
     nonlinear_out = ctx.nonlinear_out or any(
         n in pnl for n in ('backlash', 'velocity_saturation')) and ctx.scenario == 'actuator'
@@ -227,7 +227,7 @@ def fit_candidate(ctx, names):
         return np.linspace(lo, hi, k) if n == 'time_delay' else np.geomspace(lo, hi, k)
 
     def cost(p):
-        _, pred, pred_f = _solve_linear(ctx, lin, dict(zip(nl, p)))
+        _, pred, pred_f = _solve_linear(ctx, lin, dict(zip(nl, p, strict=True)))
         return ctx.score(pred, pred_f, ctx.train)
 
     if len(nl) == 1:
@@ -240,7 +240,7 @@ def fit_candidate(ctx, names):
                                                 'maxiter': 20})
         best = [res.x] if res.fun <= costs[i] else [g[i]]
     else:
-        grids = [grid(n, lo, hi, 7) for n, (lo, hi) in zip(nl, bounds)]
+        grids = [grid(n, lo, hi, 7) for n, (lo, hi) in zip(nl, bounds, strict=True)]
         pts = list(itertools.product(*grids))
         costs = [cost(p) for p in pts]
         p0 = np.array(pts[int(np.argmin(costs))])
@@ -254,7 +254,7 @@ def fit_candidate(ctx, names):
         best = np.clip(p0 + res.x * span, [b[0] for b in bounds], [b[1] for b in bounds])
         if res.fun > min(costs):
             best = p0
-    return _solve_linear(ctx, lin, {n: float(p) for n, p in zip(nl, best)})
+    return _solve_linear(ctx, lin, {n: float(p) for n, p in zip(nl, best, strict=True)})
 
 
 def _label(names):

@@ -9,7 +9,7 @@ import json
 import os
 import sys
 
-from .files import atomic_open, save_figure
+from rths_common.files import atomic_open, save_figure
 
 
 def _progress(label):
@@ -84,7 +84,7 @@ def cmd_simulate(args):
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(len(rows), 1, sharex=True, figsize=(9, 2.2 * len(rows) + 1))
     axes = np.atleast_1d(axes)
-    for ax, (name, res) in zip(axes, rows.items()):
+    for ax, (name, res) in zip(axes, rows.items(), strict=True):
         ax.plot(res['time'], res['disp'] / INCH, lw=0.8)
         ax.set_ylabel('2nd floor (in)')
         ax.set_title(name, fontsize=9)
@@ -103,7 +103,7 @@ def _surface_plot(path, x, y, surfaces, xlabel, ylabel, title):
 
     from .studies import CRITERIA
     fig, axes = plt.subplots(2, 2, figsize=(10, 8))
-    for ax, c in zip(axes.ravel(), CRITERIA):
+    for ax, c in zip(axes.ravel(), CRITERIA, strict=True):
         cs = ax.contourf(x, y, np.asarray(surfaces[c]).T, 30)
         fig.colorbar(cs, ax=ax)
         ax.set_title(c.replace('_', ' ') + (' (m)' if 'disp' in c else ' (m/s^2)'), fontsize=9)

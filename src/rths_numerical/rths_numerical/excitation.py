@@ -54,7 +54,7 @@ class PrescribedExcitation:
         return self._d[min(self._k, self.n_steps - 1)].copy()
 
     def done(self) -> bool:
-        """True once every step has its measurement."""
+        """Return True once every step has its measurement."""
         return self._k >= self.n_steps
 
     def history(self) -> dict:

@@ -114,6 +114,7 @@ class NumericalNode:
                       f"waiting for {own['wait_for_subscribers']} subscriber(s)")
 
     def publish(self, step: int, displacement):
+        """Publish the interface displacement of ``step``."""
         if self.realtime:
             drop = self.own['inject_drop_every']
             if drop > 0 and step > 0 and step % drop == 0:
@@ -247,6 +248,7 @@ class NumericalNode:
             self.finish()
 
     def finish(self):
+        """Mark the run finished (the last step is done)."""
         self.finished = True
         if self.cpu_loop is not None:
             self.cpu_loop[1] = time.process_time()
@@ -261,6 +263,7 @@ class NumericalNode:
                      cpu_loop_s=(cpu[1] or time.process_time()) - cpu[0])
 
     def summary(self) -> str:
+        """Return the one-line summary of the run."""
         wall = time.monotonic() - self.t_start if self.t_start else 0.0
         rate = self.expected / wall if wall > 0 else 0.0
         text = (f'numerical: {self.expected} of {self.sub.n_steps} steps in {wall:.2f} s '
@@ -271,6 +274,7 @@ class NumericalNode:
         return text
 
     def save_history(self):
+        """Write the response history (``history_out``), if asked."""
         path = self.own['history_out']
         if path:
             np.savez(path, **self.sub.history())

@@ -76,6 +76,7 @@ empty ``interface_dofs`` mean "default" (ROS parameters cannot be unset);
 """
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -83,6 +84,9 @@ from .dtm import FRAME_MASS_KG, TABLE4
 from .ground_motion import G, baseline_correct, ground_motion, integrate
 from .integrators import INTEGRATORS, make_integrator
 from .model import LinearModel, load_model_yaml, sdof_model
+
+if TYPE_CHECKING:
+    from .excitation import PrescribedExcitation
 
 FRAMES = ('absolute', 'relative')
 #: Parameters every ROS node has; ignored here.
@@ -151,7 +155,7 @@ class NumericalSubstructure:
         """Load vector ``p_k`` [N]: ``-M Gamma a_g + F s(t_k)`` plus ``P_I^E`` (relative frame)."""
         a = self.ag[k] if k < self.n_steps else 0.0
         p = -self._mg * a
-        if self._force_ext is not None:
+        if self._force_ext_scale is not None:  # set together with _force_ext
             p += self._force_ext * self._force_ext_scale[min(k, self.n_steps)]
         if self._relative_load:
             p[self.iface] -= self.force_scale * self.specimen_mass * self._gi * a
@@ -193,7 +197,7 @@ class NumericalSubstructure:
         return cmd
 
     def done(self) -> bool:
-        """True once ``n_steps`` steps are finished."""
+        """Return True once ``n_steps`` steps are finished."""
         return self._k >= self.n_steps
 
     def history(self) -> dict:
@@ -243,7 +247,7 @@ def build_model(params) -> LinearModel:
     raise ValueError(f'parameter model = {name!r}: use sdof, building2story or a .yaml path')
 
 
-def make_substructure(params: dict) -> NumericalSubstructure:
+def make_substructure(params: dict) -> 'NumericalSubstructure | PrescribedExcitation':
     """Build a :class:`NumericalSubstructure` from the flat parameter dict (module docstring).
 
     ``model: excitation`` returns a :class:`~.excitation.PrescribedExcitation`

@@ -1,7 +1,7 @@
 """Run information: the parameters of a run, kept in its bag so the review needs only the bag.
 
 The recorder stores every parameter it is given as the bag's run information
-(rosbag2 ``custom_data`` and a side file, :mod:`.bagio`).  Keys are
+(rosbag2 ``custom_data`` and a side file, :mod:`rths_common.bagio`).  Keys are
 ``fs_hz``, ``mode``, ``kind`` (``identification`` or ``rths``) and the
 numerical and bridge parameters prefixed with ``numerical.`` / ``bridge.``.
 Values are strings in the bag; :func:`section` parses them back with YAML.
@@ -17,7 +17,7 @@ SKIP = {'taps', 'denominator', 'history_out', 'executor', 'wait_for_subscribers'
 
 
 def load_params(path, node: str) -> dict:
-    """The ``ros__parameters`` of ``node`` in a ROS 2 params file (ValueError names the file)."""
+    """Return the ``ros__parameters`` of ``node`` in a params file (ValueError names the file)."""
     path = Path(path)
     if not path.is_file():
         raise OSError(f'params file {path} not found')
@@ -66,3 +66,18 @@ def section(info: dict, name: str) -> dict:
                 value = value.isoformat()  # YAML reads ISO times as dates; keep them text
             out[key[len(prefix):]] = value
     return out
+
+
+#: Parameters that configure a node itself, not its core: the union of the nodes'
+#: NODE_PARAMS (test_offline_node_keys checks this list against the nodes); a run's
+#: core parameters are its sections without them.
+NODE_KEYS = {'mode', 'executor', 'wait_for_subscribers', 'history_out', 'timing_out',
+             'status_every', 'autostart', 'watchdog_timeout_s', 'clock', 'spin_margin_us',
+             'publish_specimen', 'inject_drop_every', 'rt_priority', 'cpus', 'gc',
+             'command_source', 'inject_duplicate_every', 'inject_delay_every',
+             'inject_delay_ms', 'remote_graph'}
+
+
+def core_params(params: dict) -> dict:
+    """``params`` without the node-level keys."""
+    return {k: v for k, v in params.items() if k not in NODE_KEYS}

@@ -9,7 +9,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from rths_bringup import bagio
+from rths_common import bagio
 
 
 def _measurement(step):
@@ -56,7 +56,7 @@ def test_sigkilled_writer_leaves_a_readable_bag(tmp_path):
         import os, signal, sys, time
         import numpy as np
         sys.path[:0] = {sys.path!r}
-        from rths_bringup import bagio
+        from rths_common import bagio
         from test_bagio import _measurement
         w = bagio.BagWriter({str(bag)!r}, run_info={{'fs_hz': 1024.0}})
         for k in range(300):

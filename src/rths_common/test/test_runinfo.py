@@ -1,8 +1,8 @@
-"""Run information and params-file helpers (rths_bringup.runinfo)."""
+"""Run information and params-file helpers (rths_common.runinfo)."""
 
 import pytest
 
-from rths_bringup import runinfo
+from rths_common import runinfo
 
 
 def test_flatten_and_section_round_trip():
