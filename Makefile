@@ -27,10 +27,16 @@ lint: setup  ## ruff over src/ and test/ (ruff.toml), mypy on rths_common and th
 	    -p rths_compensator.filters -p rths_actuator_bridge.bridge && \
 	  echo "make lint: clean"
 
+setup-opensees: setup  ## optional: install OpenSeesPy (backend: opensees; not open source for commercial use)
+	@v=$$(.venv/bin/python -c 'import sys; print("3.8.0.0" if sys.version_info >= (3, 12) else "3.7.1.2")'); \
+	  echo "[setup-opensees] installing openseespy==$$v (licence: see README, 'OpenSeesPy')"; \
+	  .venv/bin/python -m pip install --quiet --disable-pip-version-check "openseespy==$$v" && \
+	  source env.sh && python -c 'from rths_numerical.opensees_backend import opensees_available as a; ok, v = a(); print("[setup-opensees]", "openseespy", v if ok else "FAILED: " + v); raise SystemExit(0 if ok else 1)'
+
 clean:  ## remove build products (keeps .venv)
 	rm -rf build install log
 
 distclean: clean  ## remove build products and the venv
 	rm -rf .venv
 
-.PHONY: help setup demo test lint clean distclean
+.PHONY: help setup setup-opensees demo test lint clean distclean

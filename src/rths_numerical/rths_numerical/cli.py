@@ -307,11 +307,56 @@ def _time_advance(model, name, dt, repeats=5, n=2000):
     return _best_step_us(lambda: sub.advance(force), repeats, n)
 
 
+def _advance_p50_us(sub, specimen):
+    """Median [us] of the per-step ``advance`` time over a whole coupled run (and the history)."""
+    import time
+
+    import numpy as np
+    times = np.zeros(sub.n_steps)
+    command = sub.first_displacement()
+    k = 0
+    while not sub.done():
+        force = specimen(command)
+        t0 = time.perf_counter_ns()
+        command = sub.advance(force)
+        times[k] = time.perf_counter_ns() - t0
+        k += 1
+    return float(np.median(times) * 1e-3), sub.history()
+
+
+def _backend_comparison(backend, record, scale, duration_s, fs_hz):
+    """Backend ``backend`` vs builtin on the 16-DOF building with the valve #4 DTM specimen."""
+    from .reference import DTMSpecimen, relative_rms_error
+    from .substructure import make_substructure
+    base = {'model': 'building2story', 'record': record, 'scale': scale,
+            'duration_s': duration_s, 'fs_hz': fs_hz}
+    keys = ('output_disp', 'measured_force', 'command')
+    out = {'record': record, 'scale': scale, 'duration_s': duration_s, 'compared': list(keys)}
+    runs = {}
+    for label, be, integ in (('builtin_cd', 'builtin', 'central_difference'),
+                             ('builtin_cr', 'builtin', 'cr'),
+                             (backend, backend, 'central_difference')):
+        sub = make_substructure(dict(base, backend=be, integrator=integ))
+        p50, runs[label] = _advance_p50_us(sub, DTMSpecimen('valve4', sub.dt))
+        out[f'step_us_p50_{label}'] = p50
+
+    def diff(a, b):
+        return max(relative_rms_error(runs[a][k], runs[b][k]) / 100 for k in keys)
+    out['max_rel_diff_vs_builtin'] = diff(backend, 'builtin_cd')
+    out['max_rel_diff_vs_builtin_cr'] = diff(backend, 'builtin_cr')
+    out['step_us_p50'] = out[f'step_us_p50_{backend}']
+    return out
+
+
 def cmd_bench_numerical(args):
     """Run ``rths bench numerical``."""
     import time
 
     from .building import building_16dof, building_240dof, x_frequencies
+    load_start = list(os.getloadavg())
+    if args.backend != 'builtin':
+        from .opensees_backend import import_opensees
+        import_opensees()   # OSError naming the fix, before minutes of other work
     b16 = building_16dof()
     b240 = building_240dof()
     f1, f2 = x_frequencies(b16)
@@ -339,6 +384,24 @@ def cmd_bench_numerical(args):
     print(f'step_us_16dof {data["step_us_16dof"]:.1f} (target <= 20), step_us_240dof '
           f'{data["step_us_240dof"]:.1f} (target <= 100)')
     print(f'dtm_tuning_s {tuning_s:.2f} for {args.n_fn} x {args.n_zeta} grid (target <= 60)')
+    data['backend'] = args.backend
+    data['load_average_start'] = load_start
+    if args.backend != 'builtin':
+        span = f'{args.duration_s:g} s' if args.duration_s else 'whole record'
+        print(f'{args.backend} vs builtin: 16-DOF building + valve #4 DTM, '
+              f'{args.record} x {args.scale}, {span}', flush=True)
+        cmp = _backend_comparison(args.backend, args.record, args.scale, args.duration_s,
+                                  args.fs_hz)
+        data.update(max_rel_diff_vs_builtin=cmp['max_rel_diff_vs_builtin'],
+                    step_us_p50=cmp['step_us_p50'], backend_comparison=cmp)
+        print(f'max_rel_diff_vs_builtin {cmp["max_rel_diff_vs_builtin"]:.2e} (central difference '
+              f'in both; target <= 1e-3), vs builtin cr {cmp["max_rel_diff_vs_builtin_cr"]:.2e}')
+        print(f'step_us_p50 {cmp["step_us_p50"]:.1f} (advance, 16 DOF; target <= 100); builtin '
+              f'central difference {cmp["step_us_p50_builtin_cd"]:.1f}, cr '
+              f'{cmp["step_us_p50_builtin_cr"]:.1f}')
+    data['load_average_end'] = list(os.getloadavg())
+    print(f'load average {load_start[0]:.1f} at the start, {data["load_average_end"][0]:.1f} at '
+          'the end (timings are noisy on a shared machine)')
     _write_json(args.out, data)
     print(f'wrote {args.out}')
     return 0
@@ -422,9 +485,20 @@ def register(commands, benches):
         'numerical', help='integrator step times (16/240 DOF) and dtm-tuning run time',
         description='Measure one CR/KR-alpha/Newmark step of the 16- and 240-DOF building, the '
                     'x frequencies, and the dtm-tuning study time; print and write JSON with '
-                    'f1_hz, f2_hz, step_us_16dof, step_us_240dof, dtm_tuning_s.')
+                    'f1_hz, f2_hz, step_us_16dof, step_us_240dof, dtm_tuning_s, backend. '
+                    'With --backend opensees also the RTHS of the 16-DOF building with the '
+                    'valve #4 DTM on OpenSees and builtin (central difference in both): '
+                    'max_rel_diff_vs_builtin and step_us_p50.')
     bn.add_argument('--out', default='out/bench_numerical.json')
     bn.add_argument('--fs-hz', type=float, default=1024.0)
     bn.add_argument('--n-fn', type=int, default=40)
     bn.add_argument('--n-zeta', type=int, default=30)
+    bn.add_argument('--backend', default='builtin', choices=['builtin', 'opensees'],
+                    help='opensees (OpenSeesPy, `make setup-opensees`): also run the 16-DOF '
+                         'building with the valve #4 DTM on both backends and report backend, '
+                         'max_rel_diff_vs_builtin and step_us_p50 (median advance time, us)')
+    bn.add_argument('--record', default='kobe', help='record of the backend comparison')
+    bn.add_argument('--scale', type=float, default=0.135, help='record scale factor')
+    bn.add_argument('--duration-s', type=float, default=0.0,
+                    help='seconds of record in the backend comparison; 0 = whole record')
     bn.set_defaults(func=cmd_bench_numerical)

@@ -3,7 +3,7 @@
 Before an RTHS the lab identifies the plant (actuator + table + specimen) by
 driving it with band-limited white noise (seed section 4.3.1: BLWNs of 0~64 and
 0~128 Hz, 2.54-38.1 mm peak; section 6.1 for the actuator with the DTM).
-:class:`PrescribedExcitation` has the interface of
+:class:`PrescribedExcitation` is a :class:`~.stepping.SteppedSubstructure` like
 :class:`~rths_numerical.substructure.NumericalSubstructure`, so the numerical
 node runs it unchanged (``model: excitation``): it ignores the measured force
 and plays the signal, and its history keeps both for the identification.
@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from .signals import blwn
+from .stepping import SteppedSubstructure
 
 #: Parameters of ``model: excitation`` and their defaults (SI units).
 EXCITATION_DEFAULTS = {
@@ -27,8 +28,10 @@ EXCITATION_DEFAULTS = {
 }
 
 
-class PrescribedExcitation:
+class PrescribedExcitation(SteppedSubstructure):
     """Plays a prescribed interface displacement; records the measured force."""
+
+    backend = 'builtin'
 
     def __init__(self, displacement, dt: float):
         """``displacement`` [m] per step (1-D: one interface DOF, or steps x DOFs)."""
@@ -38,8 +41,19 @@ class PrescribedExcitation:
             raise ValueError('the prescribed displacement holds nan/inf')
         self.dt = float(dt)
         self.n_steps, self.n_interface = self._d.shape
+        self.reset()
+
+    def reset(self):
+        """Return to step 0 (the prescribed displacement is unchanged)."""
         self._force = np.zeros_like(self._d)
         self._k = 0
+
+    def state(self) -> dict:
+        """Return the step count, time [s] and interface displacement [m] of the last step."""
+        k = self._k
+        last = self._d[k - 1] if k else np.full(self.n_interface, np.nan)
+        return {'step': k, 'time': (k - 1) * self.dt if k else float('nan'),
+                'interface_disp': last.copy(), 'output_disp': float(last[0])}
 
     def first_displacement(self) -> np.ndarray:
         """Interface displacement command of step 0 [m]."""
@@ -61,6 +75,7 @@ class PrescribedExcitation:
         """Time, prescribed interface displacement and measured force of the finished steps."""
         k = self._k
         return {'time': np.arange(k) * self.dt, 'interface_disp': self._d[:k].copy(),
+                'output_disp': self._d[:k, 0].copy(), 'command': self._d[:k].copy(),
                 'measured_force': self._force[:k].copy()}
 
 

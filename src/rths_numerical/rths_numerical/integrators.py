@@ -52,13 +52,23 @@ acceleration of step k+1 satisfies equilibrium with the measured ``r_{k+1}``::
 Without a restoring force it is the classical trapezoidal rule: spectral radius
 1, period elongation ``(Omega/2)/atan(Omega/2)`` as for CR.
 
+Central difference (explicit, the pairing of OpenSees' ``CentralDifference``)::
+
+    (M/dt^2 + C/(2 dt)) d_{k+1} = p_k - r_k - (K - 2 M/dt^2) d_k - (M/dt^2 - C/(2 dt)) d_{k-1}
+    a_k = (d_{k+1} - 2 d_k + d_{k-1}) / dt^2,   v_k = (d_{k+1} - d_{k-1}) / (2 dt)
+
+Equilibrium at step k gives the displacement of step k+1: the force measured
+at step k pairs with the displacement sent at step k+1, exactly the RTHS step.
+Conditionally stable: ``omega_max dt < 2`` (checked, :class:`CentralDifference`);
+second-order accurate, period shortening instead of CR's elongation.
+
 State matrices are precomputed, so each step costs two dense mat-vec products.
 """
 
 import numpy as np
 import scipy.linalg as sla
 
-INTEGRATORS = ('cr', 'kr_alpha', 'newmark')
+INTEGRATORS = ('cr', 'kr_alpha', 'newmark', 'central_difference')
 
 
 class _Integrator:
@@ -249,14 +259,79 @@ class NewmarkAverage(_Integrator):
         return self.a, self.v
 
 
+class CentralDifference(_Integrator):
+    """Explicit central difference; ``d_{k+1}`` is known once step k's force is (module doc)."""
+
+    name = 'central_difference'
+    predict_uses_load = False
+
+    def __init__(self, M, C, K, dt):
+        super().__init__(M, C, K, dt)
+        check_central_difference_step(self.M, self.K, self.dt)
+        dt = self.dt
+        M, C, K = self.M, self.C, self.K
+        ainv = np.linalg.inv(M / dt ** 2 + C / (2.0 * dt))
+        # d_{k+1} = G [(p - r)_k, d_k, d_{k-1}]
+        self._G = np.ascontiguousarray(np.hstack(
+            [ainv, ainv @ (2.0 * M / dt ** 2 - K), -ainv @ (M / dt ** 2 - C / (2.0 * dt))]))
+        self._buf = np.zeros(3 * self.n)
+        self._d_prev = np.zeros(self.n)
+
+    def _next(self, p, r):
+        """Displacement of step k+1 from equilibrium at step k; sets ``a`` and ``v`` of step k."""
+        n, b, dt = self.n, self._buf, self.dt
+        np.subtract(p, r, out=b[:n])
+        b[n:2 * n], b[2 * n:] = self.d, self._d_prev
+        d_next = self._G @ b
+        self.a = (d_next - 2.0 * self.d + self._d_prev) / dt ** 2
+        self.v = (d_next - self._d_prev) / (2.0 * dt)
+        self._d_next = d_next
+        return d_next
+
+    def set_state(self, d, v, a=None, p=None, r=None):
+        """Set step k (``d_{k-1} = d - dt v + dt^2/2 a``) and compute ``d_{k+1}``."""
+        super().set_state(d, v, a, p, r)
+        dt = self.dt
+        self._d_prev = self.d - dt * self.v + 0.5 * dt * dt * self.a
+        self._next(self._p, self.r)
+
+    def predict(self, p_next=None):
+        """Return ``d_{k+1}`` [m], computed when step k finished (``p_next`` is ignored)."""
+        if self._d_next is None:
+            self._next(self._p, self.r)
+        return self._d_next
+
+    def correct(self, p_next, r_next):
+        """Finish step k+1 with its load and restoring force; return (a, v) of step k+1."""
+        d_next = self.predict()
+        self._d_prev, self.d = self.d, d_next
+        self._p = np.asarray(p_next, dtype=float)
+        self.r = np.asarray(r_next, dtype=float)
+        self._next(self._p, self.r)
+        return self.a, self.v
+
+
+def check_central_difference_step(M, K, dt):
+    """Raise ValueError unless ``omega_max dt < 2`` (central-difference stability limit)."""
+    w2 = sla.eigh(np.atleast_2d(K), np.atleast_2d(M), eigvals_only=True)
+    w_max = float(np.sqrt(max(float(np.max(w2)), 0.0)))
+    if w_max * dt >= 2.0:
+        raise ValueError(
+            f'integrator central_difference is unstable for this model at dt = {dt:g} s: the '
+            f'highest mode ({w_max / (2 * np.pi):.1f} Hz) needs dt < {2.0 / w_max:.3g} s; raise '
+            'fs_hz or use cr / kr_alpha (unconditionally stable)')
+
+
 def make_integrator(name, M, C, K, dt, rho_inf=0.5):
-    """Return the integrator ``name`` ('cr', 'kr_alpha', 'newmark') built from M, C, K, dt."""
+    """Return the integrator ``name`` (one of :data:`INTEGRATORS`) built from M, C, K, dt."""
     if name == 'cr':
         return ChenRicles(M, C, K, dt)
     if name == 'kr_alpha':
         return KRAlpha(M, C, K, dt, rho_inf)
     if name == 'newmark':
         return NewmarkAverage(M, C, K, dt)
+    if name == 'central_difference':
+        return CentralDifference(M, C, K, dt)
     raise ValueError(f'integrator {name!r} is unknown; use one of {", ".join(INTEGRATORS)}')
 
 

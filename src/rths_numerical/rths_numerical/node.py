@@ -102,9 +102,10 @@ class NumericalNode:
         if self.realtime:
             self.steps_pub = self.node.create_publisher(UInt64, topics.RUN_STEPS, run_info_qos())
             self.steps_pub.publish(UInt64(data=self.sub.n_steps))
-            # warm-up: the first call of every code path is slow (numpy dispatch, caches)
-            import copy
-            copy.deepcopy(self.sub).advance(np.zeros(self.sub.n_interface))
+            # warm-up: the first call of every code path is slow (numpy dispatch, caches); reset()
+            # rather than a deep copy: an OpenSees model lives in one global domain
+            self.sub.advance(np.zeros(self.sub.n_interface))
+            self.sub.reset()
             gaps.warm_up(gaps.FORCE_ORDER, n_channels=self.sub.n_interface)
             tuning = ns.tune_process(*ns.tuning(own, 'numerical'))
             self.log.info(f'realtime: {tuning}')

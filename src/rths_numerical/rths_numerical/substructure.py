@@ -48,8 +48,11 @@ Parameters of :func:`make_substructure` (flat dict, as ROS parameters)
 =================  ========================================================  ==============
 key                meaning                                                   default
 =================  ========================================================  ==============
+backend            'builtin' (this package's integrators) or 'opensees'      'builtin'
+                   (OpenSeesPy, optional: :mod:`.opensees_backend`)
 model              'sdof', 'building2story' (16-DOF) or a model YAML path    'sdof'
-integrator         'cr', 'kr_alpha' or 'newmark'                             'cr'
+integrator         builtin: 'cr', 'kr_alpha', 'newmark', 'central_difference' 'cr' /
+                   opensees: 'central_difference' or 'newmark'               'central_diff..'
 rho_inf            KR-alpha spectral radius at infinity, 0..1                0.5
 fs_hz              loop rate [Hz] (time step 1/fs_hz)                        1024.0
 duration_s         simulated time [s]; 0 = whole record                      10.0 / record
@@ -76,7 +79,6 @@ empty ``interface_dofs`` mean "default" (ROS parameters cannot be unset);
 """
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -84,15 +86,14 @@ from .dtm import FRAME_MASS_KG, TABLE4
 from .ground_motion import G, baseline_correct, ground_motion, integrate
 from .integrators import INTEGRATORS, make_integrator
 from .model import LinearModel, load_model_yaml, sdof_model
-
-if TYPE_CHECKING:
-    from .excitation import PrescribedExcitation
+from .stepping import BACKENDS, SteppedSubstructure
 
 FRAMES = ('absolute', 'relative')
 #: Parameters every ROS node has; ignored here.
 ROS_KEYS = ('use_sim_time', 'start_type_description_service')
 DEFAULTS = {
-    'model': 'sdof', 'integrator': 'cr', 'rho_inf': 0.5, 'fs_hz': 1024.0, 'duration_s': None,
+    'backend': 'builtin', 'model': 'sdof', 'integrator': None, 'rho_inf': 0.5, 'fs_hz': 1024.0,
+    'duration_s': None,
     'record': 'harmonic', 'scale': 0.1, 'harmonic_freq_hz': None, 'blwn_band_hz': 10.0,
     'seed': 0, 'interface_dofs': None, 'force_scale': None, 'interface_frame': 'absolute',
     'specimen_mass_kg': FRAME_MASS_KG + TABLE4['valve4'].m_d, 'sdof_mass_kg': 1000.0,
@@ -100,8 +101,10 @@ DEFAULTS = {
 }
 
 
-class NumericalSubstructure:
+class NumericalSubstructure(SteppedSubstructure):
     """Numerical part of an RTHS (seed eq. 25) advanced one loop step per measured force."""
+
+    backend = 'builtin'
 
     def __init__(self, model: LinearModel, ground_accel, dt, integrator='cr', rho_inf=0.5,
                  interface_dofs=None, force_scale=1.0, interface_frame='absolute',
@@ -129,6 +132,7 @@ class NumericalSubstructure:
         self.force_scale = float(force_scale)
         self.frame = interface_frame
         self.specimen_mass = float(specimen_mass_kg)
+        self.integrator = integrator
         self.integ = make_integrator(integrator, model.M, model.C, model.K, self.dt, rho_inf)
         self._mg = model.M @ model.gamma
         # external force F s(t_k) [N] of steps 0..n_steps (predict() may read step n_steps)
@@ -142,9 +146,12 @@ class NumericalSubstructure:
         self._predict_needs_load = self.integ.predict_uses_load
         self._relative_load = self.frame == 'relative' and bool(self.specimen_mass)
         self._absolute = self.frame == 'absolute'
-        n, ns = model.n, self.n_steps
+        self.reset()
+
+    def reset(self):
+        """Return to step 0 at rest (same model, ground motion and settings)."""
+        n, ns = self.model.n, self.n_steps
         self._k = 0
-        self._r = np.zeros(n)
         self._d = np.zeros((ns, n))
         self._a_out = np.zeros(ns)
         self._cmd = np.zeros((ns, self.n_interface))
@@ -200,6 +207,14 @@ class NumericalSubstructure:
         """Return True once ``n_steps`` steps are finished."""
         return self._k >= self.n_steps
 
+    def state(self) -> dict:
+        """Step count, time [s], interface and output displacement [m] of the last finished step."""
+        k = self._k
+        last = self._d[k - 1] if k else np.full(self.model.n, np.nan)
+        return {'step': k, 'time': (k - 1) * self.dt if k else float('nan'),
+                'interface_disp': last[self._iface_idx].copy(),
+                'output_disp': float(last[self.model.output_dof])}
+
     def history(self) -> dict:
         """Arrays of the finished steps (SI units) for the review and the reference comparison."""
         k = self._k
@@ -247,8 +262,12 @@ def build_model(params) -> LinearModel:
     raise ValueError(f'parameter model = {name!r}: use sdof, building2story or a .yaml path')
 
 
-def make_substructure(params: dict) -> 'NumericalSubstructure | PrescribedExcitation':
-    """Build a :class:`NumericalSubstructure` from the flat parameter dict (module docstring).
+def make_substructure(params: dict) -> SteppedSubstructure:
+    """Build the substructure the parameters describe (module docstring).
+
+    ``backend: builtin`` gives a :class:`NumericalSubstructure`, ``backend:
+    opensees`` an :class:`.opensees_backend.OpenSeesSubstructure` (OpenSeesPy
+    needed; OSError naming the fix when it is absent).
 
     ``model: excitation`` returns a :class:`~.excitation.PrescribedExcitation`
     instead (the identification run: a BLWN interface displacement).
@@ -265,9 +284,13 @@ def make_substructure(params: dict) -> 'NumericalSubstructure | PrescribedExcita
     if unknown:
         raise ValueError(f'unknown parameter(s) {", ".join(sorted(unknown))}; '
                          f'known: {", ".join(DEFAULTS)}')
+    backend = str(params.get('backend', 'builtin'))
+    if backend not in BACKENDS:
+        raise ValueError(f'parameter backend = {backend!r}: use {" or ".join(BACKENDS)}')
     model = build_model(params)
-    integ = str(params.get('integrator', 'cr'))
-    if integ not in INTEGRATORS:
+    integ = str(params.get('integrator') or
+                ('cr' if backend == 'builtin' else 'central_difference'))
+    if backend == 'builtin' and integ not in INTEGRATORS:
         raise ValueError(f'parameter integrator = {integ!r}: use one of {", ".join(INTEGRATORS)}')
     rho = _num(params, 'rho_inf', allow_zero=True)
     if rho > 1:
@@ -307,5 +330,9 @@ def make_substructure(params: dict) -> 'NumericalSubstructure | PrescribedExcita
     fscale = params.get('force_scale')
     fscale = (5.0 if params.get('model') == 'building2story' else 1.0) if fscale is None \
         else _num(params, 'force_scale', allow_zero=True)
-    return NumericalSubstructure(model, ag, dt, integ, rho, iface, fscale, frame,
-                                 _num(params, 'specimen_mass_kg', allow_zero=True), ug)
+    mass = _num(params, 'specimen_mass_kg', allow_zero=True)
+    if backend == 'opensees':
+        from .opensees_backend import OpenSeesSubstructure, linear_model_builder
+        builder = linear_model_builder(model, model.interface_dofs if iface is None else iface)
+        return OpenSeesSubstructure(builder, model, ag, dt, integ, iface, fscale, frame, mass, ug)
+    return NumericalSubstructure(model, ag, dt, integ, rho, iface, fscale, frame, mass, ug)

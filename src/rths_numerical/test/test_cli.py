@@ -33,3 +33,23 @@ def test_simulate_parses():
     assert args.damper == 'valve4' and args.scale == 0.135
     args = _parser().parse_args(['bench', 'numerical', '--out', 'x.json'])
     assert args.out == 'x.json'
+
+
+def test_bench_backend_comparison_tiny():
+    """The opensees part of ``rths bench numerical --backend opensees`` on 4 s of record.
+
+    Over the first second alone the two starts differ visibly (OpenSees assumes
+    d_{-1} = d_0, the built-in d_{-1} = dt^2/2 a_0): 1.03e-3.
+    """
+    import pytest
+
+    from rths_numerical.opensees_backend import opensees_available
+    ok, why = opensees_available()
+    if not ok:
+        pytest.skip(f'OpenSeesPy unavailable: {why}')
+    args = _parser().parse_args(['bench', 'numerical', '--backend', 'opensees'])
+    assert args.backend == 'opensees' and args.duration_s == 0.0
+    out = cli._backend_comparison('opensees', 'kobe', 0.135, 4.0, 1024.0)
+    assert 0 < out['max_rel_diff_vs_builtin'] <= 1e-3
+    assert out['max_rel_diff_vs_builtin_cr'] > out['max_rel_diff_vs_builtin']
+    assert out['step_us_p50'] > 0
