@@ -58,8 +58,8 @@ def test_lockstep_run_equals_offline_coupled_simulation(tmp_path):
 def test_offline_node_keys_cover_every_node_parameter():
     """The offline loop strips exactly the node-level keys the nodes take for themselves."""
     from rths_actuator_bridge.node import NODE_PARAMS as bridge
-    from rths_common.runinfo import NODE_KEYS
+    from rths_common.params import NODE_KEYS
     from rths_compensator.node import NODE_PARAMS as compensator
     from rths_numerical.node import NODE_PARAMS as numerical
 
-    assert set(bridge) | set(compensator) | set(numerical) == NODE_KEYS
+    assert set(bridge) | set(compensator) | set(numerical) == set(NODE_KEYS)

@@ -31,6 +31,23 @@ from .udp import UdpBackend
 #: Backend name (the ``backend`` parameter) -> class; 'simulated' is the default.
 BACKENDS = {'simulated': SimulatedBackend, 'udp': UdpBackend}
 
+#: The bridge's own parameters: key -> (default, meaning [unit]).  The backends' are
+#: ``simulated.SIM_PARAMS`` and ``udp.UDP_PARAMS``, the limits ``safety.SAFETY_PARAMS``.
+PARAMS = {
+    'backend': ('simulated', "'simulated' (the plant model) or 'udp' (a servo controller)"),
+    'command_delay_steps': (0, '[steps] the command of step k is written at tick k + D'),
+}
+
+
+def param_schema(node_params) -> dict:
+    """Return the bridge node's parameter schema: its ``node_params``, the core's, the backends'."""
+    from rths_common.params import node_schema
+
+    from .simulated import SIM_PARAMS
+    from .udp import UDP_PARAMS
+    return node_schema(node_params, {**UDP_PARAMS, **SIM_PARAMS, **safety.SAFETY_PARAMS,
+                                     **PARAMS})
+
 
 def make_backend(params: dict) -> Backend:
     """Create and configure the backend named by ``params['backend']`` (default 'simulated')."""

@@ -13,16 +13,19 @@ Anyone can run a coupled simulation with it, without ROS.
 
 import numpy as np
 
-from rths_common.runinfo import core_params
+from rths_common.params import core_params
 
 
 def offline_rths(numerical: dict, compensator: dict, bridge: dict) -> dict:
     """Run the coupled loop for every step of the substructure; return per-step arrays."""
     from rths_actuator_bridge.bridge import Bridge
     from rths_compensator.filters import MultiChannelFilter
+    from rths_compensator.params import check_sampling_rate
     from rths_numerical.substructure import make_substructure
 
     sub = make_substructure(core_params(numerical))
+    if 'fs_hz' in compensator:
+        check_sampling_rate(compensator, 1.0 / sub.dt, 'compensator', 'the loop rate 1/dt')
     comp = MultiChannelFilter(compensator['taps'], compensator.get('denominator', [1.0]),
                               n_channels=sub.n_interface)
     lab = Bridge()

@@ -117,7 +117,7 @@ def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
 def _numerical_params(info: dict) -> dict:
     """Return the run's numerical core parameters (node-level keys stripped, as offline does)."""
     from rths_common import runinfo
-    from rths_common.runinfo import core_params
+    from rths_common.params import core_params
     return core_params(runinfo.section(info, 'numerical'))
 
 

@@ -258,11 +258,11 @@ def _install_compensator(designed: Path, target: Path, external_plant: bool):
     from rths_compensator.params import load_compensator_params, write_compensator_params
 
     params = load_compensator_params(designed)
-    if not external_plant:
-        params['plant'] = 'plant.yaml'  # relative to the config directory, copied beside it
+    if not external_plant:  # relative to the config directory, copied beside it
+        params['provenance']['plant'] = 'plant.yaml'
     fields = ('taps', 'denominator', 'fs_hz', 'scheme')
     write_compensator_params(target, *(params[f] for f in fields),
-                             provenance={k: v for k, v in params.items() if k not in fields})
+                             provenance=params['provenance'])
 
 
 def cmd_run(args) -> int:
@@ -349,8 +349,9 @@ def _run(args) -> int:
                                    'bridge': base['bridge']})
     stop = _launch_phase('RTHS', cfg, rths_dir / 'bag', 'rths', fs, args.mode,
                          {'numerical': numerical, 'bridge': base['bridge'],
-                          'compensator': {k: v for k, v in comp.items() if k in (
-                              'scheme', 'n_taps', 'fc_hz', 'plant', 'predicted_delay_ms')}},
+                          'compensator': {'scheme': comp['scheme'], **{
+                              k: v for k, v in comp.get('provenance', {}).items()
+                              if k in ('n_taps', 'fc_hz', 'plant', 'predicted_delay_ms')}}},
                          history=rths_dir / 'numerical_history.npz')
     if stop is not None:
         return _report_safety_stop(stop, numerical, out, rths_dir / 'bag')
@@ -368,7 +369,7 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path) -> in
     """Write and print the summary of an RTHS run the bridge stopped; return EXIT_SAFETY_STOP."""
     import json
 
-    from rths_common.runinfo import core_params
+    from rths_common.params import core_params
     from rths_numerical.substructure import make_substructure
 
     stop['planned_steps'] = int(make_substructure(core_params(numerical)).n_steps)

@@ -14,9 +14,11 @@ import threading
 import time
 from typing import Any
 
+from rcl_interfaces.msg import ParameterDescriptor
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from rths_msgs.msg import LoopStatus
 
@@ -24,10 +26,31 @@ from rths_msgs.msg import LoopStatus
 ROS_BUILTIN_PARAMS = ('use_sim_time', 'start_type_description_service')
 
 
-def make_node(name: str) -> Node:
-    """Create a node whose parameters are everything its params file sets."""
-    return Node(name, automatically_declare_parameters_from_overrides=True,
+def make_node(name: str, schema: dict | None = None, defaults: dict | None = None) -> Node:
+    """Create a node whose parameters are everything its params file sets.
+
+    ``schema`` (key -> description with unit, :func:`rths_common.params.node_schema`)
+    describes them: each key it names gets a read-only descriptor with its type and
+    description, so ``ros2 param describe`` shows them.  Keys of ``defaults`` (the
+    node-level ``NODE_PARAMS``) that the file does not set are declared with their
+    default.  A key the schema does not name is left to the core's check, which
+    rejects it by name.
+    """
+    node = Node(name, automatically_declare_parameters_from_overrides=True,
                 allow_undeclared_parameters=True)
+    for key, description in (schema or {}).items():
+        if node.has_parameter(key):
+            value = node.get_parameter(key)
+            node.set_descriptor(key, _descriptor(key, value.type_.value, description))
+        elif defaults is not None and key in defaults:
+            value = Parameter(key, value=defaults[key])
+            node.declare_parameter(key, defaults[key],
+                                   _descriptor(key, value.type_.value, description))
+    return node
+
+
+def _descriptor(key: str, type_id: int, description: str) -> ParameterDescriptor:
+    return ParameterDescriptor(name=key, type=type_id, description=description, read_only=True)
 
 
 def parameters(node: Node) -> dict:

@@ -66,18 +66,3 @@ def section(info: dict, name: str) -> dict:
                 value = value.isoformat()  # YAML reads ISO times as dates; keep them text
             out[key[len(prefix):]] = value
     return out
-
-
-#: Parameters that configure a node itself, not its core: the union of the nodes'
-#: NODE_PARAMS (test_offline_node_keys checks this list against the nodes); a run's
-#: core parameters are its sections without them.
-NODE_KEYS = {'mode', 'executor', 'wait_for_subscribers', 'history_out', 'timing_out',
-             'status_every', 'autostart', 'watchdog_timeout_s', 'clock', 'spin_margin_us',
-             'publish_specimen', 'inject_drop_every', 'rt_priority', 'cpus', 'gc',
-             'command_source', 'inject_duplicate_every', 'inject_delay_every',
-             'inject_delay_ms', 'remote_graph'}
-
-
-def core_params(params: dict) -> dict:
-    """``params`` without the node-level keys."""
-    return {k: v for k, v in params.items() if k not in NODE_KEYS}

@@ -54,9 +54,10 @@ def test_identify_design_compensate_chain(tmp_path, run_csv, capsys):
     assert _run(['design', '--plant', str(plant_path), '--scheme', 'ls', '--taps', '20',
                  '--fc', '20', '--epsilon', '0.01', '--out', str(comp_path)]) == 0
     params = load_compensator_params(comp_path)
-    assert params['scheme'] == 'ls' and params['n_taps'] == 20 and params['fc_hz'] == 20.0
-    assert abs(params['predicted_delay_ms']) < 1.0
-    assert params['plant'].endswith('plant.yaml')
+    prov = params['provenance']
+    assert params['scheme'] == 'ls' and prov['n_taps'] == 20 and prov['fc_hz'] == 20.0
+    assert abs(prov['predicted_delay_ms']) < 1.0
+    assert prov['plant'].endswith('plant.yaml')
 
     out_path = tmp_path / 'out.csv'
     assert _run(['compensate', '--params', str(comp_path), '--csv', str(csv_path),
@@ -134,7 +135,8 @@ def test_design_zero_tol_reproduces_design_fir_and_is_recorded(tmp_path, damped_
     assert _run(common + ['--out', str(plain)]) == 0
     assert _run(common + ['--zero-tol', str(BENCH_ZERO_TOL), '--out', str(tol)]) == 0
     p_plain, p_tol = load_compensator_params(plain), load_compensator_params(tol)
-    assert p_plain['zero_tol'] == 1.0 and p_tol['zero_tol'] == BENCH_ZERO_TOL
+    assert p_plain['provenance']['zero_tol'] == 1.0
+    assert p_tol['provenance']['zero_tol'] == BENCH_ZERO_TOL
     assert _max_pole(p_plain['denominator']) == pytest.approx(0.995, abs=1e-6)
     assert _max_pole(p_tol['denominator']) < BENCH_ZERO_TOL
     ref = dsg.design_fir(model, 50, 32.0, 'wls', 0.01, zero_tol=BENCH_ZERO_TOL)
@@ -159,7 +161,7 @@ def test_design_auto_passes_zero_tol(tmp_path, damped_zero_plant, monkeypatch):
     assert seen and set(seen) == {0.97}
     params = load_compensator_params(out)
     if params['scheme'] in ('ls', 'wls', 'mm'):
-        assert params['zero_tol'] == 0.97
+        assert params['provenance']['zero_tol'] == 0.97
         assert _max_pole(params['denominator']) < 0.97
 
 

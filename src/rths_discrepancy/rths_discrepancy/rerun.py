@@ -46,7 +46,7 @@ def run_parameters(bag, config=None) -> tuple:
     ValueError names the fix when neither is available.
     """
     from rths_common import bagio, runinfo
-    from rths_common.runinfo import core_params
+    from rths_common.params import core_params
 
     info = bagio.run_info(bag)
     numerical = runinfo.section(info, 'numerical')
