@@ -58,6 +58,11 @@ they remove the sample-synchronous acceleration ripple of the ZOH command
 staircase that a raw sample of ``xdd_s`` would alias into the record.  The
 actuator displacement and the force are not filtered (no extra loop delay).
 
+MR damper (``dtm: mr``): the specimen is a magnetorheological damper between
+the table and the reaction frame (:mod:`.mr_specimen`); its stroke is the table
+displacement and the measured force is the damper force (the Bouc-Wen model of
+Spencer et al. 1997 at the constant voltage ``mr_voltage_v``).
+
 Sensors: Gaussian noise of standard deviation ``displacement_noise_m``,
 ``force_noise_n``, ``rel_disp_noise_m``, ``accel_noise_m_s2`` from a seeded
 ``numpy.random.Generator``; ADC quantisation with ``adc_bits`` over
@@ -117,13 +122,17 @@ class PlantConfig:
     friction_v_m_s: float = 1e-3
     friction_substeps: int = 16
     daq_filter_hz: float = 200.0
+    mr_voltage_v: float = 1.0
+    mr_substeps: int = 8
 
 
 #: Simulated-backend parameters: key -> (type, default, unit/meaning).
 SIM_PARAMS = {
     'fs_hz': (float, 1024.0, '[Hz] loop sampling frequency (seed: 1024 Hz)'),
-    'actuator_model': (str, '3pole', "'3pole' | '4pole' (Table 1) | path to an ARX plant.yaml"),
-    'dtm': (str, 'valve4', "'valve1'..'valve4' | 'novalve' (Table 4) | 'none' (bare table)"),
+    'actuator_model': (str, '3pole', "'3pole' | '4pole' (Table 1) | 'silva2020' (benchmark "
+                       'plant with its specimen, see silva2020.py) | path to an ARX plant.yaml'),
+    'dtm': (str, 'valve4', "'valve1'..'valve4' | 'novalve' (Table 4) | 'none' (bare table) | "
+            "'mr' (MR damper, .mr_specimen)"),
     'frame_mass_kg': (float, float('nan'),
                       '[kg] DTM supporting-frame mass (default 250.0 lbm = 113.4 kg)'),
     'displacement_noise_m': (float, 0.0, '[m] std of actuator displacement sensor noise'),
@@ -141,6 +150,8 @@ SIM_PARAMS = {
     'friction_substeps': (int, 16, '[-] sub-steps per sample when friction_n > 0'),
     'daq_filter_hz': (float, 200.0, '[Hz] cut-off of the 2nd-order Butterworth anti-alias '
                       'filter of the specimen channels (table_accel, rel_disp, rel_vel); 0 = off'),
+    'mr_voltage_v': (float, 1.0, '[V] constant command voltage of the MR damper (dtm: mr)'),
+    'mr_substeps': (int, 8, '[-] RK4 sub-steps per sample of the MR damper model (dtm: mr)'),
 }
 
 #: Specimen instrumentation channels that pass the DAQ anti-alias filter.
@@ -179,7 +190,7 @@ def plant_config(params: dict) -> PlantConfig:
 
 def _dtm_params(name: str):
     """Table 4 parameters of ``name``, or None for 'none'."""
-    if name in ('none', ''):
+    if name in ('none', '', 'mr'):   # 'mr': a bare table carrying the MR damper
         return None
     from rths_numerical.dtm import dtm_configuration
     try:
@@ -210,6 +221,9 @@ class SimulatedPlant:
     Use :meth:`step` in a loop, or :meth:`simulate` for a whole command record.
     """
 
+    #: Parameters of the 'silva2020' plant (None: nominal; see :class:`.silva2020.Silva2020Plant`)
+    silva2020_params = None
+
     def __init__(self, config: PlantConfig = None, **params):
         """Build from a :class:`PlantConfig` or flat parameters (see :data:`SIM_PARAMS`)."""
         self.config = config if config is not None else plant_config(params)
@@ -227,8 +241,14 @@ class SimulatedPlant:
                            and cfg.accel_noise_m_s2 <= 0)
         if cfg.actuator_model in ('3pole', '4pole'):
             self._build_continuous(cfg.actuator_model)
+        elif cfg.actuator_model == 'silva2020':
+            self._build_silva2020()
         else:
             self._build_arx(cfg.actuator_model)
+        self.mr = None
+        if cfg.dtm == 'mr':
+            from .mr_specimen import MRTableSpecimen
+            self.mr = MRTableSpecimen(self, cfg)
         self.reset()
 
     # ----------------------------------------------------------------- building
@@ -271,7 +291,16 @@ class SimulatedPlant:
         d[5, 0] = self.frame_mass * d_acc
         d[5, 1] = -1.0 if self.dtm is not None else 0.0
         self._i_rel_vel = n + 1
-        a, b, c, d = self._add_daq_filter(a, b, c, d)
+        self._set_linear(*self._add_daq_filter(a, b, c, d))
+
+    def _build_silva2020(self):
+        """Benchmark plant of :mod:`.silva2020` with its own SDOF specimen (``dtm`` ignored)."""
+        from .silva2020 import channel_model
+        self.dtm, self.frame_mass = None, 0.0
+        self._set_linear(*channel_model(self.silva2020_params))
+
+    def _set_linear(self, a, b, c, d):
+        """Keep the continuous model (inputs [u, f_c], CHANNELS outputs) and its ZOH form."""
         self.a_c, self.b_c, self.c, self.d = a, b, c, d
         self.n_states = a.shape[0]
         self._ad, self._bd = _zoh(a, b, self.dt)
@@ -349,6 +378,8 @@ class SimulatedPlant:
             self._y_hist = np.zeros(len(self._arx_a) - 1)
             self._z = np.zeros(2)
             self._xs, self._slope = 0.0, 0.0
+        if getattr(self, 'mr', None) is not None:
+            self.mr.reset()
         self.true = dict.fromkeys(CHANNELS, 0.0)
 
     def _friction(self, rel_vel: float) -> float:
@@ -358,6 +389,8 @@ class SimulatedPlant:
     def step(self, command: float) -> dict:
         """Hold ``command`` [m] for one sample; return the true channels at its end."""
         u = float(command)
+        if self.mr is not None:
+            return self.mr.step(u)
         if self.arx is not None:
             return self._step_arx(u)
         if self.config.friction_n > 0 and self.dtm is not None:
@@ -430,7 +463,8 @@ class SimulatedPlant:
         linear case runs as one vectorised state-space filter.
         """
         u = np.asarray(commands, float).ravel()
-        if self.arx is None and not (self.config.friction_n > 0 and self.dtm is not None):
+        if self.arx is None and self.mr is None and not (self.config.friction_n > 0
+                                                         and self.dtm is not None):
             true = self._simulate_linear(u)
         else:
             rows = [self.step(ui) for ui in u]

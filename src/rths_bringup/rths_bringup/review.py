@@ -87,6 +87,8 @@ def loop_summary(bag) -> dict:
 #: Upper edge [Hz] of the band over which delays are averaged (the seed's RTHS design band).
 DELAY_BAND_HZ = 10.0
 ZOOM_S = 3.0
+#: ``specimen`` of the summary per bridge ``dtm`` value (every Table 4 DTM is a ``dtm``).
+SPECIMENS = {'mr': 'mr_damper', 'none': 'none'}
 
 
 def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
@@ -191,15 +193,22 @@ def review_rths(bag, out_dir) -> dict:
     dt = 1.0 / fs
     damper = bridge.get('dtm', 'valve4')
     uncontrolled = simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
-    reference = simulate_reference(model, sub.ag, dt, damper=damper, n_dtm=sub.force_scale,
-                                   integrator=numerical.get('integrator', 'cr'),
-                                   uncontrolled=uncontrolled) if damper != 'none' else None
+    if damper == 'mr':   # nonlinear: the same substructure with the same MR model, all numerical
+        from rths_numerical.mr_damper import simulate_mr_reference
+        mr_ref = simulate_mr_reference(numerical, float(bridge.get('mr_voltage_v', 1.0)))
+        reference = {'disp': mr_ref['output_disp']}
+    else:
+        reference = simulate_reference(model, sub.ag, dt, damper=damper,
+                                       n_dtm=sub.force_scale,
+                                       integrator=numerical.get('integrator', 'cr'),
+                                       uncontrolled=uncontrolled) if damper != 'none' else None
     ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
     unc = uncontrolled['metrics']
     max_d, rms_d = float(np.max(np.abs(floor2))), float(np.sqrt(np.mean(floor2 ** 2)))
     bridge_steps = max(len(status.get('step', [])), 1)
     summary = {
         'record': numerical.get('record'), 'scale': numerical.get('scale'), 'damper': damper,
+        'specimen': SPECIMENS.get(damper, 'dtm'),
         'mode': info.get('mode'), 'fs_hz': fs, 'steps': n, 'duration_s': n * dt,
         'compensator': compensator,
         **table5,
@@ -219,6 +228,11 @@ def review_rths(bag, out_dir) -> dict:
     (out_dir / 'review.txt').write_text(review_text(summary))
     _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp,
            uncontrolled['disp'][:n])
+    if damper == 'mr':
+        summary['mr_voltage_v'] = float(bridge.get('mr_voltage_v', 1.0))
+        (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
+        _hysteresis_plot(out_dir / 'mr_hysteresis.png', measured, meas['force'][:n, 0], fs,
+                         f"MR damper at {summary['mr_voltage_v']:g} V (measured)")
     return summary
 
 
@@ -263,6 +277,24 @@ def print_review(summary: dict):
     print(review_text(summary), end='')
 
 
+def _hysteresis_plot(path, stroke, force, fs, title):
+    """Force against stroke and against velocity (finite differences) of a specimen."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    vel = np.gradient(stroke) * fs
+    fig, ax = plt.subplots(1, 2, figsize=(10, 4))
+    ax[0].plot(stroke * 1e3, force, lw=0.5)
+    ax[0].set_xlabel('stroke [mm]')
+    ax[0].set_ylabel('force [N]')
+    ax[1].plot(vel * 1e3, force, lw=0.5)
+    ax[1].set_xlabel('velocity [mm/s]')
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
     import matplotlib
     matplotlib.use('Agg')
@@ -273,7 +305,7 @@ def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
     t = np.arange(desired.size) / fs
     fig, ax = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
     ax[0].plot(t, unc_disp * 1e3, color='0.6', lw=0.8, label='uncontrolled (numerical)')
-    ax[0].plot(t, ref_disp * 1e3, lw=1.0, label='reference: building + DTMs (numerical)')
+    ax[0].plot(t, ref_disp * 1e3, lw=1.0, label='reference: building + specimens (numerical)')
     ax[0].plot(t, floor2 * 1e3, '--', lw=1.0, label='RTHS')
     ax[0].set_ylabel('2nd-floor displacement [mm]')
     ax[0].legend(loc='upper right', fontsize=8)

@@ -61,7 +61,13 @@ def register(commands, benches):
                    help='ground-motion scale factor (seed: kobe 0.135, northridge 0.039, '
                         'el centro 0.10; default 0.135)')
     p.add_argument('--damper', default='valve4',
-                   help='DTM configuration of Table 4: valve1..valve4, novalve (default valve4)')
+                   help='specimen: a DTM configuration of Table 4 (valve1..valve4, novalve; '
+                        'default valve4) or mr, an MR damper between the 2nd floor and the '
+                        'ground (Bouc-Wen model of Spencer et al. 1997; the table then follows '
+                        'the relative floor displacement)')
+    p.add_argument('--mr-voltage', type=float, default=1.0,
+                   help='--damper mr: constant command voltage [V] (Spencer et al. 1997 '
+                        'tested 0-2.25 V; default 1.0)')
     p.add_argument('--force-scale', type=float, default=5.0,
                    help='DTMs the one in the lab stands for: its measured force is multiplied '
                         'by this in the building (seed 6.2: 5, the default)')
@@ -291,6 +297,9 @@ def _run(args) -> int:
     fs = float(base['numerical'].get('fs_hz', 1024.0))
     base['bridge']['fs_hz'] = fs
     base['bridge']['dtm'] = args.damper
+    if args.damper == 'mr':
+        from rths_numerical.mr_damper import check_voltage
+        base['bridge']['mr_voltage_v'] = check_voltage(args.mr_voltage)
     _say(f'results in {out}')
 
     # 1-2: identification and design
@@ -341,6 +350,10 @@ def _run(args) -> int:
     numerical = dict(base['numerical'], model='building2story', record=args.record,
                      scale=float(args.scale), force_scale=float(args.force_scale),
                      interface_frame='absolute')
+    if args.damper == 'mr':
+        # the damper's stroke is the floor's displacement relative to the ground; it carries
+        # no mass of its own, so there is no ground term to add (seed eq. 24, P_I^E = 0)
+        numerical.update(interface_frame='relative', specimen_mass_kg=0.0)
     for key in ('sdof_mass_kg', 'sdof_freq_hz', 'sdof_zeta', 'harmonic_freq_hz'):
         numerical.pop(key, None)
     numerical['duration_s'] = float(args.duration)

@@ -407,9 +407,97 @@ def cmd_bench_numerical(args):
     return 0
 
 
+def cmd_fit_mr(args):
+    """Run ``rths fit-mr``: fit the Spencer et al. (1997) model to real sinusoid tests."""
+    import time
+
+    import numpy as np
+
+    from . import mr_fit
+    from .mr_damper import SPENCER_1997
+    tests = mr_fit.load_tests(mr_fit.data_dir(args.data))
+    print(f'{len(tests)} sinusoid tests, currents '
+          f'{sorted({t["current_a"] for t in tests})} A; fitting (about a minute)', flush=True)
+    t0 = time.perf_counter()
+    best, errors, nfev = mr_fit.fit(tests, max_nfev=args.max_nfev)
+    names = [t['name'] for t in tests]
+    worst = names[int(np.argmax(errors))]
+    print(f'fitted in {time.perf_counter() - t0:.1f} s ({nfev} evaluations): relative RMS '
+          f'force error mean {errors.mean():.1f} %, worst {errors.max():.1f} % ({worst})')
+    paper = mr_fit.paper_errors(tests)
+    print('the paper\'s parameters (best constant voltage per current): ' + ', '.join(
+        f'{c} A -> {v["best_voltage_v"]:.2f} V, mean '
+        f'{np.mean(list(v["errors_pct"].values())):.1f} %' for c, v in paper.items()))
+    fitted = best.as_dict()
+    data = {
+        'source': mr_fit.SOURCE,
+        'model': 'Spencer, Dyke, Sain and Carlson (1997) phenomenological Bouc-Wen, current [A] '
+                 'in place of voltage; n = 2 fixed; x0 and eta not identifiable (tared force, '
+                 'constant current)',
+        'fitted': {k: fitted[k] for k in mr_fit.FIT_KEYS} | {'n': fitted['n']},
+        'paper_spencer_1997_per_volt': {k: getattr(SPENCER_1997, k)
+                                        for k in mr_fit.FIT_KEYS} | {'n': SPENCER_1997.n},
+        'units': 'SI: N, m, s; the *_b coefficients per A (fitted) or per V (paper)',
+        'fit_errors_pct': dict(zip(names, errors.tolist(), strict=True)),
+        'fit_error_mean_pct': float(errors.mean()), 'fit_error_max_pct': float(errors.max()),
+        'paper_errors_at_best_voltage': paper,
+        'paper_error_mean_pct': float(np.mean([e for v in paper.values()
+                                                for e in v['errors_pct'].values()])),
+        'evaluations': nfev,
+        'comparable_fitted_0_to_1_A': mr_fit.comparable(best, 1.0),
+        'comparable_paper_0_to_2_25_V': mr_fit.comparable(SPENCER_1997, 2.25),
+    }
+    _write_json(args.out, data)
+    if args.plot:
+        _mr_fit_plot(args.plot, tests, best)
+        print(f'wrote {args.plot}')
+    print(f'wrote {args.out}')
+    return 0
+
+
+def _mr_fit_plot(path, tests, params):
+    """Force-stroke loops of the 1 A and 0 A tests: measured and fitted."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    from .mr_fit import _inputs, simulate_tests
+    inputs = _inputs(tests, 1000, 1.25)
+    model, meas = simulate_tests(params, tests, inputs=inputs)
+    x = inputs[0]
+    pick = [i for i, t in enumerate(tests) if t['current_a'] in (0.0, 0.5, 1.0)]
+    cols = 6
+    rows = -(-len(pick) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3 * cols, 2.6 * rows), squeeze=False)
+    for ax, i in zip(axes.ravel(), pick, strict=False):
+        ax.plot(x[-1000:, i] * 1e3, meas[-1000:, i], 'k', lw=0.8, label='measured')
+        ax.plot(x[-1000:, i] * 1e3, model[-1000:, i], 'r--', lw=0.8, label='fitted model')
+        ax.set_title(tests[i]['name'], fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[0, 0].legend(fontsize=7)
+    fig.supxlabel('stroke [mm]')
+    fig.supylabel('force [N]')
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def register(commands, benches):
     """Add this package's ``rths <command>`` and ``rths bench <name>`` parsers."""
     from .dtm import TABLE4
+    fm = commands.add_parser(
+        'fit-mr', help='fit the MR-damper model (Spencer et al. 1997) to real sinusoid tests',
+        description='Fit the phenomenological Bouc-Wen MR-damper model of Spencer, Dyke, Sain '
+                    'and Carlson (1997) to the sinusoid tests (0-1 A) of '
+                    'github.com/DanielMaurelE/vRTHS_AMBC_MRdamper (MIT; the Preprocesados/*.txt '
+                    'files: t, x [mm], v [mm/s], F [N]); print the errors, compare with the '
+                    "paper's parameters, write JSON (and a PNG of the loops).")
+    fm.add_argument('--data', default=None,
+                    help='directory of the test files (default: $RTHS_DATA_DIR/mr_damper)')
+    fm.add_argument('--out', default='out/mr_fit.json', help='JSON results')
+    fm.add_argument('--plot', default=None, help='PNG of measured and fitted loops')
+    fm.add_argument('--max-nfev', type=int, default=200, help='least-squares evaluations')
+    fm.set_defaults(func=cmd_fit_mr)
     sim = commands.add_parser(
         'simulate', help='whole building + DTMs numerically (seed 6.3.4), tables 6-8 metrics',
         description='Simulate the building uncontrolled and with 5 DTMs (all numerical, seed '

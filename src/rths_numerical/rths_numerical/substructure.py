@@ -67,7 +67,8 @@ ROS_KEYS = ('use_sim_time', 'start_type_description_service')
 PARAMS = {
     'backend': ('builtin', "'builtin' (this package's integrators) or 'opensees' (OpenSeesPy, "
                 'optional: opensees_backend)'),
-    'model': ('sdof', "'sdof', 'building2story' (16-DOF) or a model YAML path"),
+    'model': ('sdof', "'sdof', 'building2story' (16-DOF), 'silva2020_case1'..4 (benchmark, "
+              'silva2020) or a model YAML path'),
     'integrator': (None, "builtin: 'cr' (default), 'kr_alpha', 'newmark', 'central_difference'; "
                    "opensees: 'central_difference' (default) or 'newmark'"),
     'rho_inf': (0.5, '[-] KR-alpha spectral radius at infinity, 0..1'),
@@ -256,6 +257,9 @@ def build_model(params) -> LinearModel:
         from .building import BUILDING_MASS_KG, building_16dof
         mass = params.get('building_mass_kg') or BUILDING_MASS_KG
         return building_16dof(float(mass))
+    if name.startswith('silva2020_case'):
+        from .silva2020 import model_by_name
+        return model_by_name(name)
     if name.endswith(('.yaml', '.yml')):
         try:
             return load_model_yaml(name)

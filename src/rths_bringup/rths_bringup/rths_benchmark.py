@@ -1,0 +1,592 @@
+"""The RTHS benchmark control problem (Silva et al. 2020, MSSP 135, 106381) as a scenario.
+
+Pieces, from the packages below:
+
+* plant: :mod:`rths_actuator_bridge.silva2020` (servo-valve, actuator and SDOF specimen,
+  the bridge's :class:`~rths_actuator_bridge.simulated.SimulatedPlant` with
+  ``actuator_model: silva2020``, exact ZOH at 4096 Hz, sensor noise);
+* structure: :mod:`rths_numerical.silva2020` (3-story reference, numerical substructure
+  per case), discretised exactly (force held, ground acceleration linear in a sample);
+* controllers: ``example`` (the paper's PI tracking controller with phase lead,
+  Tustin at 1/fs) and ``fir`` (the project's ARX identification from a BLWN test of the
+  plant plus the WLS FIR design of :mod:`rths_compensator.design`, feed-forward).
+
+Loop of one sample k (the benchmark's Simulink timing)::
+
+    y_n(k)  = numerical floor-1 displacement       x_m(k), f_m(k) = plant sensors at t_k
+    u(k)    = D/A(controller(A/D(y_n(k)), A/D(x_m(k))))
+    plant   : hold u(k) over [t_k, t_k+1]
+    numeric : hold f_m(k-1) over [t_k, t_k+1]       (the one-sample force delay)
+
+Every run of a batch (cases and perturbed plants) advances in the same vectorised step.
+J1-J9 follow the benchmark's evaluation code: J1 is the lag 0..49 samples maximising
+the correlation of x_m(i) with y_n(i - lag), times dt, rounded to 0.1 ms; J2/J3 are the
+RMS/peak tracking errors of x_m against y_n; J4/J5 the RMS/peak errors of x_m against
+the reference floor 1; J6/J7 the RMS errors and J8/J9 the peak errors of the numerical
+floors 2/3 against the reference (all in %, RMS as std ratios).
+"""
+
+import json
+import math
+import os
+import sys
+import time
+
+import numpy as np
+from scipy import signal
+from scipy.linalg import expm
+
+#: Published J1-J9 of the example controller, El Centro x 0.4 (Silva et al. 2020, Table 3;
+#: preprint "Benchmark_Control_Problem_for_Real_time_Hybrid_Simulation_Updated_V23.pdf" in
+#: the benchmark's code package, github.com/MECHS-RCN/BENCHMARKS, "RTHS code RT V23.zip").
+PUBLISHED_EXAMPLE = {
+    '1': [4.6, 10.4, 11.5, 36.1, 19.0, 32.3, 32.4, 14.8, 14.8],
+    '2': [4.6, 9.8, 11.1, 33.1, 17.1, 30.5, 30.5, 15.3, 15.2],
+    '3': [4.6, 9.1, 10.2, 49.9, 36.7, 49.8, 49.8, 35.5, 35.6],
+    '4': [4.6, 10.5, 11.3, 72.6, 35.2, 68.5, 68.7, 33.4, 33.3],
+}
+J_NAMES = tuple(f'J{i}' for i in range(1, 10))
+#: Record name -> file in the data directory (the benchmark's MAT files: row 0 time [s],
+#: row 1 acceleration [m/s^2]) and its scale factor.
+RECORDS = {'elcentro': ('ElCentroAccelNoScaling.mat', 0.4),
+           'kobe': ('KobeAccelNoScaling.mat', 0.4),
+           'morganhill': ('MorganAccelNoScaling.mat', 0.4)}
+DATA_ENV = 'RTHS_DATA_DIR'
+CASES = ('1', '2', '3', '4')
+#: Example controller (paper eq. 23-24): PI gains and phase lead G_T(s).
+EXAMPLE_KP, EXAMPLE_KI = 2.0, 95.0
+EXAMPLE_GT = ([50.8316, 8570.40], [1.0, 8570.40])
+#: A run counts as unstable when its measured displacement leaves this multiple of the
+#: reference floor-1 peak (or turns non-finite).
+UNSTABLE_FACTOR = 10.0
+
+
+def _log(msg):
+    print(msg, file=sys.stderr, flush=True)
+
+
+# ----------------------------------------------------------------------------- records
+def record_path(record: str, data_dir: str = None) -> str:
+    """File of ``record`` (a name of :data:`RECORDS` or a path); OSError naming the fix."""
+    if record in RECORDS:
+        base = data_dir or os.environ.get(DATA_ENV)
+        if not base:
+            raise OSError(f'record {record!r}: set {DATA_ENV} (or --data-dir) to the directory '
+                          f'holding {RECORDS[record][0]} (the benchmark code package, '
+                          'github.com/MECHS-RCN/BENCHMARKS), or give a file path')
+        path = os.path.join(base, RECORDS[record][0])
+    else:
+        path = record
+    if not os.path.isfile(path):
+        raise OSError(f'record {record!r}: {path} not found; put the benchmark file there or '
+                      f'give --record a .mat (2 x N: time, accel) or 2-column text file')
+    return path
+
+
+def load_record(record: str, data_dir: str = None):
+    """``(time [s], acceleration [m/s^2], default scale)`` of a record, unscaled."""
+    path = record_path(record, data_dir)
+    if path.endswith('.mat'):
+        from scipy.io import loadmat
+        arrays = [v for k, v in loadmat(path).items()
+                  if not k.startswith('__') and isinstance(v, np.ndarray) and v.ndim == 2]
+        if not arrays:
+            raise ValueError(f'{path}: no 2 x N array (time; acceleration) in the MAT file')
+        data = arrays[0] if arrays[0].shape[0] == 2 else arrays[0].T
+    else:
+        data = np.loadtxt(path, delimiter=',' if path.endswith('.csv') else None).T
+    if data.shape[0] != 2:
+        raise ValueError(f'{path}: expected 2 rows/columns (time [s], acceleration [m/s^2])')
+    scale = RECORDS[record][1] if record in RECORDS else 1.0
+    return np.asarray(data[0], float), np.asarray(data[1], float), scale
+
+
+def ground_acceleration(record: str, fs_hz: float, scale: float = None, data_dir: str = None,
+                        duration_s: float = None):
+    """Scaled record linearly interpolated to ``fs_hz`` from t = 0 to its end (or duration)."""
+    t_rec, acc, default = load_record(record, data_dir)
+    end = t_rec[-1] if not duration_s else min(duration_s, t_rec[-1])
+    t = np.arange(int(math.floor(end * fs_hz + 1e-9)) + 1) / fs_hz
+    return t, (default if scale is None else scale) * np.interp(t, t_rec, acc)
+
+
+# ----------------------------------------------------------------------------- models
+def _foh(a, b, dt):
+    """Exact discretisation for an input linear within the sample: (Phi, Gamma1, Gamma2).
+
+    ``x_{k+1} = Phi x_k + Gamma1 u_k + Gamma2 (u_{k+1} - u_k)``.
+    """
+    n, m = b.shape
+    big = np.zeros((n + 2 * m, n + 2 * m))
+    big[:n, :n] = a * dt
+    big[:n, n:n + m] = b * dt
+    big[n:n + m, n + m:] = np.eye(m)
+    e = expm(big)
+    return e[:n, :n], e[:n, n:n + m], e[:n, n + m:]
+
+
+def structure_matrices(model, dt):
+    """Discrete structure: ``z' = Ad z + Bf f + B0 a_k + B1 a_{k+1}``, z = [x, v]."""
+    n = model.n
+    minv = np.linalg.inv(model.M)
+    a = np.zeros((2 * n, 2 * n))
+    a[:n, n:] = np.eye(n)
+    a[n:, :n] = -minv @ model.K
+    a[n:, n:] = -minv @ model.C
+    b = np.zeros((2 * n, 2))
+    b[n:, 0] = -model.gamma                       # ground acceleration (FOH)
+    b[n:, 1] = -minv[:, model.interface_dofs[0]]  # measured force at the interface (ZOH)
+    phi, g1, g2 = _foh(a, b, dt)
+    return phi, g1[:, 1], g1[:, 0] - g2[:, 0], g2[:, 0]
+
+
+def reference_response(case: str, ag, dt):
+    """Displacements [m] (N x 3) of the whole reference structure under ``ag``."""
+    from rths_numerical.silva2020 import reference_model
+    phi, _, b0, b1 = structure_matrices(reference_model(case), dt)
+    # z_{k+1} = phi z_k + b0 a_k + b1 a_{k+1}: a linear filter of the input, state by state
+    lam, vec = np.linalg.eig(phi)
+    inv = np.linalg.inv(vec)
+    g0, g1 = inv @ b0, inv @ b1
+    w = np.empty((len(ag), len(lam)), complex)
+    for i, li in enumerate(lam):
+        drive = g0[i] * ag[:-1] + g1[i] * ag[1:]
+        w[0, i] = 0.0
+        w[1:, i] = signal.lfilter([1.0], [1.0, -li], drive)
+    return np.real(w @ vec.T)[:, :3]
+
+
+# ----------------------------------------------------------------------------- controllers
+class _Discrete:
+    """Batch of identical SISO discrete state-space filters (one per run)."""
+
+    def __init__(self, num, den, dt, batch):
+        a, b, c, d, _ = signal.cont2discrete(signal.tf2ss(num, den), dt, method='bilinear')
+        self.a, self.b, self.c, self.d = a, b.ravel(), c.ravel(), float(d.ravel()[0])
+        self.x = np.zeros((batch, a.shape[0]))
+
+    def step(self, u):
+        y = self.x @ self.c + self.d * u
+        self.x = self.x @ self.a.T + np.outer(u, self.b)
+        return y
+
+
+class ExampleController:
+    """The benchmark's sample controller: ``u = G_C (D/A(G_T A/D(y_n)) - A/D(x_m))``."""
+
+    name = 'example'
+    feedback = True
+
+    def __init__(self, dt, batch):
+        """Tustin-discretise G_T and the PI controller at ``dt`` for ``batch`` runs."""
+        from rths_actuator_bridge.silva2020 import converter
+        self.conv = converter
+        self.lead = _Discrete(*EXAMPLE_GT, dt, batch)
+        self.pi = _Discrete([EXAMPLE_KP, EXAMPLE_KI], [1.0, 0.0], dt, batch)
+
+    def step(self, desired, measured):
+        """Command [m] for this sample."""
+        conv = self.conv
+        y_p = conv(self.lead.step(conv(desired)))
+        return conv(self.pi.step(conv(y_p - conv(measured))))
+
+    def describe(self) -> dict:
+        """Return the settings for the JSON."""
+        return {'kp': EXAMPLE_KP, 'ki': EXAMPLE_KI, 'G_T_num': EXAMPLE_GT[0],
+                'G_T_den': EXAMPLE_GT[1], 'discretisation': 'tustin'}
+
+
+class FirController:
+    """Feed-forward compensator on the desired displacement: ``u = G A/D(y_n)``.
+
+    ``G = taps / denominator`` (direct form, one history per run).
+    """
+
+    name = 'fir'
+    feedback = False
+
+    def __init__(self, design, batch, info=None):
+        """Use the designed compensator ``design`` (:class:`rths_compensator.design.Design`)."""
+        from rths_actuator_bridge.silva2020 import converter
+        self.conv = converter
+        self.design = design
+        den = np.asarray(design.denominator, float)
+        self.taps = np.asarray(design.taps, float) / den[0]
+        self.fb = den[1:] / den[0]
+        self.x_hist = np.zeros((batch, self.taps.size))
+        self.y_hist = np.zeros((batch, self.fb.size))
+        self.info = info or {}
+
+    def step(self, desired, measured):
+        """Command [m] for this sample."""
+        self.x_hist[:, 1:] = self.x_hist[:, :-1]
+        self.x_hist[:, 0] = self.conv(desired)
+        y = self.x_hist @ self.taps
+        if self.fb.size:
+            y -= self.y_hist @ self.fb
+            self.y_hist[:, 1:] = self.y_hist[:, :-1]
+            self.y_hist[:, 0] = y
+        return self.conv(y)
+
+    def describe(self) -> dict:
+        """Return the settings for the JSON."""
+        return {'n_numerator': int(self.taps.size), 'n_denominator': int(self.fb.size + 1),
+                **self.info}
+
+
+def target_lowpass(order: int, cutoff_hz: float, fs_hz: float):
+    """All-pole unit-DC-gain low-pass ``g / aL(z^-1)``: Butterworth poles mapped by e^{sT}."""
+    _, poles, _ = signal.butter(order, 2 * np.pi * cutoff_hz, analog=True, output='zpk')
+    a_l = np.real(np.poly(np.exp(poles / fs_hz)))
+    return float(np.sum(a_l)), a_l
+
+
+def identify_and_design(seed: int = 7, duration_s: float = 60.0, band_hz: float = 50.0,
+                        peak_m: float = 10e-3, prefilter_hz: float = 100.0, n_taps: int = 200,
+                        fc_hz: float = 30.0, scheme: str = 'ls', epsilon: float = 0.002,
+                        lowpass_order: int = 4, lowpass_hz: float = 400.0,
+                        na_max: int = 8, nb_max: int = 1, d_max: int = 4, log=_log):
+    """Run the lab procedure on the nominal benchmark plant: BLWN test, ARX, FIR design.
+
+    The test drives the simulated plant (sensor noise and converters included) with a
+    BLWN command; the records pair the command u(k) with the measured x_m(k) of the same
+    tick.  Command and measurement pass the same zero-phase 4th-order Butterworth
+    low-pass at ``prefilter_hz`` (it leaves their relation alone and keeps the 4096 Hz
+    sensor noise out of the equation error), and the ARX grid looks for an all-pole model
+    with dead time (``nb_max`` 1, d <= ``d_max``): the plant has no finite zero, and
+    free numerator zeros fit noise into spurious 25-45 Hz notches that the compensator
+    would then invert.
+
+    Design: the plant of the FIR design is the identified model divided by a target
+    low-pass ``L`` (:func:`target_lowpass`, order ``lowpass_order`` at ``lowpass_hz``), so
+    the design's ``T_com = 1`` means ``P G = L``.  Inverting the all-pole plant over the
+    whole band at 4096 Hz would need a gain of ~1e8 at Nyquist, which turns the 2^-18
+    quantisation of the desired displacement into a saturated command; ``L`` keeps
+    ``|G|`` bounded for the price of its passband lag (~1 ms at 400 Hz, order 4).
+    """
+    from rths_actuator_bridge.silva2020 import FS_HZ, converter, simulated_plant
+    from rths_compensator.design import design_fir, predict
+    from rths_compensator.identification import identify
+    from rths_numerical.signals import blwn
+    rng = np.random.default_rng(seed)
+    plant = simulated_plant(seed=seed)
+    sos = signal.butter(4, prefilter_hz, fs=FS_HZ, output='sos')
+    records = []
+    for _ in range(3):
+        u = converter(blwn(duration_s / 3, FS_HZ, band_hz, peak_m, rng, 0.5))
+        meas = plant.simulate(u)['table_disp']
+        plant.reset()
+        x_m = converter(np.concatenate([[0.0], meas[:-1]]))   # x_m(k) = x(t_k)
+        records.append((signal.sosfiltfilt(sos, u), signal.sosfiltfilt(sos, x_m)))
+    log(f'  identification: 3 BLWN records 0-{band_hz:g} Hz, peak {peak_m * 1e3:g} mm, '
+        f'pre-filter {prefilter_hz:g} Hz, ARX grid na <= {na_max}, nb <= {nb_max}, '
+        f'd <= {d_max} (BIC)')
+    model, _, _ = identify(records[:2], records[2:], FS_HZ, na_max, nb_max, d_max, 'bic')
+    log(f'  selected ARX na={model.na} nb={model.nb} d={model.d}')
+    gain, a_l = target_lowpass(lowpass_order, lowpass_hz, FS_HZ)
+    b_model = np.concatenate([np.zeros(model.d), model.b])
+    design = design_fir((np.convolve(b_model, a_l), gain * np.asarray(model.a)), n_taps, fc_hz,
+                        scheme, epsilon, fs_hz=FS_HZ, zero_tol=0.98)
+    pred = predict((b_model, model.a), design, 20.0, FS_HZ)
+    info = {'arx': {'na': model.na, 'nb': model.nb, 'd': model.d}, 'scheme': scheme,
+            'fc_hz': fc_hz, 'epsilon': epsilon, 'blwn_band_hz': band_hz,
+            'blwn_peak_m': peak_m, 'prefilter_hz': prefilter_hz, 'identification_seed': seed,
+            'target_lowpass': {'order': lowpass_order, 'cutoff_hz': lowpass_hz},
+            'predicted_0_20hz': {k: float(v) for k, v in pred.items()
+                                 if isinstance(v, (int, float))}}
+    log(f'  designed {scheme} FIR n={n_taps} fc={fc_hz:g} Hz: predicted 0-20 Hz '
+        + ', '.join(f'{k} {v:.4g}' for k, v in info['predicted_0_20hz'].items()))
+    return design, info
+
+
+# ----------------------------------------------------------------------------- the loop
+def _plant_batch(params_list, dt, seed):
+    from rths_actuator_bridge.silva2020 import simulated_plant
+    plants = [simulated_plant(p, seed=seed + i) for i, p in enumerate(params_list)]
+    ad = np.stack([p._ad for p in plants])
+    bd = np.stack([p._bd[:, 0] for p in plants])
+    cx = plants[0].c[0]
+    cf = plants[0].c[5]
+    return plants, ad, bd, cx, cf
+
+
+def run_batch(runs, ag, controller, seed: int = 0, progress=None) -> dict:
+    """Run every ``(case, plant_params)`` of ``runs`` under ``ag`` (4096 Hz) in lock-step.
+
+    Returns arrays (runs x N): ``y_n`` (N x 3 floors per run), ``x_m``, ``u``.
+    """
+    from rths_actuator_bridge.silva2020 import DISPLACEMENT_NOISE_M, FORCE_NOISE_N, FS_HZ
+    from rths_numerical.silva2020 import numerical_model
+    dt = 1.0 / FS_HZ
+    batch, n = len(runs), len(ag)
+    _, ad, bd, cx, cf = _plant_batch([p for _, p in runs], dt, seed)
+    mats = [structure_matrices(numerical_model(c, m_e=p.m_e, k_e=p.k_e, zeta_e=p.zeta_e), dt)
+            for c, p in runs]
+    an = np.stack([m[0] for m in mats])
+    bf, b0, b1 = (np.stack([m[i] for m in mats]) for i in (1, 2, 3))
+    rng = np.random.default_rng(seed)
+    noise_x = DISPLACEMENT_NOISE_M * rng.standard_normal((n, batch))
+    noise_f = FORCE_NOISE_N * rng.standard_normal((n, batch))
+    xp = np.zeros((batch, ad.shape[1], 1))
+    z = np.zeros((batch, an.shape[1], 1))
+    f_prev = np.zeros(batch)
+    y_n = np.empty((n, batch, 3))
+    x_m = np.empty((n, batch))
+    u_out = np.empty((n, batch))
+    ag_next = np.append(ag[1:], ag[-1])
+    every = max(1, n // 10)
+    for k in range(n):
+        disp = z[:, :3, 0]
+        y_n[k] = disp
+        xm = xp[:, :, 0] @ cx + noise_x[k]
+        x_m[k] = xm
+        u = controller.step(disp[:, 0], xm)
+        u_out[k] = u
+        fm = xp[:, :, 0] @ cf + noise_f[k]
+        xp = ad @ xp + (bd * u[:, None])[:, :, None]
+        z = an @ z + (bf * f_prev[:, None] + b0 * ag[k] + b1 * ag_next[k])[:, :, None]
+        f_prev = fm
+        if progress and (k + 1) % every == 0:
+            progress(k + 1, n)
+    return {'y_n': y_n.transpose(1, 0, 2), 'x_m': x_m.T, 'u': u_out.T}
+
+
+# ----------------------------------------------------------------------------- criteria
+def j1_ms(desired, measured, dt, max_lag: int = 49) -> float:
+    """Lag (0..max_lag samples) of best correlation of measured(i) with desired(i - lag) [ms]."""
+    n = len(desired)
+    r = [np.corrcoef(measured[lag:], desired[:n - lag])[0, 1] for lag in range(max_lag + 1)]
+    return round(1000.0 * int(np.nanargmax(r)) * dt, 1)
+
+
+def criteria(x_m, y_n, ref, dt) -> dict:
+    """J1-J9 of one run (module docstring): ``x_m`` (N,), ``y_n`` and ``ref`` (N x 3)."""
+    def rms(a, b):
+        return 100.0 * float(np.std(a - b, ddof=1) / np.std(b, ddof=1))
+
+    def peak(a, b):
+        return 100.0 * float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
+
+    js = [j1_ms(y_n[:, 0], x_m, dt),
+          rms(x_m, y_n[:, 0]), peak(x_m, y_n[:, 0]),
+          rms(x_m, ref[:, 0]), peak(x_m, ref[:, 0]),
+          rms(y_n[:, 1], ref[:, 1]), rms(y_n[:, 2], ref[:, 2]),
+          peak(y_n[:, 1], ref[:, 1]), peak(y_n[:, 2], ref[:, 2])]
+    return {name: round(v, 2) if name != 'J1' else v for name, v in zip(J_NAMES, js, strict=True)}
+
+
+def unstable(x_m, ref) -> bool:
+    """Tell whether the run diverged (non-finite or far beyond the reference)."""
+    return bool(not np.all(np.isfinite(x_m))
+                or np.max(np.abs(x_m)) > UNSTABLE_FACTOR * np.max(np.abs(ref[:, 0])))
+
+
+# ----------------------------------------------------------------------------- the bench
+def make_controller(name: str, batch: int, dt: float, fir_options: dict = None, log=_log):
+    """Build controller ``name`` ('example' or 'fir') for ``batch`` runs."""
+    if name == 'example':
+        return ExampleController(dt, batch)
+    if name == 'fir':
+        design, info = identify_and_design(log=log, **(fir_options or {}))
+        return FirController(design, batch, info)
+    raise ValueError(f'--controller {name!r} unknown; use example or fir')
+
+
+def run_benchmark(controller: str = 'example', record: str = 'elcentro', n_draws: int = 20,
+                  seed: int = 2020, duration_s: float = None, data_dir: str = None,
+                  fir_options: dict = None, cases=CASES, log=_log) -> dict:
+    """Run the four cases (nominal plant) and ``n_draws`` perturbed plants of case 1.
+
+    Returns the summary dict (issue 13 layout) plus ``_extra`` (time histories).
+    """
+    from rths_actuator_bridge.silva2020 import FS_HZ, Silva2020Params, perturbed
+    dt = 1.0 / FS_HZ
+    t0, c0 = time.perf_counter(), time.process_time()
+    t, ag = ground_acceleration(record, FS_HZ, data_dir=data_dir, duration_s=duration_s)
+    rng = np.random.default_rng(seed)
+    nominal = Silva2020Params()
+    runs = [(c, nominal) for c in cases]
+    draws = [perturbed(rng) for _ in range(n_draws)]
+    runs += [('1', p) for p in draws]
+    log(f'rths-benchmark: controller {controller}, record {record} ({t[-1]:.2f} s, '
+        f'{len(t)} steps at {FS_HZ:g} Hz), {len(cases)} cases + {n_draws} perturbed plants '
+        f'(seed {seed})')
+    ctrl = make_controller(controller, len(runs), dt, fir_options, log)
+    refs = {c: reference_response(c, ag, dt) for c in set(c for c, _ in runs)}
+    t1 = time.perf_counter()
+    out = run_batch(runs, ag, ctrl, seed=seed,
+                    progress=lambda k, n: log(f'  step {k}/{n} ({time.perf_counter() - t1:.1f} s)'))
+    loop_s = time.perf_counter() - t1
+    summary = {'controller': controller, 'cases': {}, 'perturbed': {}}
+    for i, c in enumerate(cases):
+        summary['cases'][c] = criteria(out['x_m'][i], out['y_n'][i], refs[c], dt)
+    pj, n_unstable = [], 0
+    for i in range(len(cases), len(runs)):
+        bad = unstable(out['x_m'][i], refs['1'])
+        n_unstable += bad
+        if not bad:
+            pj.append(criteria(out['x_m'][i], out['y_n'][i], refs['1'], dt))
+    summary['perturbed'] = {
+        'n': n_draws, 'J1_max': max((j['J1'] for j in pj), default=None),
+        'J2_max': max((j['J2'] for j in pj), default=None),
+        'J3_max': max((j['J3'] for j in pj), default=None), 'unstable': int(n_unstable)}
+    summary['settings'] = {'record': record, 'scale': RECORDS.get(record, (None, 1.0))[1],
+                           'duration_s': float(t[-1]), 'fs_hz': FS_HZ, 'seed': seed,
+                           'controller': ctrl.describe(), 'loop_s': round(loop_s, 2),
+                           'total_s': round(time.perf_counter() - t0, 2),
+                           'cpu_s': round(time.process_time() - c0, 2),
+                           'load_average_1min': round(os.getloadavg()[0], 2)}
+    summary['draws'] = [{k: round(float(getattr(p, k)), 6) for k in ('b1', 'b2', 'a3', 'k_e')}
+                        for p in draws]
+    summary['_extra'] = {'t': t, 'ag': ag, 'out': out, 'refs': refs, 'cases': list(cases)}
+    return summary
+
+
+def comparison(summary: dict, published: dict = None) -> dict:
+    """Per case and criterion: the relative difference [%] to the published table."""
+    pub = published or PUBLISHED_EXAMPLE
+    out = {}
+    for c, row in summary['cases'].items():
+        if c in pub:
+            out[c] = {name: {'published': p, 'ours': row[name],
+                             'diff': (row[name] - p) if name == 'J1'
+                             else 100.0 * (row[name] - p) / p}
+                      for name, p in zip(J_NAMES, pub[c], strict=True)}
+    return out
+
+
+def table_markdown(summary: dict) -> str:
+    """Format the paper's Table 3 layout (plus the published values for the example)."""
+    lines = [f"Virtual RTHS evaluation criteria, controller `{summary['controller']}`, record "
+             f"{summary['settings']['record']} x {summary['settings']['scale']}",
+             '', '| Case | J1 (ms) | J2 (%) | J3 (%) | J4 (%) | J5 (%) | J6 (%) | J7 (%) '
+             '| J8 (%) | J9 (%) |', '|---' * 10 + '|']
+    for c, row in summary['cases'].items():
+        lines.append(f'| {c} | ' + ' | '.join(f'{row[n]:.1f}' if n == 'J1' else f'{row[n]:.2f}'
+                                               for n in J_NAMES) + ' |')
+    if summary['controller'] == 'example' and summary['settings']['record'] == 'elcentro':
+        lines += ['', 'Published (Silva et al. 2020, Table 3):', '',
+                  '| Case | J1 | J2 | J3 | J4 | J5 | J6 | J7 | J8 | J9 |', '|---' * 10 + '|']
+        for c, vals in PUBLISHED_EXAMPLE.items():
+            lines.append(f'| {c} | ' + ' | '.join(f'{v:.1f}' for v in vals) + ' |')
+    p = summary['perturbed']
+    lines += ['', f"Perturbed plants (case 1, {p['n']} draws, seed "
+              f"{summary['settings']['seed']}): J1 max {p['J1_max']} ms, J2 max "
+              f"{p['J2_max']} %, J3 max {p['J3_max']} %, unstable {p['unstable']}", '']
+    return '\n'.join(lines)
+
+
+def make_plots(summary: dict, directory: str) -> list:
+    """``tracking.png`` (x_m vs y_n, case 1) and ``floors.png`` (floors vs reference)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    ex = summary['_extra']
+    t, out = ex['t'], ex['out']
+    files = []
+    fig, axes = plt.subplots(2, 1, figsize=(9, 5.5))
+    i = 0
+    sel = (t >= 2.0) & (t <= 6.0)
+    axes[0].plot(t[sel], 1e3 * out['y_n'][i][sel, 0], label='desired y_n (floor 1)')
+    axes[0].plot(t[sel], 1e3 * out['x_m'][i][sel], '--', label='measured x_m')
+    axes[0].set_ylabel('displacement [mm]')
+    axes[0].legend(loc='upper right')
+    axes[0].set_title(f"{summary['controller']}: tracking, case 1")
+    axes[1].plot(t, 1e3 * (out['x_m'][i] - out['y_n'][i][:, 0]))
+    axes[1].set_ylabel('x_m - y_n [mm]')
+    axes[1].set_xlabel('time [s]')
+    fig.tight_layout()
+    path = os.path.join(directory, 'tracking.png')
+    fig.savefig(path, dpi=60)
+    plt.close(fig)
+    files.append(path)
+    fig, axes = plt.subplots(3, len(ex['cases']), figsize=(12, 6), sharex=True, squeeze=False)
+    sel = (t >= 0.0) & (t <= 20.0)
+    for j, c in enumerate(ex['cases']):
+        for fl in range(3):
+            ax = axes[2 - fl, j]
+            ax.plot(t[sel], 1e3 * ex['refs'][c][sel, fl], 'k', lw=1.2, label='reference')
+            ax.plot(t[sel], 1e3 * out['y_n'][j][sel, fl], 'r--', lw=0.8, label='RTHS')
+            if j == 0:
+                ax.set_ylabel(f'floor {fl + 1} [mm]')
+            if fl == 2:
+                ax.set_title(f'case {c}')
+        axes[2, j].set_xlabel('time [s]')
+    axes[0, 0].legend(loc='upper right', fontsize=7)
+    fig.suptitle(f"{summary['controller']}: floor displacements vs reference")
+    fig.tight_layout()
+    path = os.path.join(directory, 'floors.png')
+    fig.savefig(path, dpi=50)
+    plt.close(fig)
+    files.append(path)
+    return files
+
+
+def write_outputs(summary: dict, directory: str, plots: bool = True) -> list:
+    """Write ``summary.json`` (issue 13 layout), ``details.json``, ``table.md`` and plots."""
+    os.makedirs(directory, exist_ok=True)
+    data = {k: summary[k] for k in ('controller', 'cases', 'perturbed')}
+    details = {'settings': summary['settings'], 'draws': summary['draws']}
+    if summary['controller'] == 'example' and summary['settings']['record'] == 'elcentro':
+        details['published_comparison'] = comparison(summary)
+    files = [os.path.join(directory, name) for name in ('summary.json', 'details.json',
+                                                        'table.md')]
+    for path, obj in zip(files[:2], (data, details), strict=True):
+        with open(path, 'w') as fh:
+            json.dump(obj, fh, indent=1)
+            fh.write('\n')
+    with open(files[2], 'w') as fh:
+        fh.write(table_markdown(summary))
+    if plots:
+        files += make_plots(summary, directory)
+    return files
+
+
+# ----------------------------------------------------------------------------- CLI
+def _cmd(args) -> int:
+    fir = {'n_taps': args.taps, 'fc_hz': args.fc, 'scheme': args.scheme,
+           'epsilon': args.epsilon, 'lowpass_hz': args.lowpass}
+    summary = run_benchmark(args.controller, args.record, args.draws, args.seed,
+                            args.duration or None, args.data_dir, fir)
+    print(table_markdown(summary))
+    for f in write_outputs(summary, args.out, plots=not args.no_plots):
+        print(f'wrote {f}')
+    st = summary['settings']
+    print(f"loop {st['loop_s']} s, total {st['total_s']} s (CPU {st['cpu_s']} s), "
+          f"load average {st['load_average_1min']}")
+    return 0
+
+
+def register(commands, benches):
+    """Add ``rths bench rths-benchmark``."""
+    p = benches.add_parser(
+        'rths-benchmark',
+        help='the RTHS benchmark control problem (Silva et al. 2020): J1-J9 of a controller',
+        description='Runs the benchmark of Silva et al. (2020): the four partitioning cases '
+                    'with the nominal plant and --draws perturbed plants of case 1, all in one '
+                    'vectorised lock-step loop at 4096 Hz, and writes DIR/summary.json (J1-J9 '
+                    'per case; perturbed: n, J1_max, J2_max, J3_max, unstable), details.json '
+                    '(settings, the drawn parameters, the published comparison), table.md (the '
+                    "paper's Table 3 layout) and tracking.png / floors.png. The records are the "
+                    f"benchmark's MAT files, read from ${DATA_ENV} (or --data-dir).")
+    p.add_argument('--controller', default='example', choices=('example', 'fir'),
+                   help='example: PI + phase lead of the paper; fir: the project\'s ARX '
+                        'identification from a BLWN test + FIR design (feed-forward)')
+    p.add_argument('--out', required=True, help='output directory')
+    p.add_argument('--record', default='elcentro',
+                   help='elcentro (default), kobe, morganhill (x 0.4, from the data '
+                        'directory), or a file path (unscaled)')
+    p.add_argument('--data-dir', default=None,
+                   help=f'directory of the records (default ${DATA_ENV})')
+    p.add_argument('--draws', type=int, default=20, help='perturbed plants of case 1 (>= 20 '
+                   'for the benchmark)')
+    p.add_argument('--seed', type=int, default=2020, help='seed of the draws and the noise')
+    p.add_argument('--duration', type=float, default=0.0, help='shorten the record [s]; 0 = all')
+    p.add_argument('--taps', type=int, default=200, help='fir: number of taps n')
+    p.add_argument('--fc', type=float, default=30.0, help='fir: passband edge [Hz]')
+    p.add_argument('--scheme', default='ls', choices=('ls', 'wls', 'mm'), help='fir: scheme')
+    p.add_argument('--lowpass', type=float, default=400.0,
+                   help='fir: cut-off [Hz] of the target low-pass (order 4) that bounds |G|')
+    p.add_argument('--epsilon', type=float, default=0.002, help='fir: passband tolerance')
+    p.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
+    p.set_defaults(func=_cmd)

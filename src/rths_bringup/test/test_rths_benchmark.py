@@ -1,0 +1,75 @@
+"""The RTHS benchmark problem (Silva et al. 2020): the port pinned to the published table."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from rths_bringup import rths_benchmark as rb
+from rths_bringup.cli import main
+
+
+def _data_dir():
+    return os.environ.get(rb.DATA_ENV, '')
+
+
+HAVE_ELCENTRO = os.path.isfile(os.path.join(_data_dir(), rb.RECORDS['elcentro'][0]))
+
+
+def test_j1_finds_the_lag_and_criteria_vanish_for_identical_signals():
+    dt = 1.0 / 4096
+    t = np.arange(20000) * dt
+    rng = np.random.default_rng(1)
+    desired = np.sin(2 * np.pi * 2 * t) + 0.3 * np.sin(2 * np.pi * 7.3 * t) \
+        + 0.05 * rng.standard_normal(t.size)
+    measured = np.concatenate([np.zeros(9), desired[:-9]])
+    assert rb.j1_ms(desired, measured, dt) == round(9 * dt * 1e3, 1)     # 2.2 ms
+    floors = np.column_stack([desired, 2 * desired, 3 * desired])
+    js = rb.criteria(desired, floors, floors, dt)
+    assert all(js[name] == 0.0 for name in rb.J_NAMES)
+
+
+@pytest.mark.skipif(not HAVE_ELCENTRO, reason=(
+    f'El Centro record absent: set {rb.DATA_ENV} to a directory with '
+    'ElCentroAccelNoScaling.mat from the benchmark code package '
+    '(github.com/MECHS-RCN/BENCHMARKS, "RTHS code RT V23.zip"); not redistributable here'))
+def test_example_controller_reproduces_published_table_3():
+    # Published J1-J9: Silva, Gomez, Maghareh, Dyke, Spencer (2020), "Benchmark control
+    # problem for real-time hybrid simulation", MSSP 135, 106381, Table 3 (El Centro x 0.4,
+    # PI + phase lead); values from the preprint in the benchmark's code package (V23).
+    # Issue 13 tolerance: J1 within 0.5 ms, J2-J9 within 15 %.
+    summary = rb.run_benchmark('example', n_draws=0, log=lambda msg: None)
+    for case, published in rb.PUBLISHED_EXAMPLE.items():
+        ours = summary['cases'][case]
+        assert abs(ours['J1'] - published[0]) <= 0.5, (case, ours)
+        for name, pub in zip(rb.J_NAMES[1:], published[1:], strict=True):
+            assert abs(ours[name] - pub) <= 0.15 * pub, (case, name, ours[name], pub)
+
+
+def test_bench_command_tiny_configuration(tmp_path):
+    # A synthetic 3 s record (a 3.5 Hz burst) in a 2-column file: no data set needed.
+    t = np.arange(0, 3.0, 0.02)
+    acc = 1.5 * np.sin(2 * np.pi * 3.5 * t) * np.exp(-((t - 1.0) / 0.6) ** 2)
+    record = tmp_path / 'burst.txt'
+    np.savetxt(record, np.column_stack([t, acc]))
+    out = tmp_path / 'out'
+    code = main(['bench', 'rths-benchmark', '--controller', 'example', '--record', str(record),
+                 '--draws', '2', '--seed', '5', '--out', str(out), '--no-plots'])
+    assert code == 0
+    data = json.loads((out / 'summary.json').read_text())
+    assert set(data) == {'controller', 'cases', 'perturbed'}
+    assert data['controller'] == 'example'
+    assert sorted(data['cases']) == ['1', '2', '3', '4']
+    assert all(sorted(row) == sorted(rb.J_NAMES) for row in data['cases'].values())
+    assert data['perturbed']['n'] == 2 and data['perturbed']['unstable'] == 0
+    assert set(data['perturbed']) == {'n', 'J1_max', 'J2_max', 'J3_max', 'unstable'}
+    # the PI + phase lead lags by a few ms on this plant
+    assert 2.0 <= data['cases']['1']['J1'] <= 8.0
+    assert (out / 'table.md').read_text().count('\n| ') >= 4
+
+
+def test_missing_record_names_the_fix(tmp_path, monkeypatch):
+    monkeypatch.setenv(rb.DATA_ENV, str(tmp_path))
+    with pytest.raises(OSError, match='ElCentroAccelNoScaling.mat'):
+        rb.record_path('elcentro')
