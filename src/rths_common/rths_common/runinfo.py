@@ -45,14 +45,26 @@ def write_params(path, node: str, params: dict) -> Path:
 
 
 def flatten(kind: str, fs_hz: float, mode: str, sections: dict) -> dict:
-    """Run information for the recorder: ``{'numerical.model': 'sdof', ...}`` as strings."""
+    """Run information for the recorder: ``{'numerical.model': 'sdof', ...}`` as strings.
+
+    A nested mapping (the compensator's ``provenance``) becomes dotted keys, as ROS
+    names it: ``compensator.provenance.plant``.
+    """
     info = {'kind': kind, 'fs_hz': repr(float(fs_hz)), 'mode': mode}
     for name, params in sections.items():
         for key, value in params.items():
             if key not in SKIP:
-                text = yaml.safe_dump(value, default_flow_style=True).strip()
-                info[f'{name}.{key}'] = text.removesuffix('\n...')  # scalar document end
+                _flatten_into(info, f'{name}.{key}', value)
     return info
+
+
+def _flatten_into(info: dict, name: str, value) -> None:
+    if isinstance(value, dict):
+        for key, item in value.items():
+            _flatten_into(info, f'{name}.{key}', item)
+        return
+    text = yaml.safe_dump(value, default_flow_style=True).strip()
+    info[name] = text.removesuffix('\n...')  # scalar document end
 
 
 def section(info: dict, name: str) -> dict:
