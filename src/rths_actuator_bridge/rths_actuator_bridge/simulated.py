@@ -187,16 +187,28 @@ def _dtm_params(name: str):
         raise ValueError(f"parameter 'dtm': {err}, or 'none'") from None
 
 
-def _actuator_ss(kind: str):
-    """Return the controllable state space (A, B, C) of a Table 1 actuator model."""
+#: Plant parameters that :meth:`SimulatedPlant.retune` scales during a run (1.0 = as built):
+#: the actuator's DC gain, all its poles (bandwidth), its complex pole pairs only (the
+#: oil-column/specimen mode that control-structure interaction moves) and the DTM's k_d.
+RETUNE_KEYS = ('actuator_gain', 'actuator_bandwidth', 'actuator_mode_frequency',
+               'dtm_stiffness')
+
+
+def _actuator_ss(kind: str, scales: dict = None):
+    """Return the controllable state space (A, B, C) of a Table 1 actuator model, retuned."""
     from scipy.signal import tf2ss
 
-    from rths_compensator.plants import continuous_actuator
+    from rths_compensator.plants import actuator_poles
     try:
-        num, den = continuous_actuator(kind)
+        poles = actuator_poles(kind)
     except ValueError as err:
         raise ValueError(f"parameter 'actuator_model': {err}, or a path to an ARX plant.yaml") \
             from None
+    scales = scales or {}
+    poles = poles * scales.get('actuator_bandwidth', 1.0)
+    poles = np.where(poles.imag != 0, poles * scales.get('actuator_mode_frequency', 1.0), poles)
+    den = np.real(np.poly(poles))
+    num = np.array([np.real(np.prod(-poles)) * scales.get('actuator_gain', 1.0)])
     a, b, c, d = tf2ss(num, den)
     if np.any(np.abs(d) > 0) or abs((c @ b).item()) > 1e-9 * np.abs(c).max():
         raise ValueError(f'actuator model {kind!r} must have relative degree >= 2')
@@ -224,6 +236,7 @@ class SimulatedPlant:
         else:
             self.frame_mass = cfg.frame_mass_kg
         self.arx = None
+        self._scales = dict.fromkeys(RETUNE_KEYS, 1.0)
         self._noiseless = (cfg.adc_bits <= 0 and cfg.displacement_noise_m <= 0
                            and cfg.force_noise_n <= 0 and cfg.rel_disp_noise_m <= 0
                            and cfg.accel_noise_m_s2 <= 0)
@@ -243,10 +256,10 @@ class SimulatedPlant:
     def _dtm_cmk(self):
         if self.dtm is None:
             return 1.0, 0.0, 0.0
-        return self.dtm.m_d, self.dtm.c_d, self.dtm.k_d
+        return self.dtm.m_d, self.dtm.c_d, self.dtm.k_d * self._scales['dtm_stiffness']
 
     def _build_continuous(self, kind: str):
-        aa, ba, ca = _actuator_ss(kind)
+        aa, ba, ca = _actuator_ss(kind, self._scales)
         n = aa.shape[0]
         m_d, c_d, k_d = self._dtm_cmk()
         c_acc = ca @ aa @ aa           # xdd_s = C A^2 q + C A B u
@@ -353,6 +366,40 @@ class SimulatedPlant:
         a4[1] = [-k_d / m_d, -c_d / m_d, k_d / m_d, c_d / m_d]
         a4[2, 3] = 1.0
         self._arx_dtm = expm(a4 * self.dt)
+
+    def retune(self, **scales):
+        """Scale plant parameters (:data:`RETUNE_KEYS`, factors of the built values) from now on.
+
+        The continuous model is re-discretised and the physical state carried over: the DTM
+        and DAQ states unchanged, the actuator state mapped so that the table displacement
+        and its derivatives (up to the model order - 1) stay continuous.  Continuous
+        actuator models only (a damage step or a drift during a test).
+        """
+        if self.config.actuator_model not in ('3pole', '4pole') or self.mr is not None:
+            raise ValueError('retune needs a continuous Table 1 actuator model (3pole, 4pole) '
+                             'and a linear specimen (not dtm: mr)')
+        for key, value in scales.items():
+            if key not in RETUNE_KEYS:
+                raise ValueError(f'retune: unknown parameter {key!r}; use {RETUNE_KEYS}')
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f'retune: {key} = {value} must be a finite factor > 0')
+        obs_old = self._actuator_observability()
+        phys = obs_old @ self.x[:obs_old.shape[0]]
+        x = self.x.copy()
+        self._scales.update(scales)
+        self._build_continuous(self.config.actuator_model)
+        obs_new = self._actuator_observability()
+        x[:obs_new.shape[0]] = np.linalg.solve(obs_new, phys)
+        self.x = x
+
+    def _actuator_observability(self):
+        """Rows ``C A^i`` (i < n) of the actuator block: its state -> x_s and derivatives."""
+        n = self.n_states - 2 - 2 * (len(DAQ_FILTERED) if self.config.daq_filter_hz > 0 else 0)
+        a, c = self.a_c[:n, :n], self.c[0, :n]
+        rows = [c]
+        for _ in range(n - 1):
+            rows.append(rows[-1] @ a)
+        return np.array(rows)
 
     # ----------------------------------------------------------------- running
     def reset(self):

@@ -22,6 +22,7 @@ CLI_MODULES = (
     'rths_bringup.commands',
     'rths_bringup.bench_loop',
     'rths_bringup.bench_distributed',
+    'rths_bringup.bench_adaptive',
     'rths_bringup.rths_benchmark',
     'rths_bringup.run',
     'rths_bringup.replay',

@@ -1,0 +1,536 @@
+"""Adaptive compensation: the designed FIR and three adaptive methods behind one interface.
+
+Every method maps the target (interface) displacement of step k to the command of step k::
+
+    command_k = method.step(target_k, measured_prev)
+
+where ``measured_prev`` is the measured displacement of step k-1 (None when it is not
+available: then nothing adapts).  ``coefficients()`` returns the current coefficients (for
+publishing) and ``status`` a :class:`Status` (``fixed``, ``adapting``, ``frozen`` or
+``fallback``, and why).
+
+Methods (:func:`make_method` builds each from the identified plant and its designed FIR):
+
+``fir``
+    :class:`FixedFir`, the designed compensator ``G = A*/B+* . H`` (:mod:`.design`).
+``rls_fir``
+    :class:`RlsFir`: the same structure with the taps h of H estimated on line by recursive
+    least squares with forgetting on the regression that defines the FIR design: with
+    ``w = (A*/B+*) y`` (the measured displacement through the fixed part of G), the design
+    asks ``H(w) = u`` (``T G = 1`` on the command u that produced y), so
+    ``u_{k-1} = h . [w_{k-1}, ..., w_{k-n}]``; the designed h is the initial estimate.
+``ats``
+    :class:`Ats`, the adaptive time-series compensator (Chae, Kazemibidokhti & Ricles 2013):
+    ``u = a0 x + a1 xd + a2 xdd`` of the target, with a fitted by least squares over a
+    sliding window (1 s, every 16th step) on the inverse relation ``u = a0 y + a1 yd + a2
+    ydd`` of the (low-passed) measured displacement, started from ``[1, tau, tau^2/2]`` with
+    tau the identified plant's delay; bounds and rate limits as in OpenFresco's set-up.
+``amb``
+    :class:`Amb`, adaptive model-based compensation (Fermandois & Spencer): ``u = theta .
+    [x, xd, xdd, xddd]`` of the target (backward differences), theta started from the
+    least-squares inverse of the identified plant over the band and adapted by normalised
+    gradient on the tracking error, with the regressor filtered through the plant model.
+
+Guards (all adaptive methods, :class:`Guards`): adaptation freezes while the target's
+RMS over ``window_s`` is below ``excitation_m`` or a fault is flagged
+(:meth:`AdaptiveMethod.flag_fault`); coefficients stay inside stated bounds and move at most
+at a stated rate; a non-finite command, coefficient or measurement, or a relative RMS
+tracking error over ``window_s`` above ``fallback_pct`` (while excited), switches the method
+to the designed FIR for the rest of the run (the FIR runs in parallel, so the switch is
+bumpless) and the status says why.
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+from scipy import signal
+
+from .design import Design, plant_polynomials
+from .filters import MultiChannelFilter
+from .indicators import time_delay_ms
+
+METHODS = ('fir', 'rls_fir', 'ats', 'amb')
+
+
+@dataclasses.dataclass
+class Status:
+    """What a method is doing: ``fixed``, ``adapting``, ``frozen`` or ``fallback``, and why."""
+
+    state: str
+    reason: str = ''
+
+
+@dataclasses.dataclass
+class Guards:
+    """Safety settings shared by the adaptive methods (SI units)."""
+
+    excitation_m: float = 2.54e-4     # target RMS below which adaptation freezes (0.01 in)
+    window_s: float = 0.5             # time constant of the RMS monitors
+    fallback_pct: float = 30.0        # relative RMS tracking error that triggers the fallback
+    grace_s: float = 1.0              # no fallback decision before this much running time
+
+
+class _Monitor:
+    """Exponentially weighted mean squares of the target and the tracking error."""
+
+    def __init__(self, fs_hz, window_s):
+        self.alpha = 1.0 / max(1.0, window_s * fs_hz)
+        self.ms_target = 0.0
+        self.ms_error = 0.0
+
+    def update(self, target, error):
+        a = self.alpha
+        self.ms_target += a * (target * target - self.ms_target)
+        self.ms_error += a * (error * error - self.ms_error)
+
+    def relative_pct(self):
+        if self.ms_target <= 0.0:
+            return 0.0
+        return 100.0 * math.sqrt(self.ms_error / self.ms_target)
+
+
+class FixedFir:
+    """The designed compensator (any causal rational ``taps/denominator``), never adapting."""
+
+    name = 'fir'
+
+    def __init__(self, taps, denominator=(1.0,)):
+        self._filter = MultiChannelFilter(taps, denominator, n_channels=1)
+        self._x = np.zeros(1)
+        self.status = Status('fixed', 'designed compensator')
+
+    def step(self, target, measured_prev=None):
+        """Return the command for ``target`` (a non-finite one repeats the last finite one)."""
+        if math.isfinite(target):
+            self._x[0] = target
+        return float(self._filter.step(self._x)[0])
+
+    def coefficients(self):
+        """Return the designed numerator taps."""
+        return self._filter.taps.copy()
+
+    def flag_fault(self, reason='fault'):
+        """Nothing adapts; accepted for a uniform interface."""
+
+    def clear_fault(self):
+        """Nothing adapts; accepted for a uniform interface."""
+
+
+class AdaptiveMethod:
+    """Shared guard logic; subclasses implement ``_command``, ``_adapt`` and ``coefficients``."""
+
+    name = ''
+
+    def __init__(self, design: Design, guards: Guards = None):
+        self.fs_hz = float(design.fs_hz)
+        self.dt = 1.0 / self.fs_hz
+        self.guards = guards or Guards()
+        self._fir = FixedFir(design.taps, design.denominator)
+        self._monitor = _Monitor(self.fs_hz, self.guards.window_s)
+        self._grace = int(round(self.guards.grace_s * self.fs_hz))
+        self._k = 0
+        self._fault = ''
+        self._fallback = ''
+        self._prev_target = None
+        self._last_finite = 0.0
+        self.status = Status('frozen', 'no measurement yet')
+
+    # ----------------------------------------------------------------- interface
+    def step(self, target, measured_prev=None):
+        """Command for ``target`` (step k), adapting on ``measured_prev`` (step k-1)."""
+        target = float(target)
+        if not math.isfinite(target):
+            self._fall_back(f'non-finite target {target}; holding the last finite one')
+            target = self._last_finite
+        self._last_finite = target
+        fir_cmd = self._fir.step(target)
+        if self._fallback:
+            return fir_cmd
+        if measured_prev is not None and self._prev_target is not None:
+            self._observe(float(measured_prev))
+            if self._fallback:
+                return fir_cmd
+        command = self._command(target)
+        if not math.isfinite(command):
+            return self._fall_back(f'non-finite command {command}', fir_cmd)
+        self._prev_target = target
+        self._k += 1
+        return command
+
+    def flag_fault(self, reason='fault'):
+        """Freeze adaptation until :meth:`clear_fault` (e.g. the bridge reported a fault)."""
+        self._fault = str(reason) or 'fault'
+
+    def clear_fault(self):
+        """Allow adaptation again after :meth:`flag_fault`."""
+        self._fault = ''
+
+    @property
+    def fallen_back(self) -> bool:
+        """True once the method has switched to the designed FIR."""
+        return bool(self._fallback)
+
+    # ----------------------------------------------------------------- guards
+    def _observe(self, measured):
+        if not math.isfinite(measured):
+            self._fall_back(f'non-finite measurement {measured}')
+            return
+        error = self._prev_target - measured
+        mon = self._monitor
+        mon.update(self._prev_target, error)
+        g = self.guards
+        excited = mon.ms_target >= g.excitation_m ** 2
+        rel = mon.relative_pct()
+        if excited and self._k > self._grace and rel > g.fallback_pct:
+            self._fall_back(f'tracking error {rel:.1f} % > {g.fallback_pct:g} %')
+            return
+        if self._fault:
+            self.status = Status('frozen', f'fault flagged: {self._fault}')
+            self._record(measured, adapt=False)
+        elif not excited:
+            self.status = Status('frozen', f'excitation {math.sqrt(mon.ms_target):.3g} m RMS '
+                                           f'< {g.excitation_m:g} m')
+            self._record(measured, adapt=False)
+        else:
+            self.status = Status('adapting', '')
+            self._record(measured, adapt=True)
+        if not np.all(np.isfinite(self.coefficients())):
+            self._fall_back('non-finite coefficients')
+
+    def _fall_back(self, reason, fir_cmd=None):
+        if self._fallback:
+            return fir_cmd
+        self._fallback = reason
+        self.status = Status('fallback', f'designed FIR in use: {reason}')
+        return fir_cmd
+
+    # ----------------------------------------------------------------- subclass hooks
+    def _command(self, target):            # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _record(self, measured, adapt):    # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def coefficients(self):                # pragma: no cover - abstract
+        """Return the current coefficients of the method."""
+        raise NotImplementedError
+
+
+def _clip_step(new, old, lower, upper, max_step):
+    """Limit ``new`` to ``old +- max_step`` and to ``[lower, upper]`` (arrays, in place)."""
+    np.clip(new, old - max_step, old + max_step, out=new)
+    np.clip(new, lower, upper, out=new)
+    return new
+
+
+class _Ring:
+    """Doubled ring buffer: ``view()`` is the newest-first history of length n."""
+
+    def __init__(self, n):
+        self.n = int(n)
+        self.buf = np.zeros(2 * self.n)
+        self.p = 0
+
+    def push(self, value):
+        p = self.p - 1
+        if p < 0:
+            p = self.n - 1
+        self.p = p
+        self.buf[p] = value
+        self.buf[p + self.n] = value
+
+    def view(self):
+        return self.buf[self.p:self.p + self.n]
+
+
+def split_fir(design: Design, plant, fs_hz=None):
+    """Split a designed FIR ``G = A*/B+* . H`` into ``(h, prefilter_num, prefilter_den)``.
+
+    ``taps = A* * h`` (polynomial product), so h is the exact quotient ``taps / A*``.
+    """
+    _, a_star, _, _ = plant_polynomials(plant, fs_hz or design.fs_hz)
+    h, rem = signal.deconvolve(design.taps, a_star)
+    if np.max(np.abs(rem)) > 1e-9 * np.max(np.abs(design.taps)):
+        raise ValueError('the design is not an FIR compensator A*/B+* . H of this plant '
+                         '(its taps are not a multiple of A*); design it with rths design '
+                         '--scheme ls|wls|mm on the same plant')
+    return np.asarray(h, float), np.asarray(a_star, float), np.asarray(design.denominator, float)
+
+
+class RlsFir(AdaptiveMethod):
+    """FIR compensator whose taps h are estimated by RLS with forgetting (see module doc).
+
+    The covariance is forgotten only along the current regressor (directional forgetting,
+    Kulhavy 1987; Bittanti, Bolzern & Campi 1990): a band-limited target excites a few
+    directions of the n-tap regression, and uniform exponential forgetting would blow up
+    the covariance in all the others (wind-up).  Prior: h0 (the designed taps) with the
+    covariance ``prior / (n ms_w) I`` set at the first adapting step, ms_w the running mean
+    square of the regressor (so ``phi' P phi`` is about ``prior``; the equation error
+    counts 1).  Bounds: each tap stays within ``bound`` x max|h0|
+    of its designed value and moves at most ``rate`` x max|h0| per second; the covariance
+    trace never exceeds ``trace_factor`` times its initial value.
+    """
+
+    name = 'rls_fir'
+
+    def __init__(self, design, plant, guards=None, forgetting=0.995, prior=1.0, bound=0.5,
+                 rate=2.0, trace_factor=10.0, lowpass_hz=30.0):
+        super().__init__(design, guards)
+        if not 0.9 < forgetting < 1.0:
+            raise ValueError(f'rls_fir forgetting factor {forgetting} must lie in (0.9, 1)')
+        h0, pre_b, pre_a = split_fir(design, plant, self.fs_hz)
+        self.h0 = h0
+        self.h = h0.copy()
+        n = h0.size
+        self.lam = float(forgetting)
+        scale = float(np.max(np.abs(h0)))
+        self.lower = h0 - bound * scale
+        self.upper = h0 + bound * scale
+        self.max_step = rate * scale * self.dt
+        self.prior = float(prior)
+        self.trace_factor = float(trace_factor)
+        self.P = None               # set at the first adapting step (scale of the regressor)
+        self.trace_max = np.inf
+        self._pre_target = MultiChannelFilter(pre_b, pre_a)
+        self._pre_measured = MultiChannelFilter(pre_b, pre_a)
+        # the regression runs on low-passed command and regressor (u_f = H w_f still holds):
+        # A* amplifies the sensor noise above the band by orders of magnitude
+        bl, al = signal.butter(4, lowpass_hz, fs=self.fs_hz)
+        self._lp = MultiChannelFilter(bl, al, n_channels=2)      # [w, u]
+        self._v = _Ring(n)          # prefiltered target history (the command's regressor)
+        self._w = _Ring(n)          # low-passed prefiltered measured history (the regression's)
+        self._u_prev = 0.0
+        self._ms_w = 0.0
+        self._one = np.zeros(1)
+        self._pair = np.zeros(2)
+
+    def _command(self, target):
+        self._one[0] = target
+        self._v.push(self._pre_target.step(self._one)[0])
+        u = float(self.h @ self._v.view())
+        self._u_prev = u
+        return u
+
+    def _record(self, measured, adapt):
+        self._one[0] = measured
+        pair = self._pair
+        pair[0] = self._pre_measured.step(self._one)[0]
+        pair[1] = self._u_prev
+        w_f, u_f = self._lp.step(pair)
+        self._w.push(w_f)
+        self._ms_w += self._monitor.alpha * (w_f * w_f - self._ms_w)
+        if not adapt:
+            return
+        phi = self._w.view()
+        if self.P is None:
+            size = phi.size * self._ms_w
+            if not size > 0.0:
+                return
+            self.P = np.eye(phi.size) * (self.prior / size)
+            self.trace_max = self.trace_factor * np.trace(self.P)
+        pphi = self.P @ phi
+        r = float(phi @ pphi)
+        if not r > 0.0:
+            return
+        err = u_f - self.h @ phi
+        new = self.h + pphi * (err / (1.0 + r))
+        self.h = _clip_step(new, self.h, self.lower, self.upper, self.max_step)
+        # directional forgetting: P <- P - P phi phi' P eps / (lam (1 + r)),
+        # eps = lam - (1 - lam) / r  (eps < 0 re-inflates P along phi only)
+        eps = self.lam - (1.0 - self.lam) / r
+        if eps < 0.0 and np.trace(self.P) > self.trace_max:
+            eps = 0.0
+        self.P -= np.outer(pphi, pphi * (eps / (self.lam * (1.0 + r))))
+
+    def coefficients(self):
+        """Return the current taps h of H (the adapted part of G)."""
+        return self.h.copy()
+
+
+class _Derivatives:
+    """Backward-difference derivatives 0..order of a sampled signal."""
+
+    def __init__(self, order, dt):
+        self.order = order
+        self.dt = dt
+        self.vals = np.zeros(order + 1)
+        self.prev = np.zeros(order + 1)
+
+    def push(self, x):
+        v, p = self.vals, self.prev
+        p[:] = v
+        v[0] = x
+        for i in range(1, self.order + 1):
+            v[i] = (v[i - 1] - p[i - 1]) / self.dt
+        return v
+
+
+def _difference_responses(order, fs_hz, freqs):
+    """Frequency responses of the backward-difference derivatives 0..order at ``freqs``."""
+    z1 = np.exp(-2j * np.pi * np.asarray(freqs) / fs_hz)
+    d = (1.0 - z1) * fs_hz
+    return np.array([d ** i for i in range(order + 1)])
+
+
+class Ats(AdaptiveMethod):
+    """Adaptive time-series compensator ``u = a0 x + a1 xd + a2 xdd`` (see module doc).
+
+    Defaults from OpenFresco's ATS set-up (Chae et al. 2013): window 1 s, update every 16th
+    step, a0 in [0.5, 2] (OpenFresco: 0.9-1.1; widened for gain drift), a1 in
+    [0, 3 tau0], a2 in [0, (3 tau0)^2 / 2], maximum rates [0.2 /s, 5 ms/s, 1e-4 s^2/s],
+    the measured displacement and the command low-passed (Butterworth, 20 Hz) before the fit.
+    """
+
+    name = 'ats'
+
+    def __init__(self, design, plant, guards=None, window_s=1.0, every=16, band_hz=10.0,
+                 rates=(0.2, 0.005, 1e-4), lowpass_hz=20.0):
+        super().__init__(design, guards)
+        b, a, d, fs = plant_polynomials(plant, self.fs_hz)
+        tau = max(0.0, time_delay_ms(np.r_[np.zeros(d), b], a, fs, band_hz) * 1e-3)
+        self.a0 = np.array([1.0, tau, 0.5 * tau * tau])
+        self.a = self.a0.copy()
+        span = 3.0 * max(tau, 1e-3)
+        self.lower = np.array([0.5, 0.0, 0.0])
+        self.upper = np.array([2.0, span, 0.5 * span * span])
+        self.max_step = np.asarray(rates, float) * every * self.dt
+        self.every = int(every)
+        self.n_window = int(round(window_s * self.fs_hz))
+        bl, al = signal.butter(4, lowpass_hz, fs=self.fs_hz)
+        self._lp = MultiChannelFilter(bl, al, n_channels=2)      # [measured, command]
+        self._dx = _Derivatives(2, self.dt)
+        self._dy = _Derivatives(2, self.dt)
+        self._rows = np.zeros((2 * self.n_window, 4))              # [y, yd, ydd, u] doubled
+        self._p = 0
+        self._filled = 0
+        self._since = 0
+        self._u_prev = 0.0
+        self._pair = np.zeros(2)
+
+    def _command(self, target):
+        v = self._dx.push(target)
+        u = float(self.a @ v)
+        self._u_prev = u
+        return u
+
+    def _record(self, measured, adapt):
+        self._pair[0] = measured
+        self._pair[1] = self._u_prev
+        yf, uf = self._lp.step(self._pair)
+        dy = self._dy.push(yf)
+        n = self.n_window
+        p = self._p - 1
+        if p < 0:
+            p = n - 1
+        self._p = p
+        row = self._rows[p]
+        row[:3] = dy
+        row[3] = uf
+        self._rows[p + n] = row
+        self._filled = min(self._filled + 1, n)
+        self._since += 1
+        if adapt and self._filled == n and self._since >= self.every:
+            self._since = 0
+            self._fit()
+
+    def _fit(self):
+        w = self._rows[self._p:self._p + self.n_window]
+        phi, u = w[:, :3], w[:, 3]
+        scale = np.array([1.0, self.a0[1] or 1e-3, self.a0[2] or 1e-6])
+        gram = (phi * scale).T @ (phi * scale)
+        if np.linalg.cond(gram) > 1e12:
+            return                     # window not informative enough: keep the coefficients
+        sol = np.linalg.solve(gram, (phi * scale).T @ u) * scale
+        if np.all(np.isfinite(sol)):
+            self.a = _clip_step(sol, self.a, self.lower, self.upper, self.max_step)
+
+    def coefficients(self):
+        """Return the current [a0, a1 (s), a2 (s^2)]."""
+        return self.a.copy()
+
+
+def amb_initial(plant, fs_hz, band_hz=20.0, order=3):
+    """Return theta of ``u = sum theta_i D^i x`` (backward differences) inverting the plant.
+
+    Least squares of ``T(f) sum_i theta_i D_i(f) = 1`` on 0 < f <= band_hz, real theta.
+    """
+    b, a, d, fs = plant_polynomials(plant, fs_hz)
+    freqs = np.linspace(band_hz / 200, band_hz, 200)
+    _, t = signal.freqz(np.r_[np.zeros(d), b], a, worN=freqs, fs=fs)
+    basis = _difference_responses(order, fs, freqs) * t          # (order+1) x nf
+    mat = np.vstack([basis.real.T, basis.imag.T])
+    rhs = np.r_[np.ones(freqs.size), np.zeros(freqs.size)]
+    scale = np.max(np.abs(mat), axis=0)
+    theta = np.linalg.lstsq(mat / scale, rhs, rcond=None)[0] / scale
+    return theta
+
+
+class Amb(AdaptiveMethod):
+    """Adaptive model-based compensator ``u = theta . [x, xd, xdd, xddd]`` (see module doc).
+
+    Normalised gradient (filtered-x): ``theta_i += mu e psi_i / (eps + n ms_i)`` with psi the
+    derivative regressors filtered through the identified plant, e the tracking error, both
+    low-passed (Butterworth, ``lowpass_hz``), ms_i the running mean square of psi_i.
+    Bounds: theta_0 in [0.5, 2], theta_i in [0, 4 theta_i0]; rate ``rate`` x |theta_i0| per s.
+    """
+
+    name = 'amb'
+
+    def __init__(self, design, plant, guards=None, band_hz=20.0, mu=0.01, rate=1.0,
+                 lowpass_hz=20.0):
+        super().__init__(design, guards)
+        b, a, d, fs = plant_polynomials(plant, self.fs_hz)
+        self.theta0 = amb_initial(plant, self.fs_hz, band_hz)
+        self.theta = self.theta0.copy()
+        mag = np.abs(self.theta0)
+        self.lower = np.r_[0.5, np.minimum(0.0, 4 * self.theta0[1:])]
+        self.upper = np.r_[2.0, np.maximum(4 * self.theta0[1:], 0.0)]
+        self.max_step = rate * mag * self.dt
+        self.mu = float(mu)
+        self._dx = _Derivatives(3, self.dt)
+        self._model = MultiChannelFilter(np.r_[np.zeros(d), b], a, n_channels=4)
+        bl, al = signal.butter(2, lowpass_hz, fs=self.fs_hz)
+        self._lp = MultiChannelFilter(bl, al, n_channels=5)       # [e, psi_0..3]
+        self._psi_now = np.zeros(4)
+        self._psi_prev = np.zeros(4)
+        self._ms = np.zeros(4)
+        self._alpha = 1.0 / (self.guards.window_s * self.fs_hz)
+        self._buf = np.zeros(5)
+
+    def _command(self, target):
+        v = self._dx.push(target)
+        self._psi_now = self._model.step(v)
+        return float(self.theta @ v)
+
+    def _record(self, measured, adapt):
+        buf = self._buf
+        buf[0] = self._prev_target - measured
+        buf[1:] = self._psi_prev
+        f = self._lp.step(buf)
+        e, psi = f[0], f[1:]
+        self._ms += self._alpha * (psi * psi - self._ms)
+        if adapt:
+            new = self.theta + self.mu * e * psi / (1e-30 + 4.0 * self._ms)
+            self.theta = _clip_step(new, self.theta, self.lower, self.upper, self.max_step)
+
+    def step(self, target, measured_prev=None):
+        """As :meth:`AdaptiveMethod.step`; keeps the plant-filtered regressor of step k-1."""
+        self._psi_prev[:] = self._psi_now
+        return super().step(target, measured_prev)
+
+    def coefficients(self):
+        """Return the current theta [-, s, s^2, s^3]."""
+        return self.theta.copy()
+
+
+def make_method(name, design: Design, plant=None, guards: Guards = None, **options):
+    """Build the method ``name`` (fir, rls_fir, ats, amb) from a designed FIR and its plant."""
+    if name == 'fir':
+        return FixedFir(design.taps, design.denominator)
+    if plant is None:
+        raise ValueError(f'method {name!r} needs the identified plant (plant.yaml)')
+    classes = {'rls_fir': RlsFir, 'ats': Ats, 'amb': Amb}
+    if name not in classes:
+        raise ValueError(f'method {name!r} is unknown; use one of {", ".join(METHODS)}')
+    return classes[name](design, plant, guards, **options)
