@@ -94,6 +94,8 @@ def register(commands, benches):
     p.add_argument('--domain-id', type=int, default=-1, help='ROS_DOMAIN_ID of the runs '
                    '(default -1: $ROS_DOMAIN_ID if set, else a private one from the pid)')
     p.add_argument('--keep', default=None, help='keep config, bag and timing files here')
+    from rths_bringup import live
+    live.add_arguments(p)   # --live: the misses with the live view on (issue 17)
     p.set_defaults(func=cmd_bench_loop)
 
 
@@ -341,11 +343,17 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log) -> dict:
         overrides['recorder'] = {'nice': int(args.recorder_nice)}
         if args.recorder_cpus:
             overrides['recorder']['cpus'] = f'"{args.recorder_cpus}"'
+    if getattr(args, 'live', False):  # one more reader of each loop topic: arm after it too
+        for name in ('numerical', 'compensator', 'bridge'):
+            overrides.setdefault(name, {})['wait_for_subscribers'] = 2 if bag is None else 3
     load_before = [round(x, 2) for x in os.getloadavg()]
     launcher = Launcher(config, bag=bag, overrides=overrides, out=log,
                         timeout_s=duration_s * 3 + 120)
+    from rths_bringup import live
+
     t0 = time.monotonic()
-    code = launcher.run()
+    with live.session(args, fs_hz=rate_hz):
+        code = launcher.run()
     wall = time.monotonic() - t0
     if not all(p.exists() for p in timing.values()):
         raise OSError(f'the {rate_hz:g} Hz run failed (launcher exit {code}) before the nodes '
@@ -357,6 +365,7 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log) -> dict:
                   spin_margin_us=args.margin, status_every=args.status_every,
                   executor=args.executor, rt_priority=args.priority, cpus=args.cpus,
                   gc=args.gc, recorded=bag is not None, wall_s=round(wall, 1),
+                  live_view=bool(getattr(args, 'live', False)),
                   recorder_nice=args.recorder_nice if bag is not None else None,
                   recorder_cpus=args.recorder_cpus if bag is not None else None,
                   loadavg_before=load_before,

@@ -14,6 +14,8 @@ def register(commands, benches):
                     '--bag. Ends when the numerical node finishes the run, on Ctrl-C/SIGTERM, or '
                     'when a node dies (exit code 1, naming the node).')
     add_launch_args(p)
+    from rths_bringup import live
+    live.add_arguments(p)
     p.set_defaults(func=cmd_launch)
 
     bag = commands.add_parser('bag', help='inspect or repair a recorded bag',
@@ -28,8 +30,10 @@ def register(commands, benches):
     b.add_argument('--json', action='store_true', help='print JSON instead of a table')
     b.set_defaults(func=cmd_bag_info)
     b = bag_cmds.add_parser('reindex', help='rebuild metadata.yaml of a crashed recording',
-                            description='Rebuild metadata.yaml from the bag database '
-                                        '(like ros2 bag reindex).')
+                            description='Rebuild metadata.yaml from the bag data file, MCAP '
+                                        'or sqlite3 (like ros2 bag reindex); an MCAP file a '
+                                        'killed recorder left without its footer is closed '
+                                        'after its last complete record first.')
     b.add_argument('bag', help='bag directory')
     b.set_defaults(func=cmd_bag_reindex)
 
@@ -42,6 +46,9 @@ def add_launch_args(p):
     p.add_argument('--duration', type=float, default=None,
                    help='simulated duration of the run [s] (overrides numerical duration_s)')
     p.add_argument('--bag', default=None, help='record every loop topic to this new bag directory')
+    p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
+                   help='bag storage (default mcap, as ros2 bag since Iron; sqlite3 for older '
+                        'tools)')
     p.add_argument('--timeout', type=float, default=600.0,
                    help='wall-clock limit [s] after which the run is stopped as failed '
                         '(default 600)')
@@ -67,7 +74,8 @@ def run_info_of(config, overrides) -> dict:
                            numerical.get('mode', 'lockstep'), sections)
 
 
-def launch(config, duration=None, bag=None, timeout=600.0, overrides=None):
+def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, storage=None,
+           live=False):
     """Run the graph; return the launcher's exit code.
 
     With a bag, the run's parameters (the three params files with the
@@ -85,18 +93,36 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None):
     if bag and 'kind' not in overrides.get('recorder', {}):
         overrides['recorder'] = dict(run_info_of(config, overrides),
                                      **overrides.get('recorder', {}))
+    if bag and storage:
+        overrides.setdefault('recorder', {})['storage'] = storage
+    if live:  # the live view is one more reader of each loop topic: arm the chain after it too
+        for name in ('numerical', 'compensator', 'bridge'):
+            overrides.setdefault(name, {}).setdefault('wait_for_subscribers', 3 if bag else 2)
     launcher = Launcher(config, bag=bag, overrides=overrides, timeout_s=timeout)
     return launcher.run()
 
 
 def cmd_launch(args) -> int:
     """``rths launch``."""
-    code = launch(args.config, args.duration, args.bag, args.timeout)
+    from rths_bringup import live
+
+    fs = live_rate_of(args.config) if args.live else 0.0
+    with live.session(args, fs_hz=fs):
+        code = launch(args.config, args.duration, args.bag, args.timeout, storage=args.storage,
+                      live=args.live)
     if args.bag and Path(args.bag).exists():
         from rths_bringup.review import loop_summary
         print_bag_info(args.bag)
         print_summary(loop_summary(args.bag))
     return code
+
+
+def live_rate_of(config) -> float:
+    """Return the loop rate ``fs_hz`` of a config directory's numerical node (1024 if unset)."""
+    from rths_common import runinfo
+
+    config = Path(config) if config else default_config_dir()
+    return float(runinfo.load_params(config / 'numerical.yaml', 'numerical').get('fs_hz', 1024.0))
 
 
 def print_bag_info(bag, as_json=False):
@@ -107,7 +133,7 @@ def print_bag_info(bag, as_json=False):
     if as_json:
         print(json.dumps(data, indent=2))
         return data
-    print(f"bag: {data['path']}")
+    print(f"bag: {data['path']} ({data['storage']})")
     print(f"duration: {data['duration_s']:.3f} s   messages: {data['message_count']}")
     print(f"{'topic':<32} {'type':<40} {'count':>8}")
     for topic, t in data['topics'].items():

@@ -2,6 +2,8 @@
 
 ``ros2 run rths_bringup recorder --ros-args -p bag:=out/run/bag -p mode:=lockstep``
 
+The bag is MCAP (``-p storage:=sqlite3`` for the older sqlite3 storage).
+
 Subscriptions take the serialized (CDR) bytes (``raw=True``), so recording
 costs no deserialization; a writer thread drains a queue into the bag in
 batches (every ``batch_s``, default 0.05 s; the callbacks only append to the
@@ -23,13 +25,13 @@ import time
 
 import rclpy
 
+from rths_common import bagstore, topics
 from rths_common import node_support as ns
-from rths_common import topics
 from rths_common.bagio import BagWriter
 from rths_common.qos import recorder_qos, status_qos
 
 #: Recorder parameters that are not run information (everything else is kept in the bag).
-RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s')
+RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s', 'storage')
 #: Longest time between two commits of the bag [s] (what a crash can lose).
 COMMIT_PERIOD_S = 0.25
 
@@ -48,6 +50,7 @@ class Recorder:
         self.nice = int(params.get('nice', 10 if mode == 'realtime' else 0))
         self.cpus = str(params.get('cpus', '') or '')
         self.batch_s = float(params.get('batch_s', 0.05))
+        self.storage = str(params.get('storage', '') or bagstore.DEFAULT_STORAGE)
         if not 0 < self.batch_s <= 0.25:
             raise ValueError(f"parameter 'batch_s' = {self.batch_s} must lie in (0, 0.25] s "
                              '(the writer drains the queue this often)')
@@ -102,7 +105,8 @@ class Recorder:
 
     def _drain(self, bag, opened):
         try:
-            writer = BagWriter(bag, topics.LOOP_TOPICS, run_info=self.run_info)
+            writer = BagWriter(bag, topics.LOOP_TOPICS, run_info=self.run_info,
+                               storage=self.storage)
         except (OSError, ValueError) as err:
             self.open_error = err
             return

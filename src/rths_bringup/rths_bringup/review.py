@@ -124,7 +124,11 @@ def _numerical_params(info: dict) -> dict:
 
 
 def review_rths(bag, out_dir) -> dict:
-    """Tables 5-9 of an RTHS bag: JSON summary, text report and PNG plots in ``out_dir``."""
+    """Tables 5-9 of an RTHS bag: JSON summary, text report, PNG plots and ``report.html``.
+
+    ``report.html`` (:mod:`rths_bringup.report_html`) holds the tables and every
+    plot in one self-contained file.
+    """
     import json
     from pathlib import Path
 
@@ -233,6 +237,8 @@ def review_rths(bag, out_dir) -> dict:
         (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
         _hysteresis_plot(out_dir / 'mr_hysteresis.png', measured, meas['force'][:n, 0], fs,
                          f"MR damper at {summary['mr_voltage_v']:g} V (measured)")
+    from rths_bringup.report_html import write_report
+    write_report(out_dir, summary)
     return summary
 
 

@@ -5,7 +5,8 @@
    recorded to ``OUT/identification/bag``;
 2. ARX identification and FIR design (``rths identify`` and ``rths design``:
    WLS, fc = 10 Hz, n = 400 as in seed section 6.1 unless overridden), written to
-   ``OUT/plant.yaml`` and ``OUT/compensator.yaml`` and copied to ``CONFIG/compensator.yaml``;
+   ``OUT/plant.yaml`` and ``OUT/compensator.yaml`` (never into ``CONFIG``: installing
+   them as the lab's taps is ``rths install-taps OUT``);
 3. the RTHS run: the building (numerical node), the compensator and the bridge
    with the simulated DTM, recorded to ``OUT/rths/bag``;
 4. the review (:mod:`rths_bringup.review`): tables 5-9 as text, ``OUT/summary.json``
@@ -26,7 +27,6 @@ reference would be meaningless.
 
 import datetime
 from pathlib import Path
-import shutil
 import sys
 
 from rths_bringup.commands import default_config_dir, launch
@@ -45,13 +45,14 @@ def register(commands, benches):
     """Add ``rths run`` and ``rths review``."""
     p = commands.add_parser(
         'run', help='the main job: identify, design, run the RTHS, review (seed chapter 6)',
-        description='Perform the whole lab procedure of seed chapter 6: (1) identification '
-        'run with BLWN, (2) ARX identification and FIR design written to '
-        'CONFIG/compensator.yaml, (3) the '
-        'RTHS of the 2-story building with the simulated DTM, (4) the review: actuator delay '
+        description='Perform the whole lab procedure of seed chapter 6: (1) identification run '
+        'with BLWN, (2) ARX identification and FIR design written to OUT/compensator.yaml '
+        '(config/ is never written; rths install-taps OUT installs them), (3) the RTHS of '
+        'the 2-story building with the simulated DTM, (4) the review: actuator delay '
         'and tracking error before/after compensation (table 5), 2nd-floor response and '
         'reductions vs the uncontrolled building (tables 6-8), RTHS vs whole-numerical '
-        'reference (table 9), written to OUT/summary.json, OUT/review.txt and PNG plots.')
+        'reference (table 9), written to OUT/report.html (one file, plots embedded), '
+        'OUT/summary.json, OUT/review.txt and PNG plots.')
     p.add_argument('--config', default=None, help='config directory (default: repo config/)')
     p.add_argument('--out', default=None, help='results directory (default: out/run-<time>)')
     p.add_argument('--record', default='kobe',
@@ -82,9 +83,13 @@ def register(commands, benches):
                    help='identification run length [s] (default 40: 4 records of 10 s)')
     p.add_argument('--plant', default=None,
                    help='skip steps 1-2 and design from this identified plant.yaml')
+    p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
+                   help='storage of the bags (default mcap; sqlite3 for older tools)')
     p.add_argument('--no-compensation', action='store_true',
                    help='skip steps 1-2 and run with identity taps (shows the uncompensated '
                         'error and, where the loop goes unstable, the safe abort)')
+    from rths_bringup import live
+    live.add_arguments(p)
     p.epilog = ('Exit codes: 0 the run completed and was reviewed; 3 the bridge\'s safety '
                 'supervisor stopped the RTHS (OUT/summary.json then holds safety_stop, the '
                 'fault text, and the steps run; e.g. --no-compensation --damper novalve '
@@ -114,7 +119,8 @@ def _phase_config(out_dir: Path, sections: dict) -> Path:
     return cfg
 
 
-def _launch_phase(name, cfg, bag, kind, fs, mode, sections, history=None):
+def _launch_phase(name, cfg, bag, kind, fs, mode, sections, history=None, storage=None,
+                  live=False):
     """Run one phase of the graph; return None, or the bridge's safety stop (a dict).
 
     A launcher failure that is not the bridge's safety stop raises RuntimeError.
@@ -125,7 +131,7 @@ def _launch_phase(name, cfg, bag, kind, fs, mode, sections, history=None):
     for node in NODE_FILES:
         overrides.setdefault(node, {})['mode'] = mode
     _say(f'{name}: launching the node graph ({mode}), recording to {bag}')
-    code = launch(cfg, bag=bag, overrides=overrides, timeout=3600.0)
+    code = launch(cfg, bag=bag, overrides=overrides, timeout=3600.0, storage=storage, live=live)
     if code == 0:
         return None
     try:
@@ -259,22 +265,14 @@ def safety_stop_text(s: dict) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def _install_compensator(designed: Path, target: Path, external_plant: bool):
-    """Copy the designed compensator into the config dir; its plant becomes config/plant.yaml."""
-    from rths_compensator.params import load_compensator_params, write_compensator_params
-
-    params = load_compensator_params(designed)
-    if not external_plant:  # relative to the config directory, copied beside it
-        params['provenance']['plant'] = 'plant.yaml'
-    fields = ('taps', 'denominator', 'fs_hz', 'scheme')
-    write_compensator_params(target, *(params[f] for f in fields),
-                             provenance=params['provenance'])
-
-
 def cmd_run(args) -> int:
     """``rths run``."""
+    from rths_bringup import live
+    from rths_bringup.commands import live_rate_of
+
     try:
-        return _run(args)
+        with live.session(args, fs_hz=live_rate_of(args.config) if args.live else 0.0):
+            return _run(args)
     except RuntimeError as err:
         print(f'rths run: error: {err}', file=sys.stderr)
         return 1
@@ -324,7 +322,8 @@ def _run(args) -> int:
                 'compensator': dict(base['compensator'], scheme='identity', taps=[1.0],
                                     denominator=[1.0], fs_hz=fs)})
             stop = _launch_phase('identification', cfg, ident / 'bag', 'identification', fs,
-                                 args.mode, {'numerical': numerical, 'bridge': base['bridge']})
+                                 args.mode, {'numerical': numerical, 'bridge': base['bridge']},
+                                 storage=args.storage, live=args.live)
             if stop is not None:
                 raise RuntimeError(f'the identification run ended in the bridge\'s safety stop '
                                    f'({stop["safety_stop"]}); check the excitation against the '
@@ -333,16 +332,14 @@ def _run(args) -> int:
             code = rths_main(['identify', '--bag', str(ident / 'bag'), '--out', str(plant)])
             if code:
                 raise RuntimeError('identification failed')
-            shutil.copyfile(plant, config / 'plant.yaml')
         _say(f'step 2: design {args.scheme} n={args.taps} fc={args.fc} Hz (rths design)')
         code = rths_main(['design', '--plant', str(plant), '--scheme', args.scheme,
                           '--taps', str(args.taps), '--fc', str(args.fc),
                           '--out', str(comp_file)])
         if code:
             raise RuntimeError('compensator design failed')
-        _install_compensator(comp_file, config / 'compensator.yaml', bool(args.plant))
-        _say(f'compensator written to {config / "compensator.yaml"}'
-             + ('' if args.plant else f' (its plant: {config / "plant.yaml"})'))
+        _say(f'compensator written to {comp_file} (install it as the lab\'s taps with '
+             f'rths install-taps {out})')
     comp = runinfo.load_params(comp_file, 'compensator')
     comp.update({k: base['compensator'][k] for k in ('executor',) if k in base['compensator']})
 
@@ -365,7 +362,8 @@ def _run(args) -> int:
                           'compensator': {'scheme': comp['scheme'], **{
                               k: v for k, v in comp.get('provenance', {}).items()
                               if k in ('n_taps', 'fc_hz', 'plant', 'predicted_delay_ms')}}},
-                         history=rths_dir / 'numerical_history.npz')
+                         history=rths_dir / 'numerical_history.npz', storage=args.storage,
+                         live=args.live)
     if stop is not None:
         return _report_safety_stop(stop, numerical, out, rths_dir / 'bag')
 
@@ -373,7 +371,8 @@ def _run(args) -> int:
     _say('step 4: review')
     summary = review_rths(rths_dir / 'bag', out)
     print_review(summary)
-    _say(f'results: {out}/summary.json, {out}/review.txt, plots {out}/*.png, '
+    _say(f'results: {out}/report.html (one file), {out}/summary.json, {out}/review.txt, '
+         f'plots {out}/*.png, '
          f'bags {out}/*/bag')
     return 0
 
@@ -405,6 +404,6 @@ def cmd_review(args) -> int:
     out = Path(args.out) if args.out else bag.parent
     summary = review_rths(bag, out)
     print_review(summary)
-    print(f'wrote {out}/summary.json, {out}/review.txt and plots')
+    print(f'wrote {out}/report.html, {out}/summary.json, {out}/review.txt and plots')
     return 0
 
