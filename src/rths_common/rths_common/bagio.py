@@ -212,8 +212,8 @@ def _reindex_mcap(bag: Path) -> Path:
     path = bagstore.data_file(bag)
     bagstore.repair_mcap(path)
     scan = bagstore.mcap_topics(path)
-    rows = [(name, msgtype, fmt, [], digest, count)
-            for name, msgtype, fmt, digest, count in scan['topics']]
+    rows: list[tuple] = [(name, msgtype, fmt, [], digest, count)
+                         for name, msgtype, fmt, digest, count in scan['topics']]
     return _write_metadata(bag, 'mcap', path, rows, scan['start_ns'], scan['end_ns'])
 
 
