@@ -24,6 +24,7 @@ setup(
         'console_scripts': [
             'rths = rths_bringup.cli:main',
             'recorder = rths_bringup.recorder:main',
+            'container = rths_bringup.container:main',
             'live_view = rths_bringup.live:main',
         ],
     },

@@ -7,12 +7,15 @@ from pathlib import Path
 def register(commands, benches):
     """Add ``rths launch`` and ``rths bag info|reindex``."""
     p = commands.add_parser(
-        'launch', help='start the node graph (one process per node) and supervise it',
-        description='Start the actuator bridge, compensator and numerical node as separate '
-                    'processes (as ros2 run would), each with its params file from --config; '
-                    'stream their logs prefixed with the node name; record every loop topic to '
-                    '--bag. Ends when the numerical node finishes the run, on Ctrl-C/SIGTERM, or '
-                    'when a node dies (exit code 1, naming the node).')
+        'launch', help='start the node graph (composed or one process per node), supervise it',
+        description='Start the actuator bridge, compensator and numerical node, each with its '
+                    'params file from --config: composed in one process on one executor '
+                    '(--layout composed, the default in realtime mode) or as separate processes '
+                    '(--layout processes, as ros2 run would; the default in lock-step); stream '
+                    'their logs prefixed with the node name; record every loop topic to --bag '
+                    '(composed: through a pipe from the container, nothing lost). Ends when the '
+                    'numerical node finishes the run, on Ctrl-C/SIGTERM, or when a node dies '
+                    '(exit code 1, naming the node).')
     add_launch_args(p)
     from rths_bringup import live
     live.add_arguments(p)
@@ -46,6 +49,10 @@ def add_launch_args(p):
     p.add_argument('--duration', type=float, default=None,
                    help='simulated duration of the run [s] (overrides numerical duration_s)')
     p.add_argument('--bag', default=None, help='record every loop topic to this new bag directory')
+    p.add_argument('--layout', choices=('composed', 'processes'), default=None,
+                   help='composed: the three nodes in one process on one executor (the bridge '
+                        'is its clock); processes: one process per node. Default: composed in '
+                        'realtime mode, processes in lock-step')
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                    help='bag storage (default mcap, as ros2 bag since Iron; sqlite3 for older '
                         'tools)')
@@ -75,7 +82,7 @@ def run_info_of(config, overrides) -> dict:
 
 
 def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, storage=None,
-           live=False):
+           live=False, layout=None):
     """Run the graph; return the launcher's exit code.
 
     With a bag, the run's parameters (the three params files with the
@@ -95,26 +102,57 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, stora
                                      **overrides.get('recorder', {}))
     if bag and storage:
         overrides.setdefault('recorder', {})['storage'] = storage
+    launcher = Launcher(config, bag=bag, overrides=overrides, timeout_s=timeout, layout=layout)
     if live:  # the live view is one more reader of each loop topic: arm the chain after it too
+        # (composed, the recorder reads the container's pipe, not the topics)
+        readers = 3 if bag and launcher.layout == 'processes' else 2
         for name in ('numerical', 'compensator', 'bridge'):
-            overrides.setdefault(name, {}).setdefault('wait_for_subscribers', 3 if bag else 2)
-    launcher = Launcher(config, bag=bag, overrides=overrides, timeout_s=timeout)
+            launcher.overrides.setdefault(name, {}).setdefault('wait_for_subscribers', readers)
     return launcher.run()
 
 
 def cmd_launch(args) -> int:
-    """``rths launch``."""
+    """Run ``rths launch``; then print the bag's topics and the loop summary."""
     from rths_bringup import live
 
     fs = live_rate_of(args.config) if args.live else 0.0
     with live.session(args, fs_hz=fs):
         code = launch(args.config, args.duration, args.bag, args.timeout, storage=args.storage,
-                      live=args.live)
+                      live=args.live, layout=args.layout)
     if args.bag and Path(args.bag).exists():
         from rths_bringup.review import loop_summary
         print_bag_info(args.bag)
-        print_summary(loop_summary(args.bag))
+        summary = loop_summary(args.bag)
+        missing = bag_missing(summary)
+        summary['bag_complete'] = not missing
+        print_summary(summary)
+        for text in missing:
+            print(f'BAG INCOMPLETE: {text}')
     return code
+
+
+def bag_missing(summary: dict) -> list:
+    """Return what a run's bag lacks: the bridge writes a measurement and a status every tick.
+
+    ``summary`` is :func:`rths_bringup.review.loop_summary`'s; returns one text
+    per incomplete stream (empty: every tick the bridge ran is in the bag).
+    (Commands and interface displacements may be missing by design: lost or
+    dropped ones are deadline misses, counted in the status.)
+    """
+    from rths_common import topics
+
+    status = summary.get('status bridge', {})
+    meas = summary.get(topics.MEASUREMENT, {})
+    ticks = max(int(status.get('steps', 0)), (meas.get('last') or -1) + 1)
+    out = []
+    if int(status.get('steps', 0)) < ticks:
+        out.append(f"the bridge status of {ticks - int(status.get('steps', 0))} of {ticks} "
+                   'ticks is not in the bag')
+    if int(meas.get('count', 0)) - int(meas.get('duplicates', 0)) < ticks:
+        lost = ticks - int(meas.get('count', 0)) + int(meas.get('duplicates', 0))
+        out.append(f'{topics.MEASUREMENT} lacks {lost} of {ticks} steps (the recorder lost '
+                   'them)')
+    return out
 
 
 def live_rate_of(config) -> float:

@@ -395,11 +395,13 @@ class LiveView:
     def _publish_live(self, run_state: str = 'running'):
         self.live.log(self.state.record(run_state))
 
-    def spin(self):
-        """Serve until SIGINT or SIGTERM; then send the final status and stop the server."""
+    def spin(self, parent: int):
+        """Serve until SIGINT, SIGTERM or the death of process ``parent``; then close the server."""
         from rths_common import node_support as ns
 
-        ns.spin_until_done(self.node, ns.make_executor('single'))
+        # a SIGKILLed rths process must not leave the server behind
+        ns.spin_until_done(self.node, ns.make_executor('events'),   # the cheapest per message
+                           is_done=lambda: os.getppid() != parent)
         self._publish_live('stopped')
         time.sleep(0.2)                       # let the last message reach the clients
         self.server.stop()
@@ -415,6 +417,7 @@ def main(argv=None) -> int:
     p.add_argument('--rate', type=float, default=DEFAULT_RATE_HZ)
     p.add_argument('--fs', type=float, default=0.0, help='loop rate [Hz] for time_s (0: none)')
     p.add_argument('--nice', type=int, default=10, help='niceness of this process (default 10)')
+    parent = os.getppid()          # first: the rths process may die while this one starts
     args = p.parse_args(argv)
     if args.nice:
         os.nice(args.nice)
@@ -425,8 +428,9 @@ def main(argv=None) -> int:
         return 2
     print(f'{READY_LINE} ws://{args.host}:{view.bridge.port} (Foxglove: Open connection -> '
           f'Foxglove WebSocket; layout {layout_path()})', flush=True)
-    view.spin()
-    print('live view: stopped', flush=True)
+    view.spin(parent)
+    with contextlib.suppress(OSError):      # the rths process (our stdout) may be gone
+        print('live view: stopped', flush=True)
     return 0
 
 

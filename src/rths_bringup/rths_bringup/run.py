@@ -74,6 +74,10 @@ def register(commands, benches):
                         'by this in the building (seed 6.2: 5, the default)')
     p.add_argument('--mode', choices=('lockstep', 'realtime'), default='lockstep',
                    help='timing mode (default lockstep: deterministic, as fast as possible)')
+    p.add_argument('--layout', choices=('composed', 'processes'), default=None,
+                   help='composed: the three nodes in one process on one executor; processes: '
+                        'one process per node (default: composed in realtime, processes in '
+                        'lock-step)')
     p.add_argument('--duration', type=float, default=0.0,
                    help='simulated seconds of the RTHS run (default 0: the whole record)')
     p.add_argument('--scheme', default='wls', help='compensator scheme (default wls)')
@@ -120,7 +124,7 @@ def _phase_config(out_dir: Path, sections: dict) -> Path:
 
 
 def _launch_phase(name, cfg, bag, kind, fs, mode, sections, history=None, storage=None,
-                  live=False):
+                  live=False, layout=None):
     """Run one phase of the graph; return None, or the bridge's safety stop (a dict).
 
     A launcher failure that is not the bridge's safety stop raises RuntimeError.
@@ -131,7 +135,8 @@ def _launch_phase(name, cfg, bag, kind, fs, mode, sections, history=None, storag
     for node in NODE_FILES:
         overrides.setdefault(node, {})['mode'] = mode
     _say(f'{name}: launching the node graph ({mode}), recording to {bag}')
-    code = launch(cfg, bag=bag, overrides=overrides, timeout=3600.0, storage=storage, live=live)
+    code = launch(cfg, bag=bag, overrides=overrides, timeout=3600.0, storage=storage, live=live,
+                  layout=layout)
     if code == 0:
         return None
     try:
@@ -323,7 +328,7 @@ def _run(args) -> int:
                                     denominator=[1.0], fs_hz=fs)})
             stop = _launch_phase('identification', cfg, ident / 'bag', 'identification', fs,
                                  args.mode, {'numerical': numerical, 'bridge': base['bridge']},
-                                 storage=args.storage, live=args.live)
+                                 storage=args.storage, live=args.live, layout=args.layout)
             if stop is not None:
                 raise RuntimeError(f'the identification run ended in the bridge\'s safety stop '
                                    f'({stop["safety_stop"]}); check the excitation against the '
@@ -363,7 +368,7 @@ def _run(args) -> int:
                               k: v for k, v in comp.get('provenance', {}).items()
                               if k in ('n_taps', 'fc_hz', 'plant', 'predicted_delay_ms')}}},
                          history=rths_dir / 'numerical_history.npz', storage=args.storage,
-                         live=args.live)
+                         live=args.live, layout=args.layout)
     if stop is not None:
         return _report_safety_stop(stop, numerical, out, rths_dir / 'bag')
 
