@@ -72,6 +72,13 @@ def register(commands, benches):
     p.add_argument('--force-scale', type=float, default=5.0,
                    help='DTMs the one in the lab stands for: its measured force is multiplied '
                         'by this in the building (seed 6.2: 5, the default)')
+    p.add_argument('--numerical', choices=('builtin', 'opensees'), default='builtin',
+                   help='numerical backend: builtin (default) or opensees (OpenSeesPy, `make '
+                        'setup-opensees`; integrator central_difference)')
+    p.add_argument('--model', default='building2story',
+                   help='numerical model: building2story (default), a model YAML, or with '
+                        '--numerical opensees an OpenSeesPy script (.py, or a name in '
+                        'config/models/, e.g. frame-steel01)')
     p.add_argument('--mode', choices=('lockstep', 'realtime'), default='lockstep',
                    help='timing mode (default lockstep: deterministic, as fast as possible)')
     p.add_argument('--layout', choices=('composed', 'processes'), default=None,
@@ -270,6 +277,19 @@ def safety_stop_text(s: dict) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def _model_param(model: str, config: Path) -> str:
+    """Return the numerical node's ``model``: a shipped script name becomes its path."""
+    if model in ('building2story', 'sdof') or model.endswith(('.yaml', '.yml', '.py')):
+        return str(Path(model).resolve()) if model.endswith(('.yaml', '.yml', '.py')) else model
+    script = config / 'models' / (model.replace('-', '_') + '.py')
+    if not script.is_file():
+        shipped = sorted(p.stem.replace('_', '-') for p in (config / 'models').glob('*.py'))
+        raise ValueError(f'--model {model}: no such model; use building2story, a model YAML, '
+                         f'a .py OpenSeesPy script or one of {", ".join(shipped) or "(none)"} '
+                         f'({config / "models"})')
+    return str(script.resolve())
+
+
 def cmd_run(args) -> int:
     """``rths run``."""
     from rths_bringup import live
@@ -300,6 +320,10 @@ def _run(args) -> int:
     fs = float(base['numerical'].get('fs_hz', 1024.0))
     base['bridge']['fs_hz'] = fs
     base['bridge']['dtm'] = args.damper
+    model_param = _model_param(args.model, config)   # bad names fail before the long phases
+    if args.numerical == 'opensees':
+        from rths_numerical.opensees_backend import import_opensees
+        import_opensees()
     if args.damper == 'mr':
         from rths_numerical.mr_damper import check_voltage
         base['bridge']['mr_voltage_v'] = check_voltage(args.mr_voltage)
@@ -349,9 +373,12 @@ def _run(args) -> int:
     comp.update({k: base['compensator'][k] for k in ('executor',) if k in base['compensator']})
 
     # 3: the RTHS run
-    numerical = dict(base['numerical'], model='building2story', record=args.record,
-                     scale=float(args.scale), force_scale=float(args.force_scale),
-                     interface_frame='absolute')
+    numerical = dict(base['numerical'], model=model_param,
+                     record=args.record, scale=float(args.scale),
+                     force_scale=float(args.force_scale), interface_frame='absolute',
+                     backend=args.numerical)
+    if args.numerical == 'opensees':
+        numerical['integrator'] = 'central_difference'   # the RTHS pairing (README)
     if args.damper == 'mr':
         # the damper's stroke is the floor's displacement relative to the ground; it carries
         # no mass of its own, so there is no ground term to add (seed eq. 24, P_I^E = 0)
