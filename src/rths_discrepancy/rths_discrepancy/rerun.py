@@ -10,7 +10,7 @@ in lock-step to a *numerical* DTM on a perfect table
 specimen model (the run's Table 4 damper, linear) and once with the updated
 model, i.e. the nominal one plus the effects the discrepancy workflow named
 (``updated_model.yaml``: loop forces such as ``coulomb_friction`` and a
-``mass_error``; the sensor effects ``time_delay`` and ``sensor_bias`` change
+``mass_error``; the sensor effects ``time_delay``, ``sensor_bias`` and ``force_offset`` change
 what is measured, not the physics, and are left out).  Both use the same
 coupling, so the difference between them is the specimen model alone.
 
@@ -75,12 +75,12 @@ def run_damper_model(bridge: dict) -> models.SpecimenModel:
 
 
 def specimen(model: models.SpecimenModel, dt: float, frame_mass_kg=None):
-    """Return a :class:`~rths_numerical.reference.DTMSpecimen` of ``model`` with its effects."""
+    """Return a :class:`rths_numerical.reference.DTMSpecimen` simulating ``model``'s effects."""
     from rths_numerical.dtm import FRAME_MASS_KG, DTMParameters
     from rths_numerical.reference import DTMSpecimen
 
     loop = {k: v for k, v in model.effects.items()
-            if k not in ('time_delay', 'sensor_bias', 'mass_error')}
+            if k not in ('time_delay', 'sensor_bias', 'force_offset', 'mass_error')}
     force = fx.specimen_force(loop, model) if loop else None
     frame = FRAME_MASS_KG if frame_mass_kg is None else float(frame_mass_kg)
     return DTMSpecimen(DTMParameters(model.m_d, model.c_d, model.k_d), dt, frame, force=force,
