@@ -25,6 +25,7 @@ reference would be meaningless.
 """
 
 import datetime
+import json
 from pathlib import Path
 import shutil
 import sys
@@ -81,6 +82,10 @@ def register(commands, benches):
                    help='identification run length [s] (default 40: 4 records of 10 s)')
     p.add_argument('--plant', default=None,
                    help='skip steps 1-2 and design from this identified plant.yaml')
+    p.add_argument('--adaptive', default='fir', choices=('fir', 'rls_fir', 'ats', 'amb'),
+                   help='compensation method of the RTHS run (default fir: the designed FIR; '
+                        'rls_fir, ats, amb adapt on line from it, lock-step only; rls_fir costs '
+                        'n^2 per step: use it with --taps 32..64; docs/adaptive.md)')
     p.add_argument('--no-compensation', action='store_true',
                    help='skip steps 1-2 and run with identity taps (shows the uncompensated '
                         'error and, where the loop goes unstable, the safe abort)')
@@ -344,6 +349,11 @@ def _run(args) -> int:
              + ('' if args.plant else f' (its plant: {config / "plant.yaml"})'))
     comp = runinfo.load_params(comp_file, 'compensator')
     comp.update({k: base['compensator'][k] for k in ('executor',) if k in base['compensator']})
+    if args.adaptive != 'fir':
+        if args.no_compensation or args.mode != 'lockstep':
+            raise ValueError(f'--adaptive {args.adaptive} needs a designed FIR and lock-step '
+                             'mode (drop --no-compensation / use --mode lockstep)')
+        comp.update(method=args.adaptive, plant=str(Path(str(comp['plant'])).resolve()))
 
     # 3: the RTHS run
     numerical = dict(base['numerical'], model='building2story', record=args.record,
@@ -362,7 +372,8 @@ def _run(args) -> int:
     stop = _launch_phase('RTHS', cfg, rths_dir / 'bag', 'rths', fs, args.mode,
                          {'numerical': numerical, 'bridge': base['bridge'],
                           'compensator': {k: v for k, v in comp.items() if k in (
-                              'scheme', 'n_taps', 'fc_hz', 'plant', 'predicted_delay_ms')}},
+                              'scheme', 'n_taps', 'fc_hz', 'plant', 'predicted_delay_ms',
+                              'method')}},
                          history=rths_dir / 'numerical_history.npz')
     if stop is not None:
         return _report_safety_stop(stop, numerical, out, rths_dir / 'bag')
@@ -370,6 +381,8 @@ def _run(args) -> int:
     # 4: review
     _say('step 4: review')
     summary = review_rths(rths_dir / 'bag', out)
+    summary['adaptive'] = args.adaptive
+    (out / 'summary.json').write_text(json.dumps(summary, indent=2))
     print_review(summary)
     _say(f'results: {out}/summary.json, {out}/review.txt, plots {out}/*.png, '
          f'bags {out}/*/bag')
