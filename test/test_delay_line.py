@@ -8,8 +8,10 @@ k + D), so the round trip may take D + 1 periods; the loop then sees the
 plant P(z) z^-D.  This test runs the whole lab procedure (``rths run``:
 identification, ARX, WLS design, RTHS, review) in lock-step with D = 3 and
 checks that the identification saw the extra 3 steps and the compensator
-removed them.  The network version of the same study, through the emulated
-link at 512 Hz, is ``rths bench absorb-delay`` (docs/bench/absorb_delay_512hz.json).
+removed them.  It records sqlite3 bags (``--storage sqlite3``; the default is
+MCAP) and checks that the run leaves its ``--config`` untouched (issue 17).
+The network version of the same study, through the emulated link at 512 Hz, is
+``rths bench absorb-delay`` (docs/bench/absorb_delay_512hz.json).
 """
 
 import json
@@ -33,9 +35,27 @@ def test_identification_through_the_delay_line_lets_the_compensator_absorb_it(tm
     doc = yaml.safe_load(path.read_text())
     doc['bridge']['ros__parameters']['command_delay_steps'] = D
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    before = {p.name: p.read_bytes() for p in config.iterdir()}
     out = tmp_path / 'run'
     rths('run', '--config', config, '--duration', 12, '--ident-duration', 30, '--out', out,
-         timeout=900)
+         '--storage', 'sqlite3', timeout=900)
+
+    # Issue 17: a run writes its plant and taps only into its own results directory (the RTHS
+    # phase's params file holds the designed taps); config/ is left byte for byte as it was.
+    assert {p.name: p.read_bytes() for p in config.iterdir()} == before
+    designed = yaml.safe_load((out / 'compensator.yaml').read_text())
+    ran = yaml.safe_load((out / 'rths' / 'config' / 'compensator.yaml').read_text())
+    assert ran['compensator']['ros__parameters']['taps'] == \
+        designed['compensator']['ros__parameters']['taps']
+    assert (out / 'plant.yaml').is_file()
+    # ... and the one-file review beside summary.json, every plot embedded
+    report = (out / 'report.html').read_text()
+    assert report.count('src="data:image/png;base64,') == 3
+    assert 'http://' not in report and 'https://' not in report
+    # the older sqlite3 storage is still written (--storage sqlite3) and read by every step
+    for phase in ('identification', 'rths'):
+        meta = yaml.safe_load((out / phase / 'bag' / 'metadata.yaml').read_text())
+        assert meta['rosbag2_bagfile_information']['storage_identifier'] == 'sqlite3'
 
     # The identification bag: the actuator alone (applied -> measured at the same tick)
     # and the plant the loop sees (command of step k -> measurement k) differ by D steps.

@@ -197,12 +197,18 @@ def bridge_misses(bag) -> int:
 
 
 def test_realtime_delay_bursts_are_deadline_misses_not_faults(tmp_path):
-    """Bursts shorter than the watchdog: counted misses, extrapolated, the run completes."""
+    """Bursts shorter than the watchdog: counted misses, extrapolated, the run completes.
+
+    Processes layout: a command held back in another process while the bridge
+    ticks on (composed, the delay would stall the bridge's clock with it: a
+    stall, test_stall.py).
+    """
     every, burst_ms = 150, 60.0       # 60 ms at 256 Hz: >= 15 ticks pass; watchdog at 40
     config = realtime_config(tmp_path / 'config', inject_delay_every=every,
                              inject_delay_ms=burst_ms)
     bag = tmp_path / 'bag'
-    proc = rths('launch', '--config', config, '--bag', bag, '--timeout', 180, timeout=300)
+    proc = rths('launch', '--config', config, '--bag', bag, '--layout', 'processes',
+                '--timeout', 180, timeout=300)
     assert 'run finished' in proc.stdout and 'FAILED' not in proc.stdout
     status, meas = read_bag(bag)
     n_bursts = len(range(every, 768, every))

@@ -194,3 +194,24 @@ def test_compensated_run_of_the_same_configuration_completes(tmp_path):
     assert summary['delay_ms_after'] == pytest.approx(0.0, abs=1.0)   # seed goal: < 1 ms
     cfg = yaml.safe_load((out / 'rths' / 'config' / 'numerical.yaml').read_text())
     assert cfg['numerical']['ros__parameters']['force_scale'] == 60.0
+    _assert_mcap_read_by_the_mcap_library(out / 'rths' / 'bag')
+
+
+def _assert_mcap_read_by_the_mcap_library(bag):
+    """Issue 17: rths run records MCAP that the mcap library reads (schemas, counts)."""
+    from mcap.reader import make_reader
+
+    from rths_bringup import bagio
+
+    meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert meta['storage_identifier'] == 'mcap'
+    [path] = bag.glob('*.mcap')
+    with path.open('rb') as handle:
+        summary = make_reader(handle).get_summary()
+    schemas = {s.id: s.name for s in summary.schemas.values()}
+    counts = summary.statistics.channel_message_counts
+    seen = {c.topic: (schemas[c.schema_id], counts.get(c.id, 0))
+            for c in summary.channels.values()}
+    info = bagio.info(bag)
+    assert seen == {t: (v['type'], v['count']) for t, v in info['topics'].items()}
+    assert seen['/rths/measurement'][1] >= int(DURATION_S * FS)

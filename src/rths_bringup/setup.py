@@ -11,6 +11,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/foxglove', ['foxglove/rths_live.json']),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -23,6 +24,8 @@ setup(
         'console_scripts': [
             'rths = rths_bringup.cli:main',
             'recorder = rths_bringup.recorder:main',
+            'container = rths_bringup.container:main',
+            'live_view = rths_bringup.live:main',
         ],
     },
 )

@@ -77,27 +77,14 @@ def wait_for(proc, text, timeout=90.0) -> str:
 
 
 def committed_count(bag, topic) -> int:
-    """Messages of ``topic`` already committed to the bag's sqlite file (0 if none yet).
+    """Messages of ``topic`` already committed to a bag that is still being written (0 if none).
 
-    Reads the file of a bag that is still being written (read-only; a busy or
-    not yet created database counts as 0).
+    MCAP: complete chunks in the file; sqlite3: committed rows (read-only; a busy
+    or not yet created database counts as 0).
     """
-    import sqlite3
+    from rths_common.bagstore import committed_counts
 
-    files = sorted(Path(bag).glob('*.db3'))
-    if not files:
-        return 0
-    try:
-        conn = sqlite3.connect(f'file:{files[0]}?mode=ro', uri=True, timeout=1.0)
-        try:
-            row = conn.execute('SELECT count(*) FROM messages JOIN topics '
-                               'ON topics.id = messages.topic_id WHERE topics.name = ?',
-                               (topic,)).fetchone()
-        finally:
-            conn.close()
-    except sqlite3.Error:
-        return 0
-    return int(row[0])
+    return int(committed_counts(bag).get(topic, 0))
 
 
 def wait_committed(bag, topics, count, timeout=60.0) -> dict:

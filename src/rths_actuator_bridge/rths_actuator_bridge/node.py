@@ -391,6 +391,8 @@ class BridgeNode:
         if late_ns > self.period_ns:   # a stall: re-anchor instead of bursting to catch up
             self.overruns += 1
             self.t0_ns = now - self.k * self.period_ns
+            # the stall policy (safety.py): the skipped ticks are missing commands
+            self.bridge.supervisor.stalled(late_ns // self.period_ns, self.k)
         k = self.k
         t_in = ns.now_ns()
         in_run = self.n_steps is None or k < self.n_steps
@@ -503,6 +505,49 @@ class BridgeNode:
         return response
 
 
+    # ---------------------------------------------------------------- run
+    def spin(self, executor, nodes=None, is_done=None) -> bool:
+        """Spin ``nodes`` (default: this node) until ``is_done()`` (default: a safety stop).
+
+        In realtime with the ``loop`` clock this node's ticks drive the spin
+        loop (:func:`rths_common.node_support.spin_clocked`): in a composed
+        process the bridge is the clock of every node in it.
+        """
+        composed = nodes is not None
+        nodes = self.node if nodes is None else nodes
+        is_done = is_done or (lambda: self.stopped)
+        if self.realtime and self.own['clock'] == 'loop':
+            return ns.spin_clocked(nodes, executor, self.next_due_ns, self.tick, is_done,
+                                   margin_us=self.own['spin_margin_us'],
+                                   ready=self.command_due if composed else None)
+        return ns.spin_until_done(nodes, executor, is_done)
+
+    def command_due(self) -> bool:
+        """Return True if the command the next tick writes has arrived (composed: the drain)."""
+        step = self.k - self.bridge.delay_steps
+        return step < 0 or step in self.bridge.delay.pending
+
+    def finish_run(self) -> int:
+        """After spinning: stop the clock, save timing, flush, log; exit code (3: safety stop)."""
+        thread = getattr(self, 'clock_thread', None)
+        if thread is not None:
+            thread.stop()
+            if thread.error is not None:
+                raise thread.error
+        self.save_timing()
+        ns.flush([self.pub, self.status_pub])
+        self.log.info(f'bridge: {self.step + 1} steps applied, {self.rejected} rejected, '
+                      f'{self.foreign_rejected} foreign, '
+                      f'{self.clock.misses} deadline miss(es), '
+                      f'{self.bridge.supervisor.rejoins} rejoin(s) after misses, '
+                      f'final state {self.bridge.state}')
+        stats = getattr(self.bridge.backend, 'stats', None)   # the UDP backend's datagrams
+        if stats:
+            self.log.info('controller datagrams: '
+                          + ', '.join(f'{k} {v}' for k, v in stats.items()))
+        return EXIT_SAFETY_STOP if self.stopped else 0
+
+
 def main(argv=None):
     """Entry point of ``ros2 run rths_actuator_bridge bridge_node``."""
     rclpy.init(args=argv if argv is not None else sys.argv)
@@ -510,29 +555,8 @@ def main(argv=None):
     shell = None
     try:
         shell = BridgeNode()
-        executor = ns.make_executor(shell.own['executor'])
-        if shell.realtime and shell.own['clock'] == 'loop':
-            ns.spin_clocked(shell.node, executor, shell.next_due_ns, shell.tick,
-                            lambda: shell.stopped, margin_us=shell.own['spin_margin_us'])
-        else:
-            ns.spin_until_done(shell.node, executor, lambda: shell.stopped)
-        thread = getattr(shell, 'clock_thread', None)
-        if thread is not None:
-            thread.stop()
-            if thread.error is not None:
-                raise thread.error
-        code = EXIT_SAFETY_STOP if shell.stopped else 0
-        shell.save_timing()
-        ns.flush([shell.pub, shell.status_pub])
-        shell.log.info(f'bridge: {shell.step + 1} steps applied, {shell.rejected} rejected, '
-                       f'{shell.foreign_rejected} foreign, '
-                       f'{shell.clock.misses} deadline miss(es), '
-                       f'{shell.bridge.supervisor.rejoins} rejoin(s) after misses, '
-                       f'final state {shell.bridge.state}')
-        stats = getattr(shell.bridge.backend, 'stats', None)   # the UDP backend's datagrams
-        if stats:
-            shell.log.info('controller datagrams: '
-                           + ', '.join(f'{k} {v}' for k, v in stats.items()))
+        shell.spin(ns.make_executor(shell.own['executor']))
+        code = shell.finish_run()
     except ValueError as err:
         print(f'bridge_node: error: {ns.params_file_of(argv)}{err}', file=sys.stderr)
         code = 2

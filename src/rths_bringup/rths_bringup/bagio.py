@@ -1,14 +1,18 @@
 """Reading and writing the project's rosbag2 bags with ``rosbags`` (no rosbag2 needed).
 
-Bags use the rosbag2 sqlite3 storage, format version 9, so ``ros2 bag info``
-and ``ros2 bag play`` read them in a lab.  The custom types are registered in
-a ``rosbags`` typestore from the installed ``rths_msgs`` .msg files.
+Bags use the rosbag2 MCAP storage (the default of ``ros2 bag`` since Iron;
+``storage='sqlite3'`` writes the older sqlite3 storage), format version 9, so
+``ros2 bag info``, ``ros2 bag play`` and Foxglove read them in a lab.  Every
+reader here reads both.  The custom types are registered in a ``rosbags``
+typestore from the installed ``rths_msgs`` .msg files.
 
-Crash safety: :class:`BagWriter` commits the sqlite3 transaction every
-``commit_period_s``; if the recording process is killed (SIGKILL) the
-messages committed so far are on disk but ``metadata.yaml`` is missing.
-:func:`reindex` rebuilds it from the database (like ``ros2 bag reindex``),
-and :func:`open_reader` does so automatically, so a crashed run's bag stays
+Crash safety: :class:`BagWriter` commits every ``commit_period_s``
+(:func:`rths_common.bagstore.commit`: the sqlite3 transaction, or the MCAP chunk
+flushed to the file); if the recording process is killed (SIGKILL) the
+messages committed so far are on disk but ``metadata.yaml`` is missing (and an
+MCAP file its summary and footer).  :func:`reindex` rebuilds it from the data
+file (like ``ros2 bag reindex``), closing a cut MCAP file first, and
+:func:`open_reader` does so automatically, so a crashed run's bag stays
 readable.
 """
 
@@ -18,7 +22,7 @@ from pathlib import Path
 import sqlite3
 import time
 
-from rths_common import topics
+from rths_common import bagstore, topics
 
 
 def _msg_dir() -> Path:
@@ -54,21 +58,25 @@ def typestore():
 class BagWriter:
     """Write serialized (CDR) messages to a new rosbag2 bag, committing periodically.
 
+    ``storage`` is ``'mcap'`` (default) or ``'sqlite3'``.
+
     ``topic_types`` maps topic name to message type (e.g. ``topics.LOOP_TOPICS``).
     Messages are written with :meth:`write` as raw CDR bytes (what an rclpy
     subscription with ``raw=True`` delivers) or with :meth:`write_msg` as
     rosbags message objects.
     """
 
-    def __init__(self, path, topic_types=None, commit_period_s: float = 0.25, run_info=None):
+    def __init__(self, path, topic_types=None, commit_period_s: float = 0.25, run_info=None,
+                 storage: str = bagstore.DEFAULT_STORAGE):
         from rosbags.rosbag2 import Writer
 
+        self.storage = bagstore.check_storage(storage)
         self.path = Path(path)
         if self.path.exists():
             raise OSError(f'bag {self.path} already exists; choose a new --bag directory '
                           'or delete the old one')
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._writer = Writer(self.path, version=9)
+        self._writer = Writer(self.path, version=9, storage_plugin=bagstore.plugin(storage))
         self._writer.open()
         self.run_info = {str(k): str(v) for k, v in (run_info or {}).items()}
         for key, value in self.run_info.items():
@@ -105,9 +113,9 @@ class BagWriter:
 
     def commit(self):
         """Make everything written so far durable (survives a SIGKILL of this process)."""
-        # rosbags' sqlite3 storage commits only on close; committing its connection
-        # early is what makes a killed recording recoverable by reindex().
-        self._writer.storage.conn.commit()
+        # rosbags commits (sqlite3) or writes the pending chunk (MCAP) only on close;
+        # doing it early is what makes a killed recording recoverable by reindex().
+        bagstore.commit(self._writer.storage, self.storage)
 
     def close(self):
         """Finish the bag: commit and write metadata.yaml."""
@@ -126,11 +134,17 @@ class BagWriter:
 RUN_INFO_FILE = 'rths_run.yaml'
 
 
+def bag_dir(bag) -> Path:
+    """Return the bag directory of ``bag`` (itself, or the one holding its .mcap/.db3 file)."""
+    bag = Path(bag)
+    return bag.parent if bag.is_file() and bag.suffix in ('.mcap', '.db3') else bag
+
+
 def run_info(bag) -> dict:
     """Run information of a bag (``fs_hz``, ``mode``, ...): custom_data, else the side file."""
     import yaml
 
-    bag = Path(bag)
+    bag = bag_dir(bag)
     meta = bag / 'metadata.yaml'
     if meta.exists():
         info = yaml.safe_load(meta.read_text())['rosbag2_bagfile_information']
@@ -140,35 +154,27 @@ def run_info(bag) -> dict:
     return yaml.safe_load(side.read_text()) if side.exists() else {}
 
 
-def _db_path(bag: Path) -> Path:
-    files = sorted(bag.glob('*.db3'))
-    if not files:
-        raise OSError(f'{bag} is not a rosbag2 sqlite3 bag (no .db3 file inside)')
-    return files[0]
-
-
 def reindex(bag) -> Path:
-    """Rebuild ``metadata.yaml`` of a sqlite3 bag from its database; return its path."""
+    """Rebuild ``metadata.yaml`` of a bag from its data file; return its path.
+
+    An MCAP file a killed recorder left without its footer is closed first
+    (:func:`rths_common.bagstore.repair_mcap`).
+    """
+    bag = bag_dir(bag)
+    if bagstore.storage_of(bag) == 'mcap':
+        return _reindex_mcap(bag)
+    return _reindex_sqlite3(bag)
+
+
+def _write_metadata(bag: Path, storage: str, data_file: Path, topic_rows, t0: int, t1: int):
+    """Write ``metadata.yaml`` (format 9); ``topic_rows``: (name, type, fmt, qos, hash, count)."""
     import yaml
 
-    bag = Path(bag)
-    db = _db_path(bag)
-    # Not read-only: a killed writer leaves a hot journal that sqlite must roll back first.
-    conn = sqlite3.connect(db)
-    try:
-        rows = conn.execute('SELECT id, name, type, serialization_format, offered_qos_profiles, '
-                            'type_description_hash FROM topics ORDER BY id').fetchall()
-        counts = dict(conn.execute('SELECT topic_id, COUNT(*) FROM messages GROUP BY topic_id'))
-        t0, t1 = conn.execute('SELECT MIN(timestamp), MAX(timestamp) FROM messages').fetchone()
-    finally:
-        conn.close()
-    t0 = t0 or 0
-    t1 = t1 or t0
-    total = sum(counts.values())
+    total = sum(row[-1] for row in topic_rows)
     info = {
         'version': 9,
-        'storage_identifier': 'sqlite3',
-        'relative_file_paths': [db.name],
+        'storage_identifier': storage,
+        'relative_file_paths': [data_file.name],
         'duration': {'nanoseconds': t1 - t0},
         'starting_time': {'nanoseconds_since_epoch': t0},
         'message_count': total,
@@ -177,11 +183,11 @@ def reindex(bag) -> Path:
                                 'serialization_format': fmt,
                                 'offered_qos_profiles': qos,
                                 'type_description_hash': digest},
-             'message_count': counts.get(tid, 0)}
-            for tid, name, msgtype, fmt, qos, digest in rows],
+             'message_count': count}
+            for name, msgtype, fmt, qos, digest, count in topic_rows],
         'compression_format': '',
         'compression_mode': '',
-        'files': [{'path': db.name, 'starting_time': {'nanoseconds_since_epoch': t0},
+        'files': [{'path': data_file.name, 'starting_time': {'nanoseconds_since_epoch': t0},
                    'duration': {'nanoseconds': t1 - t0}, 'message_count': total}],
         'custom_data': dict(run_info(bag), reindexed='true'),
         'ros_distro': 'rosbags',
@@ -193,11 +199,37 @@ def reindex(bag) -> Path:
     return meta
 
 
+def _reindex_mcap(bag: Path) -> Path:
+    path = bagstore.data_file(bag)
+    bagstore.repair_mcap(path)
+    scan = bagstore.mcap_topics(path)
+    rows = [(name, msgtype, fmt, [], digest, count)
+            for name, msgtype, fmt, digest, count in scan['topics']]
+    return _write_metadata(bag, 'mcap', path, rows, scan['start_ns'], scan['end_ns'])
+
+
+def _reindex_sqlite3(bag: Path) -> Path:
+    db = bagstore.data_file(bag)
+    # Not read-only: a killed writer leaves a hot journal that sqlite must roll back first.
+    conn = sqlite3.connect(db)
+    try:
+        rows = conn.execute('SELECT id, name, type, serialization_format, offered_qos_profiles, '
+                            'type_description_hash FROM topics ORDER BY id').fetchall()
+        counts = dict(conn.execute('SELECT topic_id, COUNT(*) FROM messages GROUP BY topic_id'))
+        t0, t1 = conn.execute('SELECT MIN(timestamp), MAX(timestamp) FROM messages').fetchone()
+    finally:
+        conn.close()
+    t0 = t0 or 0
+    return _write_metadata(bag, 'sqlite3', db,
+                           [(name, msgtype, fmt, qos, digest, counts.get(tid, 0))
+                            for tid, name, msgtype, fmt, qos, digest in rows], t0, t1 or t0)
+
+
 def open_reader(bag):
     """Open a bag for reading with rosbags, reindexing it first if a crash left no metadata."""
     from rosbags.rosbag2 import Reader
 
-    bag = Path(bag)
+    bag = bag_dir(bag)
     if not bag.is_dir():
         raise OSError(f'bag directory {bag} does not exist')
     if not (bag / 'metadata.yaml').exists():
@@ -208,11 +240,12 @@ def open_reader(bag):
 
 
 def info(bag) -> dict:
-    """Topics (type, count), total count, start time and duration of a bag."""
+    """Storage, topics (type, count), total count, start time and duration of a bag."""
     reader = open_reader(bag)
     try:
         return {
             'path': str(bag),
+            'storage': bagstore.storage_of(bag_dir(bag)),
             'duration_s': reader.duration * 1e-9 if reader.message_count else 0.0,
             'start_time_s': reader.start_time * 1e-9 if reader.message_count else 0.0,
             'message_count': reader.message_count,

@@ -25,6 +25,7 @@ CLI_MODULES = (
     'rths_bringup.bench_adaptive',
     'rths_bringup.rths_benchmark',
     'rths_bringup.run',
+    'rths_bringup.install',
     'rths_bringup.replay',
     'rths_numerical.cli',
     'rths_compensator.cli',

@@ -7,13 +7,18 @@ from pathlib import Path
 def register(commands, benches):
     """Add ``rths launch`` and ``rths bag info|reindex``."""
     p = commands.add_parser(
-        'launch', help='start the node graph (one process per node) and supervise it',
-        description='Start the actuator bridge, compensator and numerical node as separate '
-                    'processes (as ros2 run would), each with its params file from --config; '
-                    'stream their logs prefixed with the node name; record every loop topic to '
-                    '--bag. Ends when the numerical node finishes the run, on Ctrl-C/SIGTERM, or '
-                    'when a node dies (exit code 1, naming the node).')
+        'launch', help='start the node graph (composed or one process per node), supervise it',
+        description='Start the actuator bridge, compensator and numerical node, each with its '
+                    'params file from --config: composed in one process on one executor '
+                    '(--layout composed, the default in realtime mode) or as separate processes '
+                    '(--layout processes, as ros2 run would; the default in lock-step); stream '
+                    'their logs prefixed with the node name; record every loop topic to --bag '
+                    '(composed: through a pipe from the container, nothing lost). Ends when the '
+                    'numerical node finishes the run, on Ctrl-C/SIGTERM, or when a node dies '
+                    '(exit code 1, naming the node).')
     add_launch_args(p)
+    from rths_bringup import live
+    live.add_arguments(p)
     p.set_defaults(func=cmd_launch)
 
     bag = commands.add_parser('bag', help='inspect or repair a recorded bag',
@@ -28,8 +33,10 @@ def register(commands, benches):
     b.add_argument('--json', action='store_true', help='print JSON instead of a table')
     b.set_defaults(func=cmd_bag_info)
     b = bag_cmds.add_parser('reindex', help='rebuild metadata.yaml of a crashed recording',
-                            description='Rebuild metadata.yaml from the bag database '
-                                        '(like ros2 bag reindex).')
+                            description='Rebuild metadata.yaml from the bag data file, MCAP '
+                                        'or sqlite3 (like ros2 bag reindex); an MCAP file a '
+                                        'killed recorder left without its footer is closed '
+                                        'after its last complete record first.')
     b.add_argument('bag', help='bag directory')
     b.set_defaults(func=cmd_bag_reindex)
 
@@ -42,6 +49,13 @@ def add_launch_args(p):
     p.add_argument('--duration', type=float, default=None,
                    help='simulated duration of the run [s] (overrides numerical duration_s)')
     p.add_argument('--bag', default=None, help='record every loop topic to this new bag directory')
+    p.add_argument('--layout', choices=('composed', 'processes'), default=None,
+                   help='composed: the three nodes in one process on one executor (the bridge '
+                        'is its clock); processes: one process per node. Default: composed in '
+                        'realtime mode, processes in lock-step')
+    p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
+                   help='bag storage (default mcap, as ros2 bag since Iron; sqlite3 for older '
+                        'tools)')
     p.add_argument('--timeout', type=float, default=600.0,
                    help='wall-clock limit [s] after which the run is stopped as failed '
                         '(default 600)')
@@ -67,7 +81,8 @@ def run_info_of(config, overrides) -> dict:
                            numerical.get('mode', 'lockstep'), sections)
 
 
-def launch(config, duration=None, bag=None, timeout=600.0, overrides=None):
+def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, storage=None,
+           live=False, layout=None):
     """Run the graph; return the launcher's exit code.
 
     With a bag, the run's parameters (the three params files with the
@@ -85,17 +100,67 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None):
     if bag and 'kind' not in overrides.get('recorder', {}):
         overrides['recorder'] = dict(run_info_of(config, overrides),
                                      **overrides.get('recorder', {}))
-    launcher = Launcher(config, bag=bag, overrides=overrides, timeout_s=timeout)
+    if bag and storage:
+        overrides.setdefault('recorder', {})['storage'] = storage
+    launcher = Launcher(config, bag=bag, overrides=overrides, timeout_s=timeout, layout=layout)
+    if live:  # the live view is one more reader of each loop topic: arm the chain after it too
+        # (composed, the recorder reads the container's pipe, not the topics)
+        readers = 3 if bag and launcher.layout == 'processes' else 2
+        for name in ('numerical', 'compensator', 'bridge'):
+            launcher.overrides.setdefault(name, {}).setdefault('wait_for_subscribers', readers)
     return launcher.run()
 
 
 def cmd_launch(args) -> int:
-    code = launch(args.config, args.duration, args.bag, args.timeout)
+    """Run ``rths launch``; then print the bag's topics and the loop summary."""
+    from rths_bringup import live
+
+    fs = live_rate_of(args.config) if args.live else 0.0
+    with live.session(args, fs_hz=fs):
+        code = launch(args.config, args.duration, args.bag, args.timeout, storage=args.storage,
+                      live=args.live, layout=args.layout)
     if args.bag and Path(args.bag).exists():
         from rths_bringup.review import loop_summary
         print_bag_info(args.bag)
-        print_summary(loop_summary(args.bag))
+        summary = loop_summary(args.bag)
+        missing = bag_missing(summary)
+        summary['bag_complete'] = not missing
+        print_summary(summary)
+        for text in missing:
+            print(f'BAG INCOMPLETE: {text}')
     return code
+
+
+def bag_missing(summary: dict) -> list:
+    """What a run's bag lacks: the bridge writes a measurement and a status every tick.
+
+    ``summary`` is :func:`rths_bringup.review.loop_summary`'s; returns one text
+    per incomplete stream (empty: every tick the bridge ran is in the bag).
+    (Commands and interface displacements may be missing by design: lost or
+    dropped ones are deadline misses, counted in the status.)
+    """
+    from rths_common import topics
+
+    status = summary.get('status bridge', {})
+    meas = summary.get(topics.MEASUREMENT, {})
+    ticks = max(int(status.get('steps', 0)), (meas.get('last') or -1) + 1)
+    out = []
+    if int(status.get('steps', 0)) < ticks:
+        out.append(f"the bridge status of {ticks - int(status.get('steps', 0))} of {ticks} "
+                   'ticks is not in the bag')
+    if int(meas.get('count', 0)) - int(meas.get('duplicates', 0)) < ticks:
+        lost = ticks - int(meas.get('count', 0)) + int(meas.get('duplicates', 0))
+        out.append(f'{topics.MEASUREMENT} lacks {lost} of {ticks} steps (the recorder lost '
+                   'them)')
+    return out
+
+
+def live_rate_of(config) -> float:
+    """Return the loop rate ``fs_hz`` of a config directory's numerical node (1024 if unset)."""
+    from rths_bringup import runinfo
+
+    config = Path(config) if config else default_config_dir()
+    return float(runinfo.load_params(config / 'numerical.yaml', 'numerical').get('fs_hz', 1024.0))
 
 
 def print_bag_info(bag, as_json=False):
@@ -106,7 +171,7 @@ def print_bag_info(bag, as_json=False):
     if as_json:
         print(json.dumps(data, indent=2))
         return data
-    print(f"bag: {data['path']}")
+    print(f"bag: {data['path']} ({data['storage']})")
     print(f"duration: {data['duration_s']:.3f} s   messages: {data['message_count']}")
     print(f"{'topic':<32} {'type':<40} {'count':>8}")
     for topic, t in data['topics'].items():

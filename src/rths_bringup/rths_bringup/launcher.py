@@ -1,8 +1,25 @@
-"""Bring up the rths node graph: each node its own OS process, as ``ros2 run`` would start it.
+"""Bring up the rths node graph, composed in one process or one OS process per node.
 
-The launcher starts the recorder (if a bag is requested), the actuator bridge,
-the compensator and the numerical node, each with ``--ros-args --params-file``
-from the config directory, streams their output prefixed with the node name,
+Two layouts (``layout``):
+
+* ``processes``: the recorder (if a bag is requested), the actuator bridge,
+  the compensator and the numerical node, each its own process as ``ros2 run``
+  would start it, with ``--ros-args --params-file`` from the config directory;
+  the way to spread the nodes over hosts (``node_env``/``node_prefix``);
+* ``composed``: the three loop nodes in one process on one executor
+  (:mod:`rths_bringup.container`), each with its own params file and the
+  overrides in a params file of its own; with a bag, the container copies what
+  it publishes into a pipe the recorder reads (:mod:`rths_bringup.tee`), so
+  nothing is lost.  The container's log lines are prefixed with the name of
+  the node that logged them; when it ends early the launcher names the node
+  that ended it (the bridge's safety stop: ``node bridge died (exit code 3:
+  safety stop) in the container``).
+
+The default (None) is ``composed`` for a realtime run on one host and
+``processes`` in lock-step (deterministic either way: the fault tests kill one
+node process) and whenever ``node_env``/``node_prefix`` place nodes apart.
+
+The launcher streams the output of every process prefixed with the node name
 and supervises them:
 
 * the numerical node owns the run: when it exits with code 0 the run is over,
@@ -36,6 +53,7 @@ project's equivalent and needs only the built workspace (``source env.sh``).
 from dataclasses import dataclass, field
 import os
 from pathlib import Path
+import re
 import signal
 import subprocess
 import sys
@@ -49,7 +67,13 @@ NODES = (
     ('numerical', 'rths_numerical', 'numerical_node', 'numerical.yaml'),
 )
 RECORDER = ('recorder', 'rths_bringup', 'recorder', None)
-OWNER = 'numerical'  # the node whose clean exit ends the run
+CONTAINER = ('container', 'rths_bringup', 'container', None)
+OWNER = 'numerical'  # the node whose clean exit ends the run (processes layout)
+LAYOUTS = ('composed', 'processes')
+#: Seconds the recorder gets to empty the composed layout's recording pipe after SIGINT.
+RECORDER_GRACE_S = 60.0
+#: A log line of a ROS node: ``[LEVEL] [stamp] [logger]: text`` (the logger names the node).
+_LOGGER = re.compile(r'^\[\w+\] \[[\d.]+\] \[(\w+)')
 
 
 def executable(package: str, name: str) -> Path:
@@ -135,7 +159,7 @@ class Launcher:
 
     def __init__(self, config_dir, bag=None, overrides=None, mode=None, out=sys.stdout,
                  timeout_s=None, cpu_sample_s: float = 0.25, preflight: bool = True,
-                 node_env: dict = None, node_prefix: dict = None):
+                 node_env: dict = None, node_prefix: dict = None, layout: str = None):
         self.config_dir = Path(config_dir)
         #: {node: {VAR: value}} environment per node (e.g. its ROS_DOMAIN_ID), and
         #: {node: [argv prefix]} (e.g. ['ip', 'netns', 'exec', 'lab1']): distributed runs
@@ -148,6 +172,17 @@ class Launcher:
             for name, *_ in NODES:
                 self.overrides.setdefault(name, {})['mode'] = mode
         self.mode = mode or config_mode(self.config_dir, self.overrides)
+        if layout is None:
+            layout = ('composed' if self.mode == 'realtime' and not self.node_env
+                      and not self.node_prefix else 'processes')
+        if layout not in LAYOUTS:
+            raise ValueError(f'layout {layout!r}: use composed or processes')
+        if layout == 'composed' and (self.node_env or self.node_prefix):
+            raise ValueError('the composed layout runs the nodes in one process on one host; '
+                             'use layout processes to place nodes apart')
+        self.layout = layout
+        self.owner = 'container' if layout == 'composed' else OWNER
+        self._tmp = None
         self.cpu_sample_s = cpu_sample_s
         #: [(wall time ns, {node: CPU seconds so far})], sampled while the graph runs
         self.cpu_samples = []
@@ -173,20 +208,56 @@ class Launcher:
             argv += ['-p', f'{key}:={value}']
         return argv
 
+    def _container_argv(self, tee_fd: int) -> list:
+        """Build the container's argv: each node's params file, then one with its overrides."""
+        import tempfile
+
+        import yaml
+
+        self._tmp = Path(tempfile.mkdtemp(prefix='rths-container-'))
+        argv = [str(executable(*CONTAINER[1:3]))]
+        if tee_fd >= 0:
+            argv += ['--tee-fd', str(tee_fd)]
+        argv += ['--ros-args']
+        for name, _, _, params_file in NODES:
+            path = self.config_dir / params_file
+            if not path.is_file():
+                raise OSError(f'params file {path} not found; give --config a directory '
+                              f'holding {", ".join(n[3] for n in NODES)}')
+            argv += ['--params-file', str(path)]
+            over = self.overrides.get(name)
+            if over:
+                extra = self._tmp / f'{name}_overrides.yaml'
+                extra.write_text(yaml.safe_dump({name: {'ros__parameters': dict(over)}}))
+                argv += ['--params-file', str(extra)]
+        return argv
+
     def _stream(self, child: Child):
         for raw in child.proc.stdout:
             line = raw.rstrip('\n')
             child.lines.append(line)
             del child.lines[:-200]
-            self.say(line, child.name)
+            name = child.name
+            if name == 'container':   # prefix each line with the node that logged it
+                match = _LOGGER.match(line)
+                if match and match.group(1) in {n[0] for n in NODES}:
+                    name = match.group(1)
+            self.say(line, name)
 
-    def _spawn(self, name, argv):
+    def culprit(self, child: Child) -> str:
+        """Name the node that ended the run early (composed: from the container's exit code)."""
+        if child.name != 'container':
+            return child.name
+        return {3: 'bridge', 1: 'numerical'}.get(child.returncode, 'container')
+
+    def _spawn(self, name, argv, pass_fds=()):
         child = Child(name, argv)
         env = dict(os.environ, PYTHONUNBUFFERED='1', RCUTILS_COLORIZED_OUTPUT='0',
                    **self.node_env.get(name, {}))
         argv = list(self.node_prefix.get(name, [])) + list(argv)
         child.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                      text=True, env=env, start_new_session=True)
+                                      text=True, env=env, start_new_session=True,
+                                      pass_fds=tuple(pass_fds))
         child.reader = threading.Thread(target=self._stream, args=(child,), daemon=True)
         child.reader.start()
         self.children.append(child)
@@ -200,6 +271,8 @@ class Launcher:
         """SIGINT, then SIGTERM, then SIGKILL until ``child`` is gone."""
         if child.returncode is not None:
             return
+        if child.name == 'recorder' and self.layout == 'composed':
+            grace_s = RECORDER_GRACE_S   # it empties the recording pipe first
         child.stopping = True
         for sig, wait in ((signal.SIGINT, grace_s), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
             try:
@@ -220,21 +293,7 @@ class Launcher:
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         failed = None
         try:
-            specs = []
-            if self.bag:
-                recorder_over = self.overrides.setdefault('recorder', {})
-                recorder_over.setdefault('bag', str(self.bag))
-                recorder_over.setdefault('mode', self.mode)
-                specs.append(RECORDER)
-                # each loop topic: its consumer and the recorder (see ns.wait_for_readers)
-                for name in ('numerical', 'compensator', 'bridge'):
-                    self.overrides.setdefault(name, {}).setdefault('wait_for_subscribers', 2)
-            specs += list(NODES)
-            argvs = [(s[0], self._argv(*s)) for s in specs]
-            for name, argv in argvs:
-                child = self._spawn(name, argv)
-                if name == 'recorder':
-                    self._wait_for_line(child, 'recording', 20.0)
+            self._start()
             t0 = time.monotonic()
             next_sample = t0
             while True:
@@ -246,15 +305,17 @@ class Launcher:
                 if self._signal is not None:
                     self.say(f'{signal.Signals(self._signal).name} received: stopping all nodes')
                     break
-                owner = self._child(OWNER)
+                owner = self._child(self.owner)
                 if owner.returncode == 0:
                     self.say('run finished')
                     break
                 dead = [c for c in self.children if c.returncode is not None and not c.stopping]
                 if dead:
                     failed = dead[0]
-                    self.say(f'node {failed.name} died ({describe_exit(failed.returncode)}); '
-                             'stopping the others')
+                    where = (f' in the container (pid {failed.proc.pid})'
+                             if failed.name == 'container' else '')
+                    self.say(f'node {self.culprit(failed)} died '
+                             f'({describe_exit(failed.returncode)}){where}; stopping the others')
                     break
                 if self.timeout_s and time.monotonic() - t0 > self.timeout_s:
                     failed = owner
@@ -271,6 +332,9 @@ class Launcher:
                 child.reader.join(timeout=2.0)
             for s, handler in previous.items():
                 signal.signal(s, handler)
+            if self._tmp is not None:
+                import shutil
+                shutil.rmtree(self._tmp, ignore_errors=True)
         recorder = self._child('recorder')
         if recorder is not None and recorder.returncode != 0 and self.bag is not None:
             from rths_bringup.bagio import reindex
@@ -278,16 +342,47 @@ class Launcher:
                 reindex(self.bag)
                 self.say(f'recorder ended with {describe_exit(recorder.returncode)}: '
                          f'bag {self.bag} reindexed')
-        bridge = self._child('bridge')
+        bridge = self._child('bridge') or self._child('container')
         if (bridge is not None and bridge.returncode is not None and bridge.returncode < 0
                 and not bridge.stopping):
             self.safe_state_after_bridge_death(bridge)
         if failed is not None:
-            self.say(f'FAILED: node {failed.name} ({describe_exit(failed.returncode)})')
+            self.say(f'FAILED: node {self.culprit(failed)} ({describe_exit(failed.returncode)})')
             return 1
         if self._signal is not None:
             return 128 + self._signal
         return 0
+
+    def _start(self):
+        """Start the recorder (if a bag is asked for) and the graph in its layout."""
+        composed = self.layout == 'composed'
+        read_fd = write_fd = -1
+        if self.bag:
+            recorder_over = self.overrides.setdefault('recorder', {})
+            recorder_over.setdefault('bag', str(self.bag))
+            recorder_over.setdefault('mode', self.mode)
+            if composed:   # the container's tee brings the recorder every message
+                read_fd, write_fd = os.pipe()
+                recorder_over['pipe_fd'] = read_fd
+            else:
+                # each loop topic: its consumer and the recorder (see ns.wait_for_readers)
+                for name in ('numerical', 'compensator', 'bridge'):
+                    self.overrides.setdefault(name, {}).setdefault('wait_for_subscribers', 2)
+        try:
+            if self.bag:
+                child = self._spawn('recorder', self._argv(*RECORDER),
+                                    pass_fds=(read_fd,) if composed else ())
+                self._wait_for_line(child, 'recording', 20.0)
+            if composed:
+                self._spawn('container', self._container_argv(write_fd),
+                            pass_fds=(write_fd,) if write_fd >= 0 else ())
+                return
+            for spec in NODES:
+                self._spawn(spec[0], self._argv(*spec))
+        finally:
+            for fd in (read_fd, write_fd):   # the children hold their ends now
+                if fd >= 0:
+                    os.close(fd)
 
     def bridge_param(self, key: str, default):
         """A bridge parameter from the overrides or bridge.yaml, else ``default``."""

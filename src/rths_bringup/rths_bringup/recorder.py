@@ -2,6 +2,8 @@
 
 ``ros2 run rths_bringup recorder --ros-args -p bag:=out/run/bag -p mode:=lockstep``
 
+The bag is MCAP (``-p storage:=sqlite3`` for the older sqlite3 storage).
+
 Subscriptions take the serialized (CDR) bytes (``raw=True``), so recording
 costs no deserialization; a writer thread drains a queue into the bag in
 batches (every ``batch_s``, default 0.05 s; the callbacks only append to the
@@ -13,6 +15,15 @@ Realtime mode: the recorder must not take the loop's CPU.  Its threads stay
 at normal (SCHED_OTHER) scheduling with a positive nice value (``nice``,
 default 10 in realtime, 0 in lock-step) and, if ``cpus`` is set (e.g. ``'0'``),
 are pinned to those CPUs, so the SCHED_FIFO loop nodes can have the other core.
+
+Composed layout (``pipe_fd`` = N >= 0, given by the launcher): the container
+copies every message its nodes publish on the recorded topics into the pipe N
+(:mod:`rths_bringup.tee`); a reader thread feeds them to the same writer
+queue, and only the topics nobody in the container publishes (the emergency
+stop) are subscribed to over DDS.  Nothing is lost however loaded the machine
+is: the pipe and the container's queue buffer what the writer has not taken
+yet.  On SIGINT the recorder keeps reading until the pipe ends (the container
+has exited) before it closes the bag.
 """
 
 from collections import deque
@@ -24,12 +35,12 @@ import time
 import rclpy
 
 from rths_bringup.bagio import BagWriter
+from rths_common import bagstore, topics
 from rths_common import node_support as ns
-from rths_common import topics
 from rths_common.qos import recorder_qos, status_qos
 
 #: Recorder parameters that are not run information (everything else is kept in the bag).
-RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s')
+RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s', 'storage', 'pipe_fd')
 #: Longest time between two commits of the bag [s] (what a crash can lose).
 COMMIT_PERIOD_S = 0.25
 
@@ -48,6 +59,7 @@ class Recorder:
         self.nice = int(params.get('nice', 10 if mode == 'realtime' else 0))
         self.cpus = str(params.get('cpus', '') or '')
         self.batch_s = float(params.get('batch_s', 0.05))
+        self.storage = str(params.get('storage', '') or bagstore.DEFAULT_STORAGE)
         if not 0 < self.batch_s <= 0.25:
             raise ValueError(f"parameter 'batch_s' = {self.batch_s} must lie in (0, 0.25] s "
                              '(the writer drains the queue this often)')
@@ -65,7 +77,17 @@ class Recorder:
         opened.wait()
         if self.open_error is not None:
             raise self.open_error
+        self.pipe_fd = int(params.get('pipe_fd', -1))
+        self.piped = 0
+        self.pipe_thread = None
+        teed = ()
+        if self.pipe_fd >= 0:
+            from rths_bringup.tee import TOPICS as teed
+            self.pipe_thread = threading.Thread(target=self._read_pipe, daemon=True)
+            self.pipe_thread.start()
         for topic, msgtype in topics.LOOP_TOPICS.items():
+            if topic in teed and topic != topics.EMERGENCY_STOP:
+                continue   # the container's tee brings every one of these
             qos = status_qos() if topic in (topics.STATUS, topics.SPECIMEN) else recorder_qos(mode)
             self.node.create_subscription(ns.message_class(msgtype), topic,
                                           self._callback(topic), qos, raw=True)
@@ -100,9 +122,27 @@ class Recorder:
             queue.append((topic, now_ns(), raw))
         return on_message
 
+    def _read_pipe(self):
+        """Composed layout: the container's records, from the pipe until it ends."""
+        from rths_bringup.tee import read_records
+
+        queue = self.queue
+        for record in read_records(self.pipe_fd):
+            queue.append(record)
+            self.piped += 1
+        os.close(self.pipe_fd)
+
+    def wait_for_pipe(self, timeout_s: float = 60.0) -> bool:
+        """Composed layout: wait until the pipe ended (the container exited); False on timeout."""
+        if self.pipe_thread is None:
+            return True
+        self.pipe_thread.join(timeout_s)
+        return not self.pipe_thread.is_alive()
+
     def _drain(self, bag, opened):
         try:
-            writer = BagWriter(bag, topics.LOOP_TOPICS, run_info=self.run_info)
+            writer = BagWriter(bag, topics.LOOP_TOPICS, run_info=self.run_info,
+                               storage=self.storage)
         except (OSError, ValueError) as err:
             self.open_error = err
             return
@@ -148,8 +188,13 @@ def main(argv=None):
     executor.add_node(rec.node)
     while time.monotonic() < end:
         executor.spin_once(timeout_sec=0.02)
+    if not rec.wait_for_pipe():
+        print('recorder: the container did not close the recording pipe within 60 s; '
+              'BAG INCOMPLETE', flush=True)
     count = rec.close()
-    print(f'recorder: {count} messages written in {time.monotonic() - t0:.1f} s', flush=True)
+    piped = f' ({rec.piped} from the container)' if rec.pipe_fd >= 0 else ''
+    print(f'recorder: {count} messages written{piped} in {time.monotonic() - t0:.1f} s',
+          flush=True)
     rclpy.shutdown()
     return 0
 

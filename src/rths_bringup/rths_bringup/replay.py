@@ -24,16 +24,29 @@ def register(commands, benches):
                         '(e.g. 1 when a recorder must catch everything; default 0)')
     p.add_argument('--wait-timeout', type=float, default=30.0,
                    help='seconds to wait for subscribers (default 30)')
+    from rths_bringup import live
+    live.add_arguments(p)
     p.set_defaults(func=cmd_replay)
 
 
 def cmd_replay(args) -> int:
+    """Run ``rths replay`` (with ``--live``, inside a live-view session)."""
+    from rths_bringup import bagio, live
+
+    fs = bagio.sampling_rate(args.bag) if args.live and bagio.run_info(args.bag) else 0.0
+    with live.session(args, fs_hz=fs):
+        return _replay(args)
+
+
+def _replay(args) -> int:
     import rclpy
     from rclpy.duration import Duration
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     from rths_bringup import bagio
+    from rths_common import topics
     from rths_common.node_support import message_class
+    from rths_common.progress import Progress
 
     if not args.rate_scale > 0:
         raise ValueError(f'--rate-scale must be > 0, got {args.rate_scale}')
@@ -54,8 +67,11 @@ def cmd_replay(args) -> int:
     counts = dict.fromkeys(pubs, 0)
     try:
         t_end = time.monotonic() + args.wait_timeout
-        while args.wait_for_subscribers and any(
-                p.get_subscription_count() < args.wait_for_subscribers for p in pubs.values()):
+        # the live view reads every loop topic but /rths/specimen: wait for it there too
+        wanted = {t: max(args.wait_for_subscribers,
+                         int(args.live and t in topics.LOOP_TOPICS and t != topics.SPECIMEN))
+                  for t in pubs}
+        while any(p.get_subscription_count() < wanted[t] for t, p in pubs.items()):
             if time.monotonic() > t_end:
                 raise OSError(f'not every topic reached {args.wait_for_subscribers} '
                               f'subscriber(s) within {args.wait_timeout:g} s')
@@ -63,7 +79,9 @@ def cmd_replay(args) -> int:
         print(f'replaying {sum(c.msgcount for c in conns)} messages on {len(pubs)} topics '
               f'at x{args.rate_scale:g}', flush=True)
         t0_bag = t0_wall = None
+        bar = Progress(sum(c.msgcount for c in conns), 'replay', 'messages')
         for conn, stamp, raw in reader.messages(connections=conns):
+            bar.advance()
             if t0_bag is None:
                 t0_bag, t0_wall = stamp, time.monotonic()
             wait = t0_wall + (stamp - t0_bag) * 1e-9 / args.rate_scale - time.monotonic()
@@ -71,6 +89,7 @@ def cmd_replay(args) -> int:
                 time.sleep(wait)
             pubs[conn.topic].publish(bytes(raw))
             counts[conn.topic] += 1
+        bar.close()
         for pub in pubs.values():  # let reliable readers receive everything before exiting
             pub.wait_for_all_acked(Duration(seconds=5))
     finally:

@@ -1,5 +1,7 @@
 """Review of a recorded run, rebuilt from its bag alone."""
 
+from pathlib import Path
+
 import numpy as np
 
 from rths_bringup import bagio
@@ -59,7 +61,7 @@ def _pct(values, q):
 
 
 def loop_summary(bag) -> dict:
-    """The printed/JSON summary of a run: steps per topic, extremes, per-node timing."""
+    """Return the printed/JSON summary of a run: steps per topic, extremes, per-node timing."""
     loop = read_loop(bag)
     summary = {'bag': str(bag)}
     for topic, (field, unit) in STEP_TOPICS.items():
@@ -118,19 +120,23 @@ def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
 
 
 def _numerical_params(info: dict) -> dict:
-    """The run's numerical core parameters (the node-level keys stripped, as offline does)."""
+    """Return the run's numerical core parameters (node-level keys stripped, as offline does)."""
     from rths_bringup import runinfo
     from rths_bringup.offline import core_params
     return core_params(runinfo.section(info, 'numerical'))
 
 
 def review_rths(bag, out_dir) -> dict:
-    """Tables 5-9 of an RTHS bag: JSON summary, text report and PNG plots in ``out_dir``."""
+    """Tables 5-9 of an RTHS bag: JSON summary, text report, PNG plots and ``report.html``.
+
+    ``report.html`` (:mod:`rths_bringup.report_html`) holds the tables and every
+    plot in one self-contained file.
+    """
     import json
-    from pathlib import Path
 
     from rths_bringup import runinfo
     from rths_compensator.indicators import relative_rms_pct
+    from rths_numerical.model import LinearModel
     from rths_numerical.reference import (
         relative_rms_error,
         simulate_reference,
@@ -171,8 +177,8 @@ def review_rths(bag, out_dir) -> dict:
     measured = meas['displacement'][:n, 0]
     ok = np.isfinite(applied) & np.isfinite(measured)
     status = read_loop(bag)['status'].get('bridge', {})
-    tripped = [k for k, state in zip(status.get('step', []), status.get('safety_state', []))
-               if state != 0]
+    tripped = [k for k, state in zip(status.get('step', []), status.get('safety_state', []),
+                                     strict=False) if state != 0]
     if tripped and min(tripped) < n:  # a safety stop: review what ran before the fault
         ok[int(min(tripped)):] = False  # (then the plant holds and ramps to the safe position)
     if not ok.all():
@@ -192,11 +198,13 @@ def review_rths(bag, out_dir) -> dict:
     floor2 = desired - ug
     dt = 1.0 / fs
     damper = bridge.get('dtm', 'valve4')
-    uncontrolled = simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
-    if damper == 'mr':   # nonlinear: the same substructure with the same MR model, all numerical
-        from rths_numerical.mr_damper import simulate_mr_reference
-        mr_ref = simulate_mr_reference(numerical, float(bridge.get('mr_voltage_v', 1.0)))
-        reference = {'disp': mr_ref['output_disp']}
+    uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
+                    if isinstance(model, LinearModel) else None)
+    backend = numerical.get('backend', 'builtin')
+    if damper == 'mr' or backend != 'builtin':
+        # nonlinear specimen or OpenSees model: the same substructure, offline, with the same
+        # specimen model on a perfect actuator (and without it for the uncontrolled response)
+        uncontrolled, reference = offline_references(numerical, bridge, dt)
     else:
         reference = simulate_reference(model, sub.ag, dt, damper=damper,
                                        n_dtm=sub.force_scale,
@@ -211,6 +219,10 @@ def review_rths(bag, out_dir) -> dict:
         'specimen': SPECIMENS.get(damper, 'dtm'),
         'mode': info.get('mode'), 'fs_hz': fs, 'steps': n, 'duration_s': n * dt,
         'compensator': compensator,
+        'numerical_backend': numerical.get('backend', 'builtin'),
+        'numerical_model': getattr(model, 'name', str(numerical.get('model'))),
+        'residual_drift_m': residual_drift(floor2, fs),
+        'reference_residual_drift_m': residual_drift(ref_disp, fs),
         **table5,
         'max_disp_2nd_m': max_d, 'rms_disp_2nd_m': rms_d,
         'uncontrolled_max_disp_2nd_m': unc['max_disp_m'],
@@ -228,16 +240,24 @@ def review_rths(bag, out_dir) -> dict:
     (out_dir / 'review.txt').write_text(review_text(summary))
     _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp,
            uncontrolled['disp'][:n])
+    hinge = _hinge_history(bag, reference)
+    if hinge is not None:
+        _hysteresis_plot(out_dir / 'hinge_hysteresis.png', hinge['hinge_rotation'],
+                         hinge['hinge_moment'], fs, f"hinge of {summary['numerical_model']} "
+                         f"({hinge['source']})", ('rotation [mrad]', 'moment [N m]'),
+                         velocity=False)
     if damper == 'mr':
         summary['mr_voltage_v'] = float(bridge.get('mr_voltage_v', 1.0))
         (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
         _hysteresis_plot(out_dir / 'mr_hysteresis.png', measured, meas['force'][:n, 0], fs,
                          f"MR damper at {summary['mr_voltage_v']:g} V (measured)")
+    from rths_bringup.report_html import write_report
+    write_report(out_dir, summary)
     return summary
 
 
 def review_text(s: dict) -> str:
-    """The review as text, in the layout of the seed's tables 5-9."""
+    """Return the review as text, in the layout of the seed's tables 5-9."""
     inch = 0.0254
     lines = [
         f"RTHS review: {s['record']} x {s['scale']}, DTM {s['damper']}, {s['mode']}, "
@@ -277,18 +297,65 @@ def print_review(summary: dict):
     print(review_text(summary), end='')
 
 
-def _hysteresis_plot(path, stroke, force, fs, title):
-    """Force against stroke and against velocity (finite differences) of a specimen."""
+def residual_drift(disp, fs, seconds=1.0):
+    """Mean 2nd-floor displacement [m] over the last ``seconds`` of the run."""
+    disp = np.asarray(disp, dtype=float)
+    return float(np.mean(disp[-max(1, int(seconds * fs)):])) if disp.size else float('nan')
+
+
+def offline_references(numerical, bridge, dt):
+    """Uncontrolled and reference responses from the run's own substructure, offline.
+
+    The reference couples the same substructure with the run's specimen model on
+    a perfect actuator (:class:`~rths_numerical.reference.DTMSpecimen` or
+    :class:`~rths_numerical.mr_damper.MRSpecimen`); the uncontrolled run has no
+    specimen force.  Returns ``(uncontrolled, reference)`` dicts with ``disp``
+    and ``metrics`` (the reference also its whole ``history``; None if the
+    bridge ran a bare table).
+    """
+    from rths_numerical.mr_damper import MRSpecimen
+    from rths_numerical.reference import DTMSpecimen, coupled_rths, metrics
+    from rths_numerical.substructure import make_substructure
+    damper = bridge.get('dtm', 'valve4')
+    free = coupled_rths(make_substructure(numerical), lambda x: np.zeros(1))
+    uncontrolled = {'disp': free['output_disp'], 'metrics': metrics(free['output_disp'])}
+    if damper == 'none':
+        return uncontrolled, None
+    specimen = (MRSpecimen(dt, float(bridge.get('mr_voltage_v', 1.0))) if damper == 'mr'
+                else DTMSpecimen(damper, dt))
+    hist = coupled_rths(make_substructure(numerical), specimen)
+    return uncontrolled, {'disp': hist['output_disp'], 'history': hist,
+                          'metrics': metrics(hist['output_disp'], uncontrolled['metrics'])}
+
+
+def _hinge_history(bag, reference):
+    """Hinge moment-rotation of the RTHS (the node's saved history), else of the reference."""
+    path = Path(bag).parent / 'numerical_history.npz'
+    if path.is_file():
+        with np.load(path) as hist:
+            if 'hinge_moment' in hist:
+                return {'hinge_moment': hist['hinge_moment'],
+                        'hinge_rotation': hist['hinge_rotation'], 'source': 'RTHS'}
+    if reference and 'hinge_moment' in reference.get('history', {}):
+        return dict(reference['history'], source='reference')
+    return None
+
+
+def _hysteresis_plot(path, stroke, force, fs, title, labels=('stroke [mm]', 'force [N]'),
+                     velocity=True):
+    """Force against stroke (and against velocity, by finite differences) of a specimen."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    vel = np.gradient(stroke) * fs
-    fig, ax = plt.subplots(1, 2, figsize=(10, 4))
+    fig, ax = plt.subplots(1, 2 if velocity else 1, figsize=(10 if velocity else 6, 4),
+                           squeeze=False)
+    ax = ax[0]
     ax[0].plot(stroke * 1e3, force, lw=0.5)
-    ax[0].set_xlabel('stroke [mm]')
-    ax[0].set_ylabel('force [N]')
-    ax[1].plot(vel * 1e3, force, lw=0.5)
-    ax[1].set_xlabel('velocity [mm/s]')
+    ax[0].set_xlabel(labels[0])
+    ax[0].set_ylabel(labels[1])
+    if velocity:
+        ax[1].plot(np.gradient(stroke) * fs * 1e3, force, lw=0.5)
+        ax[1].set_xlabel('velocity [mm/s]')
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -5,7 +5,8 @@
    recorded to ``OUT/identification/bag``;
 2. ARX identification and FIR design (``rths identify`` and ``rths design``:
    WLS, fc = 10 Hz, n = 400 as in seed section 6.1 unless overridden), written to
-   ``OUT/plant.yaml`` and ``OUT/compensator.yaml`` and copied to ``CONFIG/compensator.yaml``;
+   ``OUT/plant.yaml`` and ``OUT/compensator.yaml`` (never into ``CONFIG``: installing
+   them as the lab's taps is ``rths install-taps OUT``);
 3. the RTHS run: the building (numerical node), the compensator and the bridge
    with the simulated DTM, recorded to ``OUT/rths/bag``;
 4. the review (:mod:`rths_bringup.review`): tables 5-9 as text, ``OUT/summary.json``
@@ -27,7 +28,6 @@ reference would be meaningless.
 import datetime
 import json
 from pathlib import Path
-import shutil
 import sys
 
 from rths_bringup import runinfo
@@ -46,12 +46,14 @@ def register(commands, benches):
     """Add ``rths run`` and ``rths review``."""
     p = commands.add_parser(
         'run', help='the main job: identify, design, run the RTHS, review (seed chapter 6)',
-        description='Perform the whole lab procedure of seed chapter 6: (1) identification run with BLWN, '
-        '(2) ARX identification and FIR design written to CONFIG/compensator.yaml, (3) the '
-        'RTHS of the 2-story building with the simulated DTM, (4) the review: actuator delay '
+        description='Perform the whole lab procedure of seed chapter 6: (1) identification run '
+        'with BLWN, (2) ARX identification and FIR design written to OUT/compensator.yaml '
+        '(config/ is never written; rths install-taps OUT installs them), (3) the RTHS of '
+        'the 2-story building with the simulated DTM, (4) the review: actuator delay '
         'and tracking error before/after compensation (table 5), 2nd-floor response and '
         'reductions vs the uncontrolled building (tables 6-8), RTHS vs whole-numerical '
-        'reference (table 9), written to OUT/summary.json, OUT/review.txt and PNG plots.')
+        'reference (table 9), written to OUT/report.html (one file, plots embedded), '
+        'OUT/summary.json, OUT/review.txt and PNG plots.')
     p.add_argument('--config', default=None, help='config directory (default: repo config/)')
     p.add_argument('--out', default=None, help='results directory (default: out/run-<time>)')
     p.add_argument('--record', default='kobe',
@@ -71,8 +73,19 @@ def register(commands, benches):
     p.add_argument('--force-scale', type=float, default=5.0,
                    help='DTMs the one in the lab stands for: its measured force is multiplied '
                         'by this in the building (seed 6.2: 5, the default)')
+    p.add_argument('--numerical', choices=('builtin', 'opensees'), default='builtin',
+                   help='numerical backend: builtin (default) or opensees (OpenSeesPy, `make '
+                        'setup-opensees`; integrator central_difference)')
+    p.add_argument('--model', default='building2story',
+                   help='numerical model: building2story (default), a model YAML, or with '
+                        '--numerical opensees an OpenSeesPy script (.py, or a name in '
+                        'config/models/, e.g. frame-steel01)')
     p.add_argument('--mode', choices=('lockstep', 'realtime'), default='lockstep',
                    help='timing mode (default lockstep: deterministic, as fast as possible)')
+    p.add_argument('--layout', choices=('composed', 'processes'), default=None,
+                   help='composed: the three nodes in one process on one executor; processes: '
+                        'one process per node (default: composed in realtime, processes in '
+                        'lock-step)')
     p.add_argument('--duration', type=float, default=0.0,
                    help='simulated seconds of the RTHS run (default 0: the whole record)')
     p.add_argument('--scheme', default='wls', help='compensator scheme (default wls)')
@@ -86,9 +99,13 @@ def register(commands, benches):
                    help='compensation method of the RTHS run (default fir: the designed FIR; '
                         'rls_fir, ats, amb adapt on line from it, lock-step only; rls_fir costs '
                         'n^2 per step: use it with --taps 32..64; docs/adaptive.md)')
+    p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
+                   help='storage of the bags (default mcap; sqlite3 for older tools)')
     p.add_argument('--no-compensation', action='store_true',
                    help='skip steps 1-2 and run with identity taps (shows the uncompensated '
                         'error and, where the loop goes unstable, the safe abort)')
+    from rths_bringup import live
+    live.add_arguments(p)
     p.epilog = ('Exit codes: 0 the run completed and was reviewed; 3 the bridge\'s safety '
                 'supervisor stopped the RTHS (OUT/summary.json then holds safety_stop, the '
                 'fault text, and the steps run; e.g. --no-compensation --damper novalve '
@@ -118,7 +135,8 @@ def _phase_config(out_dir: Path, sections: dict) -> Path:
     return cfg
 
 
-def _launch_phase(name, cfg, bag, kind, fs, mode, sections, history=None):
+def _launch_phase(name, cfg, bag, kind, fs, mode, sections, history=None, storage=None,
+                  live=False, layout=None):
     """Run one phase of the graph; return None, or the bridge's safety stop (a dict).
 
     A launcher failure that is not the bridge's safety stop raises RuntimeError.
@@ -129,7 +147,8 @@ def _launch_phase(name, cfg, bag, kind, fs, mode, sections, history=None):
     for node in NODE_FILES:
         overrides.setdefault(node, {})['mode'] = mode
     _say(f'{name}: launching the node graph ({mode}), recording to {bag}')
-    code = launch(cfg, bag=bag, overrides=overrides, timeout=3600.0)
+    code = launch(cfg, bag=bag, overrides=overrides, timeout=3600.0, storage=storage, live=live,
+                  layout=layout)
     if code == 0:
         return None
     try:
@@ -264,21 +283,26 @@ def safety_stop_text(s: dict) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def _install_compensator(designed: Path, target: Path, external_plant: bool):
-    """Copy the designed compensator into the config dir; its plant becomes config/plant.yaml."""
-    from rths_compensator.params import load_compensator_params, write_compensator_params
-
-    params = load_compensator_params(designed)
-    if not external_plant:
-        params['plant'] = 'plant.yaml'  # relative to the config directory, copied beside it
-    fields = ('taps', 'denominator', 'fs_hz', 'scheme')
-    write_compensator_params(target, *(params[f] for f in fields),
-                             provenance={k: v for k, v in params.items() if k not in fields})
+def _model_param(model: str, config: Path) -> str:
+    """The numerical node's ``model``: a shipped script name becomes its absolute path."""
+    if model in ('building2story', 'sdof') or model.endswith(('.yaml', '.yml', '.py')):
+        return str(Path(model).resolve()) if model.endswith(('.yaml', '.yml', '.py')) else model
+    script = config / 'models' / (model.replace('-', '_') + '.py')
+    if not script.is_file():
+        shipped = sorted(p.stem.replace('_', '-') for p in (config / 'models').glob('*.py'))
+        raise ValueError(f'--model {model}: no such model; use building2story, a model YAML, '
+                         f'a .py OpenSeesPy script or one of {", ".join(shipped) or "(none)"} '
+                         f'({config / "models"})')
+    return str(script.resolve())
 
 
 def cmd_run(args) -> int:
+    from rths_bringup import live
+    from rths_bringup.commands import live_rate_of
+
     try:
-        return _run(args)
+        with live.session(args, fs_hz=live_rate_of(args.config) if args.live else 0.0):
+            return _run(args)
     except RuntimeError as err:
         print(f'rths run: error: {err}', file=sys.stderr)
         return 1
@@ -301,6 +325,10 @@ def _run(args) -> int:
     fs = float(base['numerical'].get('fs_hz', 1024.0))
     base['bridge']['fs_hz'] = fs
     base['bridge']['dtm'] = args.damper
+    model_param = _model_param(args.model, config)   # bad names fail before the long phases
+    if args.numerical == 'opensees':
+        from rths_numerical.opensees_backend import import_opensees
+        import_opensees()
     if args.damper == 'mr':
         from rths_numerical.mr_damper import check_voltage
         base['bridge']['mr_voltage_v'] = check_voltage(args.mr_voltage)
@@ -328,7 +356,8 @@ def _run(args) -> int:
                 'compensator': dict(base['compensator'], scheme='identity', taps=[1.0],
                                     denominator=[1.0], fs_hz=fs)})
             stop = _launch_phase('identification', cfg, ident / 'bag', 'identification', fs,
-                                 args.mode, {'numerical': numerical, 'bridge': base['bridge']})
+                                 args.mode, {'numerical': numerical, 'bridge': base['bridge']},
+                                 storage=args.storage, live=args.live, layout=args.layout)
             if stop is not None:
                 raise RuntimeError(f'the identification run ended in the bridge\'s safety stop '
                                    f'({stop["safety_stop"]}); check the excitation against the '
@@ -337,16 +366,14 @@ def _run(args) -> int:
             code = rths_main(['identify', '--bag', str(ident / 'bag'), '--out', str(plant)])
             if code:
                 raise RuntimeError('identification failed')
-            shutil.copyfile(plant, config / 'plant.yaml')
         _say(f'step 2: design {args.scheme} n={args.taps} fc={args.fc} Hz (rths design)')
         code = rths_main(['design', '--plant', str(plant), '--scheme', args.scheme,
                           '--taps', str(args.taps), '--fc', str(args.fc),
                           '--out', str(comp_file)])
         if code:
             raise RuntimeError('compensator design failed')
-        _install_compensator(comp_file, config / 'compensator.yaml', bool(args.plant))
-        _say(f'compensator written to {config / "compensator.yaml"}'
-             + ('' if args.plant else f' (its plant: {config / "plant.yaml"})'))
+        _say(f'compensator written to {comp_file} (install it as the lab\'s taps with '
+             f'rths install-taps {out})')
     comp = runinfo.load_params(comp_file, 'compensator')
     comp.update({k: base['compensator'][k] for k in ('executor',) if k in base['compensator']})
     if args.adaptive != 'fir':
@@ -356,9 +383,12 @@ def _run(args) -> int:
         comp.update(method=args.adaptive, plant=str(Path(str(comp['plant'])).resolve()))
 
     # 3: the RTHS run
-    numerical = dict(base['numerical'], model='building2story', record=args.record,
-                     scale=float(args.scale), force_scale=float(args.force_scale),
-                     interface_frame='absolute')
+    numerical = dict(base['numerical'], model=model_param,
+                     record=args.record, scale=float(args.scale),
+                     force_scale=float(args.force_scale), interface_frame='absolute',
+                     backend=args.numerical)
+    if args.numerical == 'opensees':
+        numerical['integrator'] = 'central_difference'   # the RTHS pairing (README)
     if args.damper == 'mr':
         # the damper's stroke is the floor's displacement relative to the ground; it carries
         # no mass of its own, so there is no ground term to add (seed eq. 24, P_I^E = 0)
@@ -374,7 +404,8 @@ def _run(args) -> int:
                           'compensator': {k: v for k, v in comp.items() if k in (
                               'scheme', 'n_taps', 'fc_hz', 'plant', 'predicted_delay_ms',
                               'method')}},
-                         history=rths_dir / 'numerical_history.npz')
+                         history=rths_dir / 'numerical_history.npz', storage=args.storage,
+                         live=args.live, layout=args.layout)
     if stop is not None:
         return _report_safety_stop(stop, numerical, out, rths_dir / 'bag')
 
@@ -384,7 +415,8 @@ def _run(args) -> int:
     summary['adaptive'] = args.adaptive
     (out / 'summary.json').write_text(json.dumps(summary, indent=2))
     print_review(summary)
-    _say(f'results: {out}/summary.json, {out}/review.txt, plots {out}/*.png, '
+    _say(f'results: {out}/report.html (one file), {out}/summary.json, {out}/review.txt, '
+         f'plots {out}/*.png, '
          f'bags {out}/*/bag')
     return 0
 
@@ -415,6 +447,6 @@ def cmd_review(args) -> int:
     out = Path(args.out) if args.out else bag.parent
     summary = review_rths(bag, out)
     print_review(summary)
-    print(f'wrote {out}/summary.json, {out}/review.txt and plots')
+    print(f'wrote {out}/report.html, {out}/summary.json, {out}/review.txt and plots')
     return 0
 

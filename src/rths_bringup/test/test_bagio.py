@@ -49,7 +49,8 @@ def test_bag_without_fs_names_the_fix(tmp_path):
         bagio.read_identification(bag)
 
 
-def test_sigkilled_writer_leaves_a_readable_bag(tmp_path):
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_sigkilled_writer_leaves_a_readable_bag(tmp_path, storage):
     """A recording process killed with SIGKILL: committed messages survive, reindex restores."""
     bag = tmp_path / 'bag'
     script = textwrap.dedent(f'''
@@ -58,7 +59,7 @@ def test_sigkilled_writer_leaves_a_readable_bag(tmp_path):
         sys.path[:0] = {sys.path!r}
         from rths_bringup import bagio
         from test_bagio import _measurement
-        w = bagio.BagWriter({str(bag)!r}, run_info={{'fs_hz': 1024.0}})
+        w = bagio.BagWriter({str(bag)!r}, run_info={{'fs_hz': 1024.0}}, storage={storage!r})
         for k in range(300):
             w.write_msg('/rths/measurement', 10 + k, _measurement(k))
         w.commit()
@@ -72,7 +73,7 @@ def test_sigkilled_writer_leaves_a_readable_bag(tmp_path):
     assert proc.returncode == -signal.SIGKILL
     assert not (bag / 'metadata.yaml').exists()
     info = bagio.info(bag)  # reindexes
-    assert (bag / 'metadata.yaml').exists()
+    assert (bag / 'metadata.yaml').exists() and info['storage'] == storage
     assert info['topics']['/rths/measurement']['count'] == 300
     steps = [m.step for _, m in bagio.read_topic(bag, '/rths/measurement')]
     assert steps == list(range(300))

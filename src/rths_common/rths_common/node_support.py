@@ -189,33 +189,52 @@ def make_executor(kind: str = 'events'):
     raise ValueError(f"unknown executor {kind!r}; use 'events' or 'single'")
 
 
-def spin_until_done(node, executor, is_done=lambda: False, poll_s: float = 0.05) -> bool:
-    """Spin ``node`` with ``spin_once`` until ``is_done()``, SIGINT or SIGTERM.
+#: The signal (SIGINT/SIGTERM number) that stopped the last spin loop, None if none did.
+STOP_SIGNAL = {'signum': None}
 
-    Returns True if the run finished (``is_done``), False if it was stopped by a
-    signal.  (``EventsExecutor.spin()`` ignores SIGTERM and can starve timers;
-    a ``spin_once`` loop does not.)
-    """
+
+def _as_nodes(node) -> list:
+    """``node`` as a list: one node, or the nodes of a composed process (a list or tuple)."""
+    return list(node) if isinstance(node, (list, tuple)) else [node]
+
+
+def _spin_signals():
+    """Catch SIGINT/SIGTERM into a flag (kept in :data:`STOP_SIGNAL`); return (flag, previous)."""
     stop = {'signal': None}
 
     def on_signal(signum, _frame):
-        stop['signal'] = signum
+        stop['signal'] = STOP_SIGNAL['signum'] = signum
 
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
-    executor.add_node(node)
+    STOP_SIGNAL['signum'] = None
+    return stop, {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+
+
+def spin_until_done(node, executor, is_done=lambda: False, poll_s: float = 0.05) -> bool:
+    """Spin ``node`` (or a list of nodes) with ``spin_once`` until ``is_done()``, SIGINT or SIGTERM.
+
+    Returns True if the run finished (``is_done``), False if it was stopped by a
+    signal (its number in :data:`STOP_SIGNAL`).  (``EventsExecutor.spin()``
+    ignores SIGTERM and can starve timers; a ``spin_once`` loop does not.)
+    """
+    stop, previous = _spin_signals()
+    nodes = _as_nodes(node)
+    for n in nodes:
+        executor.add_node(n)
     try:
         while stop['signal'] is None and rclpy.ok() and not is_done():
             executor.spin_once(timeout_sec=poll_s)
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
-        executor.remove_node(node)
+        for n in nodes:
+            executor.remove_node(n)
     return is_done()
 
 
 def spin_clocked(node, executor, next_due_ns, tick, is_done=lambda: False,
-                 poll_s: float = 0.05, margin_us: float = 0.0, nap_us: float = 20.0) -> bool:
-    """Spin ``node`` and call ``tick()`` whenever ``next_due_ns()`` (monotonic ns) is reached.
+                 poll_s: float = 0.05, margin_us: float = 0.0, nap_us: float = 20.0,
+                 ready=None, drain: int = 16) -> bool:
+    """Spin ``node`` (or nodes); call ``tick()`` whenever ``next_due_ns()`` (monotonic ns) is due.
 
     The realtime clock of the actuator bridge without a second thread: between
     ticks the loop sits in ``executor.spin_once`` with a timeout that ends at the
@@ -229,16 +248,18 @@ def spin_clocked(node, executor, next_due_ns, tick, is_done=lambda: False,
     time is spent polling (``spin_once(0)``) with naps of ``nap_us`` (sleeping,
     so the DDS threads get the CPU), which also hands over a command arriving
     in that window at once.
+
+    ``ready`` (composed layout: every node in this loop): at the tick, while
+    ``ready()`` is False, up to ``drain`` more queued events are handled
+    first: the command of the step is then still on its way through this
+    very loop (the thread came late), not missing.
     """
     margin_ns = int(margin_us * 1e3)
     nap_s = nap_us * 1e-6
-    stop = {'signal': None}
-
-    def on_signal(signum, _frame):
-        stop['signal'] = signum
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
-    executor.add_node(node)
+    stop, previous = _spin_signals()
+    nodes = _as_nodes(node)
+    for n in nodes:
+        executor.add_node(n)
     try:
         while stop['signal'] is None and rclpy.ok() and not is_done():
             due = next_due_ns()
@@ -254,11 +275,17 @@ def spin_clocked(node, executor, next_due_ns, tick, is_done=lambda: False,
                 time.sleep(min(wait_ns * 1e-9, nap_s))
                 continue
             executor.spin_once(timeout_sec=0.0)
+            if ready is not None:
+                for _ in range(drain):
+                    if ready():
+                        break
+                    executor.spin_once(timeout_sec=0.0)
             tick()
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
-        executor.remove_node(node)
+        for n in nodes:
+            executor.remove_node(n)
     return is_done()
 
 

@@ -147,9 +147,11 @@ def cmd_identify(args) -> int:
         train, val = records[:k], records[k:]
     _log(f'identify: fs = {fs:.6g} Hz, {len(train)} training and {len(val)} validation '
          f'records of {args.record_s} s; grid {args.na_max} x {args.nb_max} x {args.d_max + 1}')
-    model, info, _ = identify(train, val, fs, args.na_max, args.nb_max, args.d_max,
-                              args.criterion, args.error,
-                              progress=lambda k, n: _log(f'  {k}/{n} models'))
+    from rths_common.progress import Progress
+
+    with Progress(0, 'identify: ARX models') as bar:
+        model, info, _ = identify(train, val, fs, args.na_max, args.nb_max, args.d_max,
+                                  args.criterion, args.error, progress=bar.report)
     info['source'] = str(args.bag or args.csv)
     save_plant(args.out, model, info)
     print(f'selected ({args.criterion}): na={model.na} nb={model.nb} d={model.d}, '

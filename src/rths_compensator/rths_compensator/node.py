@@ -245,6 +245,11 @@ class CompensatorNode:
                 latency_us=(t_in - stamp_ns) * 1e-3, missed=missed, misses=self.misses))
         self.expected = step + 1
 
+    def finish_run(self):
+        """After spinning: flush what was published and log the count."""
+        ns.flush([self.pub, self.status_pub] + ([self.coef_pub] if self.adaptive else []))
+        self.log.info(f'compensator: {self.expected} steps, {self.rejected} rejected')
+
 
 def main(argv=None):
     """Entry point of ``ros2 run rths_compensator compensator_node``."""
@@ -253,8 +258,7 @@ def main(argv=None):
     try:
         shell = CompensatorNode()
         ns.spin_until_done(shell.node, ns.make_executor(shell.own['executor']))
-        ns.flush([shell.pub, shell.status_pub])
-        shell.log.info(f'compensator: {shell.expected} steps, {shell.rejected} rejected')
+        shell.finish_run()
     except ValueError as err:
         print(f'compensator_node: error: {ns.params_file_of(argv)}{err}', file=sys.stderr)
         code = 2

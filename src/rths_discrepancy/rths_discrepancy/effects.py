@@ -159,14 +159,11 @@ def deadzone(x, b):
     return np.sign(x) * np.maximum(np.abs(x) - b, 0.0)
 
 
-def play(y, b):
-    """Play (backlash) operator of half-width ``b``: ``z_k = clip(z_{k-1}, y_k - b, y_k + b)``."""
-    y = np.asarray(y, dtype=float)
-    out = np.empty_like(y)
-    z = float(y[0])
-    for k, yk in enumerate(y.tolist()):
-        lo = yk - b
-        hi = yk + b
+def _play_loop(y, b, out):
+    z = y[0]
+    for k in range(y.size):
+        lo = y[k] - b
+        hi = y[k] + b
         if z < lo:
             z = lo
         elif z > hi:
@@ -175,14 +172,10 @@ def play(y, b):
     return out
 
 
-def rate_limit(y, v_max, dt):
-    """Rate limiter: ``z_k = z_{k-1} + clip(y_k - z_{k-1}, -v_max dt, v_max dt)``."""
-    y = np.asarray(y, dtype=float)
-    out = np.empty_like(y)
-    step = v_max * dt
-    z = float(y[0])
-    for k, yk in enumerate(y.tolist()):
-        d = yk - z
+def _rate_loop(y, step, out):
+    z = y[0]
+    for k in range(y.size):
+        d = y[k] - z
         if d > step:
             d = step
         elif d < -step:
@@ -192,13 +185,88 @@ def rate_limit(y, v_max, dt):
     return out
 
 
+def _bouc_wen_loop(x, x_y, out):
+    z = 0.0
+    out[0] = 0.0
+    for k in range(1, x.size):
+        dx = x[k] - x[k - 1]
+        if dx != 0.0:
+            s = 1.0 if dx > 0 else -1.0
+            step = abs(dx) / x_y
+            if z * s < 0.0:            # unloading: dz = dx / x_y until z crosses 0
+                lin = min(step, abs(z))
+                z += s * lin
+                step -= lin
+            if step > 0.0:             # loading: z -> s exponentially
+                z = s - (s - z) * math.exp(-step)
+        out[k] = z
+    return out
+
+
+_LOOPS = {}
+
+
+def _loop(name):
+    """Return the hysteretic loop ``name``, compiled by numba when it is installed (lazily)."""
+    if not _LOOPS:
+        loops = {'play': _play_loop, 'rate': _rate_loop, 'bouc_wen': _bouc_wen_loop}
+        try:  # they run once per candidate evaluation: compiled they are ~100x faster
+            import numba
+            loops = {k: numba.njit(cache=True)(f) for k, f in loops.items()}
+        except ImportError:  # pragma: no cover - plain Python
+            pass
+        _LOOPS.update(loops)
+    return _LOOPS[name]
+
+
+def play(y, b):
+    """Play (backlash) operator of half-width ``b``: ``z_k = clip(z_{k-1}, y_k - b, y_k + b)``."""
+    y = np.ascontiguousarray(y, dtype=float)
+    return _loop('play')(y, float(b), np.empty_like(y))
+
+
+def bouc_wen(x, x_y):
+    """Bouc-Wen variable ``z`` (beta = gamma = 1/2, n = 1) of the path ``x``, exact per step.
+
+    ``dz = dx / x_y (1 - |z| (1 + sign(dx z)) / 2)``: linear while unloading, an
+    exponential approach to +-1 while loading; ``z`` stays within [-1, 1].
+    """
+    x = np.ascontiguousarray(x, dtype=float)
+    return _loop('bouc_wen')(x, float(x_y), np.empty_like(x))
+
+
+def rate_limit(y, v_max, dt):
+    """Rate limiter: ``z_k = z_{k-1} + clip(y_k - z_{k-1}, -v_max dt, v_max dt)``."""
+    y = np.ascontiguousarray(y, dtype=float)
+    return _loop('rate')(y, float(v_max * dt), np.empty_like(y))
+
+
 def delay(y, tau, fs):
-    """Return ``y(t - tau)`` by linear interpolation (holds the first/last value)."""
+    """Return ``y(t - tau)``, a band-limited (FFT, linear-phase) fractional delay.
+
+    The record is padded with its first/last value beyond the delay (so the
+    delayed signal holds the first value at the start), delayed in the
+    frequency domain and cut back; an integer number of samples is an exact shift.
+    """
     y = np.asarray(y, dtype=float)
     if tau == 0.0:
         return y.copy()
-    t = np.arange(y.size) / fs
-    return np.interp(t - tau, t, y)
+    n = y.size
+    shift = tau * fs
+    pad = int(math.ceil(abs(shift))) + 64
+    ext = np.concatenate([np.full(pad, y[0]), y, np.full(pad, y[-1])])
+    m = ext.size
+    nfft = 1 << (m - 1).bit_length()
+    ext = np.concatenate([ext, np.full(nfft - m, y[-1])])
+    k = round(shift)
+    if abs(shift - k) < 1e-9:
+        return np.roll(ext, k)[pad:pad + n]
+    spec = np.fft.rfft(ext)
+    w = 2.0 * np.pi * np.fft.rfftfreq(nfft)
+    spec *= np.exp(-1j * w * shift)
+    if nfft % 2 == 0:
+        spec[-1] = spec[-1].real * math.cos(np.pi * shift)
+    return np.fft.irfft(spec, nfft)[pad:pad + n]
 
 
 def loop_regressor(scenario: str, name: str, states: dict, nominal) -> np.ndarray:

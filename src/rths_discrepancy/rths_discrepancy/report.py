@@ -74,7 +74,7 @@ def _plots(out_dir, ctx, after_pred):
 
 
 def markdown(result, files) -> str:
-    """The report.md text."""
+    """Return the report.md text."""
     lines = [f"# Discrepancy report ({result['scenario']})", '',
              f"**Effect: `{result['effect']}`**", '']
     for name, par in result['parameters'].items():
@@ -82,8 +82,14 @@ def markdown(result, files) -> str:
         lines.append(f"- {name}: {sym} = {val:.5g} {par['unit']}")
     if 'unexplained_note' in result:
         lines.append(f"- {result['unexplained_note']}")
+    if 'alignment_s' in result:
+        lines += ['', f"Model-measurement alignment (a DAQ timing convention, fitted as a "
+                  f"nuisance parameter, not an effect): {1e3 * result['alignment_s']:+.4f} ms "
+                  f"= {result['alignment_samples']:+.2f} samples (band +-"
+                  f"{result['alignment_band_samples']:g} samples; a lag outside it is a "
+                  f"time_delay)."]
     lines += ['', '| held-out | NRMSE |', '|---|---|',
-              f"| before (nominal) | {result['nrmse_before']:.5f} |",
+              f"| before (nominal, aligned) | {result['nrmse_before']:.5f} |",
               f"| after (updated model, re-simulated) | {result['nrmse_after']:.5f} |",
               f"| noise floor | {result['nrmse_noise']:.5f} |", '',
               f"gap closed: {result['gap_closed']:.3f}", '', '## Where the model disagrees', '']

@@ -68,6 +68,12 @@ PAIR_TOP = 3
 #: record (a simulated plant without sensor noise) whose model agrees to round-off has
 #: nothing to explain, so the answer is 'none', not an effect fitted to round-off.
 ROUND_OFF = 1e-9
+#: Half-width of the model-measurement alignment band [samples]: how far apart the DAQ
+#: conventions of two labs can put the same sample (input held or interpolated over a step:
+#: 0.5; output read at the start or the end of the step, or one more step of converter
+#: delay: 1; one of each: 1.5).  The alignment is a nuisance parameter of every fit; only a
+#: delay outside this band (a real delay of 2 samples or more) is a ``time_delay``.
+ALIGN_SAMPLES = 1.5
 
 INPUT = {'specimen': 'base_accel', 'actuator': 'command'}
 OUTPUT = {'specimen': 'rel_disp', 'actuator': 'measured'}
@@ -87,23 +93,30 @@ class Context:
         self.n = self.y.size
         self.lib = fx.LIBRARY[scenario]
         ops = _OUTPUT_OPS[scenario]
-        self.out_eff = {k: v for k, v in model.effects.items() if k in ops}
+        self.out_eff = {k: v for k, v in model.effects.items() if k in ops and k != 'time_delay'}
+        self.base_delay = float(model.effects.get('time_delay', 0.0))
         core = models.with_effects(model, {})
         core.effects = {k: v for k, v in model.effects.items() if k not in ops}
         self.y_core = core.simulate(self.u, self.fs)[OUTPUT[scenario]]
-        self.y_nom = fx.apply_output_ops(scenario, self.y_core, self.out_eff, self.fs)
+        self.align_max = ALIGN_SAMPLES / self.fs
+        self.train, self.test = sg.block_masks(
+            self.n, max(10, 2 * int(round(self.n / self.fs))))
+        self._shifted = {}
+        self.nonlinear_out = scenario == 'actuator' and any(
+            k in self.out_eff for k in ('backlash', 'velocity_saturation'))
+        self.y_nom_raw = self.output({}, 0.0)
+        self.alignment = self.fit_alignment()
+        self.y_nom = self.output({}, self.alignment)
         self.b, self.a = model.linear_filter(self.fs)
         st = sg.states(self.y, self.fs, u=self.u)
         if scenario == 'actuator':  # load held over sample k acts from the end of sample k-1
             st = {k: (np.concatenate([v[:1], v[:-1]]) if k != 'fc' else v)
                   for k, v in st.items()}
-        st['u'] = self.u
+        st['u'] = fx.delay(self.u, self.alignment, self.fs)  # in the measurement's frame
         self.states = st
         self.sign = 1.0 if scenario == 'specimen' else -1.0
         self.sigma2 = max(sg.noise_variance(self.y - self.y_nom, self.fs),
                           (ROUND_OFF * float(np.std(self.y))) ** 2)
-        self.train, self.test = sg.block_masks(
-            self.n, max(10, 2 * int(round(self.n / self.fs))))
         self.scales = {'y_rms': float(np.std(self.y)), 'v_rms': float(np.std(st['v'])),
                        'v_max': float(np.max(np.abs(st['v'])))}
         self._cols = {}
@@ -115,19 +128,58 @@ class Context:
                                         + force_nl(st['x'], st['v']))
             self.sigma2_f = max(sg.noise_variance(self.e_r, self.fs),
                                 (ROUND_OFF * float(np.std(data['force']))) ** 2)
-        self.nonlinear_out = scenario == 'actuator' and any(
-            k in self.out_eff for k in ('backlash', 'velocity_saturation'))
 
     def column(self, name):
-        """Filtered regressor ``G[s phi]`` of a linear loop effect (cached)."""
+        """Return the filtered regressor ``G[s phi]`` of a linear loop effect (cached)."""
         if name not in self._cols:
             phi = fx.loop_regressor(self.scenario, name, self.states, self.model)
             self._cols[name] = lfilter(self.b, self.a, self.sign * phi)
         return self._cols[name]
 
-    def predict(self, params):
+    def core_shifted(self, tau):
+        """Nominal core response delayed by ``tau`` [s] (cached; band-limited delay)."""
+        key = round(float(tau) * self.fs, 6)
+        if key not in self._shifted:
+            if len(self._shifted) > 64:
+                self._shifted.clear()
+            self._shifted[key] = fx.delay(self.y_core, key / self.fs, self.fs)
+        return self._shifted[key]
+
+    def output(self, params, align):
+        """Model output with the output operators of ``params`` and the alignment ``align``.
+
+        The loop effects' contributions are added by :meth:`predict`; here only the
+        nominal core, delayed by the alignment (or by the ``time_delay`` of ``params``,
+        which then replaces it), and the output operators.
+        """
+        tau = self.base_delay + float(params.get('time_delay', align))
+        outs = {**self.out_eff, **{k: v for k, v in params.items()
+                                   if self.lib[k].kind == 'output' and k != 'time_delay'}}
+        return fx.apply_output_ops(self.scenario, self.core_shifted(tau), outs, self.fs)
+
+    def fit_alignment(self):
+        """Alignment [s] of the nominal model to the measurement, within +-``align_max``.
+
+        Least squares on the training blocks over a 0.25-sample grid, refined by a
+        bounded scalar search (the model-measurement lag of the DAQ conventions).
+        """
+        h = self.align_max
+        grid = np.linspace(-h, h, int(round(8 * ALIGN_SAMPLES)) + 1)
+
+        def cost(a):
+            return self.mse(self.output({}, a), self.train)
+
+        costs = [cost(a) for a in grid]
+        i = int(np.argmin(costs))
+        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+        res = optimize.minimize_scalar(cost, bounds=(lo, hi), method='bounded',
+                                       options={'xatol': 1e-3 / self.fs, 'maxiter': 25})
+        return float(res.x) if res.fun <= costs[i] else float(grid[i])
+
+    def predict(self, params, align=None):
         """Fast prediction of the model plus the effects ``params`` ({name: value})."""
-        y = self.y_core.copy()
+        align = self.alignment if align is None else align
+        y = self.core_shifted(self.base_delay + float(params.get('time_delay', align))).copy()
         for name, val in params.items():
             e = self.lib[name]
             if e.kind != 'loop':
@@ -138,7 +190,7 @@ class Context:
                 q = fx.loop_term_nonlinear(name, val, self.states, self.model)
                 y += lfilter(self.b, self.a, self.sign * q)
         outs = {**self.out_eff, **{k: v for k, v in params.items()
-                                   if self.lib[k].kind == 'output'}}
+                                   if self.lib[k].kind == 'output' and k != 'time_delay'}}
         return fx.apply_output_ops(self.scenario, y, outs, self.fs)
 
     def mse(self, pred, mask):
@@ -173,88 +225,118 @@ class Context:
         return 2 if self.force_rows else 1
 
 
-def _solve_linear(ctx, names_lin, pnl):
+def _solve_linear(ctx, names_lin, pnl, align=None, free_align=False):
     """Variable projection: linear parameters for fixed non-linear ones ``pnl``.
 
-    Returns (params, output prediction, restoring-force prediction or None).
+    ``align`` is the model-measurement alignment [s] (ignored when ``pnl`` holds a
+    time_delay, which replaces it).  The loop effects' columns are built from the
+    measured states, which already carry the measurement's timing, so only the
+    nominal part is shifted.  With ``free_align`` the alignment is refitted too,
+    linearised: a column ``-d/dt`` of the nominal part gives its increment.
+    Returns (params, output prediction, force prediction or None, alignment [s]).
     """
-    base = ctx.predict(pnl)
+    align = ctx.alignment if align is None else align
+    base = ctx.predict(pnl, align)
     base_f = None
     if ctx.force_rows:
         base_f = np.zeros(ctx.n)
         for n, p in pnl.items():
             base_f += ctx.psi(n, p)
-    if not names_lin:
-        return dict(pnl), base, base_f
-    cols = []
-    for n in names_lin:
-        if n == 'sensor_bias':
-            cols.append(np.ones(ctx.n))
-        else:
-            c = ctx.column(n)
-            if 'time_delay' in pnl:
-                c = fx.delay(c, pnl['time_delay'], ctx.fs)
-            cols.append(c)
+    free_align = free_align and 'time_delay' not in pnl
+    if not names_lin and not free_align:
+        return dict(pnl), base, base_f, align
+    cols = [np.ones(ctx.n) if n == 'sensor_bias' else ctx.column(n) for n in names_lin]
+    if free_align:
+        cols.append(-np.gradient(base, 1.0 / ctx.fs))
     cmat = np.column_stack(cols)
     tr = ctx.train
     wx = 1.0 / math.sqrt(ctx.sigma2)
     lhs = cmat[tr] * wx
     rhs = (ctx.y - base)[tr] * wx
     if ctx.force_rows:
-        fmat = np.column_stack([ctx.psi(n, 1.0) for n in names_lin])
+        fmat = np.column_stack([ctx.psi(n, 1.0) for n in names_lin] + (
+            [np.zeros(ctx.n)] if free_align else []))
         wf = 1.0 / math.sqrt(ctx.sigma2_f)
         lhs = np.vstack([lhs, fmat[tr] * wf])
         rhs = np.concatenate([rhs, (ctx.e_r - base_f)[tr] * wf])
     theta = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
-    params = {**pnl, **{n: float(t) for n, t in zip(names_lin, theta)}}
+    if free_align:
+        step = float(np.clip(theta[-1], -ctx.align_max - align, ctx.align_max - align))
+        theta = theta.copy()
+        theta[-1] = step
+        align = align + step
+    params = {**pnl, **{n: float(t) for n, t in zip(names_lin, theta[:len(names_lin)],
+                                                        strict=True)}}
     pred_f = base_f + fmat @ theta if ctx.force_rows else None
     nonlinear_out = ctx.nonlinear_out or any(
         n in pnl for n in ('backlash', 'velocity_saturation')) and ctx.scenario == 'actuator'
     if nonlinear_out and any(ctx.lib[n].kind == 'loop' for n in names_lin):
-        return params, ctx.predict(params), pred_f
-    return params, base + cmat @ theta, pred_f
+        return params, ctx.predict(params, align), pred_f, align
+    return params, base + cmat @ theta, pred_f, align
+
+
+def _search_1d(cost, lo, hi, grid, k=20, maxiter=20):
+    """Grid of ``k`` points on [lo, hi] (``grid``: linspace or geomspace), bounded refinement."""
+    g = grid(lo, hi, k)
+    costs = [cost(p) for p in g]
+    i = int(np.argmin(costs))
+    a, b = g[max(i - 1, 0)], g[min(i + 1, g.size - 1)]
+    res = optimize.minimize_scalar(cost, bounds=(a, b), method='bounded',
+                                   options={'xatol': 1e-4 * (b - a) + 1e-12, 'maxiter': maxiter})
+    return (float(res.x), float(res.fun)) if res.fun <= costs[i] else (float(g[i]), costs[i])
+
+
+def _nelder_mead(cost, p0, bounds, maxiter=40):
+    """Bounded Nelder-Mead polish of ``p0`` (steps relative to the bounds' widths)."""
+    lo = np.array([b[0] for b in bounds])
+    hi = np.array([b[1] for b in bounds])
+    span = hi - lo
+    p0 = np.asarray(p0, float)
+    c0 = cost(p0)
+    res = optimize.minimize(lambda z: cost(np.clip(p0 + z * span, lo, hi)), np.zeros(p0.size),
+                            method='Nelder-Mead',
+                            options={'initial_simplex': np.vstack([
+                                np.zeros(p0.size), 0.06 * np.eye(p0.size)]),
+                                'xatol': 1e-4, 'fatol': 0.0, 'maxiter': maxiter})
+    return np.clip(p0 + res.x * span, lo, hi) if res.fun < c0 else p0
 
 
 def fit_candidate(ctx, names):
-    """Fit the effects ``names`` on the training blocks; return (params, pred, pred_force)."""
+    """Fit the effects ``names`` and the alignment on the training blocks.
+
+    Returns (params, pred, pred_force, alignment [s]); with a time_delay the
+    alignment is 0 (the delay takes its place).  Linear parameters and the
+    (linearised) alignment increment by least squares, non-linear parameters by
+    a grid and a bounded search; then two Gauss-Newton steps of the alignment
+    and a final exact solve.
+    """
     lin = [n for n in names if ctx.lib[n].linear]
     nl = [n for n in names if not ctx.lib[n].linear]
-    if not nl:
-        return _solve_linear(ctx, lin, {})
-    bounds = [fx.nonlinear_bounds(ctx.scenario, n, ctx.scales) for n in nl]
-
-    def grid(n, lo, hi, k):
-        return np.linspace(lo, hi, k) if n == 'time_delay' else np.geomspace(lo, hi, k)
+    free = 'time_delay' not in nl
+    a0 = ctx.alignment if free else 0.0
 
     def cost(p):
-        _, pred, pred_f = _solve_linear(ctx, lin, dict(zip(nl, p)))
-        return ctx.score(pred, pred_f, ctx.train)
+        out = _solve_linear(ctx, lin, dict(zip(nl, p, strict=True)), a0, free_align=free)
+        return ctx.score(out[1], out[2], ctx.train)
 
+    best = []
     if len(nl) == 1:
-        g = grid(nl[0], *bounds[0], 20)
-        costs = [cost([p]) for p in g]
-        i = int(np.argmin(costs))
-        lo, hi = g[max(i - 1, 0)], g[min(i + 1, g.size - 1)]
-        res = optimize.minimize_scalar(lambda p: cost([p]), bounds=(lo, hi), method='bounded',
-                                       options={'xatol': 1e-4 * (hi - lo) + 1e-12,
-                                                'maxiter': 20})
-        best = [res.x] if res.fun <= costs[i] else [g[i]]
-    else:
-        grids = [grid(n, lo, hi, 7) for n, (lo, hi) in zip(nl, bounds)]
-        pts = list(itertools.product(*grids))
+        lo, hi = fx.nonlinear_bounds(ctx.scenario, nl[0], ctx.scales)
+        g = np.linspace if nl[0] == 'time_delay' else np.geomspace
+        best = [_search_1d(lambda q: cost([q]), lo, hi, g)[0]]
+    elif nl:
+        bounds = [fx.nonlinear_bounds(ctx.scenario, n, ctx.scales) for n in nl]
+        grids = [np.linspace if n == 'time_delay' else np.geomspace for n in nl]
+        pts = list(itertools.product(
+            *[g(lo, hi, 7) for g, (lo, hi) in zip(grids, bounds, strict=True)]))
         costs = [cost(p) for p in pts]
-        p0 = np.array(pts[int(np.argmin(costs))])
-        span = np.array([hi - lo for lo, hi in bounds])
-        res = optimize.minimize(lambda z: cost(np.clip(p0 + z * span, [b[0] for b in bounds],
-                                                        [b[1] for b in bounds])),
-                                np.zeros(len(nl)), method='Nelder-Mead',
-                                options={'initial_simplex': np.vstack([
-                                    np.zeros(len(nl)), 0.06 * np.eye(len(nl))]),
-                                    'xatol': 1e-4, 'fatol': 0.0, 'maxiter': 40})
-        best = np.clip(p0 + res.x * span, [b[0] for b in bounds], [b[1] for b in bounds])
-        if res.fun > min(costs):
-            best = p0
-    return _solve_linear(ctx, lin, {n: float(p) for n, p in zip(nl, best)})
+        best = list(_nelder_mead(cost, pts[int(np.argmin(costs))], bounds))
+    pnl = {n: float(p) for n, p in zip(nl, best, strict=True)}
+    align = a0
+    if free:
+        for _ in range(2):
+            align = _solve_linear(ctx, lin, pnl, align, free_align=True)[3]
+    return _solve_linear(ctx, lin, pnl, align)
 
 
 def _label(names):
@@ -275,8 +357,8 @@ def select(ctx, progress=None):
     fits = {}
 
     def add(names):
-        params, pred, pred_f = fit_candidate(ctx, names)
-        fits[_label(names)] = (params, pred, ctx.score(pred, pred_f, ctx.test))
+        params, pred, pred_f, align = fit_candidate(ctx, names)
+        fits[_label(names)] = (params, pred, ctx.score(pred, pred_f, ctx.test), align)
 
     for name in fx.EFFECT_NAMES:
         add([name])
@@ -293,11 +375,14 @@ def select(ctx, progress=None):
     best2 = min(pairs, key=lambda k: fits[k][2])
     s2 = fits[best2][2]
     # information criterion on the held-out score: n ln(score) + p ln(n) (BIC form); the
-    # nominal model ('none') has no parameters.  A more complex answer must lower it.
+    # nominal model ('none') has one parameter, the alignment, which every candidate also
+    # fits except one with a time_delay (the delay takes its place).  A more complex
+    # answer must lower it.
     n_test = int(ctx.test.sum())
-    ic = {k: n_test * math.log(max(v[2], 1e-300)) + len(v[0]) * math.log(n_test)
+    ic = {k: n_test * math.log(max(v[2], 1e-300))
+          + (len(v[0]) + ('time_delay' not in v[0])) * math.log(n_test)
           for k, v in fits.items()}
-    ic_none = n_test * math.log(max(s0, 1e-300))
+    ic_none = n_test * math.log(max(s0, 1e-300)) + math.log(n_test)
     choice, s_c = best1, s1
     if (s1 - s2 > max(PAIR_REL_GAIN * gap, MIN_GAIN) and s1 - s2 > PAIR_REMAINING * (s1 - floor)
             and ic[best2] < ic[best1]):
@@ -366,11 +451,15 @@ def run_discrepancy(scenario, data, model=None, out_dir=None, rng=None, progress
     before = sg.nrmse(ctx.y, ctx.y_nom, te)
     if decision in ('none', 'unexplained'):
         added = {}
+        align = ctx.alignment
         after_pred = ctx.y_nom
     else:
-        added = sel['fits'][decision][0]
+        added = dict(sel['fits'][decision][0])
+        align = sel['fits'][decision][3]
+        if 'time_delay' in added:   # the updated model's delay is the whole delay
+            added['time_delay'] += ctx.base_delay
         updated = models.with_effects(model, added)
-        after_pred = updated.simulate(ctx.u, ctx.fs)[OUTPUT[scenario]]
+        after_pred = fx.delay(updated.simulate(ctx.u, ctx.fs)[OUTPUT[scenario]], align, ctx.fs)
     after = sg.nrmse(ctx.y, after_pred, te)
     den = before ** 2 - noise ** 2
     gap_closed = (before ** 2 - after ** 2) / den if den > 0 else 0.0
@@ -379,13 +468,18 @@ def run_discrepancy(scenario, data, model=None, out_dir=None, rng=None, progress
         'scenario': scenario,
         'effect': decision,
         'parameters': {k: {lib[k].param: v, 'unit': lib[k].unit} for k, v in added.items()},
+        'alignment_s': float(align),
+        'alignment_samples': float(align * ctx.fs),
+        'alignment_band_samples': ALIGN_SAMPLES,
         'nrmse_before': before,
+        'nrmse_before_unaligned': sg.nrmse(ctx.y, ctx.y_nom_raw, te),
         'nrmse_after': after,
         'nrmse_noise': noise,
         'gap_closed': float(gap_closed),
         'candidates': {k: sg.nrmse(ctx.y, v[1], te) for k, v in sel['fits'].items()},
         'candidates_score': {k: v[2] for k, v in sel['fits'].items()},
         'candidates_parameters': {k: v[0] for k, v in sel['fits'].items()},
+        'candidates_alignment_s': {k: v[3] for k, v in sel['fits'].items()},
         'best_candidate': sel['best'],
         'best_candidate_gap_closed_fast': sel['closure_fast'],
         'information_criterion': sel['ic'],
@@ -402,6 +496,8 @@ def run_discrepancy(scenario, data, model=None, out_dir=None, rng=None, progress
         result['unexplained_note'] = (
             f"best candidate {sel['best']} closes only {100 * sel['closure_fast']:.0f} % of the "
             f'reducible gap (< {100 * NAME_CLOSURE:.0f} %): an effect outside the library')
+    say(f'alignment {1e3 * align:+.3f} ms ({align * ctx.fs:+.2f} samples; the DAQ-convention '
+        f'band is +-{ALIGN_SAMPLES:g} samples)')
     say(f"effect: {decision}  NRMSE held-out {before:.4f} -> {after:.4f} "
         f'(noise {noise:.4f}), gap closed {gap_closed:.2f}')
     if out_dir is not None:

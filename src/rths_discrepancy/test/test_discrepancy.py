@@ -201,8 +201,8 @@ def test_specimen_record_at_256_hz(hidden):
 
     The physics is simulated at 1024 Hz (4 sub-steps), then every 4th sample is
     kept (the 0-10 Hz BLWN input needs no anti-alias filter at 256 Hz), so the
-    workflow's 256 Hz discretisation is not the generator's.  The 5 ms time delay
-    is 1.28 samples at 256 Hz.
+    workflow's 256 Hz discretisation is not the generator's.  The time delay of
+    10 samples at 1024 Hz is 2.5 samples at 256 Hz, outside the alignment band.
     """
     data, truth = selftest.make_record('specimen', hidden, 8, duration_s=SHORT_S)
     data = {k: v[::4] for k, v in data.items()}
@@ -263,3 +263,64 @@ def test_bench_cli_summary(tmp_path, monkeypatch):
                                                                 'unexplained': 1}
     assert summary['false_effects_on_controls'] == 0
     assert not summary['targets_met']
+
+
+def test_fractional_delay_is_band_limited_and_exact_for_whole_samples():
+    fs = 1024.0
+    t = np.arange(4096) / fs
+    env = np.exp(-((t - 2.0) / 0.5) ** 2)
+    y = np.sin(2 * np.pi * 20.0 * t) * env
+    d = fx.delay(y, 3.0 / fs, fs)
+    np.testing.assert_allclose(d[3:], y[:-3], atol=1e-12)
+    tau = 0.37 / fs
+    want = np.sin(2 * np.pi * 20.0 * (t - tau)) * np.exp(-((t - tau - 2.0) / 0.5) ** 2)
+    assert np.max(np.abs(fx.delay(y, tau, fs) - want)[200:-200]) < 1e-6
+
+
+@pytest.mark.parametrize('scenario, convention, lag', [
+    ('specimen', 'other_input_hold', 0.4), ('specimen', 'other_output_instant', -1.0),
+    ('specimen', 'extra_converter_step', 1.0), ('actuator', 'other_output_instant', 1.0)])
+def test_daq_conventions_are_aligned_not_named(scenario, convention, lag):
+    """Issue 15: a record whose only difference is a DAQ timing convention is 'none'.
+
+    The alignment (a nuisance parameter of every fit) takes the convention's lag:
+    ZOH instead of interpolated input ~0.4-0.5 sample, the output read at the other
+    end of the step or one more converter step: 1 sample.
+    """
+    data, _ = selftest.make_record(scenario, [], 2, duration_s=SHORT_S, convention=convention)
+    res = run_discrepancy(scenario, data, plots=False)
+    assert res['effect'] == 'none'
+    assert res['alignment_samples'] == pytest.approx(lag, abs=0.15)
+    assert res['alignment_s'] == pytest.approx(res['alignment_samples'] / 1024.0)
+    assert res['nrmse_before'] < res['nrmse_before_unaligned']
+
+
+@pytest.mark.parametrize('samples, expected', [(1.0, 'none'), (2.0, 'time_delay')])
+def test_a_real_delay_of_two_samples_is_named(samples, expected):
+    data, _ = selftest.make_record('specimen', [f'_delay_samples:{samples}'], 3,
+                                   duration_s=SHORT_S)
+    res = run_discrepancy('specimen', data, plots=False)
+    assert res['effect'] == expected
+    if expected == 'time_delay':
+        assert res['parameters']['time_delay']['tau'] * 1024 == pytest.approx(samples, abs=0.1)
+    else:
+        assert res['alignment_samples'] == pytest.approx(samples, abs=0.1)
+
+
+def test_effect_under_another_convention_keeps_its_parameter():
+    data, truth = selftest.make_record('specimen', ['sensor_bias', 'coulomb_friction'], 4,
+                                       duration_s=SHORT_S, convention='extra_converter_step')
+    res = run_discrepancy('specimen', data, plots=False)
+    assert res['effect'] == 'coulomb_friction+sensor_bias'
+    assert res['parameters']['sensor_bias']['bias'] == pytest.approx(truth['sensor_bias'],
+                                                                     rel=0.15)
+    assert res['alignment_samples'] == pytest.approx(1.0, abs=0.15)
+
+
+def test_independent_simulator_record_is_named():
+    """One record of held-out set B (independent RK2 simulator, 1000 Hz, other conventions)."""
+    from rths_discrepancy import heldout
+    row = heldout.run_one(('B', 2))   # specimen Coulomb friction + sensor bias
+    assert row['expected'] == 'coulomb_friction+sensor_bias'
+    assert row['named'] == row['expected']
+    assert row['parameters']['F_c'] == pytest.approx(row['truth']['coulomb_friction'], rel=0.15)

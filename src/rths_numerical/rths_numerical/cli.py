@@ -7,14 +7,20 @@
 
 import json
 import os
-import sys
 
 from .files import atomic_open, save_figure
 
 
 def _progress(label):
+    """Return a ``(i, n)`` callback drawing a progress line (rths_common.progress)."""
+    from rths_common.progress import Progress
+
+    bar = Progress(0, label)
+
     def report(i, n):
-        print(f'{label}: {i}/{n}', file=sys.stderr, flush=True)
+        bar.update(i, n)
+        if i >= n:
+            bar.close()
     return report
 
 

@@ -271,6 +271,20 @@ class NumericalNode:
                      f'{self.stale} stale')
         return text
 
+    def finish_run(self, done: bool) -> int:
+        """After spinning: flush, log the summary, save history and timing; the exit code.
+
+        1 if the run failed (a bad measured force), 130 if a signal stopped it
+        before the last step (``done`` False), else 0.
+        """
+        ns.flush([self.pub, self.status_pub])
+        self.log.info(self.summary())
+        self.save_history()
+        self.save_timing()
+        if self.failed:
+            return 1
+        return 0 if done else 130
+
     def save_history(self):
         path = self.own['history_out']
         if path:
@@ -286,14 +300,7 @@ def main(argv=None):
         shell = NumericalNode()
         executor = ns.make_executor(shell.own['executor'])
         done = ns.spin_until_done(shell.node, executor, lambda: shell.finished)
-        ns.flush([shell.pub, shell.status_pub])
-        shell.log.info(shell.summary())
-        shell.save_history()
-        shell.save_timing()
-        if shell.failed:
-            code = 1
-        elif not done:
-            code = 130  # stopped by a signal before the run ended
+        code = shell.finish_run(done)
     except ValueError as err:
         print(f'numerical_node: error: {ns.params_file_of(argv)}{err}', file=sys.stderr)
         code = 2

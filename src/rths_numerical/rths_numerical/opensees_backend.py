@@ -152,10 +152,99 @@ def linear_model_builder(model: LinearModel, interface_dofs):
             tag += 1
             ops.uniaxialMaterial('Elastic', tag, float(kq[i].sum()), float(cq[i].sum()))
             ops.element('zeroLength', tag, ground, i + 1, '-mat', tag, '-dir', 1)
-        nodes = list(range(1, n + 1))
         return {'interface': [(int(i) + 1, 1) for i in interface_dofs],
-                'dof_nodes': nodes, 'transform': S, 'system': 'FullGeneral'}
+                'dof_nodes': [(i, 1) for i in range(1, n + 1)], 'transform': S,
+                'system': 'FullGeneral'}
     return build
+
+
+class ScriptModel:
+    """What the substructure needs to know of a model built by a user script (one DOF).
+
+    The interface DOF is the script's ``interface_node``/``interface_dof``; it
+    is also the output DOF (the review's "2nd floor"); ``gamma`` is 1 when the
+    ground moves along it (``ground_dof``), else 0.
+    """
+
+    n = 1
+    interface_dofs = (0,)
+    output_dof = 0
+    has_external_force = False
+
+    def __init__(self, path, gamma=1.0):
+        """Name the model after its script."""
+        self.path = path
+        self.name = os.path.splitext(os.path.basename(path))[0]
+        self.gamma = np.array([float(gamma)])
+        self.dof_names = ['interface']
+
+
+def load_model_script(path):
+    """Import the user's model script at ``path``; return its ``build`` (ValueError if none)."""
+    import importlib.util as iu
+    if not os.path.isfile(path):
+        raise ValueError(f'parameter model = {path!r}: model script not found')
+    spec = iu.spec_from_file_location(f'rths_model_{abs(hash(path))}', path)
+    module = iu.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except Exception as err:  # the user's code: report any failure as a bad model
+        raise ValueError(f'model script {path}: importing it failed: '
+                         f'{type(err).__name__}: {err}') from None
+    build = getattr(module, 'build', None)
+    if not callable(build):
+        raise ValueError(f'model script {path}: define a function build(ops) that builds the '
+                         'model and returns {"interface_node": N, "interface_dof": D} '
+                         '(README, "Your own OpenSees model")')
+    return build
+
+
+def script_builder(path):
+    """Return ``(builder, ground_dof)`` for the model script at ``path`` (checked once here)."""
+    build = load_model_script(path)
+    ops = import_opensees()
+
+    def builder(ops):
+        try:
+            out = build(ops)
+        except Exception as err:  # the user's code
+            raise ValueError(f'model script {path}: build(ops) failed: '
+                             f'{type(err).__name__}: {err}') from None
+        return _check_script_result(path, out, ops)
+    ops.wipe()
+    ground = builder(ops)['ground_dof']
+    ops.wipe()
+    return builder, ground
+
+
+def _check_script_result(path, out, ops):
+    """Validate what ``build(ops)`` returned; return the backend's spec."""
+    where = f'model script {path}: build(ops) must return'
+    if not isinstance(out, dict):
+        raise ValueError(f'{where} a dict with interface_node and interface_dof, '
+                         f'not {type(out).__name__}')
+    for key in ('interface_node', 'interface_dof'):
+        if not isinstance(out.get(key), int) or isinstance(out.get(key), bool):
+            raise ValueError(f'{where} an integer {key} (got {out.get(key)!r})')
+    node, dof = out['interface_node'], out['interface_dof']
+    if node not in ops.getNodeTags():
+        raise ValueError(f'{where} an existing interface_node: node {node} is not in the model '
+                         f'(nodes {sorted(ops.getNodeTags())})')
+    ndf = len(ops.nodeDisp(node))
+    ground = out.get('ground_dof', 1)
+    for key, value in (('interface_dof', dof), ('ground_dof', ground)):
+        if not isinstance(value, int) or not 1 <= value <= ndf:
+            raise ValueError(f'{where} {key} in 1..{ndf} (node {node} has {ndf} DOFs), '
+                             f'got {value!r}')
+    hinge = out.get('hinge')
+    if hinge is not None and (not isinstance(hinge, (tuple, list)) or len(hinge) != 2
+                              or hinge[0] not in ops.getEleTags()):
+        raise ValueError(f'{where} hinge as (element tag, section number) of an existing '
+                         f'element, got {hinge!r}')
+    return {'interface': [(node, dof)], 'dof_nodes': [(node, dof)], 'transform': np.eye(1),
+            'ndf': ndf, 'ground_dof': ground, 'hinge': hinge,
+            'hinge_length_m': float(out.get('hinge_length_m', 1.0)),
+            'system': out.get('system', 'FullGeneral')}
 
 
 class OpenSeesSubstructure(SteppedSubstructure):
@@ -187,7 +276,8 @@ class OpenSeesSubstructure(SteppedSubstructure):
         self.n_steps = int(self.ag.size)
         if self.n_steps < 2:
             raise ValueError('the ground motion has fewer than 2 steps; check duration_s')
-        if integrator == 'central_difference':
+        self._linear = isinstance(model, LinearModel)
+        if integrator == 'central_difference' and self._linear:
             check_central_difference_step(model.M, model.K, self.dt)
         self.ug = (integrate(self.ag, self.dt)[1] if ground_disp is None
                    else np.asarray(ground_disp, dtype=float))
@@ -197,9 +287,13 @@ class OpenSeesSubstructure(SteppedSubstructure):
         self.force_scale = float(force_scale)
         self.frame = interface_frame
         self._gi = model.gamma[self.iface]
-        ground = model.M @ model.gamma
-        if interface_frame == 'relative':
-            ground[self.iface] += self.force_scale * float(specimen_mass_kg) * self._gi
+        # the specimen's ground term P_I^E (relative frame), and for a linear model -M Gamma
+        self._specimen_ground = (self.force_scale * float(specimen_mass_kg) * self._gi
+                                 if interface_frame == 'relative' else np.zeros(len(self.iface)))
+        ground = np.zeros(model.n)
+        if self._linear:
+            ground = model.M @ model.gamma
+            ground[self.iface] += self._specimen_ground
         self._ground_load = -ground
         self._builder = builder
         self.reset()
@@ -209,21 +303,32 @@ class OpenSeesSubstructure(SteppedSubstructure):
         nodes = spec['dof_nodes']
         # a trailing 0: time at the last step may pass (n-1) dt by round-off; 0 from step n on
         ops.timeSeries('Path', 1, '-dt', self.dt, '-values', *self.ag.tolist(), 0.0)
-        ops.pattern('Plain', 1, 1)
-        for node, value in zip(nodes, S.T @ self._ground_load, strict=True):
-            if value:
-                ops.load(node, float(value))
+        ndf = spec.get('ndf', 1)
+        if self._linear:
+            ops.pattern('Plain', 1, 1)
+            for (node, _), value in zip(nodes, S.T @ self._ground_load, strict=True):
+                if value:
+                    ops.load(node, float(value))
+        else:   # a script model: every mass feels the ground acceleration along ground_dof
+            ops.pattern('UniformExcitation', 1, spec['ground_dof'], '-accel', 1)
+            if np.any(self._specimen_ground):
+                ops.pattern('Plain', 4, 1)
+                for (node, dof), value in zip(spec['interface'], self._specimen_ground,
+                                              strict=True):
+                    load = [0.0] * ndf
+                    load[dof - 1] = -float(value)
+                    ops.load(node, *load)
         if self.model.has_external_force:
             scale = self.model.external_force_scale(np.arange(self.n_steps) * self.dt)
             ops.timeSeries('Path', 3, '-dt', self.dt, '-values', *scale.tolist(), 0.0)
             ops.pattern('Plain', 3, 3)
-            for node, value in zip(nodes, S.T @ self.model.external_force, strict=True):
+            for (node, _), value in zip(nodes, S.T @ self.model.external_force, strict=True):
                 if value:
                     ops.load(node, float(value))
         ops.timeSeries('Constant', 2)
         ops.pattern('Plain', 2, 2)
         for i, (node, dof) in enumerate(spec['interface']):
-            ops.load(node, *([0.0] * spec.get('ndf', 1)))
+            ops.load(node, *([0.0] * ndf))
             ops.parameter(i + 1, 'loadPattern', 2, 'loadAtNode', node, dof)
 
     def reset(self):
@@ -252,6 +357,8 @@ class OpenSeesSubstructure(SteppedSubstructure):
         n, ns = self.model.n, self.n_steps
         self._k = 0
         self._q = np.zeros((ns + 1, n))
+        self._hinge = spec.get('hinge')
+        self._hinge_mk = np.zeros((ns, 2))    # section moment [N m], curvature [1/m]
         self._cmd = np.zeros((ns, self.n_interface))
         self._force = np.zeros((ns, self.n_interface))
         self._cmd[0] = self._command(np.zeros(n), 0)
@@ -280,8 +387,15 @@ class OpenSeesSubstructure(SteppedSubstructure):
         if ops.analyze(1, self.dt) != 0:
             raise RuntimeError(f'OpenSees analyze failed at step {k}')
         q = self._q[k + 1]
-        for j, node in enumerate(self._nodes):
-            q[j] = ops.nodeDisp(node, 1)
+        for j, (node, dof) in enumerate(self._nodes):
+            q[j] = ops.nodeDisp(node, dof)
+        if not np.all(np.isfinite(q)) or np.max(np.abs(q)) > 1e6:
+            raise RuntimeError(f'OpenSees model diverged at step {k} (|u| = {np.max(np.abs(q))}): '
+                               'with CentralDifference every DOF needs a mass and dt < 2/omega_max')
+        if self._hinge is not None:
+            ele, sec = self._hinge
+            self._hinge_mk[k] = (ops.eleResponse(ele, 'section', sec, 'force')[-1],
+                                 ops.eleResponse(ele, 'section', sec, 'deformation')[-1])
         self._force[k] = f
         self._k = k + 1
         cmd = self._command(self._S @ q if not self._iface_in_u else q, k + 1)
@@ -319,7 +433,12 @@ class OpenSeesSubstructure(SteppedSubstructure):
             prev = np.concatenate([[0.0], d[:-1, out]])
             acc = ((d[1:, out] - 2 * d[:-1, out] + prev[:-1]) / self.dt ** 2)[:k]
         d = d[:k]
+        extra = {}
+        if self._hinge is not None:
+            extra = {'hinge_moment': self._hinge_mk[:k, 0].copy(),
+                     'hinge_rotation': self._hinge_mk[:k, 1] * self._spec['hinge_length_m']}
         return {
+            **extra,
             'time': np.arange(k) * self.dt,
             'ground_accel': self.ag[:k].copy(),
             'ground_disp': self.ug[:k].copy(),

@@ -51,7 +51,9 @@ key                meaning                                                   def
 backend            'builtin' (this package's integrators) or 'opensees'      'builtin'
                    (OpenSeesPy, optional: :mod:`.opensees_backend`)
 model              'sdof', 'building2story' (16-DOF), 'silva2020_case1'..4   'sdof'
-                   (benchmark, :mod:`.silva2020`) or a model YAML path
+                   (benchmark, :mod:`.silva2020`) or a model YAML path;
+                   opensees also: an OpenSeesPy model script (.py path, or a
+                   name in config/models/, e.g. 'frame-steel01')
 integrator         builtin: 'cr', 'kr_alpha', 'newmark', 'central_difference' 'cr' /
                    opensees: 'central_difference' or 'newmark'               'central_diff..'
 rho_inf            KR-alpha spectral radius at infinity, 0..1                0.5
@@ -266,6 +268,22 @@ def build_model(params) -> LinearModel:
     raise ValueError(f'parameter model = {name!r}: use sdof, building2story or a .yaml path')
 
 
+def model_script_path(name: str):
+    """Return the OpenSeesPy model script ``name`` names, or None for other models.
+
+    A ``.py`` path, or a name such as ``frame-steel01`` for
+    ``$RTHS_ROOT/config/models/frame_steel01.py`` (the scripts shipped in config/).
+    """
+    import os
+    if name.endswith('.py'):
+        return name
+    if name in ('sdof', 'building2story', 'excitation') or name.endswith(('.yaml', '.yml')):
+        return None
+    shipped = os.path.join(os.environ.get('RTHS_ROOT', '.'), 'config', 'models',
+                           name.replace('-', '_') + '.py')
+    return shipped if os.path.isfile(shipped) else None
+
+
 def make_substructure(params: dict) -> SteppedSubstructure:
     """Build the substructure the parameters describe (module docstring).
 
@@ -291,7 +309,19 @@ def make_substructure(params: dict) -> SteppedSubstructure:
     backend = str(params.get('backend', 'builtin'))
     if backend not in BACKENDS:
         raise ValueError(f'parameter backend = {backend!r}: use {" or ".join(BACKENDS)}')
-    model = build_model(params)
+    script = model_script_path(str(params.get('model', DEFAULTS['model'])))
+    if script and backend != 'opensees':
+        raise ValueError(f'parameter model = {params["model"]!r} is an OpenSeesPy model script: '
+                         'set backend: opensees')
+    if script and params.get('interface_dofs') is not None:
+        raise ValueError('parameter interface_dofs: a model script names its interface itself '
+                         '(interface_node, interface_dof)')
+    if script:
+        from .opensees_backend import ScriptModel, script_builder
+        builder, ground_dof = script_builder(script)
+        model = ScriptModel(script, gamma=1.0 if ground_dof == 1 else 0.0)
+    else:
+        model = build_model(params)
     integ = str(params.get('integrator') or
                 ('cr' if backend == 'builtin' else 'central_difference'))
     if backend == 'builtin' and integ not in INTEGRATORS:
@@ -309,7 +339,11 @@ def make_substructure(params: dict) -> SteppedSubstructure:
     duration = None if duration in (None, 0, 0.0) else _num(params, 'duration_s')
     dt = 1.0 / fs
     if record == 'harmonic':
-        f_h = float(params.get('harmonic_freq_hz') or model.modes()[0][0])
+        f_h = params.get('harmonic_freq_hz')
+        if not f_h and script:
+            raise ValueError('parameter harmonic_freq_hz: give it for a model script (rths '
+                             'cannot compute the modes of an OpenSees model)')
+        f_h = float(f_h or model.modes()[0][0])
         if not 0 < f_h < fs / 2:
             raise ValueError(f'parameter harmonic_freq_hz = {f_h} must lie in (0, fs_hz/2)')
         t = np.arange(int(round((duration or 10.0) * fs))) * dt
@@ -337,6 +371,8 @@ def make_substructure(params: dict) -> SteppedSubstructure:
     mass = _num(params, 'specimen_mass_kg', allow_zero=True)
     if backend == 'opensees':
         from .opensees_backend import OpenSeesSubstructure, linear_model_builder
-        builder = linear_model_builder(model, model.interface_dofs if iface is None else iface)
+        if not script:
+            builder = linear_model_builder(model, model.interface_dofs if iface is None
+                                           else iface)
         return OpenSeesSubstructure(builder, model, ag, dt, integ, iface, fscale, frame, mass, ug)
     return NumericalSubstructure(model, ag, dt, integ, rho, iface, fscale, frame, mass, ug)

@@ -1,0 +1,203 @@
+"""Composed layout: the bridge, compensator and numerical nodes in one process, one executor.
+
+``ros2 run rths_bringup container --ros-args --params-file bridge.yaml
+--params-file compensator.yaml --params-file numerical.yaml``
+
+The ROS 2 composition convention with the project's own node classes: each
+node keeps its package, class, name, parameters (a params file is keyed by
+node name, so the three files given together reach their own nodes), topics
+and lifecycle services; the container constructs them in one process
+(numerical first, so the chain's readers exist before the bridge and the
+compensator wait for them) and spins the three on one executor.  In realtime
+the bridge's ticks drive that spin loop: it is the clock of the process.
+
+The run ends when the numerical node finishes (exit 0), when the bridge's
+safety supervisor stopped the actuator (exit 3), on SIGINT/SIGTERM (128 +
+the signal, after every node has flushed and saved what it keeps), or when the
+numerical node failed (exit 1); bad parameters exit 2 naming the node and its
+params file.  The last line names the node that ended the run
+(``container: ended by NODE ...``), which the launcher reports.
+
+``--tee-fd N`` (given by the launcher with a bag): every message the three
+nodes publish on the recorded topics is also copied into the pipe ``N``
+(:mod:`rths_bringup.tee`) for the recorder process, so the bag holds every
+step and recording never shares this process's executor.  The queue in front
+of the pipe holds the whole run (``TEE_RECORDS_PER_STEP`` records a step);
+records beyond it are dropped and counted, and the run then says
+``BAG INCOMPLETE``.
+
+Realtime recipe (parameters of the bridge: ``rt_priority``, ``cpus``, ``gc``):
+SCHED_FIFO for every thread of the process (a warning and normal scheduling
+where refused), memory locked (``mlockall``; refused: a warning), the garbage
+collector frozen after start-up (:func:`rths_common.node_support.tune_process`).
+"""
+
+import argparse
+import ctypes
+import sys
+
+import rclpy
+
+from rths_common import node_support as ns
+
+EXIT_FAILED = 1
+EXIT_BAD_PARAMS = 2
+EXIT_SAFETY_STOP = 3
+#: Records the recording tee queues per loop step, at most (3 loop messages, 3 statuses,
+#: the specimen channels), plus slack: the queue is sized for the whole run.
+TEE_RECORDS_PER_STEP = 8
+TEE_SLACK_RECORDS = 100_000
+_MCL_CURRENT, _MCL_FUTURE = 1, 2
+
+
+def parse_args(argv) -> argparse.Namespace:
+    """Parse the container's own options (everything outside ``--ros-args``)."""
+    from rclpy.utilities import remove_ros_args
+
+    p = argparse.ArgumentParser(prog='container', description=__doc__.split('\n')[0])
+    p.add_argument('--tee-fd', type=int, default=-1,
+                   help='pipe to copy every recorded message into (the recorder reads it)')
+    return p.parse_args(remove_ros_args(args=list(argv))[1:])
+
+
+def params_files(argv) -> list:
+    """Return the ``--params-file`` paths of ``argv``."""
+    args = list(argv)
+    return [args[i + 1] for i, a in enumerate(args[:-1]) if a == '--params-file']
+
+
+def params_file_of(argv, node_name: str) -> str:
+    """``'params file PATH: '`` of the file with a ``node_name`` section ('' if none)."""
+    import yaml
+
+    for path in params_files(argv):
+        try:
+            with open(path) as f:
+                if node_name in (yaml.safe_load(f) or {}):
+                    return f'params file {path}: '
+        except (OSError, ValueError):
+            continue
+    return ''
+
+
+def lock_memory() -> str:
+    """``mlockall(MCL_CURRENT | MCL_FUTURE)``: no page fault in the step path; describe it."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) == 0:
+        return 'memory locked'
+    import os
+    return f'memory not locked (mlockall refused: {os.strerror(ctypes.get_errno())})'
+
+
+def tee_publishers(shells, fd: int, n_steps: int):
+    """Wrap every recorded publisher of ``shells`` in a tee to ``fd``; return the Tee."""
+    from rths_bringup.tee import Tee, TeePublisher, enlarge_pipe
+
+    enlarge_pipe(fd)
+    tee = Tee(fd, capacity=TEE_RECORDS_PER_STEP * n_steps + TEE_SLACK_RECORDS)
+    for shell in shells:
+        for attr in ('pub', 'status_pub', 'specimen_pub', 'coef_pub'):
+            publisher = getattr(shell, attr, None)
+            if publisher is not None:
+                setattr(shell, attr, TeePublisher(publisher, tee))
+    return tee
+
+
+class Container:
+    """The three loop nodes of a run, constructed in this process."""
+
+    def __init__(self, argv):
+        from rths_actuator_bridge.node import BridgeNode
+        from rths_compensator.node import CompensatorNode
+        from rths_numerical.node import NumericalNode
+
+        self.shells = {}
+        # numerical first: it subscribes to the measurements the bridge waits to be read
+        for name, cls in (('numerical', NumericalNode), ('bridge', BridgeNode),
+                          ('compensator', CompensatorNode)):
+            try:
+                self.shells[name] = cls()
+            except ValueError as err:
+                raise ValueError(f'{name} node: {params_file_of(argv, name)}{err}') from None
+        self.numerical = self.shells['numerical']
+        self.bridge = self.shells['bridge']
+        self.compensator = self.shells['compensator']
+        self.log = self.bridge.node.get_logger().get_child('container')
+        self.tee = None
+
+    @property
+    def nodes(self) -> list:
+        """The rclpy nodes of the three shells."""
+        return [shell.node for shell in self.shells.values()]
+
+    def done(self) -> bool:
+        """Return True once the numerical node finished (or failed) or the bridge stopped."""
+        return self.numerical.finished or self.bridge.stopped
+
+    def tune(self) -> str:
+        """Realtime: the bridge's latency settings for the whole process, memory locked."""
+        if not self.bridge.realtime:
+            return 'lock-step: normal scheduling'
+        text = ns.tune_process(*ns.tuning(self.bridge.own, 'bridge'))
+        return f'{text}, {lock_memory()}'
+
+    def run(self) -> int:
+        """Spin the three nodes until the run is over; finish each; the exit code."""
+        executor = ns.make_executor(self.bridge.own['executor'])
+        self.log.info(f'composed: {", ".join(self.shells)} in one process on one '
+                      f"{self.bridge.own['executor']} executor; {self.tune()}")
+        finished = self.bridge.spin(executor, self.nodes, self.done)
+        signum = None if finished else ns.STOP_SIGNAL['signum']
+        self.numerical.finish_run(self.numerical.finished)
+        self.compensator.finish_run()
+        self.bridge.finish_run()
+        self.close_tee()
+        if self.bridge.stopped:
+            print('container: ended by bridge (exit code 3: safety stop)', flush=True)
+            return EXIT_SAFETY_STOP
+        if self.numerical.failed:
+            print('container: ended by numerical (exit code 1: the run failed)', flush=True)
+            return EXIT_FAILED
+        if signum is not None:
+            print(f'container: ended by signal {signum}', flush=True)
+            return 128 + signum
+        print('container: ended by numerical (run finished)', flush=True)
+        return 0
+
+    def close_tee(self):
+        """Hand the last records to the recorder; say loudly if any were dropped."""
+        if self.tee is None:
+            return
+        stats = self.tee.close()
+        text = (f"recording tee: {stats['records']} message(s) to the recorder, "
+                f"{stats['dropped']} dropped, largest queue {stats['peak_queue']}")
+        if stats['dropped']:
+            self.log.error(f'{text}: BAG INCOMPLETE {stats["error"]}')
+        else:
+            self.log.info(text)
+
+
+def main(argv=None) -> int:
+    """Entry point of ``ros2 run rths_bringup container``."""
+    argv = list(sys.argv if argv is None else argv)
+    opts = parse_args(argv)
+    rclpy.init(args=argv)
+    container = None
+    try:
+        container = Container(argv)
+        if opts.tee_fd >= 0:
+            container.tee = tee_publishers(container.shells.values(), opts.tee_fd,
+                                           container.numerical.sub.n_steps)
+        return container.run()
+    except ValueError as err:
+        print(f'container: error: {err}', file=sys.stderr)
+        return EXIT_BAD_PARAMS
+    finally:
+        if container is not None:
+            container.bridge.bridge.close()
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,438 @@
+"""Live view: a Foxglove WebSocket server streaming the running loop at a display rate.
+
+``rths run|launch|replay ... --live [--port 8765]`` starts this module as its own
+process (``python -m rths_bringup.live``, niced), so it is never in the step
+path: it subscribes to the loop topics like any other reader (best effort,
+depth 1), keeps only what the display needs and forwards it to the
+``foxglove-sdk`` server on localhost:
+
+The server (subprotocol ``foxglove.sdk.v1``) sits behind :class:`SubprotocolBridge`,
+so clients that offer only the protocol's older name ``foxglove.websocket.v1``
+connect too.  What it streams:
+
+* the loop topics as their recorded CDR bytes with their ``ros2msg`` schemas
+  (``/rths/interface_displacement``, ``/rths/command``, ``/rths/measurement``,
+  ``/rths/status`` per node), each decimated to ``--rate`` (default 50 Hz);
+* ``/rths/live`` (JSON), the run's status at the same rate: step, target and
+  measured displacement, tracking error, force, deadline misses per node, the
+  bridge's safety state and ``run_state`` (``running``, then ``stopped`` when
+  the run ends and the server closes).
+
+The layout ``foxglove/rths_live.json`` (installed under
+``share/rths_bringup/foxglove``) plots target vs measured displacement, force,
+tracking error and deadline misses; :func:`layout` generates it.
+"""
+
+import argparse
+import asyncio
+from collections import deque
+import contextlib
+import json
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+from rths_common import topics
+
+#: Default WebSocket port of the live view (Foxglove's default).
+DEFAULT_PORT = 8765
+#: Default display rate [Hz] of every forwarded topic.
+DEFAULT_RATE_HZ = 50.0
+#: The run-status channel (JSON).
+LIVE_TOPIC = '/rths/live'
+#: JSON schema of :data:`LIVE_TOPIC` (units in the names: m, N).
+LIVE_SCHEMA = {
+    'type': 'object',
+    'properties': {
+        'step': {'type': 'integer'},
+        'time_s': {'type': 'number'},
+        'target_m': {'type': 'number'},
+        'measured_m': {'type': 'number'},
+        'tracking_error_m': {'type': 'number'},
+        'force_n': {'type': 'number'},
+        'deadline_misses': {'type': 'integer'},
+        'misses_by_node': {'type': 'object'},
+        'safety_state': {'type': 'integer'},
+        'fault': {'type': 'string'},
+        'run_state': {'type': 'string'},
+    },
+}
+READY_LINE = 'live view: serving'
+
+
+class Decimator:
+    """Let one message per key through every ``1 / rate_hz`` seconds."""
+
+    def __init__(self, rate_hz: float):
+        if not rate_hz > 0:
+            raise ValueError(f'--live-rate must be > 0 Hz, got {rate_hz}')
+        self.period_s = 1.0 / float(rate_hz)
+        self._next = {}
+
+    def due(self, key, now_s: float) -> bool:
+        """Return True (and restart the key's period) if ``key`` may pass at ``now_s``."""
+        due = self._next.get(key)
+        if due is not None and now_s < due:
+            return False
+        # keep the rate exact (no drift by the sample spacing), but never burst after a pause
+        late = due is None or now_s - due >= self.period_s
+        self._next[key] = (now_s if late else due) + self.period_s
+        return True
+
+
+class LiveState:
+    """The run's status from the loop messages: targets by step, misses, safety."""
+
+    def __init__(self, fs_hz: float = 0.0, keep_steps: int = 4096):
+        self.fs_hz = float(fs_hz or 0.0)
+        self.targets = {}
+        self._order = deque()
+        self._keep = keep_steps
+        self.misses = {}
+        self.safety_state = 0
+        self.fault = ''
+        self.measurement = None
+
+    def on_target(self, step: int, value: float):
+        """Remember the interface displacement (channel 0) of ``step``."""
+        self.targets[step] = value
+        self._order.append(step)
+        while len(self._order) > self._keep:
+            self.targets.pop(self._order.popleft(), None)
+
+    def on_status(self, node: str, misses: int, safety_state: int, fault: str):
+        """Take one node's LoopStatus (the bridge's safety state and fault are kept)."""
+        self.misses[node] = int(misses)
+        if node == 'bridge':
+            self.safety_state = int(safety_state)
+            self.fault = fault or self.fault
+
+    def on_measurement(self, step: int, displacement: float, force: float):
+        """Take the newest measurement (channel 0)."""
+        self.measurement = (step, displacement, force)
+
+    def record(self, run_state: str = 'running') -> dict:
+        """Return the ``/rths/live`` message (fields of :data:`LIVE_SCHEMA`)."""
+        out = {'deadline_misses': sum(self.misses.values()), 'misses_by_node': dict(self.misses),
+               'safety_state': self.safety_state, 'fault': self.fault, 'run_state': run_state}
+        if self.measurement is not None:
+            step, measured, force = self.measurement
+            out.update(step=step, measured_m=measured, force_n=force)
+            if self.fs_hz:
+                out['time_s'] = step / self.fs_hz
+            target = self.targets.get(step)
+            if target is not None:
+                out.update(target_m=target, tracking_error_m=target - measured)
+        return out
+
+
+#: The subprotocol the foxglove-sdk server speaks, and its older name (same protocol).
+SDK_SUBPROTOCOL, LEGACY_SUBPROTOCOL = 'foxglove.sdk.v1', 'foxglove.websocket.v1'
+
+
+def rewrite_handshake(head: bytes, old: str, new: str) -> tuple:
+    """Return ``(head, changed)`` with ``old`` replaced by ``new`` in Sec-WebSocket-Protocol.
+
+    Only when the header offers ``old`` and not ``new`` (a client that offers
+    both is left alone).  The accept key depends on Sec-WebSocket-Key only, so
+    the handshake stays valid.
+    """
+    lines = head.split(b'\r\n')
+    for i, text in enumerate(lines):
+        name, sep, value = text.partition(b':')
+        if sep and name.strip().lower() == b'sec-websocket-protocol':
+            offered = [v.strip() for v in value.decode('latin-1').split(',')]
+            if old in offered and new not in offered:
+                offered = [new if v == old else v for v in offered]
+                lines[i] = name + b': ' + ', '.join(offered).encode('latin-1')
+                return b'\r\n'.join(lines), True
+    return head, False
+
+
+class SubprotocolBridge:
+    """Accept clients that offer only ``foxglove.websocket.v1`` (older Foxglove, Lichtblick).
+
+    The foxglove-sdk server answers HTTP 400 to them although the protocol is
+    the same under its new name ``foxglove.sdk.v1``.  This TCP relay listens on
+    the user's port, renames the subprotocol in the handshake (request and
+    answer) when a client offers only the old name, and copies every other byte
+    between the client and the server on its private port.
+    """
+
+    def __init__(self, host: str, port: int, target_port: int):
+        self.target_port = target_port
+        self.loop = asyncio.new_event_loop()
+        started = threading.Event()
+        self.error = None
+
+        async def start():
+            try:
+                self.server = await asyncio.start_server(self._client, host, port)
+            except OSError as err:
+                self.error = err
+            started.set()
+
+        self.thread = threading.Thread(target=self._run, args=(start,), daemon=True)
+        self.thread.start()
+        started.wait()
+        if self.error is not None:
+            raise self.error
+        self.port = self.server.sockets[0].getsockname()[1]
+
+    def _run(self, start):
+        self.loop.run_until_complete(start())
+        self.loop.run_forever()
+
+    async def _client(self, reader, writer):
+        try:
+            head = await reader.readuntil(b'\r\n\r\n')
+            head, legacy = rewrite_handshake(head, LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL)
+            up_reader, up_writer = await asyncio.open_connection('127.0.0.1', self.target_port)
+            up_writer.write(head)
+            answer = await up_reader.readuntil(b'\r\n\r\n')
+            if legacy:
+                answer, _ = rewrite_handshake(answer, SDK_SUBPROTOCOL, LEGACY_SUBPROTOCOL)
+            writer.write(answer)
+            await asyncio.gather(self._pipe(reader, up_writer), self._pipe(up_reader, writer))
+        except (OSError, asyncio.IncompleteReadError, asyncio.LimitOverrunError):
+            pass
+        finally:
+            writer.close()
+
+    @staticmethod
+    async def _pipe(src, dst):
+        try:
+            while data := await src.read(65536):
+                dst.write(data)
+                await dst.drain()
+        except OSError:
+            pass
+        finally:
+            dst.close()
+
+    def stop(self):
+        """Close the listening socket and every relayed connection."""
+        async def close():
+            self.server.close()
+            for task in asyncio.all_tasks():
+                if task is not asyncio.current_task():
+                    task.cancel()
+        asyncio.run_coroutine_threadsafe(close(), self.loop).result(5)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(5)
+
+
+def layout() -> dict:
+    """Return the Foxglove layout of the live view (plots of the ``/rths/live`` channel)."""
+    from foxglove import layouts as fl
+
+    def plot(title, *series):
+        paths = [fl.PlotSeries(value=f'{LIVE_TOPIC}.{field}', label=label, enabled=True,
+                               timestamp_method='receiveTime') for field, label in series]
+        return fl.SplitItem(content=fl.PlotPanel(title=title, config=fl.PlotConfig(
+            paths=paths, show_legend=True, x_axis_val='timestamp', time_window_mode='sliding',
+            following_view_width=20.0)))
+
+    content = fl.SplitContainer(direction='column', items=[
+        plot('target vs measured displacement [m]', ('target_m', 'target'),
+             ('measured_m', 'measured')),
+        plot('measured force [N]', ('force_n', 'force')),
+        plot('tracking error (target - measured) [m]', ('tracking_error_m', 'error')),
+        plot('deadline misses', ('deadline_misses', 'misses (all nodes)')),
+    ])
+    return json.loads(fl.Layout(content=content).to_json())
+
+
+def layout_path() -> Path:
+    """Return the installed layout file (the source tree's when not installed)."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        path = Path(get_package_share_directory('rths_bringup')) / 'foxglove' / 'rths_live.json'
+        if path.is_file():
+            return path
+    except Exception:  # noqa: BLE001 - not installed: the source tree's copy
+        pass
+    return Path(__file__).resolve().parents[1] / 'foxglove' / 'rths_live.json'
+
+
+def _status_fields(data: bytes) -> tuple:
+    """Return ``(node, deadline_misses, safety_state, fault)`` of a LoopStatus's CDR."""
+    from rths_common import cdr
+
+    r = cdr._Reader(data)
+    r.unpack(cdr._TIME)
+    r.string()                                   # header.frame_id
+    node = r.string()
+    r.align(8)
+    r.unpack(cdr._STATUS_NUMBERS)                # step, 3 timings, deadline_missed
+    r.align(8)
+    misses, state = r.unpack(cdr._STATUS_TAIL)
+    return node, misses, state, r.string()
+
+
+def add_arguments(p, replay: bool = False):
+    """Add ``--live``, ``--port``, ``--host`` and ``--live-rate`` to a command's parser."""
+    p.add_argument('--live', action='store_true',
+                   help='start a Foxglove WebSocket server streaming the loop topics and the '
+                        'run status at the display rate (open ws://HOST:PORT in Foxglove with '
+                        'the layout share/rths_bringup/foxglove/rths_live.json)')
+    p.add_argument('--port', type=int, default=DEFAULT_PORT,
+                   help=f'port of the live view (default {DEFAULT_PORT})')
+    p.add_argument('--host', default='127.0.0.1',
+                   help='address the live view listens on (default 127.0.0.1: this machine '
+                        'only; 0.0.0.0 opens it to the network)')
+    p.add_argument('--live-rate', type=float, default=DEFAULT_RATE_HZ,
+                   help=f'display rate of the live view [Hz] (default {DEFAULT_RATE_HZ:g})')
+
+
+@contextlib.contextmanager
+def session(args, fs_hz: float = 0.0, timeout_s: float = 30.0):
+    """Run the live-view process while the body runs (nothing when ``args.live`` is off)."""
+    if not getattr(args, 'live', False):
+        yield None
+        return
+    if not 0 < args.port < 65536:
+        raise ValueError(f'--port {args.port}: give a TCP port 1-65535')
+    Decimator(args.live_rate)   # validates the rate before anything starts
+    cmd = [sys.executable, '-m', 'rths_bringup.live', '--port', str(args.port), '--host',
+           args.host, '--rate', str(args.live_rate), '--fs', str(fs_hz or 0.0)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    try:
+        _wait_ready(proc, timeout_s)
+        yield proc
+    finally:
+        _stop(proc)
+
+
+def _wait_ready(proc, timeout_s: float):
+    t_end = time.monotonic() + timeout_s
+    for line in proc.stdout:
+        print(line, end='', flush=True)
+        if line.startswith(READY_LINE):
+            return
+        if time.monotonic() > t_end:
+            break
+    raise OSError(f'the live view did not start (exit {proc.poll()}); is the port in use? '
+                  'choose another with --port')
+
+
+def _stop(proc):
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    rest = proc.stdout.read() if proc.stdout else ''
+    if rest:
+        print(rest, end='', flush=True)
+
+
+class LiveView:
+    """The server and the subscriptions of the live-view process."""
+
+    def __init__(self, host: str, port: int, rate_hz: float, fs_hz: float):
+        import foxglove
+        import rclpy
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+        from rths_bringup import bagio
+        from rths_common.node_support import message_class
+
+        # the SDK server on a private port; the bridge on the user's also takes the old name
+        self.server = foxglove.start_server(name='rths live view', host='127.0.0.1', port=0)
+        try:
+            self.bridge = SubprotocolBridge(host, port, self.server.port)
+        except OSError:
+            self.server.stop()
+            raise
+        store = bagio.typestore()
+        self.channels = {
+            topic: foxglove.Channel(topic, message_encoding='cdr', schema=foxglove.Schema(
+                name=msgtype, encoding='ros2msg',
+                data=store.generate_msgdef(msgtype, ros_version=2)[0].encode()))
+            for topic, msgtype in topics.LOOP_TOPICS.items() if topic != topics.SPECIMEN}
+        self.live = foxglove.Channel(LIVE_TOPIC, schema=LIVE_SCHEMA)
+        self.decimator = Decimator(rate_hz)
+        self.state = LiveState(fs_hz)
+        rclpy.init()
+        self.node = rclpy.create_node('live_view')
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                         reliability=ReliabilityPolicy.BEST_EFFORT)
+        for topic in self.channels:
+            self.node.create_subscription(message_class(topics.LOOP_TOPICS[topic]), topic,
+                                          self._callback(topic), qos, raw=True)
+        self.node.create_timer(1.0 / rate_hz, self._publish_live)
+
+    def _callback(self, topic):
+        from rths_common import cdr
+
+        channel, due, state = self.channels[topic], self.decimator.due, self.state
+
+        def on_message(raw: bytes):
+            key = topic
+            if topic == topics.INTERFACE_DISPLACEMENT:
+                _, step, disp = cdr.unpack_step_arrays(raw, 1)
+                if disp:
+                    state.on_target(step, disp[0])
+            elif topic == topics.MEASUREMENT:
+                _, step, _, disp, force = cdr.unpack_step_arrays(raw, 3)
+                if disp and force:
+                    state.on_measurement(step, disp[0], force[0])
+            elif topic == topics.STATUS:
+                node, misses, safety, fault = _status_fields(raw)
+                state.on_status(node, misses, safety, fault)
+                key = (topic, node)
+            if due(key, time.monotonic()):
+                channel.log(raw)
+        return on_message
+
+    def _publish_live(self, run_state: str = 'running'):
+        self.live.log(self.state.record(run_state))
+
+    def spin(self, parent: int):
+        """Serve until SIGINT, SIGTERM or the death of process ``parent``; then close the server."""
+        from rths_common import node_support as ns
+
+        # a SIGKILLed rths process must not leave the server behind
+        ns.spin_until_done(self.node, ns.make_executor('events'),   # the cheapest per message
+                           is_done=lambda: os.getppid() != parent)
+        self._publish_live('stopped')
+        time.sleep(0.2)                       # let the last message reach the clients
+        self.server.stop()
+        self.bridge.stop()
+        self.node.destroy_node()
+
+
+def main(argv=None) -> int:
+    """Entry point of the live-view process (``python -m rths_bringup.live``)."""
+    p = argparse.ArgumentParser(prog='rths live view', description=__doc__.split('\n')[0])
+    p.add_argument('--host', default='127.0.0.1')
+    p.add_argument('--port', type=int, default=DEFAULT_PORT)
+    p.add_argument('--rate', type=float, default=DEFAULT_RATE_HZ)
+    p.add_argument('--fs', type=float, default=0.0, help='loop rate [Hz] for time_s (0: none)')
+    p.add_argument('--nice', type=int, default=10, help='niceness of this process (default 10)')
+    parent = os.getppid()          # first: the rths process may die while this one starts
+    args = p.parse_args(argv)
+    if args.nice:
+        os.nice(args.nice)
+    try:
+        view = LiveView(args.host, args.port, args.rate, args.fs)
+    except (OSError, RuntimeError, ValueError) as err:
+        print(f'live view: error: {err}', file=sys.stderr, flush=True)
+        return 2
+    print(f'{READY_LINE} ws://{args.host}:{view.bridge.port} (Foxglove: Open connection -> '
+          f'Foxglove WebSocket; layout {layout_path()})', flush=True)
+    view.spin(parent)
+    with contextlib.suppress(OSError):      # the rths process (our stdout) may be gone
+        print('live view: stopped', flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

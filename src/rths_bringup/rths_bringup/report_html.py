@@ -1,0 +1,95 @@
+"""The one-file review: ``report.html`` with tables 5-9 and every plot embedded.
+
+The page is self-contained: plots are inline base64 PNG (``data:`` URIs), the
+style is inline, and nothing is fetched from the network, so it opens offline
+in any browser and can be mailed as one file.
+"""
+
+import base64
+import html
+from pathlib import Path
+
+#: The review's plots, in page order, with their captions.
+PLOTS = {
+    'time_history.png': '2nd-floor displacement: RTHS, whole-numerical reference and '
+                        'uncontrolled building (tables 6-9)',
+    'tracking_zoom.png': 'Actuator tracking around the peak: interface displacement, '
+                         'compensated command and measured displacement (table 5)',
+    'bode_actuator.png': 'Measured FRF of the actuator during the RTHS (table 5)',
+    'mr_hysteresis.png': 'MR-damper specimen: measured force against displacement',
+}
+
+_STYLE = ('body{font-family:sans-serif;max-width:60em;margin:1em auto;color:#222}'
+          'table{border-collapse:collapse;margin:.5em 0 1.5em}'
+          'th,td{border:1px solid #bbb;padding:.25em .6em;text-align:right}'
+          'th:first-child,td:first-child{text-align:left}'
+          'figure{margin:1em 0}img{max-width:100%}figcaption{font-size:.9em;color:#555}')
+_INCH = 0.0254
+
+
+def _table(caption: str, header, rows) -> str:
+    cells = ''.join(f'<th>{html.escape(str(h))}</th>' for h in header)
+    body = ''.join('<tr>' + ''.join(f'<td>{html.escape(str(c))}</td>' for c in row) + '</tr>'
+                   for row in rows)
+    return (f'<h2>{html.escape(caption)}</h2>\n<table><tr>{cells}</tr>{body}</table>\n')
+
+
+def tables(s: dict) -> str:
+    """Tables 5-9 of a review summary (:func:`rths_bringup.review.review_rths`) as HTML."""
+    out = _table('Table 5 layout: actuator time delay and relative RMS tracking error',
+                 ('', 'before compensation', 'after compensation'),
+                 (('time delay [ms]', f"{s['delay_ms_before']:.3f}", f"{s['delay_ms_after']:.3f}"),
+                  ('rel. RMS error [%]', f"{s['tracking_rel_rms_pct_before']:.2f}",
+                   f"{s['tracking_rel_rms_pct_after']:.2f}")))
+    out += ('<p>before: plant input &rarr; output; after: interface displacement &rarr; '
+            'output</p>\n')
+    out += _table(
+        'Tables 6-8 layout: 2nd-floor displacement',
+        ('model', 'max [m]', 'max [in]', 'red. [%]', 'RMS [m]', 'RMS [in]', 'red. [%]'),
+        (('uncontrolled', f"{s['uncontrolled_max_disp_2nd_m']:.4e}",
+          f"{s['uncontrolled_max_disp_2nd_m'] / _INCH:.4f}", '-',
+          f"{s['uncontrolled_rms_disp_2nd_m']:.4e}",
+          f"{s['uncontrolled_rms_disp_2nd_m'] / _INCH:.4f}", '-'),
+         (f"RTHS ({s['damper']})", f"{s['max_disp_2nd_m']:.4e}",
+          f"{s['max_disp_2nd_m'] / _INCH:.4f}", f"{s['reduction_max_pct']:.1f}",
+          f"{s['rms_disp_2nd_m']:.4e}", f"{s['rms_disp_2nd_m'] / _INCH:.4f}",
+          f"{s['reduction_rms_pct']:.1f}")))
+    out += _table('Table 9 layout: RTHS vs whole-numerical reference',
+                  ('actuator time delay [ms]', 'relative RMS error [%]'),
+                  ((f"{s['delay_ms_after']:.3f}", f"{s['rths_vs_reference_rel_rms_pct']:.2f}"),))
+    return out
+
+
+def _figure(name: str, data: bytes, caption: str) -> str:
+    uri = 'data:image/png;base64,' + base64.b64encode(data).decode('ascii')
+    return (f'<figure><img alt="{html.escape(name)}" src="{uri}">'
+            f'<figcaption>{html.escape(caption)} ({html.escape(name)})</figcaption></figure>\n')
+
+
+def render(summary: dict, images: dict) -> str:
+    """Return the whole page; ``images`` maps a plot's file name to its PNG bytes."""
+    s = summary
+    title = (f"RTHS review: {s['record']} x {s['scale']}, DTM {s['damper']}, {s['mode']}, "
+             f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)")
+    misses = f"deadline misses: {s['deadline_misses']} ({s['deadline_miss_pct']:.3f} %)"
+    faults = ''.join(f'<li>{html.escape(f)}</li>' for f in s.get('safety_faults', []))
+    figures = ''.join(_figure(name, data, PLOTS.get(name, name)) for name, data in images.items())
+    comp = s.get('compensator') or {}
+    scheme = ', '.join(f'{k} {v}' for k, v in comp.items() if k != 'plant')
+    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+            f'<title>{html.escape(title)}</title><style>{_STYLE}</style></head>\n<body>\n'
+            f'<h1>{html.escape(title)}</h1>\n<p>compensator: {html.escape(scheme) or "-"}</p>\n'
+            + tables(s) + f'<p>{html.escape(misses)}</p>\n'
+            + (f'<p>safety faults:</p><ul>{faults}</ul>\n' if faults else '')
+            + figures + '</body></html>\n')
+
+
+def write_report(out_dir, summary: dict) -> Path:
+    """Write ``out_dir/report.html`` from ``summary`` and the PNG plots in ``out_dir``."""
+    out_dir = Path(out_dir)
+    images = {name: (out_dir / name).read_bytes() for name in PLOTS if (out_dir / name).is_file()}
+    path = out_dir / 'report.html'
+    tmp = path.with_suffix('.html.tmp')
+    tmp.write_text(render(summary, images), encoding='utf-8')
+    tmp.replace(path)
+    return path

@@ -1,0 +1,235 @@
+"""Storage back ends of the project's rosbag2 bags: MCAP (the default) and sqlite3.
+
+``rosbags`` writes both.  What it does not do, and this module adds:
+
+* durable commits while recording (:func:`commit`): sqlite3 commits its
+  transaction; MCAP closes the pending chunk (a complete, self-describing
+  record) and flushes it to the file, so a SIGKILLed recorder leaves every
+  committed message on disk;
+* recovery of an MCAP file that a killed writer left without its summary,
+  footer and closing magic (:func:`repair_mcap`): the file is cut after its last
+  complete record and closed with a DataEnd record and a footer without a
+  summary, which every MCAP reader (rosbags, the ``mcap`` library, Foxglove)
+  reads by scanning;
+* the ``metadata.yaml`` topic table of such a file (:func:`mcap_topics`), for
+  ``bagio.reindex``;
+* the messages per topic already committed to a bag that is still being
+  written (:func:`committed_counts`), read without touching the file.
+"""
+
+import os
+from pathlib import Path
+import struct
+
+#: Storage identifiers of ``metadata.yaml`` that rths writes and reads.
+STORAGES = ('mcap', 'sqlite3')
+#: Storage of every bag rths writes unless told otherwise (``--storage``).
+DEFAULT_STORAGE = 'mcap'
+
+MAGIC = b'\x89MCAP0\r\n'
+_OP_HEADER, _OP_FOOTER, _OP_DATA_END = 0x01, 0x02, 0x0F
+_RECORD = struct.Struct('<BQ')          # opcode, content length
+_FOOTER_LEN = 20                        # summary_start, summary_offset_start, summary_crc
+
+
+def check_storage(storage: str) -> str:
+    """Return ``storage`` if rths can write it, else raise ValueError naming the choices."""
+    if storage not in STORAGES:
+        raise ValueError(f'storage {storage!r}: use one of {", ".join(STORAGES)} '
+                         f'(default {DEFAULT_STORAGE})')
+    return storage
+
+
+def plugin(storage: str):
+    """Return the ``rosbags`` StoragePlugin of a storage identifier."""
+    from rosbags.rosbag2 import StoragePlugin
+
+    return {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}[check_storage(storage)]
+
+
+def commit(storage_writer, storage: str):
+    """Make everything written so far durable against a SIGKILL of the writing process."""
+    if storage == 'sqlite3':
+        # rosbags' sqlite3 storage commits only on close
+        storage_writer.conn.commit()
+        return
+    if storage_writer.chunk.msgs:        # rosbags keeps the pending chunk in memory
+        storage_writer.close_chunk()
+    storage_writer.bio.flush()
+
+
+def storage_of(bag) -> str:
+    """Return the storage of a bag directory, from its data files (``*.mcap`` or ``*.db3``)."""
+    bag = Path(bag)
+    if any(bag.glob('*.mcap')):
+        return 'mcap'
+    if any(bag.glob('*.db3')):
+        return 'sqlite3'
+    raise OSError(f'{bag} is not a rosbag2 bag (no .mcap or .db3 file inside)')
+
+
+def data_file(bag) -> Path:
+    """Return the one data file of a bag (rths writes one file per bag)."""
+    bag = Path(bag)
+    files = sorted(bag.glob('*.mcap' if storage_of(bag) == 'mcap' else '*.db3'))
+    return files[0]
+
+
+def _records_end(handle, size: int) -> int:
+    """Offset just past the last complete top-level record after the header (0 if none)."""
+    handle.seek(len(MAGIC))
+    end = 0
+    while True:
+        pos = handle.tell()
+        head = handle.read(_RECORD.size)
+        if len(head) < _RECORD.size:
+            return end
+        opcode, length = _RECORD.unpack(head)
+        if opcode in (_OP_DATA_END, _OP_FOOTER) or pos + _RECORD.size + length > size:
+            return end
+        handle.seek(length, os.SEEK_CUR)
+        end = handle.tell()
+
+
+def is_complete(path) -> bool:
+    """Return True if an MCAP file ends with its footer and closing magic."""
+    path = Path(path)
+    if path.stat().st_size < 2 * len(MAGIC) + _RECORD.size + _FOOTER_LEN:
+        return False
+    with path.open('rb') as handle:
+        handle.seek(-(len(MAGIC) + _RECORD.size + _FOOTER_LEN), os.SEEK_END)
+        tail = handle.read()
+    opcode, length = _RECORD.unpack(tail[:_RECORD.size])
+    return tail.endswith(MAGIC) and opcode == _OP_FOOTER and length == _FOOTER_LEN
+
+
+def repair_mcap(path) -> bool:
+    """Close an MCAP file a killed writer left open; return True if it was repaired.
+
+    The file is cut after its last complete record (a chunk half-written when
+    the process died is dropped) and closed with DataEnd, a footer without a
+    summary and the magic.  A complete file is left untouched.
+    """
+    path = Path(path)
+    if is_complete(path):
+        return False
+    size = path.stat().st_size
+    with path.open('r+b') as handle:
+        if handle.read(len(MAGIC)) != MAGIC:
+            raise OSError(f'{path} is not an MCAP file (bad magic)')
+        end = _records_end(handle, size)
+        if not end:
+            raise OSError(f'{path}: no complete MCAP record; the recording wrote nothing')
+        handle.seek(end)
+        handle.truncate()
+        handle.write(_RECORD.pack(_OP_DATA_END, 4) + struct.pack('<I', 0))
+        handle.write(_RECORD.pack(_OP_FOOTER, _FOOTER_LEN) + struct.pack('<QQI', 0, 0, 0))
+        handle.write(MAGIC)
+    return True
+
+
+def mcap_topics(path) -> dict:
+    """Topic table and time span of a (complete or repaired) MCAP file.
+
+    Returns ``{'topics': [(name, type, serialization_format, type_description_hash,
+    count), ...], 'start_ns', 'end_ns', 'count'}``; the counts come from
+    rosbags' scan of the file (its summary, else its records).
+    """
+    from rosbags.rosbag2.storage_mcap import McapReader
+
+    reader = McapReader(Path(path))
+    reader.open()
+    try:
+        stats = reader.statistics
+        topics = [(c.topic, c.msgtype, c.ext.serialization_format, c.digest, c.msgcount)
+                  for c in reader.connections]
+        count = int(stats.message_count) if stats else 0
+        return {'topics': topics, 'count': count,
+                'start_ns': int(stats.start_time) if count else 0,
+                'end_ns': int(stats.end_time) if count else 0}
+    finally:
+        reader.close()
+
+
+_OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x04, 0x05, 0x06
+
+
+def _channel_topic(content: bytes) -> tuple:
+    """Return ``(channel id, topic)`` of a Channel record's content."""
+    (cid,) = struct.unpack_from('<H', content, 0)
+    (n,) = struct.unpack_from('<I', content, 4)
+    return cid, content[8:8 + n].decode()
+
+
+def _chunk_records(content: bytes) -> bytes:
+    """Return the (decompressed) records of a Chunk record's content."""
+    (n,) = struct.unpack_from('<I', content, 28)
+    compression = content[32:32 + n].decode()
+    (size,) = struct.unpack_from('<Q', content, 32 + n)
+    data = content[40 + n:40 + n + size]
+    if compression == 'zstd':
+        import zstandard
+        return zstandard.ZstdDecompressor().decompress(
+            data, max_output_size=struct.unpack_from('<Q', content, 16)[0])
+    if compression == 'lz4':
+        import lz4.frame
+        return lz4.frame.decompress(data)
+    return data
+
+
+def _scan(data: bytes, start: int, end: int, topics: dict, counts: dict):
+    """Count messages per channel in the complete records of ``data[start:end]``."""
+    pos = start
+    while pos + _RECORD.size <= end:
+        opcode, length = _RECORD.unpack_from(data, pos)
+        body = pos + _RECORD.size
+        if opcode in (_OP_DATA_END, _OP_FOOTER) or body + length > end:
+            return
+        if opcode == _OP_CHANNEL:
+            cid, topic = _channel_topic(data[body:body + length])
+            topics[cid] = topic
+        elif opcode == _OP_MESSAGE:
+            (cid,) = struct.unpack_from('<H', data, body)
+            counts[cid] = counts.get(cid, 0) + 1
+        elif opcode == _OP_CHUNK:
+            records = _chunk_records(data[body:body + length])
+            _scan(records, 0, len(records), topics, counts)
+        pos = body + length
+
+
+def committed_counts(bag) -> dict:
+    """Return ``{topic: messages}`` already committed to a bag, even one still being written.
+
+    MCAP: the complete records of the file (a chunk still being written does not
+    count); sqlite3: the committed rows (read-only).  A bag with no data file
+    yet, or a database that is busy, counts as empty.
+    """
+    bag = Path(bag)
+    try:
+        storage = storage_of(bag)
+    except OSError:
+        return {}
+    path = data_file(bag)
+    if storage == 'sqlite3':
+        return _sqlite_counts(path)
+    data = path.read_bytes()
+    if data[:len(MAGIC)] != MAGIC:
+        return {}
+    topics, counts = {}, {}
+    _scan(data, len(MAGIC), len(data), topics, counts)
+    return {topics.get(cid, str(cid)): n for cid, n in counts.items()}
+
+
+def _sqlite_counts(path: Path) -> dict:
+    import sqlite3
+
+    try:
+        conn = sqlite3.connect(f'file:{path}?mode=ro', uri=True, timeout=1.0)
+        try:
+            rows = conn.execute('SELECT topics.name, count(*) FROM messages JOIN topics '
+                                'ON topics.id = messages.topic_id GROUP BY topics.name')
+            return dict(rows.fetchall())
+        finally:
+            conn.close()
+    except sqlite3.Error:
+        return {}
