@@ -12,9 +12,8 @@ from rths_system_tests import REPO, rths
 
 
 def test_lockstep_run_equals_offline_coupled_simulation(tmp_path):
-    from rths_bringup import bagio, runinfo
     from rths_bringup.offline import offline_rths
-    from rths_common import topics
+    from rths_common import bagio, runinfo, topics
 
     config = REPO / 'config'
     numerical = dict(runinfo.load_params(config / 'numerical.yaml', 'numerical'),
@@ -59,8 +58,8 @@ def test_lockstep_run_equals_offline_coupled_simulation(tmp_path):
 def test_offline_node_keys_cover_every_node_parameter():
     """The offline loop strips exactly the node-level keys the nodes take for themselves."""
     from rths_actuator_bridge.node import NODE_PARAMS as bridge
-    from rths_bringup.offline import NODE_KEYS
+    from rths_common.params import NODE_KEYS
     from rths_compensator.node import NODE_PARAMS as compensator
     from rths_numerical.node import NODE_PARAMS as numerical
 
-    assert set(bridge) | set(compensator) | set(numerical) == NODE_KEYS
+    assert set(bridge) | set(compensator) | set(numerical) == set(NODE_KEYS)

@@ -26,18 +26,12 @@ def _is_bag(path):
 
 
 def _read_measured(path, scenario):
-    """CSV path -> validated columns; a bag directory/.mcap/.db3 goes to rths_bringup.bagio."""
+    """CSV path -> validated columns; a bag directory/.mcap/.db3 is read by ``io.read_bag``."""
     import os
 
     from rths_discrepancy import io as dio
     if _is_bag(path):
-        try:
-            from rths_bringup.bagio import read_discrepancy
-        except ImportError:
-            raise ValueError('bag input needs rths_bringup.bagio (read_discrepancy is not '
-                             'available); export the bag to a CSV with the columns '
-                             f'{", ".join(dio.COLUMNS[scenario])}') from None
-        return dio.validate(scenario, read_discrepancy(path, scenario), source=str(path))
+        return dio.validate(scenario, dio.read_bag(path, scenario), source=str(path))
     if not os.path.exists(path):
         raise OSError(f'--measured {path}: no such file')
     return dio.load_csv(path, scenario)

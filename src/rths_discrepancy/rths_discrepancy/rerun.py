@@ -20,7 +20,7 @@ seed 6.3.4 (:func:`rths_numerical.reference.simulate_reference`) that
 ``rths review`` prints.
 
 The run's parameters come from the bag's run information
-(:mod:`rths_bringup.runinfo`: ``rths launch --bag`` and ``rths run`` store
+(:mod:`rths_common.runinfo`: ``rths launch --bag`` and ``rths run`` store
 the numerical and bridge parameters in the bag).  Only a bag whose run
 information lacks them (a recorder started by hand) needs the params
 directory of its launch (``--config DIR``: numerical.yaml and bridge.yaml).
@@ -45,8 +45,8 @@ def run_parameters(bag, config=None) -> tuple:
     the run was launched with).
     ValueError names the fix when neither is available.
     """
-    from rths_bringup import bagio, runinfo
-    from rths_bringup.offline import core_params
+    from rths_common import bagio, runinfo
+    from rths_common.params import core_params
 
     info = bagio.run_info(bag)
     numerical = runinfo.section(info, 'numerical')
@@ -98,8 +98,7 @@ def _frame_mass(bridge):
 
 def rths_floor_displacement(bag, sub) -> np.ndarray:
     """2nd-floor displacement [m] (relative to the ground) of the RTHS recorded in ``bag``."""
-    from rths_bringup import bagio
-    from rths_common import topics
+    from rths_common import bagio, topics
 
     disp = bagio.step_arrays(bag, topics.INTERFACE_DISPLACEMENT, ('displacement',))
     steps = disp['step']

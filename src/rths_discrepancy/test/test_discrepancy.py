@@ -124,15 +124,6 @@ def test_seed_models_and_timing_convention():
                                atol=1e-12)
 
 
-def test_bag_input_without_bagio(tmp_path, monkeypatch):
-    import sys
-
-    from rths_discrepancy import cli
-    monkeypatch.setitem(sys.modules, 'rths_bringup.bagio', None)
-    with pytest.raises(ValueError, match='bag input needs rths_bringup.bagio'):
-        cli._read_measured(str(tmp_path), 'specimen')
-
-
 def test_cli_end_to_end_and_updated_model_reloads(tmp_path):
     from rths_bringup.cli import main
     data, truth = selftest.make_record('specimen', ['coulomb_friction'], 3,
