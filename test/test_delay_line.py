@@ -26,8 +26,8 @@ FS_HZ = 1024.0
 
 
 def test_identification_through_the_delay_line_lets_the_compensator_absorb_it(tmp_path):
-    from rths_bringup import bagio
     from rths_bringup.review import weighted_delay_ms
+    from rths_common import bagio
 
     config = tmp_path / 'config'
     shutil.copytree(REPO / 'config', config)

@@ -15,9 +15,8 @@ from rths_system_tests import REPO, rths
 @pytest.mark.parametrize('method', ['fir', 'amb'])
 def test_lockstep_run_equals_offline_coupled_simulation(tmp_path, method):
     """Also with an adaptive method: command k waits for measurement k-1 in both."""
-    from rths_bringup import bagio, runinfo
     from rths_bringup.offline import offline_rths
-    from rths_common import topics
+    from rths_common import bagio, runinfo, topics
 
     config = REPO / 'config'
     numerical = dict(runinfo.load_params(config / 'numerical.yaml', 'numerical'),
@@ -27,7 +26,9 @@ def test_lockstep_run_equals_offline_coupled_simulation(tmp_path, method):
         numerical.pop(key)
     compensator = runinfo.load_params(config / 'compensator.yaml', 'compensator')
     if method != 'fir':
-        compensator.update(method=method, plant=str(config / 'plant.yaml'))
+        compensator['method'] = method
+        compensator['provenance'] = dict(compensator.get('provenance') or {},
+                                         plant=str(config / 'plant.yaml'))
     bridge = dict(runinfo.load_params(config / 'bridge.yaml', 'bridge'), dtm='valve4',
                   displacement_noise_m=1e-6, force_noise_n=0.5, seed=3)
     cfg = tmp_path / 'config'
@@ -68,8 +69,8 @@ def test_lockstep_run_equals_offline_coupled_simulation(tmp_path, method):
 def test_offline_node_keys_cover_every_node_parameter():
     """The offline loop strips exactly the node-level keys the nodes take for themselves."""
     from rths_actuator_bridge.node import NODE_PARAMS as bridge
-    from rths_bringup.offline import NODE_KEYS
+    from rths_common.params import NODE_KEYS
     from rths_compensator.node import NODE_PARAMS as compensator
     from rths_numerical.node import NODE_PARAMS as numerical
 
-    assert set(bridge) | set(compensator) | set(numerical) == NODE_KEYS
+    assert set(bridge) | set(compensator) | set(numerical) == set(NODE_KEYS)

@@ -14,27 +14,19 @@ Anyone can run a coupled simulation with it, without ROS.
 
 import numpy as np
 
-#: Parameters that configure a node itself, not its core: the union of the nodes'
-#: NODE_PARAMS (test_offline_node_keys checks this list against the nodes).
-NODE_KEYS = {'mode', 'executor', 'wait_for_subscribers', 'history_out', 'timing_out',
-             'status_every', 'autostart', 'watchdog_timeout_s', 'clock', 'spin_margin_us',
-             'publish_specimen', 'inject_drop_every', 'rt_priority', 'cpus', 'gc',
-             'command_source', 'inject_duplicate_every', 'inject_delay_every',
-             'inject_delay_ms', 'remote_graph', 'coefficients_every'}
-
-
-def core_params(params: dict) -> dict:
-    """``params`` without the node-level keys."""
-    return {k: v for k, v in params.items() if k not in NODE_KEYS}
+from rths_common.params import core_params
 
 
 def offline_rths(numerical: dict, compensator: dict, bridge: dict) -> dict:
     """Run the coupled loop for every step of the substructure; return per-step arrays."""
     from rths_actuator_bridge.bridge import Bridge
     from rths_compensator.filters import MultiChannelFilter
+    from rths_compensator.params import check_sampling_rate
     from rths_numerical.substructure import make_substructure
 
     sub = make_substructure(core_params(numerical))
+    if 'fs_hz' in compensator:
+        check_sampling_rate(compensator, 1.0 / sub.dt, 'compensator', 'the loop rate 1/dt')
     adaptive = str(compensator.get('method', 'fir') or 'fir') != 'fir'
     if adaptive:   # command k waits for measurement k-1, as the lock-step node does
         from rths_compensator.adaptive import methods_from_params

@@ -585,7 +585,8 @@ def methods_from_params(params: dict, n_channels: int) -> ChannelMethods:
     """Build the compensator parameters' ``method`` (default fir) for ``n_channels`` channels.
 
     ``taps``/``denominator``/``fs_hz``/``scheme`` are the designed filter; an adaptive
-    method also needs ``plant`` (the plant.yaml the FIR was designed on).
+    method also needs the plant.yaml the FIR was designed on: ``plant``, or the provenance's
+    (``provenance: {plant: ...}`` in a file, ``provenance.plant`` in a node).
     """
     from .identification import load_plant
 
@@ -598,9 +599,11 @@ def methods_from_params(params: dict, n_channels: int) -> ChannelMethods:
                     float(params.get('fs_hz', 1024.0)))
     plant = None
     if name != 'fir':
-        path = str(params.get('plant', '') or '')
+        provenance = params.get('provenance') or {}
+        path = str(params.get('plant') or provenance.get('plant')
+                   or params.get('provenance.plant') or '')
         if not path:
-            raise ValueError(f'parameter method = {name}: parameter plant (the plant.yaml the '
-                             'FIR was designed on) is missing')
+            raise ValueError(f'parameter method = {name}: parameter provenance.plant (the '
+                             'plant.yaml the FIR was designed on) is missing')
         plant = load_plant(path)
     return ChannelMethods(name, design, plant, n_channels)

@@ -1,45 +1,14 @@
-"""Compensator node: applies the designed taps to the interface displacement, step by step.
+"""Compensator node: the ROS shell of :class:`rths_compensator.filters.MultiChannelFilter`.
 
 ``ros2 run rths_compensator compensator_node --ros-args --params-file config/compensator.yaml``
 
-Subscribes ``/rths/interface_displacement``, publishes ``/rths/command``: the
-command of step k is ``G(z^-1)`` applied causally to the interface
-displacements up to step k (one independent filter per interface DOF), with
-``G = taps / denominator`` from the parameters file written by ``rths design``
-(layout: :mod:`rths_compensator.params`).  The math is in
-:class:`rths_compensator.filters.MultiChannelFilter`; this node only moves messages.
+Subscribes ``/rths/interface_displacement`` and publishes ``/rths/command``, the
+designed ``G = taps / denominator`` applied causally per interface DOF
+(lock-step or realtime; behaviour and measurements: docs/nodes.md).
 
-Realtime mode (``mode: realtime``): best-effort KEEP_LAST 1 topics.  A lost
-interface displacement (step j arrives while k < j was expected) is a miss
-here: the filter is fed displacements *interpolated* between the last
-received ones and step j for the missing steps (cubic up to 3 lost steps,
-lower orders beyond: :mod:`rths_common.gaps`), so its delay line stays
-aligned with the step index, and the command of step j is published.  Not
-held: the designed taps are high-pass in the stopband (647, -1791, 1806,
-...), and a held displacement, an error of about velocity x dt, becomes a
-command spike that trips the bridge's velocity limit; the interpolation
-error is orders of magnitude smaller
-(``test_lost_displacement.py``).  If step 0 itself is lost there is nothing to
-interpolate from, and the first displacement received fills the missing
-steps.  A repeated step 0 (the numerical node re-sends it until the
-loop runs) re-publishes command 0.  ``inject_drop_every`` = N > 0 drops the
-command of every N-th step, ``inject_delay_every`` = N > 0 holds it back
-``inject_delay_ms`` first (a delay burst; realtime), ``inject_duplicate_every``
-= N > 0 publishes it twice (lock-step): fault injection for the tests of the
-bridge's deadline-miss and step-order policies.  In lock-step the command's
-``header.frame_id`` carries this node's writer gid; the bridge accepts
-commands only from that writer (``command_source``).  ``status_every`` = N > 1
-publishes the status of every N-th step only (and of every step after a miss).  Latency settings:
-``rt_priority``, ``cpus``, ``gc`` (:func:`rths_common.node_support.tuning`).  In
-realtime the loop messages travel as CDR bytes (:mod:`rths_common.cdr`).
-
-Adaptive compensation (parameter ``method``: fir (default) | rls_fir | ats | amb;
-:mod:`rths_compensator.adaptive`, lock-step only): the node also subscribes
-``/rths/measurement``; the command of step k waits for measurement k-1 (so a run is
-deterministic and equals the offline loop), the coefficients are published on
-``/rths/compensator_coefficients`` every ``coefficients_every`` steps, and a fallback to
-the designed FIR is reported in the status's fault text.  The method also needs
-``plant`` (the plant.yaml the FIR was designed on).
+Parameter ``method`` (fir | rls_fir | ats | amb, lock-step only): an adaptive method
+started from the designed taps; it also subscribes ``/rths/measurement`` and publishes
+``/rths/compensator_coefficients`` (docs/adaptive.md).
 """
 
 import sys
@@ -64,13 +33,14 @@ class CompensatorNode:
     """ROS shell around a :class:`~rths_compensator.filters.MultiChannelFilter`."""
 
     def __init__(self):
-        from rths_compensator.params import validate_filter
+        from rths_compensator.params import check_compensator_params, param_schema, validate_filter
 
-        self.node = ns.make_node('compensator')
+        self.node = ns.make_node('compensator', param_schema(NODE_PARAMS), NODE_PARAMS)
         params = ns.parameters(self.node)
         self.own = {k: ns.param(params, k, v) for k, v in NODE_PARAMS.items()}
         for key in NODE_PARAMS:
             params.pop(key, None)
+        check_compensator_params(params, 'compensator node parameters')
         taps, denominator, fs = validate_filter(
             'compensator node parameters', params.get('taps', []),
             params.get('denominator', [1.0]), params.get('fs_hz', 1024.0),
@@ -156,7 +126,7 @@ class CompensatorNode:
         return command
 
     def sender_gid(self) -> str:
-        """This node's writer gid on /rths/command, sent in ``header.frame_id`` (bridge check).
+        """Return this node's writer gid on /rths/command, sent in ``header.frame_id``.
 
         '' until the graph shows the writer (it does by the first message); then cached.
         """

@@ -223,13 +223,13 @@ def test_channel_methods_from_params(setup, tmp_path):
               'denominator': design.denominator.tolist()}
     fir = methods_from_params(params, 2)
     assert isinstance(fir, ChannelMethods) and fir.status.state == 'fixed'
-    with pytest.raises(ValueError, match='parameter plant'):
+    with pytest.raises(ValueError, match='provenance.plant'):
         methods_from_params(dict(params, method='amb'), 1)
     with pytest.raises(ValueError, match='unknown'):
         methods_from_params(dict(params, method='lms'), 1)
     path = tmp_path / 'plant.yaml'
     save_plant(path, ArxModel(a=a, b=b, d=0, fs_hz=FS))
-    amb = methods_from_params(dict(params, method='amb', plant=str(path)), 2)
+    amb = methods_from_params(dict(params, method='amb', provenance={'plant': str(path)}), 2)
     x = target(2.0)
     plants = [Plant(b, a), Plant(b, a)]
     prev = applied = None
