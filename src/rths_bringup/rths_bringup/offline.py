@@ -2,7 +2,8 @@
 
 Each loop step k, exactly as the three nodes do it in lock-step mode:
 
-    command_k      = compensator.step(interface_displacement_k)        (compensator node)
+    command_k      = compensator.step(interface_displacement_k)        (compensator node;
+                     an adaptive method also gets measurement_{k-1})
     measurement_k  = bridge.step(k, command_{k-D})   (bridge node; D = command_delay_steps)
     interface_displacement_{k+1} = substructure.advance(force_k)       (numerical node)
 
@@ -26,8 +27,13 @@ def offline_rths(numerical: dict, compensator: dict, bridge: dict) -> dict:
     sub = make_substructure(core_params(numerical))
     if 'fs_hz' in compensator:
         check_sampling_rate(compensator, 1.0 / sub.dt, 'compensator', 'the loop rate 1/dt')
-    comp = MultiChannelFilter(compensator['taps'], compensator.get('denominator', [1.0]),
-                              n_channels=sub.n_interface)
+    adaptive = str(compensator.get('method', 'fir') or 'fir') != 'fir'
+    if adaptive:   # command k waits for measurement k-1, as the lock-step node does
+        from rths_compensator.adaptive import methods_from_params
+        comp = methods_from_params(compensator, sub.n_interface)
+    else:
+        comp = MultiChannelFilter(compensator['taps'], compensator.get('denominator', [1.0]),
+                                  n_channels=sub.n_interface)
     lab = Bridge()
     lab.configure(core_params(bridge))
     lab.activate()
@@ -38,7 +44,12 @@ def offline_rths(numerical: dict, compensator: dict, bridge: dict) -> dict:
     displacement = sub.first_displacement()
     k = 0
     while not sub.done():
-        command = comp.step(np.asarray(displacement, dtype=float))
+        if adaptive:
+            command = comp.step(np.asarray(displacement, dtype=float),
+                                out['displacement'][k - 1] if k else None,
+                                out['applied'][k - 1] if k else None)
+        else:
+            command = comp.step(np.asarray(displacement, dtype=float))
         lab.receive(k, command)
         result = lab.step(k, lab.due(k))   # command of step k - D (command_delay_steps)
         out['interface_displacement'][k] = displacement

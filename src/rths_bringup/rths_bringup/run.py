@@ -26,6 +26,7 @@ reference would be meaningless.
 """
 
 import datetime
+import json
 from pathlib import Path
 import sys
 
@@ -94,6 +95,10 @@ def register(commands, benches):
                    help='identification run length [s] (default 40: 4 records of 10 s)')
     p.add_argument('--plant', default=None,
                    help='skip steps 1-2 and design from this identified plant.yaml')
+    p.add_argument('--adaptive', default='fir', choices=('fir', 'rls_fir', 'ats', 'amb'),
+                   help='compensation method of the RTHS run (default fir: the designed FIR; '
+                        'rls_fir, ats, amb adapt on line from it, lock-step only; rls_fir costs '
+                        'n^2 per step: use it with --taps 32..64; docs/adaptive.md)')
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                    help='storage of the bags (default mcap; sqlite3 for older tools)')
     p.add_argument('--no-compensation', action='store_true',
@@ -371,6 +376,13 @@ def _run(args) -> int:
              f'rths install-taps {out})')
     comp = runinfo.load_params(comp_file, 'compensator')
     comp.update({k: base['compensator'][k] for k in ('executor',) if k in base['compensator']})
+    if args.adaptive != 'fir':
+        if args.no_compensation or args.mode != 'lockstep':
+            raise ValueError(f'--adaptive {args.adaptive} needs a designed FIR and lock-step '
+                             'mode (drop --no-compensation / use --mode lockstep)')
+        provenance = dict(comp.get('provenance') or {})
+        provenance['plant'] = str(Path(str(provenance.get('plant', ''))).resolve())
+        comp.update(method=args.adaptive, provenance=provenance)
 
     # 3: the RTHS run
     numerical = dict(base['numerical'], model=model_param,
@@ -393,7 +405,8 @@ def _run(args) -> int:
                          {'numerical': numerical, 'bridge': base['bridge'],
                           'compensator': {'scheme': comp['scheme'], **{
                               k: v for k, v in comp.get('provenance', {}).items()
-                              if k in ('n_taps', 'fc_hz', 'plant', 'predicted_delay_ms')}}},
+                              if k in ('n_taps', 'fc_hz', 'plant', 'predicted_delay_ms')},
+                              'method': args.adaptive}},
                          history=rths_dir / 'numerical_history.npz', storage=args.storage,
                          live=args.live, layout=args.layout)
     if stop is not None:
@@ -402,6 +415,8 @@ def _run(args) -> int:
     # 4: review
     _say('step 4: review')
     summary = review_rths(rths_dir / 'bag', out)
+    summary['adaptive'] = args.adaptive
+    (out / 'summary.json').write_text(json.dumps(summary, indent=2))
     print_review(summary)
     _say(f'results: {out}/report.html (one file), {out}/summary.json, {out}/review.txt, '
          f'plots {out}/*.png, '

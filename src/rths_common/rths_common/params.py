@@ -34,6 +34,7 @@ NODE_KEYS = {
     'inject_duplicate_every': '[steps] fault injection for tests: publish every N-th twice',
     'inject_delay_every': '[steps] fault injection for tests: delay every N-th output',
     'inject_delay_ms': '[ms] fault injection for tests: the delay of inject_delay_every',
+    'coefficients_every': '[steps] adaptive compensator: publish its coefficients every N steps',
 }
 
 

@@ -5,6 +5,10 @@
 Subscribes ``/rths/interface_displacement`` and publishes ``/rths/command``, the
 designed ``G = taps / denominator`` applied causally per interface DOF
 (lock-step or realtime; behaviour and measurements: docs/nodes.md).
+
+Parameter ``method`` (fir | rls_fir | ats | amb, lock-step only): an adaptive method
+started from the designed taps; it also subscribes ``/rths/measurement`` and publishes
+``/rths/compensator_coefficients`` (docs/adaptive.md).
 """
 
 import sys
@@ -21,7 +25,7 @@ from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'inject_drop_every': 0,
                'inject_duplicate_every': 0, 'inject_delay_every': 0, 'inject_delay_ms': 0.0,
                'wait_for_subscribers': 1,
-               'status_every': 1,
+               'status_every': 1, 'coefficients_every': 64,
                **ns.TUNING_PARAMS}
 
 
@@ -44,6 +48,9 @@ class CompensatorNode:
         self.params = dict(params, taps=taps, denominator=denominator, fs_hz=fs)
         self.filter = None  # built on the first message, when the number of DOFs is known
         self.log = self.node.get_logger()
+        self.adaptive = None
+        if str(params.get('method', 'fir') or 'fir') != 'fir':
+            self._setup_adaptive()
         qos = loop_qos(self.own['mode'])
         self.pub = self.node.create_publisher(Command, topics.COMMAND, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
@@ -74,6 +81,50 @@ class CompensatorNode:
                       f"{len(self.params['taps'])} taps, "
                       f"{len(self.params['denominator']) - 1} denominator order")
 
+    def _setup_adaptive(self):
+        """Adaptive method (rths_compensator.adaptive): measurements in, coefficients out."""
+        from std_msgs.msg import Float64MultiArray
+
+        from rths_compensator.adaptive import methods_from_params
+        from rths_msgs.msg import Measurement
+
+        if self.own['mode'] != 'lockstep':
+            raise ValueError(f"parameter method = {self.params['method']}: the adaptive "
+                             'methods run in lock-step mode only (mode: lockstep)')
+        methods_from_params(self.params, 1)          # check the method and its plant now
+        self.adaptive = {'pending': None, 'measured': {}}
+        self.coef_pub = self.node.create_publisher(Float64MultiArray,
+                                                   topics.COMPENSATOR_COEFFICIENTS,
+                                                   loop_qos(self.own['mode']))
+        self.node.create_subscription(Measurement, topics.MEASUREMENT, self.on_measurement,
+                                      loop_qos(self.own['mode']))
+
+    def on_measurement(self, msg):
+        """Keep measurement k for the command of step k + 1 (and run it if it waits)."""
+        self.adaptive['measured'][msg.step] = (list(msg.displacement), list(msg.applied))
+        pending = self.adaptive['pending']
+        if pending is not None and pending.step == msg.step + 1:
+            self.adaptive['pending'] = None
+            self.on_displacement(pending)
+
+    def _adaptive_command(self, step, x):
+        """Command of step k from the adaptive method, or None until measurement k-1 is here."""
+        from std_msgs.msg import Float64MultiArray
+
+        from rths_compensator.adaptive import methods_from_params
+
+        measured = self.adaptive['measured']
+        if step > 0 and (step - 1) not in measured:
+            return None
+        if self.filter is None:
+            self.filter = methods_from_params(self.params, max(x.size, 1))
+        prev, applied = measured.pop(step - 1, (None, None))
+        command = self.filter.step(x, prev, applied)
+        every = max(int(self.own['coefficients_every']), 1)
+        if step % every == 0:
+            self.coef_pub.publish(Float64MultiArray(data=self.filter.coefficients().tolist()))
+        return command
+
     def sender_gid(self) -> str:
         """Return this node's writer gid on /rths/command, sent in ``header.frame_id``.
 
@@ -95,10 +146,20 @@ class CompensatorNode:
             return
         t0 = time.perf_counter_ns()
         x = np.asarray(msg.displacement, dtype=float)
-        if self.filter is None:
-            self.filter = MultiChannelFilter(self.params['taps'], self.params['denominator'],
-                                             n_channels=max(x.size, 1))
-        command = self.filter.step(x)
+        fault = ''
+        if self.adaptive is not None:
+            command = self._adaptive_command(msg.step, x)
+            if command is None:            # lock-step: wait for measurement k-1
+                self.adaptive['pending'] = msg
+                return
+            status = self.filter.status
+            fault = status.reason if status.state == 'fallback' else ''
+        else:
+            if self.filter is None:
+                self.filter = MultiChannelFilter(self.params['taps'],
+                                                 self.params['denominator'],
+                                                 n_channels=max(x.size, 1))
+            command = self.filter.step(x)
         out = Command(step=msg.step, command=command.tolist())
         out.header.frame_id = self.sender_gid()
         ns.stamp(out.header, ns.now_ns())
@@ -109,7 +170,8 @@ class CompensatorNode:
         compute_us = (time.perf_counter_ns() - t0) * 1e-3
         self.status_pub.publish(ns.status_msg(
             'compensator', msg.step, period_us=self.clock.period_us(t_in), compute_us=compute_us,
-            latency_us=(t_in - ns.stamp_ns(msg.header)) * 1e-3, misses=self.clock.misses))
+            latency_us=(t_in - ns.stamp_ns(msg.header)) * 1e-3, misses=self.clock.misses,
+            fault=fault))
         self.expected += 1
 
     def on_displacement_raw(self, data: bytes):
@@ -155,7 +217,7 @@ class CompensatorNode:
 
     def finish_run(self):
         """After spinning: flush what was published and log the count."""
-        ns.flush([self.pub, self.status_pub])
+        ns.flush([self.pub, self.status_pub] + ([self.coef_pub] if self.adaptive else []))
         self.log.info(f'compensator: {self.expected} steps, {self.rejected} rejected')
 
 

@@ -42,6 +42,12 @@ FILTER_PARAMS = {
     'taps': ([1.0], '[-] numerator coefficients b0..bn of G(z^-1)'),
     'denominator': ([1.0], '[-] denominator coefficients a0..am ([1.0]: a FIR)'),
 }
+#: The compensator's method key (not a filter field): key -> (default, meaning).
+METHOD_PARAMS = {
+    'method': ('fir', 'fir | rls_fir | ats | amb: the designed filter, or an adaptive method '
+                      'started from it (lock-step only; needs provenance.plant; '
+                      'docs/adaptive.md)'),
+}
 #: The key (a mapping) that holds a file's provenance; ROS names its entries provenance.*.
 PROVENANCE = 'provenance'
 
@@ -50,7 +56,7 @@ def param_schema(node_params) -> dict:
     """Return the compensator node's parameter schema: its ``node_params`` and the filter's."""
     from rths_common.params import node_schema
 
-    return node_schema(node_params, FILTER_PARAMS)
+    return node_schema(node_params, {**FILTER_PARAMS, **METHOD_PARAMS})
 
 
 def check_compensator_params(params: dict, where: str) -> None:
@@ -60,7 +66,7 @@ def check_compensator_params(params: dict, where: str) -> None:
     node's parameters (provenance as ``provenance.*`` names), node-level keys removed.
     """
     unknown = sorted(k for k in params
-                     if k not in FILTER_PARAMS and k != PROVENANCE
+                     if k not in FILTER_PARAMS and k not in METHOD_PARAMS and k != PROVENANCE
                      and not k.startswith(PROVENANCE + '.'))
     if unknown:
         raise ValueError(f'{where}: unknown parameter(s) {", ".join(unknown)}; the compensator '
@@ -177,7 +183,8 @@ def load_compensator_params(path) -> dict:
     if not isinstance(provenance, dict):
         raise ValueError(f'{path}: field {PROVENANCE} must be a mapping of names to values')
     # an older 'rths design' wrote the provenance beside the filter fields
-    provenance.update({k: params.pop(k) for k in list(params) if k not in FILTER_PARAMS})
+    provenance.update({k: params.pop(k) for k in list(params)
+                       if k not in FILTER_PARAMS and k not in METHOD_PARAMS})
     params.update(taps=b.tolist(), denominator=a.tolist(), fs_hz=fs)
     params[PROVENANCE] = provenance
     return params
