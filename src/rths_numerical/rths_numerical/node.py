@@ -165,8 +165,8 @@ class NumericalNode:
     def on_measurement_raw(self, data: bytes):
         """Realtime: finish step k (interpolating over lost measurements), publish k+1."""
         t_in = ns.now_ns()
-        if self.finished:
-            return
+        if self.finished or not self.started:
+            return  # before step 0 is out, a measurement cannot be of this run
         stamp_ns, step, _, _, force_values = cdr.unpack_step_arrays(data, 3)
         if step < self.expected:
             self.stale += 1
