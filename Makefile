@@ -21,6 +21,12 @@ test: setup  ## build and run every test through colcon test; non-zero on any fa
 	  if [ $$rc -ne 0 ] || [ $$rc2 -ne 0 ]; then echo "make test: FAILED"; exit 1; fi; \
 	  echo "make test: all tests passed"
 
+lint: setup  ## ruff over src/ and test/ (ruff.toml), mypy on rths_common and the three step cores (mypy.ini)
+	@source env.sh && ruff check src test && \
+	  mypy --config-file mypy.ini -p rths_common -p rths_numerical.substructure \
+	    -p rths_compensator.filters -p rths_actuator_bridge.bridge && \
+	  echo "make lint: clean"
+
 setup-opensees: setup  ## optional: install OpenSeesPy (backend: opensees; not open source for commercial use)
 	@v=$$(.venv/bin/python -c 'import sys; print("3.8.0.0" if sys.version_info >= (3, 12) else "3.7.1.2")'); \
 	  echo "[setup-opensees] installing openseespy==$$v (licence: see README, 'OpenSeesPy')"; \
@@ -33,4 +39,4 @@ clean:  ## remove build products (keeps .venv)
 distclean: clean  ## remove build products and the venv
 	rm -rf .venv
 
-.PHONY: help setup setup-opensees demo test clean distclean
+.PHONY: help setup setup-opensees demo test lint clean distclean

@@ -25,7 +25,7 @@ N_STEPS = int(RATE_HZ * DURATION_S)
 
 def lockstep_config(directory):
     """Write the repo config with the building, Kobe and 0.25 s of record (lock-step)."""
-    from rths_bringup import runinfo
+    from rths_common import runinfo
 
     config = REPO / 'config'
     numerical = dict(runinfo.load_params(config / 'numerical.yaml', 'numerical'),
@@ -43,8 +43,7 @@ def lockstep_config(directory):
 
 
 def loop_arrays(bag) -> dict:
-    from rths_bringup import bagio
-    from rths_common import topics
+    from rths_common import bagio, topics
 
     return {
         'displacement': bagio.step_arrays(bag, topics.INTERFACE_DISPLACEMENT, ('displacement',)),
@@ -106,8 +105,7 @@ def test_realtime_composed_bag_holds_every_step_and_the_miss_accounting(tmp_path
 
 
 def read_bridge_flags(bag) -> list:
-    from rths_bringup import bagio
-    from rths_common import topics
+    from rths_common import bagio, topics
 
     flags = {}
     for _, _, msg in bagio.read_messages(bag, [topics.STATUS]):

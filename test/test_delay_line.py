@@ -26,8 +26,8 @@ FS_HZ = 1024.0
 
 
 def test_identification_through_the_delay_line_lets_the_compensator_absorb_it(tmp_path):
-    from rths_bringup import bagio
     from rths_bringup.review import weighted_delay_ms
+    from rths_common import bagio
 
     config = tmp_path / 'config'
     shutil.copytree(REPO / 'config', config)
@@ -35,14 +35,14 @@ def test_identification_through_the_delay_line_lets_the_compensator_absorb_it(tm
     doc = yaml.safe_load(path.read_text())
     doc['bridge']['ros__parameters']['command_delay_steps'] = D
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    before = {p.name: p.read_bytes() for p in config.iterdir()}
+    before = {p.name: p.read_bytes() for p in config.iterdir() if p.is_file()}
     out = tmp_path / 'run'
     rths('run', '--config', config, '--duration', 12, '--ident-duration', 30, '--out', out,
          '--storage', 'sqlite3', timeout=900)
 
     # Issue 17: a run writes its plant and taps only into its own results directory (the RTHS
     # phase's params file holds the designed taps); config/ is left byte for byte as it was.
-    assert {p.name: p.read_bytes() for p in config.iterdir()} == before
+    assert {p.name: p.read_bytes() for p in config.iterdir() if p.is_file()} == before
     designed = yaml.safe_load((out / 'compensator.yaml').read_text())
     ran = yaml.safe_load((out / 'rths' / 'config' / 'compensator.yaml').read_text())
     assert ran['compensator']['ros__parameters']['taps'] == \

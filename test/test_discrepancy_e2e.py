@@ -7,7 +7,7 @@ whose DTM (valve #4, seed Table 4) has Coulomb friction on its moving mass
 given the run's bag, must name ``coulomb_friction`` with the right force, and
 the reference re-run with the updated specimen model must match the RTHS
 better than the nominal one.  The bag carries the run's parameters as run
-information (``rths launch --bag`` stores them, :mod:`rths_bringup.runinfo`),
+information (``rths launch --bag`` stores them, :mod:`rths_common.runinfo`),
 so the nominal damper and the reference come from the bag; the ``--config``
 passed as well is read only for a bag whose run information lacks them.
 """
@@ -24,7 +24,7 @@ DURATION_S = 20.0
 
 
 def _write_config(cfg):
-    from rths_bringup import runinfo
+    from rths_common import runinfo
 
     config = REPO / 'config'
     numerical = dict(runinfo.load_params(config / 'numerical.yaml', 'numerical'),
@@ -41,7 +41,7 @@ def _write_config(cfg):
 
 
 def test_workflow_names_lab_dtm_friction_and_updated_reference_matches_rths(tmp_path):
-    from rths_bringup.bagio import read_discrepancy
+    from rths_discrepancy.io import read_bag
     from rths_numerical.dtm import TABLE4
 
     cfg = tmp_path / 'config'
@@ -51,7 +51,7 @@ def test_workflow_names_lab_dtm_friction_and_updated_reference_matches_rths(tmp_
 
     # the DTM really works against the friction: its spring force dwarfs F_c and it
     # slides (|velocity| above the 1 mm/s friction velocity scale) most of the strong motion
-    data = read_discrepancy(bag, 'specimen')
+    data = read_bag(bag, 'specimen')
     assert data['time'].size == int(DURATION_S * 1024)
     x = data['rel_disp']
     v = np.gradient(x, data['time'])

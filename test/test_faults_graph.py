@@ -37,8 +37,7 @@ def copy_config(directory: Path, **changes) -> Path:
 
 def read_bag(bag):
     """Bridge status (step, state, stamp) and measurements (step, applied) of a bag."""
-    from rths_bringup import bagio
-    from rths_common import topics
+    from rths_common import bagio, topics
 
     status, meas = [], []
     for topic, _, msg in bagio.read_messages(bag, [topics.STATUS, topics.MEASUREMENT]):
@@ -51,7 +50,7 @@ def read_bag(bag):
 
 
 def check_recording(bag):
-    """The bag is readable; every loop topic starts at 0, in order, without gaps."""
+    """Return the bag is readable; every loop topic starts at 0, in order, without gaps."""
     from rths_bringup.review import read_loop, step_check
 
     loop = read_loop(bag)
@@ -175,7 +174,7 @@ def test_foreign_publisher_and_duplicate_steps_are_logged_and_ignored(tmp_path):
 
 
 def realtime_config(directory, duration_s=3.0, **compensator):
-    """A 256 Hz realtime graph (simulated plant, 50-tap unit FIR) with compensator faults."""
+    """Return a 256 Hz realtime graph (simulated plant, 50-tap unit FIR) with compensator faults."""
     from rths_bringup.bench_loop import write_config
 
     config = write_config(directory, rate_hz=256.0, duration_s=duration_s, taps=50,
@@ -188,9 +187,8 @@ def realtime_config(directory, duration_s=3.0, **compensator):
 
 
 def bridge_misses(bag) -> int:
-    """The bridge's running deadline-miss count at the end of a bag."""
-    from rths_bringup import bagio
-    from rths_common import topics
+    """Return the bridge's running deadline-miss count at the end of a bag."""
+    from rths_common import bagio, topics
 
     return max(int(m.deadline_misses) for _, _, m in bagio.read_messages(bag, [topics.STATUS])
                if m.node == 'bridge')
@@ -307,7 +305,9 @@ def send_emergency_stop(domain_id: int, how: str, reason: str) -> str:
 
 @pytest.mark.parametrize('how', ['topic', 'service'])
 def test_emergency_stop_mid_run_holds_ramps_and_stops(tmp_path, how):
-    """Issue 4: an operator's emergency stop (topic or service) mid-run: hold, ramp to the
+    """Issue 4: an operator's emergency stop mid-run brings the loop to STOPPED.
+
+    Issue 4: an operator's emergency stop (topic or service) mid-run: hold, ramp to the
     safe position, STOPPED, exit 3; the reason is in the status; the bag keeps every step.
     """
     config = copy_config(tmp_path / 'config', numerical={'duration_s': 600.0})

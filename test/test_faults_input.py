@@ -18,7 +18,7 @@ CONFIG = REPO / 'config'
 
 
 def write_config(directory: Path, node=None, changes=None, drop=()) -> Path:
-    """A copy of config/ with ``changes`` made to (and keys ``drop``ped from) ``node``'s file."""
+    """Copy config/ with ``changes`` made to (and keys ``drop``ped from) ``node``'s file."""
     directory.mkdir(parents=True, exist_ok=True)
     for name in ('bridge', 'compensator', 'numerical'):
         data = yaml.safe_load((CONFIG / f'{name}.yaml').read_text())
@@ -54,6 +54,10 @@ PARAMS_CASES = [
     ('compensator', {'denominator': [1.0, -2.0]}, ['compensator.yaml', 'denominator',
                                                    'unstable']),
     ('compensator', {'fs_hz': '1024 Hz'}, ['compensator.yaml', 'fs_hz', 'carries a unit']),
+    ('compensator', {'solver': 'lsi'}, ['compensator.yaml', 'unknown parameter', 'solver',
+                                        "under 'provenance:'"]),
+    ('compensator', {'fs_hz': 512.0}, ['compensator.yaml', 'fs_hz = 512 Hz', '1024 Hz',
+                                       'design them for 1024 Hz']),
     ('numerical', {'fs_hz': math.nan}, ['numerical.yaml', 'fs_hz', 'finite']),
     ('numerical', {'scale': math.inf}, ['numerical.yaml', 'scale', 'finite']),
     ('numerical', {'duration': 5.0}, ['numerical.yaml', 'unknown parameter', 'duration',
@@ -115,7 +119,7 @@ def test_good_building_model_file_passes(tmp_path):
 
 def write_dat(path, t, a):
     lines = ['event', 'source', 'station', 'band', 'Time[s] Accel[g]']
-    lines += [f'{ti:.4f} {ai:.6f}' for ti, ai in zip(t, a)]
+    lines += [f'{ti:.4f} {ai:.6f}' for ti, ai in zip(t, a, strict=True)]
     path.write_text('\n'.join(lines) + '\n')
     return path
 

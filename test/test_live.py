@@ -32,8 +32,7 @@ def _free_port() -> int:
 
 
 def _write_bag(bag):
-    from rths_bringup import bagio
-    from rths_common import cdr, topics
+    from rths_common import bagio, cdr, topics
 
     t0 = 1_700_000_000_000_000_000
     with bagio.BagWriter(bag, run_info={'fs_hz': FS, 'kind': 'rths'}) as w:

@@ -7,14 +7,16 @@ calls the same cores in the same order without ROS.
 """
 
 import numpy as np
+import pytest
 
 from rths_system_tests import REPO, rths
 
 
-def test_lockstep_run_equals_offline_coupled_simulation(tmp_path):
-    from rths_bringup import bagio, runinfo
+@pytest.mark.parametrize('method', ['fir', 'amb'])
+def test_lockstep_run_equals_offline_coupled_simulation(tmp_path, method):
+    """Also with an adaptive method: command k waits for measurement k-1 in both."""
     from rths_bringup.offline import offline_rths
-    from rths_common import topics
+    from rths_common import bagio, runinfo, topics
 
     config = REPO / 'config'
     numerical = dict(runinfo.load_params(config / 'numerical.yaml', 'numerical'),
@@ -23,6 +25,10 @@ def test_lockstep_run_equals_offline_coupled_simulation(tmp_path):
     for key in ('sdof_mass_kg', 'sdof_freq_hz', 'sdof_zeta'):
         numerical.pop(key)
     compensator = runinfo.load_params(config / 'compensator.yaml', 'compensator')
+    if method != 'fir':
+        compensator['method'] = method
+        compensator['provenance'] = dict(compensator.get('provenance') or {},
+                                         plant=str(config / 'plant.yaml'))
     bridge = dict(runinfo.load_params(config / 'bridge.yaml', 'bridge'), dtm='valve4',
                   displacement_noise_m=1e-6, force_noise_n=0.5, seed=3)
     cfg = tmp_path / 'config'
@@ -51,6 +57,10 @@ def test_lockstep_run_equals_offline_coupled_simulation(tmp_path):
         assert scale > 0, name
         # the same float operations in the same order: equal to round-off (in practice bitwise)
         assert np.max(np.abs(ros - ref)) <= 1e-12 * scale, name
+    if method != 'fir':   # the coefficients are recorded, decimated (every 64th step)
+        coefs = bagio.read_topic(bag, topics.COMPENSATOR_COEFFICIENTS)
+        assert n // 64 - 2 <= len(coefs) <= n // 64
+        assert all(len(m.data) == 4 and np.all(np.isfinite(m.data)) for _, m in coefs)
     # and the loop did something physical: the building moved and the DTM pushed back
     assert np.max(np.abs(offline['interface_displacement'])) > 1e-4
     assert np.max(np.abs(offline['force'])) > 10.0
@@ -59,8 +69,8 @@ def test_lockstep_run_equals_offline_coupled_simulation(tmp_path):
 def test_offline_node_keys_cover_every_node_parameter():
     """The offline loop strips exactly the node-level keys the nodes take for themselves."""
     from rths_actuator_bridge.node import NODE_PARAMS as bridge
-    from rths_bringup.offline import NODE_KEYS
+    from rths_common.params import NODE_KEYS
     from rths_compensator.node import NODE_PARAMS as compensator
     from rths_numerical.node import NODE_PARAMS as numerical
 
-    assert set(bridge) | set(compensator) | set(numerical) == NODE_KEYS
+    assert set(bridge) | set(compensator) | set(numerical) == set(NODE_KEYS)

@@ -60,7 +60,7 @@ def srv_parts(path) -> tuple:
 
 
 def is_default(value) -> bool:
-    """True if ``value`` equals the default a lost field would come back with."""
+    """Return True if ``value`` equals the default a lost field would come back with."""
     if isinstance(value, list):
         return all(v == 0 for v in value)
     return value in (0, 0.0, '', False)
@@ -70,12 +70,12 @@ def same(a, b):
     if isinstance(a, float):
         return math.isclose(a, b)
     if isinstance(a, (list, tuple)):
-        return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b))
+        return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b, strict=True))
     return a == b
 
 
 def plain(value):
-    """A received field as a Python scalar or list (numpy arrays, array.array, sequences)."""
+    """Return a received field as a Python scalar or list (numpy arrays, array.array, sequences)."""
     if isinstance(value, (bool, int, float, str)):
         return value
     if hasattr(value, 'tolist'):
@@ -103,7 +103,7 @@ def test_every_message_and_service_field_is_covered():
     srvs = {p.stem: p for p in SRV_DIR.glob('*.srv')}
     assert set(srvs) == set(SRV_FIELDS), 'add the new service to SRV_FIELDS'
     for name, path in srvs.items():
-        for text, table in zip(srv_parts(path), SRV_FIELDS[name]):
+        for text, table in zip(srv_parts(path), SRV_FIELDS[name], strict=True):
             assert set(declared_fields(text)) == set(table), name
     # a field lost on the way comes back as its default: every value here must differ from it
     tables = [*MSG_FIELDS.values(), *(t for pair in SRV_FIELDS.values() for t in pair)]
@@ -121,12 +121,12 @@ def _rosbags_store():
     """
     from rosbags.typesys import get_types_from_msg
 
-    from rths_bringup import bagio
+    from rths_common import bagio
 
     store = bagio.typestore()
     types = {}
     for path in sorted(SRV_DIR.glob('*.srv')):
-        for text, half in zip(srv_parts(path), ('Request', 'Response')):
+        for text, half in zip(srv_parts(path), ('Request', 'Response'), strict=True):
             msgtype = f'rths_msgs/srv/{path.stem}_{half}'
             if msgtype not in store.types:  # rosbags would name it <pkg>/srv/msg/<Name>
                 [definition] = get_types_from_msg(text, msgtype).values()
@@ -141,7 +141,7 @@ def _rosbags_value(value):
 
 
 def _rosbags_round_trip(tmp_path, msgtype, msg):
-    from rths_bringup import bagio
+    from rths_common import bagio
 
     bag = tmp_path / 'bag'
     with bagio.BagWriter(bag, {'/t': msgtype}) as writer:

@@ -19,8 +19,9 @@ def test_mr_damper_rths_matches_the_nonlinear_reference():
     Measured 0.11 % over 10 s (12.1 % without compensation).  The dampers also
     change the response: >= 10 % RMS reduction.
     """
-    from rths_bringup import runinfo
-    from rths_bringup.offline import core_params, offline_rths
+    from rths_bringup.offline import offline_rths
+    from rths_common import runinfo
+    from rths_common.params import core_params
     from rths_numerical.mr_damper import simulate_mr_reference
     from rths_numerical.reference import relative_rms_error, simulate_uncontrolled
     from rths_numerical.substructure import make_substructure

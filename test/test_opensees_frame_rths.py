@@ -21,9 +21,10 @@ def test_frame_rths_matches_the_whole_numerical_reference():
     ok, why = opensees_available()
     if not ok:
         pytest.skip(f'OpenSeesPy unavailable: {why}')
-    from rths_bringup import runinfo
-    from rths_bringup.offline import core_params, offline_rths
+    from rths_bringup.offline import offline_rths
     from rths_bringup.review import offline_references, residual_drift
+    from rths_common import runinfo
+    from rths_common.params import core_params
     from rths_numerical.reference import relative_rms_error
 
     params = {n: runinfo.load_params(REPO / 'config' / f'{n}.yaml', n)

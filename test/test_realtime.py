@@ -49,8 +49,7 @@ def realtime_run(tmp_path_factory):
 
 def read_run(bag):
     """Bridge status, measurements and commands of a bag, by step."""
-    from rths_bringup import bagio
-    from rths_common import topics
+    from rths_common import bagio, topics
 
     status = {'bridge': {}, 'numerical': {}, 'compensator': {}}
     measurement, command = {}, {}
@@ -126,7 +125,7 @@ def designed_filter():
 
 @pytest.fixture(scope='module')
 def lost_displacement_run(tmp_path_factory):
-    """A realtime run (designed compensator) losing every N-th interface displacement."""
+    """Return a realtime run (designed compensator) losing every N-th interface displacement."""
     from rths_bringup.bench_loop import write_config
 
     base = tmp_path_factory.mktemp('realtime_lost_displacement')
@@ -162,8 +161,7 @@ def test_lost_displacements_are_interpolated_without_a_safety_stop(lost_displace
 
 
 def test_every_lost_displacement_is_a_compensator_miss(lost_displacement_run):
-    from rths_bringup import bagio
-    from rths_common import topics
+    from rths_common import bagio, topics
 
     _, bag = lost_displacement_run
     status, _, _ = read_run(bag)

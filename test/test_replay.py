@@ -14,7 +14,7 @@ def recorder_executable() -> str:
 
 
 def test_replay_then_record_gives_the_same_messages(tmp_path):
-    from rths_bringup import bagio
+    from rths_common import bagio
 
     original = tmp_path / 'original'
     rths('launch', '--config', REPO / 'config', '--duration', 0.5, '--bag', original,

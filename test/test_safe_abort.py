@@ -48,9 +48,9 @@ FAULT = re.compile(r'instability: RMS force oscillation ([\d.]+) N > ([\d.]+) N 
 
 
 def offline(dtm='novalve', force_scale=60.0, compensated=False):
-    """The same loop without ROS (offline_rths) with the repo's config; per-step arrays."""
-    from rths_bringup import runinfo
+    """Return the same loop without ROS (offline_rths) with the repo's config; per-step arrays."""
     from rths_bringup.offline import offline_rths
+    from rths_common import runinfo
 
     params = {n: runinfo.load_params(CONFIG / f'{n}.yaml', n)
               for n in ('numerical', 'compensator', 'bridge')}
@@ -102,7 +102,7 @@ def test_offline_uncompensated_loop_grows_until_the_bridge_trips():
 
 
 def copy_config(directory):
-    """The repo's config/ (three params files and the identified plant) in ``directory``."""
+    """Return the repo's config/ (three params files and the identified plant) in ``directory``."""
     directory.mkdir(parents=True)
     for name in ('bridge', 'compensator', 'numerical', 'plant'):
         shutil.copyfile(CONFIG / f'{name}.yaml', directory / f'{name}.yaml')
@@ -111,8 +111,7 @@ def copy_config(directory):
 
 def bridge_status(bag):
     """``{step: (safety state, fault)}`` of the bridge's status messages in a bag."""
-    from rths_bringup import bagio
-    from rths_common import topics
+    from rths_common import bagio, topics
 
     return {int(m.step): (int(m.safety_state), m.fault)
             for _, _, m in bagio.read_messages(bag, [topics.STATUS]) if m.node == 'bridge'}
@@ -120,9 +119,8 @@ def bridge_status(bag):
 
 def test_uncompensated_unstable_run_ends_in_the_bridges_safe_abort(tmp_path):
     from rths_actuator_bridge.safety import SafetyLimits
-    from rths_bringup import bagio
     from rths_bringup.review import read_loop, step_check
-    from rths_common import topics
+    from rths_common import bagio, topics
 
     config, out = copy_config(tmp_path / 'config'), tmp_path / 'run'
     proc = rths('run', '--no-compensation', *UNSTABLE, '--config', config, '--out', out,
@@ -201,7 +199,7 @@ def _assert_mcap_read_by_the_mcap_library(bag):
     """Issue 17: rths run records MCAP that the mcap library reads (schemas, counts)."""
     from mcap.reader import make_reader
 
-    from rths_bringup import bagio
+    from rths_common import bagio
 
     meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert meta['storage_identifier'] == 'mcap'

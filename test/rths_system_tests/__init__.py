@@ -10,7 +10,7 @@ import time
 
 
 def _repo_root() -> Path:
-    """The checkout (RTHS_ROOT from env.sh, else the first parent holding config/ and Makefile)."""
+    """Return the checkout (RTHS_ROOT, else the first parent holding config/ and Makefile)."""
     if os.environ.get('RTHS_ROOT'):
         return Path(os.environ['RTHS_ROOT'])
     for parent in Path(__file__).resolve().parents:

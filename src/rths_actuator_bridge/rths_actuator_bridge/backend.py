@@ -13,10 +13,11 @@ returns the measurement at the END of that period, labelled step k.  The
 simulated backend advances its plant by exactly one sample per ``write()``
 (deterministic lock-step); with the UDP backend the controller does it.
 
-Parameters (flat, as ROS parameters) accepted by :func:`make_backend`:
+The backends (:class:`rths_actuator_bridge.simulated.SimulatedBackend`,
+:class:`rths_actuator_bridge.udp.UdpBackend`) import this module only; the
+table of backend names is :data:`rths_actuator_bridge.bridge.BACKENDS`, where
+a backend is chosen.  Their parameters (flat, as ROS parameters):
 
-``backend``
-    ``'simulated'`` (default) or ``'udp'``.
 Simulated backend
     see :data:`rths_actuator_bridge.simulated.SIM_PARAMS` (``fs_hz``,
     ``actuator_model``, ``dtm``, ``frame_mass_kg``, noise, ADC, ``seed``, friction).
@@ -36,8 +37,6 @@ from .safety import SafetyLimits
 UNCONFIGURED = 'unconfigured'
 INACTIVE = 'inactive'
 ACTIVE = 'active'
-
-BACKENDS = ('simulated', 'udp')
 
 
 class Backend(ABC):
@@ -110,9 +109,11 @@ class Backend(ABC):
     def _configure(self, params: dict):
         """Backend-specific configuration."""
 
+    @abstractmethod
     def _activate(self):
         """Backend-specific activation."""
 
+    @abstractmethod
     def _deactivate(self):
         """Backend-specific deactivation."""
 
@@ -124,18 +125,3 @@ class Backend(ABC):
     def _read(self):
         """Backend-specific read."""
 
-
-def make_backend(params: dict) -> Backend:
-    """Create and configure the backend named by ``params['backend']`` (default 'simulated')."""
-    name = params.get('backend', 'simulated')
-    if name == 'simulated':
-        from .simulated import SimulatedBackend
-        backend = SimulatedBackend()
-    elif name == 'udp':
-        from .udp import UdpBackend
-        backend = UdpBackend()
-    else:
-        raise ValueError(f"parameter 'backend' = {name!r} is unknown; use one of "
-                         f"{', '.join(repr(b) for b in BACKENDS)}")
-    backend.configure(params)
-    return backend

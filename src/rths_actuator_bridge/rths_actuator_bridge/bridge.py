@@ -24,7 +24,40 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import safety
-from .backend import make_backend
+from .backend import Backend
+from .simulated import SimulatedBackend
+from .udp import UdpBackend
+
+#: Backend name (the ``backend`` parameter) -> class; 'simulated' is the default.
+BACKENDS = {'simulated': SimulatedBackend, 'udp': UdpBackend}
+
+#: The bridge's own parameters: key -> (default, meaning [unit]).  The backends' are
+#: ``simulated.SIM_PARAMS`` and ``udp.UDP_PARAMS``, the limits ``safety.SAFETY_PARAMS``.
+PARAMS = {
+    'backend': ('simulated', "'simulated' (the plant model) or 'udp' (a servo controller)"),
+    'command_delay_steps': (0, '[steps] the command of step k is written at tick k + D'),
+}
+
+
+def param_schema(node_params) -> dict:
+    """Return the bridge node's parameter schema: its ``node_params``, the core's, the backends'."""
+    from rths_common.params import node_schema
+
+    from .simulated import SIM_PARAMS
+    from .udp import UDP_PARAMS
+    return node_schema(node_params, {**UDP_PARAMS, **SIM_PARAMS, **safety.SAFETY_PARAMS,
+                                     **PARAMS})
+
+
+def make_backend(params: dict) -> Backend:
+    """Create and configure the backend named by ``params['backend']`` (default 'simulated')."""
+    name = params.get('backend', 'simulated')
+    if name not in BACKENDS:
+        raise ValueError(f"parameter 'backend' = {name!r} is unknown; use one of "
+                         f"{', '.join(repr(b) for b in BACKENDS)}")
+    backend = BACKENDS[name]()
+    backend.configure(params)
+    return backend
 
 
 @dataclass
@@ -55,7 +88,7 @@ class DelayLine:
                              f'in [0, {MAX_DELAY_STEPS}] (steps between a command and the tick '
                              'that writes it; 0 = none)')
         self.steps = int(steps)
-        self.pending = {}
+        self.pending: dict[int, np.ndarray] = {}
         self.first = None
 
     def receive(self, step: int, command):
@@ -65,7 +98,7 @@ class DelayLine:
             self.first = command
 
     def due(self, tick: int):
-        """The command to write at ``tick`` (None if it has not arrived); forget older ones."""
+        """Return the command to write at ``tick`` (None if not arrived); forget older ones."""
         step = tick - self.steps
         if step < 0:
             return self.first
@@ -91,11 +124,11 @@ class Bridge:
         return self.delay.steps
 
     def receive(self, step: int, command):
-        """A command for ``step`` arrived: it waits in the delay line until tick step + D."""
+        """Return a command for ``step`` arrived: it waits in the delay line until tick step + D."""
         self.delay.receive(step, command)
 
     def due(self, tick: int):
-        """The command to write at ``tick`` (that of step tick - D), None if it is missing."""
+        """Return the command to write at ``tick`` (that of step tick - D), None if missing."""
         return self.delay.due(tick)
 
     @property

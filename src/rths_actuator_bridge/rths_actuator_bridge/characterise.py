@@ -133,7 +133,7 @@ def _residuals(theta, records, m_d, scales):
     from scipy.signal import lfilter
     c_d, k_d = np.exp(theta)
     out = []
-    for rec, scale in zip(records, scales):
+    for rec, scale in zip(records, scales, strict=True):
         num, den = _discrete(m_d, c_d, k_d, rec.fs_hz)
         sim = lfilter(num, den, rec.base_accel)
         res = rec.rel_disp - sim
@@ -155,7 +155,7 @@ def excitation_band(record: DTMRecord) -> float:
 
 
 def prepare(record: DTMRecord, band_hz: float = None) -> DTMRecord:
-    """Same zero-phase low-pass on both signals (keeps eq. 47) and decimation to >= 20 x band.
+    """Low-pass both signals alike (zero-phase, keeps eq. 47) and decimate to >= 20 x band.
 
     Removing the measurement noise above the excitation band avoids the
     errors-in-variables bias of the noisy acceleration input.
@@ -298,7 +298,7 @@ def read_csv(path, name: str = None) -> DTMRecord:
 
 def write_csv(path, record: DTMRecord, force=None):
     """Write a record in the :func:`read_csv` layout (atomic)."""
-    from rths_numerical.files import atomic_open
+    from rths_common.files import atomic_open
     t = np.arange(len(record.base_accel)) / record.fs_hz
     cols = [t, record.base_accel, record.rel_disp] + ([force] if force is not None else [])
     header = 'time,base_accel,rel_disp' + (',force' if force is not None else '')
@@ -308,16 +308,13 @@ def write_csv(path, record: DTMRecord, force=None):
 
 
 def read_bag(path):
-    """Records from a rosbag2 bag via ``rths_bringup.bagio.read_dtm_characterisation``."""
-    try:
-        from rths_bringup.bagio import read_dtm_characterisation
-    except ImportError:
-        raise ValueError(f'--bag {path}: reading DTM tests from bags is not available yet '
-                         '(rths_bringup.bagio.read_dtm_characterisation is missing); '
-                         'export a CSV with time,base_accel,rel_disp and use --csv') from None
-    time_s, base_accel, rel_disp = read_dtm_characterisation(path)
-    t = np.asarray(time_s, float)
-    return DTMRecord(np.asarray(base_accel, float), np.asarray(rel_disp, float),
+    """Return the DTM record (table acceleration, relative displacement) of a rosbag2 run bag."""
+    from rths_common.bagio import read_specimen
+    from rths_numerical.dtm import FRAME_MASS_KG
+
+    spec = read_specimen(path, FRAME_MASS_KG)
+    t = np.asarray(spec['time'], float)
+    return DTMRecord(np.asarray(spec['base_accel'], float), np.asarray(spec['rel_disp'], float),
                      1.0 / np.mean(np.diff(t)), str(path))
 
 

@@ -9,7 +9,7 @@ import argparse
 import json
 import sys
 
-from rths_numerical.files import atomic_open
+from rths_common.files import atomic_open
 
 
 def _progress(text: str):
@@ -41,7 +41,7 @@ def run_emulator(args) -> int:
     """Serve the simulated plant over UDP until interrupted or --duration-s elapses."""
     import time
 
-    from .udp import ControllerEmulator
+    from .emulator import ControllerEmulator
     params = {'actuator_model': args.actuator_model, 'dtm': args.dtm, 'fs_hz': args.fs_hz,
               'seed': args.seed, 'displacement_noise_m': args.displacement_noise_m,
               'force_noise_n': args.force_noise_n, 'adc_bits': args.adc_bits,

@@ -13,6 +13,8 @@ DTM: the actuator model is command -> displacement).
 
 import numpy as np
 
+from .channels import CHANNELS, zoh
+
 
 class MRTableSpecimen:
     """Advances a :class:`~.simulated.SimulatedPlant` (bare table) with the MR damper on it."""
@@ -21,7 +23,6 @@ class MRTableSpecimen:
         """Check the plant (continuous actuator) and precompute the sub-step matrices."""
         from rths_numerical.mr_damper import MRDamper
 
-        from .simulated import CHANNELS, _zoh
         if plant.arx is not None:
             raise ValueError("parameter 'dtm' = 'mr' needs a continuous actuator model "
                              "('3pole' or '4pole'), not an ARX plant.yaml")
@@ -31,7 +32,7 @@ class MRTableSpecimen:
         self.damper = MRDamper(voltage=cfg.mr_voltage_v)
         self.h = plant.dt / cfg.mr_substeps
         self.substeps = cfg.mr_substeps
-        self._ad, bd = _zoh(plant.a_c, plant.b_c, self.h)
+        self._ad, bd = zoh(plant.a_c, plant.b_c, self.h)
         self._bd_u = np.ascontiguousarray(bd[:, 0])
         self._c_disp = plant.c[CHANNELS.index('table_disp')].copy()
         self._c_vel = plant.c[CHANNELS.index('table_vel')].copy()

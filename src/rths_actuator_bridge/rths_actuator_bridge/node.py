@@ -1,64 +1,11 @@
-"""Actuator-bridge node: where the numerical world touches steel.
+"""Actuator-bridge node: the ROS shell of :class:`rths_actuator_bridge.bridge.Bridge`.
 
 ``ros2 run rths_actuator_bridge bridge_node --ros-args --params-file config/bridge.yaml``
 
-Subscribes ``/rths/command`` and hands each command to
-:class:`rths_actuator_bridge.bridge.Bridge` (the ROS-free logic: the backend,
-simulated plant or UDP servo controller, guarded by the safety supervisor);
-publishes the measured displacement and force on ``/rths/measurement`` and a
-``/rths/status`` message per step.
-
-Lifecycle: the node behaves like a managed node.  It configures the backend
-and the supervisor from its parameters (INACTIVE: nothing moves), then
-activates them (``autostart: true``, the default); with ``autostart: false``
-it waits for ``ros2 lifecycle set /bridge activate`` (the lifecycle_msgs
-``~/change_state`` and ``~/get_state`` services; ``deactivate`` mid-run is a
-safe stop).  A command is never passed
-on unless the supervisor accepts it; after any fault the supervisor holds,
-ramps to the safe position and stops, and the node then deactivates the
-backend and exits with code 3 (the launcher reports a safety stop).
-
-Command source: only the node named ``command_source`` (default
-``compensator``) may command the actuator.  Every other publisher on
-``/rths/command`` is logged once by name and gid and its messages are
-ignored: the compensator puts its writer gid in ``header.frame_id`` (also in
-the lean realtime messages) and the bridge checks it against the gids the
-graph shows for ``command_source`` (rclpy's message info has no publisher gid).
-The parameters are checked first (:func:`check_bridge_params`: unknown keys,
-non-finite limits, limits in the wrong unit).
-
-Emergency stop: a ``std_msgs/String`` on ``/rths/emergency_stop`` (the reason)
-or the ``rths_msgs/srv/EmergencyStop`` service ``/rths/emergency_stop_service``.
-In lock-step mode the supervisor is stepped by the incoming commands; when
-none arrive for ``watchdog_timeout_s`` wall-clock seconds, or after an
-emergency stop, a timer at the loop rate drives the stop sequence alone.
-
-Realtime mode (``mode: realtime``): the bridge is the clock, as a servo
-controller is.  The first command (step 0) starts the clock; tick k comes at
-``t0 + k / fs`` (steady clock) and writes the command of step k, then publishes
-measurement k.  The command of step k must have arrived before tick k
-(with ``command_delay_steps`` = D > 0: before tick k + D, which writes it;
-see :mod:`rths_actuator_bridge.bridge`), otherwise the tick is a *deadline miss*: counted, flagged in that step's status
-(``deadline_missed``, running ``deadline_misses``) and handled by the
-**extrapolation policy**: ``Bridge.step(k, None)``, i.e. the safety
-supervisor continues the last command at constant velocity (checked against
-every limit) and, after ``watchdog_steps`` misses in a row, trips its
-watchdog (hold, ramp to the safe position, stop).  When commands come back
-after misses the supervisor rejoins them within 80 % of the limits instead of
-jumping (:mod:`rths_actuator_bridge.safety`).  A command that arrives
-after its tick is discarded (counted as late).  The clock is one of
-(``clock``): ``loop`` (default: the spin loop waits in ``spin_once`` until the
-tick, the last ``spin_margin_us`` polling; no second thread), ``thread`` (a
-dedicated clock thread sleeping to absolute deadlines) or ``timer`` (a
-steady-clock rclpy timer); ``loop`` missed the fewest deadlines (measured:
-6.8 % vs 12 % timer and 56 % thread, 1024 Hz, same load; the thread fights
-the executor for the GIL).  The number of
-steps comes from the numerical node on ``/rths/run_steps``; after the last
-step the clock stops and the actuator holds its last position until the
-launcher stops the node.  A tick more than one period late re-anchors the
-clock (counted as an overrun) instead of bursting.
-``timing_out`` (a .npz path) saves per-tick and per-command times for
-``rths bench loop``.
+Subscribes ``/rths/command``, steps the backend (simulated plant or UDP servo
+controller) under the safety supervisor, and publishes ``/rths/measurement`` and
+``/rths/status``; lifecycle services, command source, emergency stop and the
+realtime clocks (behaviour and measurements: docs/nodes.md).
 """
 
 import sys
@@ -102,8 +49,7 @@ def check_bridge_params(params: dict) -> dict:
     naming the field and the fix.  Used by the node and by ``rths launch``'s
     pre-flight check (:mod:`rths_bringup.preflight`).
     """
-    from rths_actuator_bridge.backend import BACKENDS
-    from rths_actuator_bridge.bridge import DelayLine
+    from rths_actuator_bridge.bridge import BACKENDS, PARAMS, DelayLine
     from rths_actuator_bridge.safety import SAFETY_PARAMS, SafetyLimits
     from rths_actuator_bridge.simulated import SIM_PARAMS
     from rths_actuator_bridge.udp import UDP_PARAMS
@@ -115,7 +61,7 @@ def check_bridge_params(params: dict) -> dict:
     if backend not in BACKENDS:
         raise ValueError(f"parameter 'backend' = {backend!r} is unknown; use one of "
                          f"{', '.join(repr(b) for b in BACKENDS)}")
-    known = {'backend', 'command_delay_steps', *SAFETY_PARAMS,
+    known = {*PARAMS, *SAFETY_PARAMS,
              *(UDP_PARAMS if backend == 'udp' else SIM_PARAMS)}
     unknown = sorted(set(core) - known)
     if unknown:
@@ -135,9 +81,9 @@ class BridgeNode:
     """ROS shell around a backend and its safety supervisor."""
 
     def __init__(self):
-        from rths_actuator_bridge.bridge import Bridge
+        from rths_actuator_bridge.bridge import Bridge, param_schema
 
-        self.node = ns.make_node('bridge')
+        self.node = ns.make_node('bridge', param_schema(NODE_PARAMS), NODE_PARAMS)
         params = ns.parameters(self.node)
         self.own = {k: ns.param(params, k, v) for k, v in NODE_PARAMS.items()}
         params = check_bridge_params(params)
@@ -217,7 +163,7 @@ class BridgeNode:
         self.log.info('bridge active')
 
     def lifecycle_state(self) -> State:
-        """The managed-node state: ACTIVE while the backend is, else INACTIVE (configured)."""
+        """Return the managed-node state: ACTIVE while the backend is, else INACTIVE."""
         from rths_actuator_bridge.backend import ACTIVE
 
         if self.backend.lifecycle == ACTIVE:
@@ -225,11 +171,14 @@ class BridgeNode:
         return State(id=State.PRIMARY_STATE_INACTIVE, label='inactive')
 
     def on_get_state(self, _request, response):
+        """Answer ``~/get_state`` with the current lifecycle state."""
         response.current_state = self.lifecycle_state()
         return response
 
     def on_change_state(self, request, response):
-        """Activate (INACTIVE -> ACTIVE, not after a safety stop) or deactivate (ACTIVE ->
+        """Change the lifecycle state (the ``~/change_state`` service).
+
+        Activate (INACTIVE -> ACTIVE, not after a safety stop) or deactivate (ACTIVE ->
         INACTIVE: once a command has moved the actuator, through the safe stop: hold, ramp,
         stop); other transitions are refused (the node configures itself at start-up and
         cleans up when it exits).
@@ -274,7 +223,7 @@ class BridgeNode:
         self.source_gids = gids
 
     def command_from_source(self, sender: str, step: int) -> bool:
-        """True if ``sender`` (a command's ``header.frame_id``) is the command source's writer gid.
+        """Return True if ``sender`` (a ``header.frame_id``) is the command source's writer gid.
 
         An unknown sender triggers a rescan of the graph (a new source writer may
         have just matched; the graph can show it after its first messages): always
@@ -319,6 +268,7 @@ class BridgeNode:
 
     # ---------------------------------------------------------------- realtime
     def on_run_steps(self, msg: UInt64):
+        """Take the number of steps of the run (lock-step: the loop ends there)."""
         self.n_steps = int(msg.data)
 
     def on_command_raw(self, data: bytes):
@@ -380,6 +330,7 @@ class BridgeNode:
         return self.t0_ns + self.k * self.period_ns
 
     def timer_tick(self):
+        """Run the ticks that are due (the timer clock)."""
         if self.next_due_ns() is not None:
             self.tick()
 
@@ -493,9 +444,11 @@ class BridgeNode:
             self.start_safe_stop(f"watchdog: no command for {self.own['watchdog_timeout_s']:g} s")
 
     def on_estop_topic(self, msg: String):
+        """Start the safe stop on an emergency-stop message."""
         self.start_safe_stop(msg.data or 'emergency stop topic')
 
     def on_estop_srv(self, request, response):
+        """Start the safe stop on an emergency-stop service call."""
         response.accepted = True
         if self.stopped:
             response.message = 'already stopped'

@@ -409,13 +409,13 @@ class SafetySupervisor:
         return self._accept(self.pos) if self.last_sent is not None else None, STOPPED, self.fault
 
     def _rejoinable(self, command) -> bool:
-        """A command the supervisor may approach after misses: right size, finite, in the stroke."""
+        """Return True for a command to approach after misses: right size, finite, in the stroke."""
         u = np.atleast_1d(np.asarray(command, float))
         return (u.shape == self.pos.shape and bool(np.all(np.isfinite(u)))
                 and bool(np.all(np.abs(u) <= self.limits.stroke_m)))
 
     def _rejoin(self, command):
-        """One step towards ``command`` at 80 % of the limits: ``(output, '')`` or ``(None, fault)``."""
+        """Step towards ``command`` at 80 % of the limits: ``(output, '')`` or ``(None, fault)``."""
         lim = self.limits
         if self.rejoin_left == 0:
             self.rejoin_left = lim.watchdog_steps

@@ -127,15 +127,3 @@ BRIDGE_PARAMS = {'actuator_model': 'silva2020', 'fs_hz': FS_HZ, 'dtm': 'none',
                  'displacement_noise_m': DISPLACEMENT_NOISE_M, 'force_noise_n': FORCE_NOISE_N,
                  'adc_bits': 0, 'daq_filter_hz': 0.0}
 
-
-def simulated_plant(params: Silva2020Params = None, **config):
-    """Build the benchmark plant as a :class:`.simulated.SimulatedPlant` (with sensor noise).
-
-    ``config`` overrides :data:`BRIDGE_PARAMS` (e.g. ``seed``, or zero noise).
-    """
-    from .simulated import SimulatedPlant
-
-    class Silva2020Plant(SimulatedPlant):
-        silva2020_params = params
-
-    return Silva2020Plant(**{**BRIDGE_PARAMS, **config})

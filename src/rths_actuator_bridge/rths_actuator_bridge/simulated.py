@@ -77,19 +77,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from .backend import Backend
-
-#: Specimen-scenario channels exposed by :meth:`SimulatedPlant.channels`.
-CHANNELS = ('table_disp', 'table_vel', 'table_accel', 'rel_disp', 'rel_vel', 'force')
-
-
-def _zoh(a: np.ndarray, b: np.ndarray, dt: float):
-    """Exact ZOH discretisation of ``x' = A x + B u`` over ``dt`` (augmented expm)."""
-    n, m = b.shape
-    big = np.zeros((n + m, n + m))
-    big[:n, :n] = a
-    big[:n, n:] = b
-    e = expm(big * dt)
-    return e[:n, :n], e[:n, n:]
+from .channels import CHANNELS, zoh
 
 
 def _quantise(x, bits: int, full_range: float):
@@ -233,7 +221,7 @@ class SimulatedPlant:
     Use :meth:`step` in a loop, or :meth:`simulate` for a whole command record.
     """
 
-    #: Parameters of the 'silva2020' plant (None: nominal; see :class:`.silva2020.Silva2020Plant`)
+    #: Parameters of the 'silva2020' plant (None: nominal; see :func:`silva2020_plant`)
     silva2020_params = None
 
     def __init__(self, config: PlantConfig = None, **params):
@@ -316,7 +304,7 @@ class SimulatedPlant:
         """Keep the continuous model (inputs [u, f_c], CHANNELS outputs) and its ZOH form."""
         self.a_c, self.b_c, self.c, self.d = a, b, c, d
         self.n_states = a.shape[0]
-        self._ad, self._bd = _zoh(a, b, self.dt)
+        self._ad, self._bd = zoh(a, b, self.dt)
         # one-sample fast path of step(): contiguous command columns, preallocated buffers
         self._bd_u = np.ascontiguousarray(self._bd[:, 0])
         self._d_u = np.ascontiguousarray(self.d[:, 0])
@@ -326,7 +314,7 @@ class SimulatedPlant:
         self._y_tmp = np.zeros(self.c.shape[0])
         if self.config.friction_n > 0 and self.dtm is not None:
             h = self.dt / self.config.friction_substeps
-            self._ad_h, self._bd_h = _zoh(a, b, h)
+            self._ad_h, self._bd_h = zoh(a, b, h)
 
     def _add_daq_filter(self, a, b, c, d):
         """Append 2nd-order Butterworth anti-alias filters on the specimen channels."""
@@ -461,7 +449,7 @@ class SimulatedPlant:
             np.multiply(self._d_u, u, out=tmp)
             np.add(y, tmp, out=y)
         self.k += 1
-        self.true = dict(zip(CHANNELS, y.tolist()))
+        self.true = dict(zip(CHANNELS, y.tolist(), strict=True))
         return self.true
 
     def _step_arx(self, u: float) -> dict:
@@ -481,7 +469,8 @@ class SimulatedPlant:
         rel_vel = self._z[1] - slope if self.dtm is not None else 0.0
         force = self.frame_mass * accel - (c_d * rel_vel + k_d * rel_disp)
         self.k += 1
-        self.true = dict(zip(CHANNELS, (xs_new, slope, accel, rel_disp, rel_vel, force)))
+        values = (xs_new, slope, accel, rel_disp, rel_vel, force)
+        self.true = dict(zip(CHANNELS, values, strict=True))
         return self.true
 
     def measure(self, true: dict = None) -> dict:
@@ -541,6 +530,20 @@ class SimulatedPlant:
         return true
 
 
+def silva2020_plant(params=None, **config) -> SimulatedPlant:
+    """Build the benchmark plant of :mod:`.silva2020` as a :class:`SimulatedPlant`.
+
+    ``params`` is a :class:`.silva2020.Silva2020Params` (None: nominal); ``config``
+    overrides :data:`.silva2020.BRIDGE_PARAMS` (e.g. ``seed``, or zero noise).
+    """
+    from .silva2020 import BRIDGE_PARAMS
+
+    class Silva2020Plant(SimulatedPlant):
+        silva2020_params = params
+
+    return Silva2020Plant(**{**BRIDGE_PARAMS, **config})
+
+
 class SimulatedBackend(Backend):
     """Backend over :class:`SimulatedPlant`; each ``write()`` advances exactly one sample."""
 
@@ -552,6 +555,9 @@ class SimulatedBackend(Backend):
     def _activate(self):
         self.plant.reset()
         self._last = None
+
+    def _deactivate(self):
+        """Nothing to stop: the plant advances only when written to."""
 
     def _write(self, command):
         self.plant.step(float(command[0]))

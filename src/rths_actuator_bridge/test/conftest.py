@@ -8,8 +8,8 @@ import sys
 
 import pytest
 
-from rths_actuator_bridge.backend import make_backend
-from rths_actuator_bridge.udp import ControllerEmulator
+from rths_actuator_bridge.bridge import make_backend
+from rths_actuator_bridge.emulator import ControllerEmulator
 
 PLANT = {'dtm': 'valve4', 'actuator_model': '3pole', 'seed': 7,
          'displacement_noise_m': 1e-5, 'force_noise_n': 2.0}
@@ -17,7 +17,7 @@ PLANT = {'dtm': 'valve4', 'actuator_model': '3pole', 'seed': 7,
 
 @pytest.fixture
 def emulator():
-    """A controller emulator on 127.0.0.1 with an ephemeral port, in a thread."""
+    """Return a controller emulator on 127.0.0.1 with an ephemeral port, in a thread."""
     emu = ControllerEmulator(PLANT).start()
     yield emu
     emu.stop()
@@ -36,7 +36,7 @@ def backend_params(request):
 
 @pytest.fixture
 def backend(backend_params):
-    """A configured (inactive) backend of each kind."""
+    """Return a configured (inactive) backend of each kind."""
     b = make_backend(backend_params)
     yield b
     b.close()

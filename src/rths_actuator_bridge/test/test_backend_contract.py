@@ -4,7 +4,7 @@ from conftest import PLANT
 import numpy as np
 import pytest
 
-from rths_actuator_bridge.backend import make_backend
+from rths_actuator_bridge.bridge import make_backend
 from rths_actuator_bridge.simulated import SimulatedPlant
 
 
@@ -31,7 +31,7 @@ def test_lockstep_matches_the_plant_model(backend):
     u = _sine()
     ref = SimulatedPlant(**PLANT)
     backend.activate()
-    for k, uk in enumerate(u):
+    for uk in u:
         backend.write(np.array([uk]))
         disp, force = backend.read()
         ref.step(uk)

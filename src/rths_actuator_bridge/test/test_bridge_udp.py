@@ -11,8 +11,9 @@ import pytest
 
 from rths_actuator_bridge import safety
 from rths_actuator_bridge.bridge import Bridge
+from rths_actuator_bridge.emulator import ControllerEmulator
 from rths_actuator_bridge.simulated import SimulatedPlant
-from rths_actuator_bridge.udp import STAT_KEYS, ControllerEmulator
+from rths_actuator_bridge.udp import STAT_KEYS
 
 FS = 1024.0
 SAFE = -0.002          # [m] safe position != 0, so ending there is no coincidence

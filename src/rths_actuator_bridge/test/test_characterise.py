@@ -15,7 +15,7 @@ FS = 512.0
 
 
 def _record(params: DTMParameters, seed, band=8.0, seconds=40.0, noise=0.03):
-    """Base acceleration BLWN and the eq. 47 response, both with 3 % (of RMS) white noise."""
+    """Return a base acceleration BLWN and the eq. 47 response, both with 3 % (RMS) noise."""
     rng = np.random.default_rng(seed)
     acc = blwn(seconds, FS, band, 3.0, rng, taper_s=1.0)
     t = np.arange(len(acc)) / FS

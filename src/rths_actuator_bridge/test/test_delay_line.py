@@ -1,4 +1,7 @@
-"""The bridge's command delay line (``command_delay_steps`` = D): command k is written at tick k + D."""
+"""The bridge's command delay line (``command_delay_steps`` = D).
+
+The command of step k is written at tick k + D.
+"""
 
 import numpy as np
 import pytest

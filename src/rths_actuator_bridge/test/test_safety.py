@@ -342,7 +342,9 @@ def _reference(commands, **params):
 
 
 def _bridge_to_stop(params, commands, patch=None):
-    """Step a simulated-backend Bridge with ``commands`` (the sender keeps sending them after a
+    """Step a simulated-backend Bridge until it is STOPPED.
+
+    Step a simulated-backend Bridge with ``commands`` (the sender keeps sending them after a
     fault) until it is STOPPED; return ``(bridge, results)``.
     """
     b = Bridge()
@@ -359,7 +361,7 @@ def _bridge_to_stop(params, commands, patch=None):
 
 
 def _check_safe_stop(b, results, commands, fault_step):
-    """The common checks of a measurement fault detected in the reading of ``fault_step``."""
+    """Return the common checks of a measurement fault detected in the reading of ``fault_step``."""
     lim = b.supervisor.limits
     states = [r.state for r in results]
     applied = np.array([r.applied[0] for r in results])

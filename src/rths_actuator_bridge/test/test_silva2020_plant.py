@@ -4,7 +4,8 @@ import numpy as np
 from scipy import signal
 
 from rths_actuator_bridge import silva2020
-from rths_actuator_bridge.simulated import CHANNELS
+from rths_actuator_bridge.channels import CHANNELS
+from rths_actuator_bridge.simulated import silva2020_plant
 
 
 def test_transfer_function_matches_the_issue_figures():
@@ -29,7 +30,7 @@ def test_state_space_equals_transfer_function():
 
 
 def test_simulated_plant_hook_force_is_specimen_force():
-    plant = silva2020.simulated_plant(displacement_noise_m=0.0, force_noise_n=0.0)
+    plant = silva2020_plant(displacement_noise_m=0.0, force_noise_n=0.0)
     assert plant.dt == 1.0 / 4096.0 and plant.n_states == 5
     t = np.arange(8192) / 4096.0
     u = 2e-3 * np.sin(2 * np.pi * 4.0 * t)
@@ -47,7 +48,7 @@ def test_simulated_plant_hook_force_is_specimen_force():
 
 
 def test_sensor_noise_and_perturbation():
-    plant = silva2020.simulated_plant(seed=3)
+    plant = silva2020_plant(seed=3)
     out = plant.simulate(np.zeros(40000))
     assert abs(np.std(out['table_disp']) - 1.6e-5) < 0.05 * 1.6e-5
     assert abs(np.std(out['force']) - 2.18) < 0.05 * 2.18
@@ -57,7 +58,7 @@ def test_sensor_noise_and_perturbation():
     assert abs(np.std(k_e) - 50e3) < 10e3
     d = draws[0]
     assert d.c_e == 2 * d.zeta_e * np.sqrt(d.k_e * d.m_e)
-    assert silva2020.simulated_plant(d).a_c[4, 3] == -d.k_e / d.m_e
+    assert silva2020_plant(d).a_c[4, 3] == -d.k_e / d.m_e
 
 
 def test_converter_quantises_and_saturates():

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.signal import cont2discrete, freqs, lfilter
 
-from rths_actuator_bridge.backend import make_backend
+from rths_actuator_bridge.bridge import make_backend
 from rths_actuator_bridge.simulated import SimulatedPlant
 from rths_compensator.plants import continuous_actuator
 from rths_numerical.dtm import FRAME_MASS_KG, TABLE4
@@ -120,7 +120,9 @@ def test_arx_actuator_from_plant_yaml(monkeypatch, tmp_path):
 
 
 def _saved_zoh_plant(tmp_path, d):
-    """The 3-pole actuator's exact ZOH model with ``d`` extra samples of dead time, written
+    """Return the 3-pole actuator with ``d`` samples of dead time as a plant.yaml.
+
+    Return the 3-pole actuator's exact ZOH model with ``d`` extra samples of dead time, written
     to a plant.yaml by rths_compensator's own save function (as ``rths identify`` does).
     """
     from rths_compensator.identification import ArxModel, save_plant

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from rths_actuator_bridge import udp
-from rths_actuator_bridge.backend import make_backend
-from rths_actuator_bridge.udp import ControllerEmulator
+from rths_actuator_bridge.bridge import make_backend
+from rths_actuator_bridge.emulator import ControllerEmulator
 
 
 def test_datagram_layout_is_fixed_little_endian():

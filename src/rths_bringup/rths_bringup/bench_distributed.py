@@ -56,6 +56,7 @@ WATCHDOG_STEPS = 51
 
 
 def rths_executable() -> str:
+    """Return the path of the installed ``rths`` executable."""
     from ament_index_python.packages import get_package_prefix
 
     return str(Path(get_package_prefix('rths_bringup')) / 'lib' / 'rths_bringup' / 'rths')
@@ -90,11 +91,11 @@ def bag_metrics(bag) -> dict:
 
     loop = read_loop(bag)
     target = dict(zip(loop['steps'][topics.INTERFACE_DISPLACEMENT]['step'],
-                      loop['steps'][topics.INTERFACE_DISPLACEMENT]['values']))
+                      loop['steps'][topics.INTERFACE_DISPLACEMENT]['values'], strict=True))
     meas_steps = loop['steps'][topics.MEASUREMENT]['step']
     bridge = loop['status'].get('bridge', {'step': [], 'misses': 0, 'safety_state': [0]})
     measured = {}
-    for step, values in zip(meas_steps, read_measured(bag)):
+    for step, values in zip(meas_steps, read_measured(bag), strict=True):
         measured[step] = values
     common = sorted(set(target) & set(measured))
     xt = np.array([target[k][0] for k in common]) if common else np.zeros(1)
@@ -113,8 +114,8 @@ def bag_metrics(bag) -> dict:
 
 
 def read_measured(bag):
-    from rths_bringup import bagio
-    from rths_common import topics
+    """Return the measured displacement of channel 0 of every step in ``bag``."""
+    from rths_common import bagio, topics
 
     return [np.asarray(m.displacement, dtype=float)
             for _, _, m in bagio.read_messages(bag, [topics.MEASUREMENT])]
@@ -199,6 +200,7 @@ def _env(net, host, domain):
 
 
 def cmd_bench_distributed(args) -> int:
+    """``rths bench distributed``."""
     from rths_bringup import netns
 
     use_netns = args.netns
@@ -258,8 +260,8 @@ def delay_steps_for(one_way_ms: float, rate_hz: float) -> int:
 
 
 def _phase_config(directory, base, numerical=None, compensator=None, bridge=None) -> Path:
-    """A copy of the ``base`` config dir with the given params merged into the three files."""
-    from rths_bringup import runinfo
+    """Copy the ``base`` config dir with the given params merged into the three files."""
+    from rths_common import runinfo
 
     directory = Path(directory)
     for node, extra in (('numerical', numerical), ('compensator', compensator),
@@ -275,16 +277,16 @@ def _phase_config(directory, base, numerical=None, compensator=None, bridge=None
 
 def _loop_tracking(bag) -> dict:
     """Delay (eq. 42, PSD-weighted) and relative RMS error, interface displacement -> measured."""
-    from rths_bringup import bagio
     from rths_bringup.review import weighted_delay_ms
-    from rths_common import topics
+    from rths_common import bagio, topics
     from rths_compensator.indicators import relative_rms_pct
 
     fs = bagio.sampling_rate(bag)
     disp = bagio.step_arrays(bag, topics.INTERFACE_DISPLACEMENT, ('displacement',))
     meas = bagio.step_arrays(bag, topics.MEASUREMENT, ('displacement',))
-    target = dict(zip(disp['step'].tolist(), disp['displacement'][:, 0]))
-    pairs = [(target[k], m) for k, m in zip(meas['step'].tolist(), meas['displacement'][:, 0])
+    target = dict(zip(disp['step'].tolist(), disp['displacement'][:, 0], strict=True))
+    measured = zip(meas['step'].tolist(), meas['displacement'][:, 0], strict=True)
+    pairs = [(target[k], m) for k, m in measured
              if k in target and np.isfinite(m)]
     if len(pairs) < 2 * fs:
         return {'delay_ms': None, 'tracking_rel_rms_pct': None}
@@ -321,8 +323,8 @@ def _identify_and_design(workdir, base, link_ms, delay_steps, net, args, log) ->
 
 
 def _rths_run(name, workdir, base, taps, link_ms, delay_steps, net, args, log) -> dict:
-    """The building (Kobe) through the link with the given taps and delay line; its metrics."""
-    from rths_bringup import runinfo
+    """Run the building (Kobe) through the link with the given taps and delay line; metrics."""
+    from rths_common import runinfo
 
     comp = runinfo.load_params(taps, 'compensator')
     config = _phase_config(
@@ -464,5 +466,6 @@ def register(commands, benches):
 
 
 def argparse_bool():
+    """Return the argparse action of a ``--flag/--no-flag`` option."""
     import argparse
     return argparse.BooleanOptionalAction

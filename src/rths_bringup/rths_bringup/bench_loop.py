@@ -138,7 +138,7 @@ def write_config(directory, rate_hz=1024.0, duration_s=10.0, taps=400, model='sd
     if len(parts) not in (1, 3):
         raise ValueError(f"--cpus {cpus!r}: give one CPU list or three separated by '/'")
     cpu_of = dict(zip(('bridge', 'compensator', 'numerical'), parts * 3 if len(parts) == 1
-                      else parts))
+                      else parts, strict=True))
     prio_of = {'bridge': priority, 'compensator': max(priority - 1, 0) if priority else 0,
                'numerical': max(priority - 1, 0) if priority else 0}
 
@@ -198,7 +198,7 @@ def machine_info() -> dict:
 
 
 def analyse(bridge_npz, numerical_npz, cpu_samples=(), bag=None, rate_hz=None) -> dict:
-    """The benchmark's numbers from the nodes' timing files, the CPU samples and the bag."""
+    """Return the benchmark's numbers from the nodes' timing files, the CPU samples and the bag."""
     br = np.load(bridge_npz)
     nu = np.load(numerical_npz)
     period_ns = int(br['period_ns'])
@@ -208,14 +208,15 @@ def analyse(bridge_npz, numerical_npz, cpu_samples=(), bag=None, rate_hz=None) -
     steps = int(ticks.size)
     misses = int(missed.sum())
     # numerical publish stamp of step k -> bridge receipt of command k (first receipt)
-    pub = dict(zip(nu['pub_step'].tolist(), nu['pub_wall_ns'].tolist()))
+    pub = dict(zip(nu['pub_step'].tolist(), nu['pub_wall_ns'].tolist(), strict=True))
     recv = {}
-    for step, t_ns in zip(br['recv_step'].tolist(), br['recv_wall_ns'].tolist()):
+    for step, t_ns in zip(br['recv_step'].tolist(), br['recv_wall_ns'].tolist(), strict=True):
         recv.setdefault(step, t_ns)
-    tick_wall = dict(zip(ticks.tolist(), br['tick_wall_ns'][in_run].tolist()))
+    tick_wall = dict(zip(ticks.tolist(), br['tick_wall_ns'][in_run].tolist(), strict=True))
     latency = [(recv[k] - pub[k]) * 1e-3 for k in pub if k in recv and k > 0]
     lost = sum(1 for k in pub if k not in recv and k < steps)
-    use = [(tick_wall[k] - pub[k]) * 1e-3 for k, m in zip(ticks.tolist(), missed.tolist())
+    ticked = zip(ticks.tolist(), missed.tolist(), strict=True)
+    use = [(tick_wall[k] - pub[k]) * 1e-3 for k, m in ticked
            if not m and k in pub and k > 0]
     loop = [(recv[k + 1] - tick_wall[k]) * 1e-3 for k in tick_wall if k + 1 in recv]
     out = {
@@ -275,9 +276,8 @@ def _cpu(samples, tick_wall) -> dict:
 
 
 def bag_check(bag, steps, missed) -> dict:
-    """Recorder loss per loop topic and the bridge status accounting against the bag."""
-    from rths_bringup import bagio
-    from rths_common import topics
+    """Return the recorder loss per loop topic and the bridge status accounting against the bag."""
+    from rths_common import bagio, topics
 
     seen = {topics.INTERFACE_DISPLACEMENT: set(), topics.COMMAND: set(),
             topics.MEASUREMENT: set()}
@@ -347,7 +347,7 @@ def platform_floor(rate_hz: float, duration_s: float, priority: int = 80) -> dic
 
 
 def domain_id(requested: int) -> int:
-    """The ROS domain of the runs: ``requested`` if >= 0, else $ROS_DOMAIN_ID, else private."""
+    """Return the runs' ROS domain: ``requested`` if >= 0, else $ROS_DOMAIN_ID, else private."""
     if requested >= 0:
         if requested > 232:
             raise ValueError(f'--domain-id {requested}: use 0..232 (Fast DDS port range)')

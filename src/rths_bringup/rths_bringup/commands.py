@@ -62,15 +62,15 @@ def add_launch_args(p):
 
 
 def default_config_dir() -> Path:
-    """The repo's config/ (RTHS_ROOT is set by env.sh), else ./config."""
+    """Return the repo's config/ (RTHS_ROOT is set by env.sh), else ./config."""
     import os
     root = os.environ.get('RTHS_ROOT')
     return Path(root) / 'config' if root else Path('config')
 
 
 def run_info_of(config, overrides) -> dict:
-    """The recorder's run information for a run of ``config`` with ``overrides`` applied."""
-    from rths_bringup import runinfo
+    """Return the recorder's run information for a run of ``config`` with ``overrides`` applied."""
+    from rths_common import runinfo
 
     sections = {node: dict(runinfo.load_params(Path(config) / f'{node}.yaml', node),
                            **overrides.get(node, {}))
@@ -132,7 +132,7 @@ def cmd_launch(args) -> int:
 
 
 def bag_missing(summary: dict) -> list:
-    """What a run's bag lacks: the bridge writes a measurement and a status every tick.
+    """Return what a run's bag lacks: the bridge writes a measurement and a status every tick.
 
     ``summary`` is :func:`rths_bringup.review.loop_summary`'s; returns one text
     per incomplete stream (empty: every tick the bridge ran is in the bag).
@@ -157,7 +157,7 @@ def bag_missing(summary: dict) -> list:
 
 def live_rate_of(config) -> float:
     """Return the loop rate ``fs_hz`` of a config directory's numerical node (1024 if unset)."""
-    from rths_bringup import runinfo
+    from rths_common import runinfo
 
     config = Path(config) if config else default_config_dir()
     return float(runinfo.load_params(config / 'numerical.yaml', 'numerical').get('fs_hz', 1024.0))
@@ -165,7 +165,7 @@ def live_rate_of(config) -> float:
 
 def print_bag_info(bag, as_json=False):
     """Print a bag's topics and counts."""
-    from rths_bringup.bagio import info
+    from rths_common.bagio import info
 
     data = info(bag)
     if as_json:
@@ -180,12 +180,14 @@ def print_bag_info(bag, as_json=False):
 
 
 def cmd_bag_info(args) -> int:
+    """``rths bag info``."""
     print_bag_info(args.bag, args.json)
     return 0
 
 
 def cmd_bag_reindex(args) -> int:
-    from rths_bringup.bagio import reindex
+    """``rths bag reindex``."""
+    from rths_common.bagio import reindex
     print(f'wrote {reindex(args.bag)}')
     return 0
 

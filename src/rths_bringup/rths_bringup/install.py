@@ -26,7 +26,7 @@ def register(commands, benches):
 def install_taps(run_dir, config) -> list:
     """Install ``run_dir``'s compensator (and plant) into ``config``; return the files written.
 
-    The installed compensator's ``plant`` field becomes ``plant.yaml`` (beside
+    The installed compensator's ``provenance.plant`` becomes ``plant.yaml`` (beside
     it in ``config``) when the run identified its plant; a run designed from an
     external ``--plant`` keeps its reference to that file.
     """
@@ -45,10 +45,10 @@ def install_taps(run_dir, config) -> list:
     if plant.is_file():
         shutil.copyfile(plant, config / 'plant.yaml')
         written.append(config / 'plant.yaml')
-        params['plant'] = 'plant.yaml'  # relative to the config directory
+        params['provenance']['plant'] = 'plant.yaml'  # relative to the config directory
     fields = ('taps', 'denominator', 'fs_hz', 'scheme')
     write_compensator_params(config / 'compensator.yaml', *(params[f] for f in fields),
-                             provenance={k: v for k, v in params.items() if k not in fields})
+                             provenance=params['provenance'])
     written.insert(0, config / 'compensator.yaml')
     return written
 

@@ -91,7 +91,7 @@ def executable(package: str, name: str) -> Path:
 
 
 def config_mode(config_dir: Path, overrides: dict) -> str:
-    """Timing mode of a run: the numerical node's override, else its params file, else lockstep."""
+    """Return a run's timing mode: the numerical override, else its params file, else lockstep."""
     mode = overrides.get(OWNER, {}).get('mode')
     if mode:
         return str(mode)
@@ -133,6 +133,7 @@ class Child:
 
     @property
     def returncode(self):
+        """The process's exit code, None while it runs."""
         return self.proc.poll()
 
 
@@ -193,6 +194,7 @@ class Launcher:
         self._signal = None
 
     def say(self, text: str, name: str = 'launch'):
+        """Print ``text`` as a line of ``name`` (one line at a time)."""
         with self._print_lock:
             print(f'[{name}] {text}', file=self.out, flush=True)
 
@@ -337,7 +339,7 @@ class Launcher:
                 shutil.rmtree(self._tmp, ignore_errors=True)
         recorder = self._child('recorder')
         if recorder is not None and recorder.returncode != 0 and self.bag is not None:
-            from rths_bringup.bagio import reindex
+            from rths_common.bagio import reindex
             if self.bag.exists():
                 reindex(self.bag)
                 self.say(f'recorder ended with {describe_exit(recorder.returncode)}: '
@@ -385,7 +387,7 @@ class Launcher:
                     os.close(fd)
 
     def bridge_param(self, key: str, default):
-        """A bridge parameter from the overrides or bridge.yaml, else ``default``."""
+        """Return a bridge parameter from the overrides or bridge.yaml, else ``default``."""
         if key in self.overrides.get('bridge', {}):
             return self.overrides['bridge'][key]
         try:
@@ -415,7 +417,7 @@ class Launcher:
         return detect + hold + ramp + 2.0
 
     def wait_for_bridge_safe_stop(self):
-        """A loop node died: let the bridge's watchdog bring the plant to the safe state.
+        """Return a loop node died: let the bridge's watchdog bring the plant to the safe state.
 
         The bridge notices that commands stopped, holds, ramps to the safe
         position and exits with code 3 (safety stop); the launcher waits up to
@@ -452,7 +454,7 @@ class Launcher:
                      f'({describe_exit(bridge.returncode)}); stopping it')
 
     def bridge_backend(self) -> str:
-        """The bridge's backend from its params file and overrides ('simulated' by default)."""
+        """Return the bridge's backend from its params file and overrides (default 'simulated')."""
         backend = self.overrides.get('bridge', {}).get('backend')
         if backend:
             return str(backend)
@@ -464,7 +466,7 @@ class Launcher:
             return 'simulated'
 
     def safe_state_after_bridge_death(self, bridge: Child):
-        """The bridge was killed: say (and, with hardware, make sure) the plant is safe.
+        """Return the bridge was killed: say (and, with hardware, make sure) the plant is safe.
 
         Simulated backend: the plant lived in the bridge process and stopped with
         it; nothing moves.  UDP backend: the bridge can no longer run its safe

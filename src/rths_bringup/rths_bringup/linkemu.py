@@ -92,6 +92,7 @@ class LinkEmulator:
         return out
 
     def stats(self) -> dict:
+        """Return the sent, lost and delivered datagram counts."""
         return {'sent': self.sent, 'lost': self.lost, 'delivered': self.delivered}
 
 
@@ -116,7 +117,9 @@ class Relay:
 
     def __init__(self, domain_a: int, domain_b: int, delay_s=0.0, jitter_s=0.0, loss=0.0,
                  seed=0, mode='realtime', readers_b: int = 0, timeout_s: float = 60.0):
-        """Join the domains; ``readers_b`` > 0: first wait until that many readers in B
+        """Join the domains, waiting for the loop readers when asked.
+
+        With ``readers_b`` > 0, first wait until that many readers in B
         (compensator, recorder) and one in A (numerical) match the relayed loop topics, so no
         lock-step message is relayed before its readers exist.
         """
@@ -142,7 +145,7 @@ class Relay:
                 qos = _qos(kind, mode)
                 pub = self.nodes[dst].create_publisher(_msg_type(topic), topic, qos)
                 routes.append((src, dst, topic, kind, qos, pub))
-        for src, dst, topic, kind, qos, pub in routes:   # B -> A first: B's graph arms
+        for src, _dst, topic, _kind, qos, pub in routes:   # B -> A first: B's graph arms
             if src == 'b':
                 self.nodes[src].create_subscription(
                     _msg_type(topic), topic, self._forward(self.links['b_to_a'], pub,
@@ -158,7 +161,7 @@ class Relay:
                                   f'{timeout_s:g} s; is the graph running in both domains?')
                 for executor in self.executors.values():
                     executor.spin_once(timeout_sec=0.01)
-        for src, dst, topic, kind, qos, pub in routes:
+        for src, _dst, topic, _kind, qos, pub in routes:
             if src == 'a':
                 self.nodes[src].create_subscription(
                     _msg_type(topic), topic, self._forward(self.links['a_to_b'], pub,
@@ -227,6 +230,7 @@ class Relay:
         return self
 
     def stop(self):
+        """Stop relaying."""
         self.running = False
         for thread in self.threads:
             thread.join(timeout=2.0)

@@ -341,7 +341,7 @@ class LiveView:
         import rclpy
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-        from rths_bringup import bagio
+        from rths_common import bagio
         from rths_common.node_support import message_class
 
         # the SDK server on a private port; the bridge on the user's also takes the old name

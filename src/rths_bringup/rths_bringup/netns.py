@@ -93,7 +93,7 @@ class LabNetwork:
                 'ROS_STATIC_PEERS': peers, 'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
 
     def reachable(self, src: str, dst: str, port: int = 47999) -> bool:
-        """True if a UDP datagram from ``src`` reaches ``dst`` (no ping needed)."""
+        """Return True if a UDP datagram from ``src`` reaches ``dst`` (no ping needed)."""
         import sys
 
         recv = subprocess.Popen(
@@ -114,6 +114,7 @@ class LabNetwork:
         return 'rths' in out
 
     def close(self):
+        """Delete what was created, newest first."""
         for name in reversed(self.created):
             _ip('netns', 'del', name, check=False)
         self.created = []

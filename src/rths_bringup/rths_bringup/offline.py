@@ -2,7 +2,8 @@
 
 Each loop step k, exactly as the three nodes do it in lock-step mode:
 
-    command_k      = compensator.step(interface_displacement_k)        (compensator node)
+    command_k      = compensator.step(interface_displacement_k)        (compensator node;
+                     an adaptive method also gets measurement_{k-1})
     measurement_k  = bridge.step(k, command_{k-D})   (bridge node; D = command_delay_steps)
     interface_displacement_{k+1} = substructure.advance(force_k)       (numerical node)
 
@@ -13,29 +14,26 @@ Anyone can run a coupled simulation with it, without ROS.
 
 import numpy as np
 
-#: Parameters that configure a node itself, not its core: the union of the nodes'
-#: NODE_PARAMS (test_offline_node_keys checks this list against the nodes).
-NODE_KEYS = {'mode', 'executor', 'wait_for_subscribers', 'history_out', 'timing_out',
-             'status_every', 'autostart', 'watchdog_timeout_s', 'clock', 'spin_margin_us',
-             'publish_specimen', 'inject_drop_every', 'rt_priority', 'cpus', 'gc',
-             'command_source', 'inject_duplicate_every', 'inject_delay_every',
-             'inject_delay_ms', 'remote_graph'}
-
-
-def core_params(params: dict) -> dict:
-    """``params`` without the node-level keys."""
-    return {k: v for k, v in params.items() if k not in NODE_KEYS}
+from rths_common.params import core_params
 
 
 def offline_rths(numerical: dict, compensator: dict, bridge: dict) -> dict:
     """Run the coupled loop for every step of the substructure; return per-step arrays."""
     from rths_actuator_bridge.bridge import Bridge
     from rths_compensator.filters import MultiChannelFilter
+    from rths_compensator.params import check_sampling_rate
     from rths_numerical.substructure import make_substructure
 
     sub = make_substructure(core_params(numerical))
-    comp = MultiChannelFilter(compensator['taps'], compensator.get('denominator', [1.0]),
-                              n_channels=sub.n_interface)
+    if 'fs_hz' in compensator:
+        check_sampling_rate(compensator, 1.0 / sub.dt, 'compensator', 'the loop rate 1/dt')
+    adaptive = str(compensator.get('method', 'fir') or 'fir') != 'fir'
+    if adaptive:   # command k waits for measurement k-1, as the lock-step node does
+        from rths_compensator.adaptive import methods_from_params
+        comp = methods_from_params(compensator, sub.n_interface)
+    else:
+        comp = MultiChannelFilter(compensator['taps'], compensator.get('denominator', [1.0]),
+                                  n_channels=sub.n_interface)
     lab = Bridge()
     lab.configure(core_params(bridge))
     lab.activate()
@@ -46,7 +44,12 @@ def offline_rths(numerical: dict, compensator: dict, bridge: dict) -> dict:
     displacement = sub.first_displacement()
     k = 0
     while not sub.done():
-        command = comp.step(np.asarray(displacement, dtype=float))
+        if adaptive:
+            command = comp.step(np.asarray(displacement, dtype=float),
+                                out['displacement'][k - 1] if k else None,
+                                out['applied'][k - 1] if k else None)
+        else:
+            command = comp.step(np.asarray(displacement, dtype=float))
         lab.receive(k, command)
         result = lab.step(k, lab.due(k))   # command of step k - D (command_delay_steps)
         out['interface_displacement'][k] = displacement

@@ -8,11 +8,14 @@ checked by the same plain-Python core its node uses:
 * ``numerical.yaml`` -> :func:`rths_numerical.substructure.make_substructure`
   (and through it the model YAML: symmetric, positive-definite matrices;
   the ground-motion file: complete, uniform time step);
-* ``compensator.yaml`` -> :func:`rths_compensator.params.load_compensator_params`
-  (finite taps, stable denominator);
+* ``compensator.yaml`` -> :func:`rths_compensator.params.check_compensator_params`
+  (known keys; provenance under its own key) and
+  :func:`rths_compensator.params.load_compensator_params` (finite taps, stable
+  denominator), and its ``fs_hz`` against the loop rate (``fs_hz`` of
+  ``numerical.yaml``, :func:`rths_compensator.params.check_sampling_rate`);
 * ``bridge.yaml`` -> :func:`rths_actuator_bridge.node.check_bridge_params`
   (known keys, finite limits in SI units) and, for the simulated backend,
-  :func:`rths_actuator_bridge.backend.make_backend`.
+  :func:`rths_actuator_bridge.bridge.make_backend`.
 
 On top of that every file is scanned for values no node can use: ``.nan`` /
 ``.inf`` and numbers written with a unit (``'0.254 m'``: the files hold SI
@@ -88,11 +91,23 @@ def check_numerical(path) -> dict:
 
 
 def check_compensator(path) -> dict:
-    """Validate ``compensator.yaml`` (taps, denominator, fs_hz)."""
-    from rths_compensator.params import load_compensator_params
+    """Validate ``compensator.yaml`` (known keys, taps, denominator, fs_hz)."""
+    from rths_common.params import NODE_KEYS
+    from rths_compensator.params import check_compensator_params, load_compensator_params
 
-    load_params_file(path, 'compensator')
+    params = load_params_file(path, 'compensator')
+    check_compensator_params({k: v for k, v in params.items() if k not in NODE_KEYS}, str(path))
     return _wrap(path, 'compensator', load_compensator_params, path)
+
+
+def check_rates(config_dir, numerical: dict, compensator: dict) -> None:
+    """Refuse taps designed for another rate than the loop's (numerical.yaml fs_hz)."""
+    from rths_compensator.params import check_sampling_rate
+    from rths_numerical.substructure import DEFAULTS
+
+    loop_fs = numerical.get('fs_hz', DEFAULTS['fs_hz'])
+    check_sampling_rate(compensator, loop_fs, str(Path(config_dir) / 'compensator.yaml'),
+                        'fs_hz of numerical.yaml')
 
 
 def check_bridge(path) -> dict:
@@ -102,7 +117,7 @@ def check_bridge(path) -> dict:
     params = load_params_file(path, 'bridge')
     core = _wrap(path, 'bridge', check_bridge_params, params)
     if core.get('backend', 'simulated') == 'simulated':
-        from rths_actuator_bridge.backend import make_backend
+        from rths_actuator_bridge.bridge import make_backend
         _wrap(path, 'bridge', make_backend, core).close()
     return params
 
@@ -115,9 +130,11 @@ CHECKS = (('bridge.yaml', check_bridge), ('compensator.yaml', check_compensator)
 def check_config(config_dir) -> None:
     """Check every params file of ``config_dir`` (ValueError/OSError on the first bad one)."""
     config_dir = Path(config_dir)
+    checked = {}
     for name, check in CHECKS:
         path = config_dir / name
         if not path.is_file():
             raise OSError(f'params file {path} not found; give --config a directory holding '
                           f'{", ".join(n for n, _ in CHECKS)}')
-        check(path)
+        checked[name] = check(path)
+    check_rates(config_dir, checked['numerical.yaml'], checked['compensator.yaml'])

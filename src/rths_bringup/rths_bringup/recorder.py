@@ -34,9 +34,9 @@ import time
 
 import rclpy
 
-from rths_bringup.bagio import BagWriter
 from rths_common import bagstore, topics
 from rths_common import node_support as ns
+from rths_common.bagio import BagWriter
 from rths_common.qos import recorder_qos, status_qos
 
 #: Recorder parameters that are not run information (everything else is kept in the bag).

@@ -31,7 +31,8 @@ def register(commands, benches):
 
 def cmd_replay(args) -> int:
     """Run ``rths replay`` (with ``--live``, inside a live-view session)."""
-    from rths_bringup import bagio, live
+    from rths_bringup import live
+    from rths_common import bagio
 
     fs = bagio.sampling_rate(args.bag) if args.live and bagio.run_info(args.bag) else 0.0
     with live.session(args, fs_hz=fs):
@@ -43,8 +44,7 @@ def _replay(args) -> int:
     from rclpy.duration import Duration
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    from rths_bringup import bagio
-    from rths_common import topics
+    from rths_common import bagio, topics
     from rths_common.node_support import message_class
     from rths_common.progress import Progress
 

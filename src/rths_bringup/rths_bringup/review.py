@@ -4,8 +4,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rths_bringup import bagio
-from rths_common import topics
+from rths_common import bagio, topics
 
 #: Loop topics that carry one message per step, and the array field to summarise.
 STEP_TOPICS = {
@@ -121,8 +120,8 @@ def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
 
 def _numerical_params(info: dict) -> dict:
     """Return the run's numerical core parameters (node-level keys stripped, as offline does)."""
-    from rths_bringup import runinfo
-    from rths_bringup.offline import core_params
+    from rths_common import runinfo
+    from rths_common.params import core_params
     return core_params(runinfo.section(info, 'numerical'))
 
 
@@ -134,7 +133,7 @@ def review_rths(bag, out_dir) -> dict:
     """
     import json
 
-    from rths_bringup import runinfo
+    from rths_common import runinfo
     from rths_compensator.indicators import relative_rms_pct
     from rths_numerical.model import LinearModel
     from rths_numerical.reference import (

@@ -289,12 +289,13 @@ def _identify_once(seed: int = 7, record_s: float = 20.0, band_hz: float = 50.0,
     quantisation of the desired displacement into a saturated command; ``L`` keeps
     ``|G|`` bounded for the price of its passband lag (~1 ms at 400 Hz, order 4).
     """
-    from rths_actuator_bridge.silva2020 import FS_HZ, converter, simulated_plant
+    from rths_actuator_bridge.silva2020 import FS_HZ, converter
+    from rths_actuator_bridge.simulated import silva2020_plant
     from rths_compensator.design import design_fir, predict
     from rths_compensator.identification import ArxModel, arx_grid
     from rths_numerical.signals import blwn
     rng = np.random.default_rng(seed)
-    plant = simulated_plant(seed=seed)
+    plant = silva2020_plant(seed=seed)
     sos = signal.butter(4, prefilter_hz, fs=FS_HZ, output='sos')
     records = []
     for _ in range(n_train + n_validation):
@@ -383,8 +384,8 @@ def identify_and_design(seed: int = 7, attempts: int = 3, accept_pct: float = 5.
 
 # ----------------------------------------------------------------------------- the loop
 def _plant_batch(params_list, dt, seed):
-    from rths_actuator_bridge.silva2020 import simulated_plant
-    plants = [simulated_plant(p, seed=seed + i) for i, p in enumerate(params_list)]
+    from rths_actuator_bridge.simulated import silva2020_plant
+    plants = [silva2020_plant(p, seed=seed + i) for i, p in enumerate(params_list)]
     ad = np.stack([p._ad for p in plants])
     bd = np.stack([p._bd[:, 0] for p in plants])
     cx = plants[0].c[0]

@@ -26,11 +26,12 @@ reference would be meaningless.
 """
 
 import datetime
+import json
 from pathlib import Path
 import sys
 
-from rths_bringup import runinfo
 from rths_bringup.commands import default_config_dir, launch
+from rths_common import runinfo
 
 NODE_FILES = {'numerical': 'numerical.yaml', 'compensator': 'compensator.yaml',
               'bridge': 'bridge.yaml'}
@@ -94,6 +95,10 @@ def register(commands, benches):
                    help='identification run length [s] (default 40: 4 records of 10 s)')
     p.add_argument('--plant', default=None,
                    help='skip steps 1-2 and design from this identified plant.yaml')
+    p.add_argument('--adaptive', default='fir', choices=('fir', 'rls_fir', 'ats', 'amb'),
+                   help='compensation method of the RTHS run (default fir: the designed FIR; '
+                        'rls_fir, ats, amb adapt on line from it, lock-step only; rls_fir costs '
+                        'n^2 per step: use it with --taps 32..64; docs/adaptive.md)')
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                    help='storage of the bags (default mcap; sqlite3 for older tools)')
     p.add_argument('--no-compensation', action='store_true',
@@ -204,7 +209,7 @@ def safety_stop_summary(step, state, fault, applied, displacement, force, fs_hz:
 
 
 def read_safety_stop(bag):
-    """The bridge's safety stop recorded in a bag (:func:`safety_stop_summary`), else None.
+    """Return the bridge's safety stop recorded in a bag (:func:`safety_stop_summary`), else None.
 
     None when the bridge never reported STOPPED in ``/rths/status``.  The
     summary also holds the run's parameters from the bag's run information and
@@ -212,8 +217,7 @@ def read_safety_stop(bag):
     """
     import numpy as np
 
-    from rths_bringup import bagio
-    from rths_common import topics
+    from rths_common import bagio, topics
 
     status = {}
     faults = []
@@ -251,7 +255,7 @@ def read_safety_stop(bag):
 
 
 def safety_stop_text(s: dict) -> str:
-    """The printed report of a run stopped by the bridge's safety supervisor."""
+    """Return the printed report of a run stopped by the bridge's safety supervisor."""
     scheme = (s.get('compensator') or {}).get('scheme', '?')
 
     def metres(value, spec):
@@ -279,7 +283,7 @@ def safety_stop_text(s: dict) -> str:
 
 
 def _model_param(model: str, config: Path) -> str:
-    """The numerical node's ``model``: a shipped script name becomes its absolute path."""
+    """Return the numerical node's ``model``: a shipped script name becomes its path."""
     if model in ('building2story', 'sdof') or model.endswith(('.yaml', '.yml', '.py')):
         return str(Path(model).resolve()) if model.endswith(('.yaml', '.yml', '.py')) else model
     script = config / 'models' / (model.replace('-', '_') + '.py')
@@ -292,6 +296,7 @@ def _model_param(model: str, config: Path) -> str:
 
 
 def cmd_run(args) -> int:
+    """``rths run``."""
     from rths_bringup import live
     from rths_bringup.commands import live_rate_of
 
@@ -371,6 +376,13 @@ def _run(args) -> int:
              f'rths install-taps {out})')
     comp = runinfo.load_params(comp_file, 'compensator')
     comp.update({k: base['compensator'][k] for k in ('executor',) if k in base['compensator']})
+    if args.adaptive != 'fir':
+        if args.no_compensation or args.mode != 'lockstep':
+            raise ValueError(f'--adaptive {args.adaptive} needs a designed FIR and lock-step '
+                             'mode (drop --no-compensation / use --mode lockstep)')
+        provenance = dict(comp.get('provenance') or {})
+        provenance['plant'] = str(Path(str(provenance.get('plant', ''))).resolve())
+        comp.update(method=args.adaptive, provenance=provenance)
 
     # 3: the RTHS run
     numerical = dict(base['numerical'], model=model_param,
@@ -391,8 +403,10 @@ def _run(args) -> int:
                                    'bridge': base['bridge']})
     stop = _launch_phase('RTHS', cfg, rths_dir / 'bag', 'rths', fs, args.mode,
                          {'numerical': numerical, 'bridge': base['bridge'],
-                          'compensator': {k: v for k, v in comp.items() if k in (
-                              'scheme', 'n_taps', 'fc_hz', 'plant', 'predicted_delay_ms')}},
+                          'compensator': {'scheme': comp['scheme'], **{
+                              k: v for k, v in comp.get('provenance', {}).items()
+                              if k in ('n_taps', 'fc_hz', 'plant', 'predicted_delay_ms')},
+                              'method': args.adaptive}},
                          history=rths_dir / 'numerical_history.npz', storage=args.storage,
                          live=args.live, layout=args.layout)
     if stop is not None:
@@ -401,6 +415,8 @@ def _run(args) -> int:
     # 4: review
     _say('step 4: review')
     summary = review_rths(rths_dir / 'bag', out)
+    summary['adaptive'] = args.adaptive
+    (out / 'summary.json').write_text(json.dumps(summary, indent=2))
     print_review(summary)
     _say(f'results: {out}/report.html (one file), {out}/summary.json, {out}/review.txt, '
          f'plots {out}/*.png, '
@@ -412,7 +428,7 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path) -> in
     """Write and print the summary of an RTHS run the bridge stopped; return EXIT_SAFETY_STOP."""
     import json
 
-    from rths_bringup.offline import core_params
+    from rths_common.params import core_params
     from rths_numerical.substructure import make_substructure
 
     stop['planned_steps'] = int(make_substructure(core_params(numerical)).n_steps)
@@ -428,6 +444,7 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path) -> in
 
 
 def cmd_review(args) -> int:
+    """``rths review``."""
     from rths_bringup.review import print_review, review_rths
 
     bag = Path(args.bag)

@@ -46,7 +46,9 @@ def _all_parsers(parser, path=()):
 
 
 def test_every_command_help_formats(capsys):
-    """``rths ... --help`` works for every (sub-)command (a stray '%' in a help text broke
+    """``rths ... --help`` works for every (sub-)command.
+
+    ``rths ... --help`` works for every (sub-)command (a stray '%' in a help text broke
     ``rths study --help``: argparse %-formats help strings).
     """
     paths = []

@@ -20,8 +20,8 @@ def test_install_taps_copies_taps_and_plant_into_the_config(tmp_path, capsys):
     config.mkdir()
     assert main(['install-taps', str(run), '--config', str(config)]) == 0
     params = load_compensator_params(config / 'compensator.yaml')
-    assert params['taps'] == [2.0, -1.0] and params['n_taps'] == 2
-    assert params['plant'] == 'plant.yaml'     # beside it in the config directory
+    assert params['taps'] == [2.0, -1.0] and params['provenance']['n_taps'] == 2
+    assert params['provenance']['plant'] == 'plant.yaml'  # beside it in the config directory
     assert (config / 'plant.yaml').read_text() == 'plant: identified\n'
     assert 'wrote' in capsys.readouterr().out
 
@@ -31,7 +31,8 @@ def test_install_taps_of_an_external_plant_keeps_its_reference(tmp_path):
     config = tmp_path / 'config'
     config.mkdir()
     main(['install-taps', str(run), '--config', str(config)])
-    assert load_compensator_params(config / 'compensator.yaml')['plant'] == str(run / 'plant.yaml')
+    installed = load_compensator_params(config / 'compensator.yaml')
+    assert installed['provenance']['plant'] == str(run / 'plant.yaml')
     assert not (config / 'plant.yaml').exists()
 
 

@@ -135,18 +135,20 @@ def mcap_topics(path) -> dict:
     count), ...], 'start_ns', 'end_ns', 'count'}``; the counts come from
     rosbags' scan of the file (its summary, else its records).
     """
+    from rosbags.interfaces import ConnectionExtRosbag2
     from rosbags.rosbag2.storage_mcap import McapReader
 
     reader = McapReader(Path(path))
     reader.open()
     try:
         stats = reader.statistics
-        topics = [(c.topic, c.msgtype, c.ext.serialization_format, c.digest, c.msgcount)
+        topics = [(c.topic, c.msgtype, c.ext.serialization_format
+                   if isinstance(c.ext, ConnectionExtRosbag2) else 'cdr', c.digest, c.msgcount)
                   for c in reader.connections]
         count = int(stats.message_count) if stats else 0
         return {'topics': topics, 'count': count,
-                'start_ns': int(stats.start_time) if count else 0,
-                'end_ns': int(stats.end_time) if count else 0}
+                'start_ns': int(stats.start_time) if stats and count else 0,
+                'end_ns': int(stats.end_time) if stats and count else 0}
     finally:
         reader.close()
 
@@ -215,7 +217,8 @@ def committed_counts(bag) -> dict:
     data = path.read_bytes()
     if data[:len(MAGIC)] != MAGIC:
         return {}
-    topics, counts = {}, {}
+    topics: dict[int, str] = {}
+    counts: dict[int, int] = {}
     _scan(data, len(MAGIC), len(data), topics, counts)
     return {topics.get(cid, str(cid)): n for cid, n in counts.items()}
 

@@ -147,9 +147,9 @@ class GapFiller:
         if order < 1:
             raise ValueError(f'interpolation order must be >= 1, got {order}')
         self.order = order
-        self._steps = deque(maxlen=order)   # the last received steps, oldest first
-        self._values = deque(maxlen=order)
-        self.last_nodes = []                # steps the last gap was interpolated through
+        self._steps: deque[int] = deque(maxlen=order)   # the last received steps, oldest first
+        self._values: deque[np.ndarray] = deque(maxlen=order)
+        self.last_nodes: list[int] = []     # steps the last gap was interpolated through
 
     @property
     def last_step(self):

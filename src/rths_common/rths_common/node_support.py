@@ -12,10 +12,13 @@ import os
 import signal
 import threading
 import time
+from typing import Any
 
+from rcl_interfaces.msg import ParameterDescriptor
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from rths_msgs.msg import LoopStatus
 
@@ -23,16 +26,39 @@ from rths_msgs.msg import LoopStatus
 ROS_BUILTIN_PARAMS = ('use_sim_time', 'start_type_description_service')
 
 
-def make_node(name: str) -> Node:
-    """Create a node whose parameters are everything its params file sets."""
-    return Node(name, automatically_declare_parameters_from_overrides=True,
+def make_node(name: str, schema: dict | None = None, defaults: dict | None = None) -> Node:
+    """Create a node whose parameters are everything its params file sets.
+
+    ``schema`` (key -> description with unit, :func:`rths_common.params.node_schema`)
+    describes them: each key it names gets a read-only descriptor with its type and
+    description, so ``ros2 param describe`` shows them.  Keys of ``defaults`` (the
+    node-level ``NODE_PARAMS``) that the file does not set are declared with their
+    default.  A key the schema does not name is left to the core's check, which
+    rejects it by name.
+    """
+    node = Node(name, automatically_declare_parameters_from_overrides=True,
                 allow_undeclared_parameters=True)
+    for key, description in (schema or {}).items():
+        if node.has_parameter(key):
+            value = node.get_parameter(key)
+            node.set_descriptor(key, _descriptor(key, value.type_.value, description))
+        elif defaults is not None and key in defaults:
+            value = Parameter(key, value=defaults[key])
+            node.declare_parameter(key, defaults[key],
+                                   _descriptor(key, value.type_.value, description))
+    return node
+
+
+def _descriptor(key: str, type_id: int, description: str) -> ParameterDescriptor:
+    return ParameterDescriptor(name=key, type=type_id, description=description, read_only=True)
 
 
 def parameters(node: Node) -> dict:
     """All parameters of ``node`` as a flat ``{name: python value}`` dict."""
     out = {}
-    for name, param in node.get_parameters_by_prefix('').items():
+    # rclpy annotates the values as parameter values; they are Parameter objects
+    by_name: dict[str, Any] = node.get_parameters_by_prefix('')
+    for name, param in by_name.items():
         if name in ROS_BUILTIN_PARAMS or name.startswith('qos_overrides.'):
             continue
         value = param.value
@@ -84,7 +110,7 @@ class StepClock:
 
 def parse_cpus(spec: str) -> set:
     """CPU set of an affinity spec such as ``'1'``, ``'0,1'`` or ``'0-1'`` ('' = all CPUs)."""
-    cpus = set()
+    cpus: set[int] = set()
     for part in str(spec).replace(' ', '').split(','):
         if not part:
             continue
@@ -303,10 +329,11 @@ class TickThread:
         self.tick = tick
         self.poll_s = poll_s
         self.running = True
-        self.error = None
+        self.error: Exception | None = None
         self.thread = threading.Thread(target=self._run, name='rths-clock', daemon=True)
 
     def start(self):
+        """Start the clock thread; return self."""
         self.thread.start()
         return self
 
@@ -326,6 +353,7 @@ class TickThread:
             self.error = err
 
     def stop(self):
+        """Stop the clock thread and wait for it (2 s at most)."""
         self.running = False
         self.thread.join(timeout=2.0)
 

@@ -21,7 +21,7 @@ def enabled(stream) -> bool:
     return bool(isatty and isatty())
 
 
-def format_eta(seconds: float) -> str:
+def format_eta(seconds: float | None) -> str:
     """Return ``m:ss`` (or ``h:mm:ss``) of a non-negative duration, ``--:--`` if unknown."""
     if seconds is None or not seconds >= 0 or seconds == float('inf'):
         return '--:--'
@@ -56,7 +56,7 @@ class Progress:
         self._width = 0
         self.done = 0
 
-    def update(self, done: int, total: int = None):
+    def update(self, done: int, total: int | None = None):
         """Set the steps done (and the total, if given); redraw if the interval has passed."""
         self.done = int(done)
         if total is not None:

@@ -20,6 +20,9 @@ EMERGENCY_STOP_SERVICE = '/rths/emergency_stop_service'
 #: actuator bridge -> recorder: table and DTM sensor channels (rths_msgs/msg/Specimen)
 SPECIMEN = '/rths/specimen'
 
+#: compensator node -> recorder: adaptive coefficients, decimated (std_msgs/msg/Float64MultiArray)
+COMPENSATOR_COEFFICIENTS = '/rths/compensator_coefficients'
+
 LOOP_TOPICS = {
     INTERFACE_DISPLACEMENT: 'rths_msgs/msg/InterfaceDisplacement',
     COMMAND: 'rths_msgs/msg/Command',
@@ -27,4 +30,5 @@ LOOP_TOPICS = {
     STATUS: 'rths_msgs/msg/LoopStatus',
     SPECIMEN: 'rths_msgs/msg/Specimen',
     EMERGENCY_STOP: 'std_msgs/msg/String',
+    COMPENSATOR_COEFFICIENTS: 'std_msgs/msg/Float64MultiArray',
 }

@@ -10,7 +10,7 @@ DT = 1.0 / FS_HZ
 
 
 def sines(steps):
-    """A 1-3 Hz sum of sines [m] (peak ~10 mm) at the steps, and bounds of its derivatives.
+    """Return a 1-3 Hz sum of sines [m] (peak ~10 mm) at the steps, and bounds of its derivatives.
 
     ``bound[r]`` = sum of amplitude * (2 pi f)^r >= max|x^(r)| (triangle inequality).
     """
@@ -25,7 +25,9 @@ def sines(steps):
 
 def test_linear_fill_is_exact_on_a_ramp_per_channel():
     filler = gaps.GapFiller(order=1)
-    ramp = lambda k: np.array([0.5 + 2e-3 * k, -1.0 - 7e-4 * k])  # two DOFs
+    def ramp(k):  # two DOFs
+        return np.array([0.5 + 2e-3 * k, -1.0 - 7e-4 * k])
+
     assert filler.fill(10, ramp(10)).shape == (0, 2)     # nothing before: nothing to fill
     assert filler.fill(11, ramp(11)).shape == (0, 2)     # consecutive: nothing lost
     filled = filler.fill(15, ramp(15))                   # 12, 13, 14 lost
@@ -33,7 +35,9 @@ def test_linear_fill_is_exact_on_a_ramp_per_channel():
 
 
 def test_cubic_fill_is_exact_on_a_cubic():
-    cubic = lambda k: 1e-3 * (2.0 + 0.3 * k - 0.05 * k ** 2 + 0.004 * k ** 3)
+    def cubic(k):
+        return 1e-3 * (2.0 + 0.3 * k - 0.05 * k ** 2 + 0.004 * k ** 3)
+
     filler = gaps.GapFiller(order=3)
     for k in (0, 1, 2, 3):
         assert filler.fill(k, cubic(k)).size == 0
@@ -51,7 +55,7 @@ def test_error_within_the_lagrange_bound_and_far_below_hold(order, lost):
         x_known, bound = sines(known)
         x_b, _ = sines([b])
         filler = gaps.GapFiller(order=order)
-        for k, v in zip(known, x_known):
+        for k, v in zip(known, x_known, strict=True):
             filler.fill(int(k), v)
         missing = np.arange(a + 1, b)
         filled = filler.fill(b, x_b[0])[:, 0]
@@ -81,7 +85,9 @@ def test_documented_single_step_bounds():
 
 def test_back_to_back_gaps_keep_a_cubic_through_received_steps():
     """Lost 200 and 202: the second gap uses 198, 199, 201 (received) and 203, exactly."""
-    cubic = lambda k: 1e-3 * (1.0 + 0.02 * k - 3e-4 * k ** 2 + 2e-6 * k ** 3)
+    def cubic(k):
+        return 1e-3 * (1.0 + 0.02 * k - 3e-4 * k ** 2 + 2e-6 * k ** 3)
+
     filler = gaps.GapFiller(order=3)
     for k in (196, 197, 198, 199):
         filler.fill(k, cubic(k))

@@ -1,4 +1,6 @@
-"""Limit the BLAS thread pool: on small dense problems (the FIR designs, n <= 300) a
+"""Limit the BLAS thread pool to one thread for the small dense design problems.
+
+Limit the BLAS thread pool: on small dense problems (the FIR designs, n <= 300) a
 multi-threaded OpenBLAS on a loaded 2-core machine is several times SLOWER than one thread.
 """
 

@@ -534,3 +534,76 @@ def make_method(name, design: Design, plant=None, guards: Guards = None, **optio
     if name not in classes:
         raise ValueError(f'method {name!r} is unknown; use one of {", ".join(METHODS)}')
     return classes[name](design, plant, guards, **options)
+
+
+#: Severity order of the states when several channels report (the worst is shown).
+_SEVERITY = {'fixed': 0, 'adapting': 1, 'frozen': 2, 'fallback': 3}
+
+
+class ChannelMethods:
+    """One method per interface channel: what the compensator node and the offline loop run.
+
+    ``step(x, measured_prev)`` takes one target per channel and the measured displacements
+    of the previous step (or None); ``applied_prev`` (the commands the bridge actually
+    wrote, if known) freezes adaptation while the bridge changes the commands (a hold, a
+    ramp or a limit: the measurement then does not answer the compensator's command).
+    """
+
+    def __init__(self, name, design: Design, plant=None, n_channels=1, **options):
+        self.name = name
+        self.methods = [make_method(name, design, plant, **options)
+                        for _ in range(int(n_channels))]
+        self._last = np.zeros(int(n_channels))
+
+    def step(self, x, measured_prev=None, applied_prev=None):
+        """Return the commands (array) for the targets ``x`` of this step."""
+        out = np.empty(len(self.methods))
+        for i, method in enumerate(self.methods):
+            if applied_prev is not None and i < len(applied_prev):
+                if abs(float(applied_prev[i]) - self._last[i]) > 1e-12:
+                    method.flag_fault('the bridge changed the command (hold, ramp or limit)')
+                else:
+                    method.clear_fault()
+            prev = None if measured_prev is None or i >= len(measured_prev) \
+                else float(measured_prev[i])
+            out[i] = method.step(float(x[i]), prev)
+        self._last = out.copy()
+        return out
+
+    def coefficients(self):
+        """Coefficients of every channel, concatenated (channel 0 first)."""
+        return np.concatenate([m.coefficients() for m in self.methods])
+
+    @property
+    def status(self) -> Status:
+        """The worst channel's status (fallback > frozen > adapting > fixed)."""
+        worst = max(self.methods, key=lambda m: _SEVERITY.get(m.status.state, 0))
+        return worst.status
+
+
+def methods_from_params(params: dict, n_channels: int) -> ChannelMethods:
+    """Build the compensator parameters' ``method`` (default fir) for ``n_channels`` channels.
+
+    ``taps``/``denominator``/``fs_hz``/``scheme`` are the designed filter; an adaptive
+    method also needs the plant.yaml the FIR was designed on: ``plant``, or the provenance's
+    (``provenance: {plant: ...}`` in a file, ``provenance.plant`` in a node).
+    """
+    from .identification import load_plant
+
+    name = str(params.get('method', 'fir') or 'fir')
+    if name not in METHODS:
+        raise ValueError(f'parameter method = {name!r} is unknown; use one of '
+                         f'{", ".join(METHODS)}')
+    design = Design(str(params.get('scheme', '')), np.asarray(params['taps'], float),
+                    np.asarray(params.get('denominator', [1.0]), float),
+                    float(params.get('fs_hz', 1024.0)))
+    plant = None
+    if name != 'fir':
+        provenance = params.get('provenance') or {}
+        path = str(params.get('plant') or provenance.get('plant')
+                   or params.get('provenance.plant') or '')
+        if not path:
+            raise ValueError(f'parameter method = {name}: parameter provenance.plant (the '
+                             'plant.yaml the FIR was designed on) is missing')
+        plant = load_plant(path)
+    return ChannelMethods(name, design, plant, n_channels)

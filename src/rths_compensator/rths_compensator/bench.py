@@ -22,7 +22,7 @@ import time
 import numpy as np
 from scipy import signal
 
-from rths_numerical.files import atomic_open
+from rths_common.files import atomic_open
 
 from . import design as dsg
 from .filters import CausalFilter, MultiChannelFilter

@@ -115,23 +115,16 @@ def _read_run(args, path):
     return cols['time'], cols['command'], cols['measured'], sampling_rate_hz(cols['time'], path)
 
 
-def read_bag_run(bag_path):
-    """(time, command, measured) of an identification run in a rosbag2 bag (lead's bagio)."""
-    try:
-        from rths_bringup.bagio import read_identification
-    except ImportError:
-        raise ValueError('--bag is not available yet; export a CSV') from None
-    return read_identification(bag_path)
-
-
 def cmd_identify(args) -> int:
     """``rths identify``."""
+    from rths_common.bagio import read_identification
+
     from ._blas import limit_blas_threads
     from .identification import identify, save_plant, split_records
     from .io import sampling_rate_hz
     limit_blas_threads(1)
     if args.bag:
-        t, u, y = read_bag_run(args.bag)
+        t, u, y = read_identification(args.bag)
         fs = sampling_rate_hz(t, args.bag)
     else:
         t, u, y, fs = _read_run(args, args.csv)
@@ -275,7 +268,7 @@ def cmd_unstable_zeros(args) -> int:
         import matplotlib.pyplot as plt
         fss = np.logspace(0.0, np.log10(args.fs_max), 300)
         fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-        for ax, kind in zip(axes, ('3pole', '4pole')):
+        for ax, kind in zip(axes, ('3pole', '4pole'), strict=True):
             mods = [np.sort(np.abs(discrete_zeros(kind, f)))[::-1] for f in fss]
             width = max(len(m) for m in mods)
             arr = np.full((len(fss), width), np.nan)

@@ -322,7 +322,8 @@ def _minimax_lp(m, mp, bound_eps, lp_method='highs', infeasible=None, n_obj_side
     new_pass[:, ::coarse] = new_pass[:, -1] = True
     new_obj &= valid_obj
     new_pass &= valid_pass
-    for rounds in range(1, max_rounds + 1):
+    n_lps = 0
+    for _ in range(max_rounds):
         act_obj |= new_obj
         act_pass |= new_pass
         ro, rp = obj_rows[new_obj], pass_rows[new_pass]
@@ -331,6 +332,7 @@ def _minimax_lp(m, mp, bound_eps, lp_method='highs', infeasible=None, n_obj_side
         if rp.size:
             lp.add_rows(np.hstack([rp, np.zeros((rp.shape[0], 1))]), bound + pass_c0[new_pass])
         x, status = lp.solve()
+        n_lps += 1
         if status == 2:
             raise ValueError(infeasible() if infeasible else 'mm passband constraints '
                              'infeasible')
@@ -345,7 +347,7 @@ def _minimax_lp(m, mp, bound_eps, lp_method='highs', infeasible=None, n_obj_side
             break
     else:
         raise ValueError(f'mm design: cutting planes did not converge in {max_rounds} rounds')
-    return g, (f'linear programme (HiGHS), polygon minimax by cutting planes: {rounds} LPs, '
+    return g, (f'linear programme (HiGHS), polygon minimax by cutting planes: {n_lps} LPs, '
                f'{int(act_obj.sum())} of {act_obj.size} objective rows, '
                f'{int(act_pass.any(axis=0).sum())} passband points')
 
@@ -582,7 +584,7 @@ def design_npz(plant, fs_hz: float = None) -> Design:
 
 
 def design_zpetc(plant, fs_hz: float = None) -> Design:
-    """Modified causal ZPETC (eq. 12): ``A* B-(z^-1)/(B+* B-*(1)^2)``; adds q samples delay."""
+    """Design the modified causal ZPETC (eq. 12): ``A* B-(z^-1)/(B+* B-*(1)^2)``, q samples late."""
     a_star, b_plus, b_minus, d, fs = _factored(plant, fs_hz)
     taps = np.convolve(a_star, b_minus[::-1]) / np.sum(b_minus) ** 2
     return Design('zpetc', taps, b_plus.copy(), fs,

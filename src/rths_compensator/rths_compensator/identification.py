@@ -39,7 +39,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from scipy import linalg, signal
 import yaml
 
-from rths_numerical.files import atomic_open
+from rths_common.files import atomic_open
 
 CRITERIA = ('mse', 'fit', 'aic', 'bic')
 
@@ -90,7 +90,7 @@ class ArxModel:
         return signal.lfilter(self.num, self.a, np.asarray(u, dtype=float))
 
     def is_stable(self) -> bool:
-        """True if every pole lies strictly inside the unit circle."""
+        """Return True if every pole lies strictly inside the unit circle."""
         return self.na == 0 or bool(np.max(np.abs(np.roots(self.a))) < 1.0)
 
     def dc_gain(self) -> float:
@@ -307,7 +307,7 @@ def arx_grid(train, validation, na_range=range(1, 30), nb_range=range(1, 30), d_
                             mse = np.mean(e ** 2, axis=-1)
                         else:
                             mse = np.array([np.mean((y - signal.lfilter(num, a, u)) ** 2)
-                                            for u, y in zip(u_val, y_val)])
+                                            for u, y in zip(u_val, y_val, strict=True)])
                     mse = np.where(np.isfinite(mse), mse, np.inf)
                 orders.append((na, nb, d))
                 thetas.append(theta)
@@ -339,7 +339,7 @@ def arx_grid(train, validation, na_range=range(1, 30), nb_range=range(1, 30), d_
 
 
 def model_from_grid(grid: dict, criterion: str = 'bic') -> ArxModel:
-    """The ArxModel most often selected by ``criterion`` in an :func:`arx_grid` result."""
+    """Return the ArxModel most often selected by ``criterion`` in an :func:`arx_grid` result."""
     if criterion not in CRITERIA:
         raise ValueError(f'criterion {criterion!r} unknown; use one of {", ".join(CRITERIA)}')
     k = grid['best'][criterion]

@@ -4,7 +4,7 @@ import os
 
 import numpy as np
 
-from rths_numerical.files import atomic_open
+from rths_common.files import atomic_open
 
 
 def read_csv_columns(path, columns):
@@ -37,7 +37,7 @@ def read_csv_columns(path, columns):
 
 
 def sampling_rate_hz(time, where: str = 'time') -> float:
-    """Sampling rate [Hz] from a uniformly sampled ``time`` column [s] (checked)."""
+    """Return the sampling rate [Hz] from a uniformly sampled ``time`` column [s] (checked)."""
     dt = np.diff(np.asarray(time, dtype=float))
     step = float(np.median(dt))
     if not step > 0:

@@ -1,37 +1,14 @@
-"""Compensator node: applies the designed taps to the interface displacement, step by step.
+"""Compensator node: the ROS shell of :class:`rths_compensator.filters.MultiChannelFilter`.
 
 ``ros2 run rths_compensator compensator_node --ros-args --params-file config/compensator.yaml``
 
-Subscribes ``/rths/interface_displacement``, publishes ``/rths/command``: the
-command of step k is ``G(z^-1)`` applied causally to the interface
-displacements up to step k (one independent filter per interface DOF), with
-``G = taps / denominator`` from the parameters file written by ``rths design``
-(layout: :mod:`rths_compensator.params`).  The math is in
-:class:`rths_compensator.filters.MultiChannelFilter`; this node only moves messages.
+Subscribes ``/rths/interface_displacement`` and publishes ``/rths/command``, the
+designed ``G = taps / denominator`` applied causally per interface DOF
+(lock-step or realtime; behaviour and measurements: docs/nodes.md).
 
-Realtime mode (``mode: realtime``): best-effort KEEP_LAST 1 topics.  A lost
-interface displacement (step j arrives while k < j was expected) is a miss
-here: the filter is fed displacements *interpolated* between the last
-received ones and step j for the missing steps (cubic up to 3 lost steps,
-lower orders beyond: :mod:`rths_common.gaps`), so its delay line stays
-aligned with the step index, and the command of step j is published.  Not
-held: the designed taps are high-pass in the stopband (647, -1791, 1806,
-...), and a held displacement, an error of about velocity x dt, becomes a
-command spike that trips the bridge's velocity limit; the interpolation
-error is orders of magnitude smaller
-(``test_lost_displacement.py``).  If step 0 itself is lost there is nothing to
-interpolate from, and the first displacement received fills the missing
-steps.  A repeated step 0 (the numerical node re-sends it until the
-loop runs) re-publishes command 0.  ``inject_drop_every`` = N > 0 drops the
-command of every N-th step, ``inject_delay_every`` = N > 0 holds it back
-``inject_delay_ms`` first (a delay burst; realtime), ``inject_duplicate_every``
-= N > 0 publishes it twice (lock-step): fault injection for the tests of the
-bridge's deadline-miss and step-order policies.  In lock-step the command's
-``header.frame_id`` carries this node's writer gid; the bridge accepts
-commands only from that writer (``command_source``).  ``status_every`` = N > 1
-publishes the status of every N-th step only (and of every step after a miss).  Latency settings:
-``rt_priority``, ``cpus``, ``gc`` (:func:`rths_common.node_support.tuning`).  In
-realtime the loop messages travel as CDR bytes (:mod:`rths_common.cdr`).
+Parameter ``method`` (fir | rls_fir | ats | amb, lock-step only): an adaptive method
+started from the designed taps; it also subscribes ``/rths/measurement`` and publishes
+``/rths/compensator_coefficients`` (docs/adaptive.md).
 """
 
 import sys
@@ -48,7 +25,7 @@ from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'inject_drop_every': 0,
                'inject_duplicate_every': 0, 'inject_delay_every': 0, 'inject_delay_ms': 0.0,
                'wait_for_subscribers': 1,
-               'status_every': 1,
+               'status_every': 1, 'coefficients_every': 64,
                **ns.TUNING_PARAMS}
 
 
@@ -56,13 +33,14 @@ class CompensatorNode:
     """ROS shell around a :class:`~rths_compensator.filters.MultiChannelFilter`."""
 
     def __init__(self):
-        from rths_compensator.params import validate_filter
+        from rths_compensator.params import check_compensator_params, param_schema, validate_filter
 
-        self.node = ns.make_node('compensator')
+        self.node = ns.make_node('compensator', param_schema(NODE_PARAMS), NODE_PARAMS)
         params = ns.parameters(self.node)
         self.own = {k: ns.param(params, k, v) for k, v in NODE_PARAMS.items()}
         for key in NODE_PARAMS:
             params.pop(key, None)
+        check_compensator_params(params, 'compensator node parameters')
         taps, denominator, fs = validate_filter(
             'compensator node parameters', params.get('taps', []),
             params.get('denominator', [1.0]), params.get('fs_hz', 1024.0),
@@ -70,6 +48,9 @@ class CompensatorNode:
         self.params = dict(params, taps=taps, denominator=denominator, fs_hz=fs)
         self.filter = None  # built on the first message, when the number of DOFs is known
         self.log = self.node.get_logger()
+        self.adaptive = None
+        if str(params.get('method', 'fir') or 'fir') != 'fir':
+            self._setup_adaptive()
         qos = loop_qos(self.own['mode'])
         self.pub = self.node.create_publisher(Command, topics.COMMAND, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
@@ -100,8 +81,52 @@ class CompensatorNode:
                       f"{len(self.params['taps'])} taps, "
                       f"{len(self.params['denominator']) - 1} denominator order")
 
+    def _setup_adaptive(self):
+        """Adaptive method (rths_compensator.adaptive): measurements in, coefficients out."""
+        from std_msgs.msg import Float64MultiArray
+
+        from rths_compensator.adaptive import methods_from_params
+        from rths_msgs.msg import Measurement
+
+        if self.own['mode'] != 'lockstep':
+            raise ValueError(f"parameter method = {self.params['method']}: the adaptive "
+                             'methods run in lock-step mode only (mode: lockstep)')
+        methods_from_params(self.params, 1)          # check the method and its plant now
+        self.adaptive = {'pending': None, 'measured': {}}
+        self.coef_pub = self.node.create_publisher(Float64MultiArray,
+                                                   topics.COMPENSATOR_COEFFICIENTS,
+                                                   loop_qos(self.own['mode']))
+        self.node.create_subscription(Measurement, topics.MEASUREMENT, self.on_measurement,
+                                      loop_qos(self.own['mode']))
+
+    def on_measurement(self, msg):
+        """Keep measurement k for the command of step k + 1 (and run it if it waits)."""
+        self.adaptive['measured'][msg.step] = (list(msg.displacement), list(msg.applied))
+        pending = self.adaptive['pending']
+        if pending is not None and pending.step == msg.step + 1:
+            self.adaptive['pending'] = None
+            self.on_displacement(pending)
+
+    def _adaptive_command(self, step, x):
+        """Command of step k from the adaptive method, or None until measurement k-1 is here."""
+        from std_msgs.msg import Float64MultiArray
+
+        from rths_compensator.adaptive import methods_from_params
+
+        measured = self.adaptive['measured']
+        if step > 0 and (step - 1) not in measured:
+            return None
+        if self.filter is None:
+            self.filter = methods_from_params(self.params, max(x.size, 1))
+        prev, applied = measured.pop(step - 1, (None, None))
+        command = self.filter.step(x, prev, applied)
+        every = max(int(self.own['coefficients_every']), 1)
+        if step % every == 0:
+            self.coef_pub.publish(Float64MultiArray(data=self.filter.coefficients().tolist()))
+        return command
+
     def sender_gid(self) -> str:
-        """This node's writer gid on /rths/command, sent in ``header.frame_id`` (bridge check).
+        """Return this node's writer gid on /rths/command, sent in ``header.frame_id``.
 
         '' until the graph shows the writer (it does by the first message); then cached.
         """
@@ -121,10 +146,20 @@ class CompensatorNode:
             return
         t0 = time.perf_counter_ns()
         x = np.asarray(msg.displacement, dtype=float)
-        if self.filter is None:
-            self.filter = MultiChannelFilter(self.params['taps'], self.params['denominator'],
-                                             n_channels=max(x.size, 1))
-        command = self.filter.step(x)
+        fault = ''
+        if self.adaptive is not None:
+            command = self._adaptive_command(msg.step, x)
+            if command is None:            # lock-step: wait for measurement k-1
+                self.adaptive['pending'] = msg
+                return
+            status = self.filter.status
+            fault = status.reason if status.state == 'fallback' else ''
+        else:
+            if self.filter is None:
+                self.filter = MultiChannelFilter(self.params['taps'],
+                                                 self.params['denominator'],
+                                                 n_channels=max(x.size, 1))
+            command = self.filter.step(x)
         out = Command(step=msg.step, command=command.tolist())
         out.header.frame_id = self.sender_gid()
         ns.stamp(out.header, ns.now_ns())
@@ -135,7 +170,8 @@ class CompensatorNode:
         compute_us = (time.perf_counter_ns() - t0) * 1e-3
         self.status_pub.publish(ns.status_msg(
             'compensator', msg.step, period_us=self.clock.period_us(t_in), compute_us=compute_us,
-            latency_us=(t_in - ns.stamp_ns(msg.header)) * 1e-3, misses=self.clock.misses))
+            latency_us=(t_in - ns.stamp_ns(msg.header)) * 1e-3, misses=self.clock.misses,
+            fault=fault))
         self.expected += 1
 
     def on_displacement_raw(self, data: bytes):
@@ -181,7 +217,7 @@ class CompensatorNode:
 
     def finish_run(self):
         """After spinning: flush what was published and log the count."""
-        ns.flush([self.pub, self.status_pub])
+        ns.flush([self.pub, self.status_pub] + ([self.coef_pub] if self.adaptive else []))
         self.log.info(f'compensator: {self.expected} steps, {self.rejected} rejected')
 
 

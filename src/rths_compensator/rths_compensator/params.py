@@ -8,9 +8,16 @@ Layout (``G(z^-1) = (b0 + b1 z^-1 + ...)/(a0 + a1 z^-1 + ...)``, see :mod:`.filt
         fs_hz: 1024.0
         taps: [ ... ]          # b0..bn, always written as doubles ('.' or 'e')
         denominator: [1.0]     # a0..am; [1.0] for a pure FIR
-        plant: plant.yaml      # provenance: scalars or strings only
-        n_taps: 100
-        ...
+        provenance:            # how it was designed: scalars or strings only
+          plant: plant.yaml
+          n_taps: 100
+          ...
+
+The filter fields are :data:`FILTER_PARAMS`; the provenance has its own key, so
+the node rejects every other key (:func:`check_compensator_params`).  Files of an
+older ``rths design`` kept the provenance beside the filter fields:
+:func:`load_compensator_params` still reads them (their extra keys become the
+provenance); the node and ``rths launch`` refuse them with the fix.
 
 Both :func:`load_compensator_params` and :func:`write_compensator_params` validate the
 content: non-empty finite taps, finite denominator with a0 != 0 and all poles strictly
@@ -19,13 +26,70 @@ inside the unit circle (a stable filter), fs_hz > 0, a known scheme.
 
 import datetime
 import os
+import textwrap
 
 import numpy as np
 import yaml
 
-from rths_numerical.files import atomic_open
+from rths_common.files import atomic_open
 
 SCHEMES = ('ls', 'wls', 'mm', 'inverse', 'mff', 'npz', 'zpetc', 'zmetc', 'identity')
+
+#: The filter fields of a compensator parameters file: key -> (default, meaning [unit]).
+FILTER_PARAMS = {
+    'scheme': ('identity', f'design scheme: {" | ".join(SCHEMES)}'),
+    'fs_hz': (1024.0, '[Hz] sampling rate the taps were designed for (= the loop rate)'),
+    'taps': ([1.0], '[-] numerator coefficients b0..bn of G(z^-1)'),
+    'denominator': ([1.0], '[-] denominator coefficients a0..am ([1.0]: a FIR)'),
+}
+#: The compensator's method key (not a filter field): key -> (default, meaning).
+METHOD_PARAMS = {
+    'method': ('fir', 'fir | rls_fir | ats | amb: the designed filter, or an adaptive method '
+                      'started from it (lock-step only; needs provenance.plant; '
+                      'docs/adaptive.md)'),
+}
+#: The key (a mapping) that holds a file's provenance; ROS names its entries provenance.*.
+PROVENANCE = 'provenance'
+
+
+def param_schema(node_params) -> dict:
+    """Return the compensator node's parameter schema: its ``node_params`` and the filter's."""
+    from rths_common.params import node_schema
+
+    return node_schema(node_params, {**FILTER_PARAMS, **METHOD_PARAMS})
+
+
+def check_compensator_params(params: dict, where: str) -> None:
+    """Refuse keys that are neither filter fields nor provenance (ValueError names the fix).
+
+    ``params`` is a file's ``ros__parameters`` (provenance as a mapping) or a
+    node's parameters (provenance as ``provenance.*`` names), node-level keys removed.
+    """
+    unknown = sorted(k for k in params
+                     if k not in FILTER_PARAMS and k not in METHOD_PARAMS and k != PROVENANCE
+                     and not k.startswith(PROVENANCE + '.'))
+    if unknown:
+        raise ValueError(f'{where}: unknown parameter(s) {", ".join(unknown)}; the compensator '
+                         f'takes {", ".join(FILTER_PARAMS)} and {PROVENANCE}.*. A file written '
+                         "by an older 'rths design' keeps its provenance beside the filter "
+                         f"fields: move those keys under '{PROVENANCE}:' (or design it again)")
+
+
+def check_sampling_rate(params: dict, loop_fs_hz: float, where: str, loop_where: str) -> None:
+    """Refuse taps designed for another rate than the loop's (ValueError names the fix).
+
+    The identity compensator (G = 1) holds at every rate.
+    """
+    if params.get('scheme') == 'identity':
+        return
+    fs, loop_fs_hz = float(params.get('fs_hz', FILTER_PARAMS['fs_hz'][0])), float(loop_fs_hz)
+    if abs(fs - loop_fs_hz) > 1e-9 * loop_fs_hz:
+        raise ValueError(f'{where}: field fs_hz = {fs:g} Hz: the taps were designed for '
+                         f'{fs:g} Hz but the loop runs at {loop_fs_hz:g} Hz '
+                         f'({loop_where}); design them for {loop_fs_hz:g} Hz (a plant '
+                         f"identified at {loop_fs_hz:g} Hz, then 'rths design'; 'rths run' does "
+                         f"both), or run the loop at {fs:g} Hz (fs_hz of numerical.yaml and "
+                         'bridge.yaml)')
 
 
 def _check(where, taps, denominator, fs_hz, scheme):
@@ -89,7 +153,8 @@ def _scalar(value):
 def load_compensator_params(path) -> dict:
     """Read and validate a compensator parameters file; return its ``ros__parameters`` dict.
 
-    ``taps`` and ``denominator`` are returned as lists of floats, ``fs_hz`` as float.
+    ``taps`` and ``denominator`` are returned as lists of floats, ``fs_hz`` as float,
+    the provenance as the mapping ``params['provenance']`` (also of an older file).
     Raises ValueError (naming file, field and fix) or OSError for a missing file.
     """
     path = os.fspath(path)
@@ -114,9 +179,14 @@ def load_compensator_params(path) -> dict:
     params.setdefault('denominator', [1.0])
     b, a, fs = _check(path, params['taps'], params['denominator'], params['fs_hz'],
                       params['scheme'])
-    params['taps'] = b.tolist()
-    params['denominator'] = a.tolist()
-    params['fs_hz'] = fs
+    provenance = params.pop(PROVENANCE, None) or {}
+    if not isinstance(provenance, dict):
+        raise ValueError(f'{path}: field {PROVENANCE} must be a mapping of names to values')
+    # an older 'rths design' wrote the provenance beside the filter fields
+    provenance.update({k: params.pop(k) for k in list(params)
+                       if k not in FILTER_PARAMS and k not in METHOD_PARAMS})
+    params.update(taps=b.tolist(), denominator=a.tolist(), fs_hz=fs)
+    params[PROVENANCE] = provenance
     return params
 
 
@@ -134,20 +204,23 @@ def write_compensator_params(path, taps, denominator, fs_hz, scheme, provenance=
     prov = dict(provenance or {})
     prov.setdefault('created', datetime.datetime.now(datetime.timezone.utc).isoformat(
         timespec='seconds'))
+    params[PROVENANCE] = {}
     for key, value in prov.items():
-        if key in params:
-            raise ValueError(f'provenance key {key!r} clashes with a filter field')
         if isinstance(value, (float, np.floating)) and not np.isfinite(value):
             value = str(value)
-        params[str(key)] = _scalar(value)
+        params[PROVENANCE][str(key)] = _scalar(value)
+    provenance = params.pop(PROVENANCE)
     text = yaml.safe_dump({'compensator': {'ros__parameters': params}},
                           default_flow_style=None, sort_keys=False, width=100)
+    text += textwrap.indent(yaml.safe_dump({PROVENANCE: provenance}, default_flow_style=False,
+                                           sort_keys=False, width=100), '    ')
     with atomic_open(path) as handle:
         handle.write(text)
     return path
 
 
 def identity_params(fs_hz: float = 1024.0) -> dict:
-    """Parameters of the identity compensator (G = 1), same layout as the loaded file."""
+    """Return the identity compensator's parameters (G = 1), in the loaded file's layout."""
     b, a, fs = _check('identity_params', [1.0], [1.0], fs_hz, 'identity')
-    return {'scheme': 'identity', 'fs_hz': fs, 'taps': b.tolist(), 'denominator': a.tolist()}
+    return {'scheme': 'identity', 'fs_hz': fs, 'taps': b.tolist(), 'denominator': a.tolist(),
+            PROVENANCE: {}}

@@ -84,7 +84,7 @@ def max_zero_modulus(kind: str, fs_hz: float) -> float:
 
 def unstable_zero_threshold_hz(kind: str = '3pole', lo_hz: float = 5.0,
                                hi_hz: float = 1024.0) -> float:
-    """Sampling frequency [Hz] above which the ZOH model ``kind`` has a zero outside |z| = 1.
+    """Return the rate [Hz] above which the ZOH model ``kind`` has a zero outside |z| = 1.
 
     Appendix I of the seed reports ~41 Hz (3-pole) and ~42 Hz (4-pole).
     """

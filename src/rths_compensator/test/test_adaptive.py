@@ -212,3 +212,30 @@ def test_initial_coefficients_come_from_the_plant(setup):
     assert theta[0] == pytest.approx(1.0, abs=0.02)
     # all-pole model: 1/T(s) = prod(s - p)/K, so theta_1 = sum(1/-p_i) = 0.0157 s
     assert theta[1] == pytest.approx(0.0157, rel=0.1)
+
+
+def test_channel_methods_from_params(setup, tmp_path):
+    from rths_compensator.adaptive import ChannelMethods, methods_from_params
+    from rths_compensator.identification import ArxModel, save_plant
+
+    (b, a), design = setup
+    params = {'scheme': 'ls', 'fs_hz': FS, 'taps': design.taps.tolist(),
+              'denominator': design.denominator.tolist()}
+    fir = methods_from_params(params, 2)
+    assert isinstance(fir, ChannelMethods) and fir.status.state == 'fixed'
+    with pytest.raises(ValueError, match='provenance.plant'):
+        methods_from_params(dict(params, method='amb'), 1)
+    with pytest.raises(ValueError, match='unknown'):
+        methods_from_params(dict(params, method='lms'), 1)
+    path = tmp_path / 'plant.yaml'
+    save_plant(path, ArxModel(a=a, b=b, d=0, fs_hz=FS))
+    amb = methods_from_params(dict(params, method='amb', provenance={'plant': str(path)}), 2)
+    x = target(2.0)
+    plants = [Plant(b, a), Plant(b, a)]
+    prev = applied = None
+    for k, v in enumerate(x):
+        cmd = amb.step(np.array([v, -v]), prev, applied)
+        prev = [p.step(c) for p, c in zip(plants, cmd, strict=True)]
+        applied = cmd if k < 1500 else cmd + 1e-3   # from 1500 on the bridge holds/limits
+    assert amb.coefficients().size == 8
+    assert amb.status.state == 'frozen' and 'bridge changed the command' in amb.status.reason

@@ -24,7 +24,7 @@ COMPARISON_NAMES = (
 
 @pytest.fixture(scope='module')
 def tiny(tmp_path_factory):
-    """(result, JSON as read back, log lines) of a tiny study."""
+    """Return (result, JSON as read back, log lines) of a tiny study."""
     logs = []
     result = bench.run_study(seed=3, eval_s=8.0, taps_list=(100,), fc_list=(64,),
                              n_validation=4, na_max=3, nb_max=3, train_s=3.0, val_s=3.0,
@@ -105,7 +105,7 @@ def test_make_plots_of_the_tiny_run(tiny, tmp_path):
 
 
 def _synthetic():
-    """A result in the JSON layout where every target holds."""
+    """Return a result in the JSON layout where every target holds."""
     bands = {str(b): {'delay_ms': bench.SEED_TABLE2_DELAY_MS[b], 'rel_rms_pct': 30.0}
              for b in bench.BANDS_HZ}
 

@@ -14,7 +14,7 @@ FS = 1024.0
 
 @pytest.fixture(scope='module')
 def plant():
-    """A plant like the seed's eq. 41: 3-pole model with an extra unstable zero at 1.664."""
+    """Return a plant like the seed's eq. 41: 3-pole model with an extra unstable zero at 1.664."""
     b, a = discrete_actuator('3pole', FS)
     # factor (-1/1.664 + z^-1) has its zero at z = 1.664; scaled to keep unit DC gain
     b = np.convolve(b, [-1 / 1.664, 1.0]) / (1 - 1 / 1.664)
@@ -181,7 +181,7 @@ def test_auto_design_picks_a_good_candidate(plant):
 
 
 def _full_minimax_lp(plant, n_taps, fc, eps, n_grid=257):
-    """The MM LP of design_fir with every row at once (one linprog): its optimal t."""
+    """Return the MM LP of design_fir with every row at once (one linprog): its optimal t."""
     _, b_minus = factor_zeros(plant.b)
     bmu = b_minus / np.sum(b_minus)
     m = dsg._fir_matrix(bmu, 0, n_taps, np.linspace(0, FS / 2, n_grid), FS)

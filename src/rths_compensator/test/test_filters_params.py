@@ -57,10 +57,30 @@ def test_params_roundtrip_and_float_format(tmp_path):
     taps_line = [ln for ln in text.splitlines() if ln.strip().startswith('taps:')][0]
     assert all(('.' in v or 'e' in v) for v in taps_line.split('[')[1].rstrip(']').split(','))
     params = doc['compensator']['ros__parameters']
-    assert params['scheme'] == 'wls' and params['n_taps'] == 3
+    assert params['scheme'] == 'wls' and params['provenance']['n_taps'] == 3
+    assert set(params) == {'scheme', 'fs_hz', 'taps', 'denominator', 'provenance'}
     loaded = load_compensator_params(path)
     assert loaded['taps'] == [1.0, 2.0, 3.0] and loaded['denominator'] == [1.0, -0.5]
-    assert 'created' in loaded
+    assert 'created' in loaded['provenance']
+
+
+def test_params_old_flat_provenance_is_read_and_refused_by_the_node_check(tmp_path):
+    """A file of an older 'rths design' (provenance beside the filter fields)."""
+    from rths_compensator.params import check_compensator_params
+
+    path = tmp_path / 'old.yaml'
+    old = {'scheme': 'wls', 'fs_hz': 1024.0, 'taps': [1.0, 0.5], 'denominator': [1.0],
+           'plant': 'plant.yaml', 'n_taps': 2, 'solver': 'lsi', 'created': '2026-11-21'}
+    path.write_text(yaml.safe_dump({'compensator': {'ros__parameters': old}}))
+    loaded = load_compensator_params(path)
+    assert loaded['provenance'] == {'plant': 'plant.yaml', 'n_taps': 2, 'solver': 'lsi',
+                                    'created': '2026-11-21'}
+    assert loaded['taps'] == [1.0, 0.5]
+    with pytest.raises(ValueError, match=r"created, n_taps, plant, solver.*under 'provenance:'"):
+        check_compensator_params(old, str(path))
+    new = {k: old[k] for k in ('scheme', 'fs_hz', 'taps', 'denominator')}
+    check_compensator_params(dict(new, provenance={'plant': 'plant.yaml'}), str(path))
+    check_compensator_params(dict(new, **{'provenance.plant': 'plant.yaml'}), 'node')
 
 
 @pytest.mark.parametrize('taps, den, fs, scheme, field', [

@@ -24,7 +24,7 @@ BENCH_PLANT_B = [
 
 @pytest.fixture(scope='module')
 def plant():
-    """The 3-pole model with an extra unstable zero at 1.664 (as in the seed's eq. 41)."""
+    """Return the 3-pole model with an extra unstable zero at 1.664 (as in the seed's eq. 41)."""
     b, a = discrete_actuator('3pole', FS)
     b = np.convolve(b, [-1 / 1.664, 1.0]) / (1 - 1 / 1.664)
     return ArxModel(a=a, b=b, d=0, fs_hz=FS)
@@ -56,7 +56,9 @@ def test_bench_mm_n300_fc128_is_designed_within_its_constraints():
 
 
 def test_first_relaxation_bounds_the_taps(plant, monkeypatch):
-    """With n = 60 taps and a 65-point grid, every 8th point gives 9 points (18 equations):
+    """A sparse first objective grid lets the LP interpolate on a wild vertex.
+
+    With n = 60 taps and a 65-point grid, every 8th point gives 9 points (18 equations):
 
     that relaxation interpolates (t = 0) on an arbitrary vertex with |g| hundreds of times
     the final |g| -- the ill-conditioning that made HiGHS fail on larger designs.  The
@@ -88,7 +90,9 @@ def test_distinct_sides_drop_redundant_rows():
 
 
 def test_incremental_lp_scales_rows_and_handles_empty_rows():
-    """Rows are stored at unit norm; an empty row that holds is dropped, one that cannot
+    """Rows are stored at unit norm; empty rows are dropped or make the LP infeasible.
+
+    Rows are stored at unit norm; an empty row that holds is dropped, one that cannot
     hold (0 <= negative) makes the LP infeasible.
     """
     lp = dsg._IncrementalLp([0.0, 1.0], [[1.0, 0.0]], [2.0])

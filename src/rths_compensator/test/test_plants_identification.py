@@ -54,7 +54,7 @@ def test_factor_zeros_splits_stable_and_unstable():
 
 
 def _simulate_records(a, b, d, n_rec, n, rng, noise=0.0):
-    """Records of the ARX system eq. 26 with white equation error e of std ``noise``."""
+    """Return records of the ARX system eq. 26 with white equation error e of std ``noise``."""
     recs = []
     for _ in range(n_rec):
         u = rng.standard_normal(n)

@@ -148,7 +148,7 @@ def sindy_fit(theta, target, threshold=DEFAULT_THRESHOLD, dt=1.0, names=TERMS):
         by_effect[eff] = by_effect.get(eff, 0.0) + c
     named = max(by_effect, key=by_effect.get) if by_effect else 'none'
     kept = [e for e in fx.EFFECT_NAMES if e in by_effect]
-    return {'threshold': threshold, 'coefficients': dict(zip(names, map(float, coef))),
+    return {'threshold': threshold, 'coefficients': dict(zip(names, map(float, coef), strict=True)),
             'contributions': contrib, 'named': named,
             'named_set': '+'.join(kept) if kept else 'none'}
 
@@ -222,6 +222,16 @@ def _correct(named, named_set, expected):
     return named == expected
 
 
+def _named_by(*path):
+    """Return ``row -> (named, named_set)`` of the baseline result at ``path`` of a row."""
+    def get(row):
+        result = row['baselines']
+        for part in path:
+            result = result[part]
+        return result['named'], result['named_set']
+    return get
+
+
 def summarize(rows):
     """Baseline summary over benchmark ``rows`` (each with a 'baselines' entry)."""
     rows = [r for r in rows if 'baselines' in r]
@@ -234,14 +244,12 @@ def summarize(rows):
         false = sum(get(r)[0] != 'none' for r in controls)
         return 100.0 * ok / len(rows), false
 
-    default = rate(lambda r: (r['baselines']['sindy_default']['named'],
-                              r['baselines']['sindy_default']['named_set']))
+    default = rate(_named_by('sindy_default'))
     sweep = {}
     for diff in DIFFS:
         for th in THRESHOLD_SWEEP:
             key = repr(float(th))
-            pct, false = rate(lambda r: (r['baselines']['sindy'][diff][key]['named'],
-                                         r['baselines']['sindy'][diff][key]['named_set']))
+            pct, false = rate(_named_by('sindy', diff, key))
             sweep[f'{diff}@{key}'] = {'correct_naming_percent': pct,
                                       'false_effects_on_controls': false}
     best = max(sweep, key=lambda k: (sweep[k]['correct_naming_percent'],

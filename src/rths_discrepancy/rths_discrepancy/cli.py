@@ -26,18 +26,12 @@ def _is_bag(path):
 
 
 def _read_measured(path, scenario):
-    """CSV path -> validated columns; a bag directory/.mcap/.db3 goes to rths_bringup.bagio."""
+    """CSV path -> validated columns; a bag directory/.mcap/.db3 is read by ``io.read_bag``."""
     import os
 
     from rths_discrepancy import io as dio
     if _is_bag(path):
-        try:
-            from rths_bringup.bagio import read_discrepancy
-        except ImportError:
-            raise ValueError('bag input needs rths_bringup.bagio (read_discrepancy is not '
-                             'available); export the bag to a CSV with the columns '
-                             f'{", ".join(dio.COLUMNS[scenario])}') from None
-        return dio.validate(scenario, read_discrepancy(path, scenario), source=str(path))
+        return dio.validate(scenario, dio.read_bag(path, scenario), source=str(path))
     if not os.path.exists(path):
         raise OSError(f'--measured {path}: no such file')
     return dio.load_csv(path, scenario)
@@ -204,7 +198,7 @@ def bench_discrepancy_cmd(args) -> int:
     if seeds < 1:
         raise ValueError('--seeds must be >= 1')
     summary = selftest.run_bench(seeds=seeds, quick=args.quick, workers=args.workers,
-                                 progress=_say, baselines=args.baselines)
+                                 progress=_say, baselines=args.baselines, detect=args.detect)
     tmp = f'{args.out}.tmp'
     with open(tmp, 'w') as fh:
         json.dump(summary, fh, indent=1)
@@ -227,6 +221,15 @@ def bench_discrepancy_cmd(args) -> int:
     for name, h in summary.get('heldout', {}).items():
         print(f"held-out set {name} (independent simulator): {h['named']} of {h['records']} "
               f"named (target >= {h['target']})")
+    det = summary.get('detectability')
+    if det:
+        print(f"smallest detectable strength at {100 * det['noise']:g} % noise (of "
+              f"{', '.join(f'{v:g}' for v in det['strengths'])}; the full-strength size x it):")
+        for key, d in det['effects'].items():
+            size = 'not detected' if d['smallest_strength'] is None else (
+                f"{d['smallest_strength']:g} (size {d['smallest_size']:.3g})")
+            print(f"  {key:36s} {size}; below: {', '.join(d['answers_below']) or '-'}")
+        print(f"false names below the detectable size: {det['false_names_below_total']}")
     print('confusion matrix (expected -> named: count):')
     for exp, row in sorted(summary['confusion_matrix'].items()):
         print(f'  {exp:45s} ' + ', '.join(f'{k}: {v}' for k, v in sorted(row.items())))
@@ -257,7 +260,8 @@ def register(commands, benches):
         description='Re-simulate the nominal model with the measured input, localise the '
                     'residual in time, frequency and state, fit a library of physical effects '
                     '(coulomb_friction, viscous_damping_error, stiffness_error, cubic_stiffness, '
-                    'mass_error, backlash, time_delay, velocity_saturation, sensor_bias and '
+                    'mass_error, backlash, time_delay, velocity_saturation, sensor_bias, '
+                    'force_offset (specimen) and '
                     'pairs) on training blocks, score them on held-out blocks and name the '
                     'winner (or none / unexplained). Prints the localisation, the effect and '
                     'its parameters and the held-out NRMSE before/after; writes '
@@ -337,6 +341,9 @@ def register(commands, benches):
                    help='full-strength effects only, two pairs, controls under the other '
                         'conventions, 8 s records, one seed, no held-out sets')
     b.add_argument('--workers', type=int, default=2, help='worker processes (default 2)')
+    b.add_argument('--detect', action='store_true',
+                   help='also sweep every effect down to 1 %% of its full-strength size and '
+                        'report the smallest detectable size (never another effect below it)')
     b.add_argument('--baselines', action='store_true',
                    help='also run pysindy (SINDy, STLSQ) and sysidentpy (FROLS NARX) on every '
                         'record and compare (needs pip install pysindy sysidentpy)')

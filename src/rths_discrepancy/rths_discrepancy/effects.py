@@ -26,6 +26,7 @@ backlash               k_d (dz(x, b) - x), clearance +-b          b [m]
 velocity_saturation    c_d (clip(xd, -v_sat, v_sat) - xd)         v_sat [m/s]
 time_delay             outputs read tau late: y(t - tau)          tau [s]
 sensor_bias            rel_disp offset: x_meas = x + bias         bias [m]
+force_offset           load-cell offset: F_meas = F + F_0         F_0 [N]
 =====================  =========================================  ==========
 
 ``dz(x, b) = sign(x) max(|x| - b, 0)`` (the spring engages after a clearance).
@@ -45,6 +46,8 @@ velocity_saturation    rate limit |yd| <= v_max on y              v_max [m/s]
 time_delay             y(t - tau)                                 tau [s]
 sensor_bias            y + bias                                   bias [m]
 =====================  =========================================  ==========
+
+(``force_offset`` is a specimen effect only: the actuator record has no force.)
 """
 
 from dataclasses import dataclass
@@ -59,6 +62,7 @@ V_EPS = 1e-3
 EFFECT_NAMES = (
     'coulomb_friction', 'viscous_damping_error', 'stiffness_error', 'cubic_stiffness',
     'mass_error', 'backlash', 'time_delay', 'velocity_saturation', 'sensor_bias',
+    'force_offset',
 )
 
 SCENARIOS = ('specimen', 'actuator')
@@ -102,6 +106,8 @@ _SPECIMEN = {
                                   'damping force saturates above |v| = v_sat (choked valve)'),
     'sensor_bias': Effect('sensor_bias', 'bias', 'm', 'output', True,
                           'constant offset of the displacement sensor'),
+    'force_offset': Effect('force_offset', 'F_0', 'N', 'output', True,
+                           'constant offset (bias) of the load cell: force read F + F_0'),
 }
 
 _ACTUATOR = {
@@ -135,8 +141,8 @@ def effect(scenario: str, name: str) -> Effect:
     try:
         return LIBRARY[scenario][name]
     except KeyError:
-        raise ValueError(f'unknown effect {name!r}; use one of {", ".join(EFFECT_NAMES)}') \
-            from None
+        raise ValueError(f'unknown effect {name!r} for {scenario}; use one of '
+                         f'{", ".join(LIBRARY[scenario])}') from None
 
 
 def nonlinear_bounds(scenario: str, name: str, scales: dict) -> tuple:
@@ -381,4 +387,6 @@ def apply_output_ops(scenario: str, y, effects: dict, fs: float, channel: str = 
         out = delay(out, effects['time_delay'], fs)
     if 'sensor_bias' in effects and channel == 'x':
         out = out + effects['sensor_bias']
+    if 'force_offset' in effects and channel == 'force':
+        out = out + effects['force_offset']
     return out

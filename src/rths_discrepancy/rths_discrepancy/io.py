@@ -72,7 +72,7 @@ def validate(scenario: str, data: dict, source: str = 'data') -> dict:
 
 
 def sample_rate(data: dict) -> float:
-    """Sampling rate [Hz] of validated ``data``."""
+    """Return the sampling rate [Hz] of validated ``data``."""
     t = data['time']
     return float((t.size - 1) / (t[-1] - t[0]))
 
@@ -102,10 +102,31 @@ def load_csv(path, scenario: str) -> dict:
     return validate(scenario, cols, source=str(path))
 
 
+def read_bag(bag, scenario: str) -> dict:
+    """Return the columns of ``scenario`` from an rths run bag (not yet validated).
+
+    ``actuator``: ``time``, ``command`` (what the bridge wrote), ``measured``
+    (the actuator alone: applied and measured at the same tick).
+    ``specimen``: ``time``, ``base_accel``, ``rel_disp`` and ``force``
+    (:func:`rths_common.bagio.read_specimen`; the frame mass defaults to Table 4's).
+    """
+    from rths_common import bagio
+
+    if scenario == 'actuator':
+        t, command, measured = bagio.read_identification(bag, loop=False)
+        return {'time': t, 'command': command, 'measured': measured}
+    if scenario != 'specimen':
+        raise ValueError(f"scenario {scenario!r}: use 'specimen' or 'actuator'")
+    from rths_numerical.dtm import FRAME_MASS_KG
+
+    return bagio.read_specimen(bag, FRAME_MASS_KG)
+
+
 def write_csv(path, data: dict, columns) -> None:
-    """Write ``columns`` of ``data`` as CSV with a header row (atomic rename)."""
-    import os
-    tmp = f'{path}.tmp'
+    """Write ``columns`` of ``data`` as CSV with a header row (atomic)."""
+    from rths_common.files import atomic_open
+
     arr = np.column_stack([np.asarray(data[c], float) for c in columns])
-    np.savetxt(tmp, arr, delimiter=',', header=','.join(columns), comments='', fmt='%.10g')
-    os.replace(tmp, path)
+    with atomic_open(path) as handle:
+        np.savetxt(handle, arr, delimiter=',', header=','.join(columns), comments='',
+                   fmt='%.10g')

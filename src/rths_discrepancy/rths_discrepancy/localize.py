@@ -14,6 +14,8 @@
   is invisible to whiteness tests).
 """
 
+from itertools import pairwise
+
 import numpy as np
 
 
@@ -45,7 +47,7 @@ def localize(ctx, data) -> dict:
         edges.append(edges[-1] * 2)
     edges.append(fs / 2)
     bands = []
-    for lo, hi in zip(edges[:-1], edges[1:]):
+    for lo, hi in pairwise(edges):
         sel = (f >= lo) & (f < hi)
         if sel.any():
             bands.append({'f_lo_hz': lo, 'f_hi_hz': hi,

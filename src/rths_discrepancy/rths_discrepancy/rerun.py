@@ -10,7 +10,7 @@ in lock-step to a *numerical* DTM on a perfect table
 specimen model (the run's Table 4 damper, linear) and once with the updated
 model, i.e. the nominal one plus the effects the discrepancy workflow named
 (``updated_model.yaml``: loop forces such as ``coulomb_friction`` and a
-``mass_error``; the sensor effects ``time_delay`` and ``sensor_bias`` change
+``mass_error``; the sensor effects ``time_delay``, ``sensor_bias`` and ``force_offset`` change
 what is measured, not the physics, and are left out).  Both use the same
 coupling, so the difference between them is the specimen model alone.
 
@@ -20,7 +20,7 @@ seed 6.3.4 (:func:`rths_numerical.reference.simulate_reference`) that
 ``rths review`` prints.
 
 The run's parameters come from the bag's run information
-(:mod:`rths_bringup.runinfo`: ``rths launch --bag`` and ``rths run`` store
+(:mod:`rths_common.runinfo`: ``rths launch --bag`` and ``rths run`` store
 the numerical and bridge parameters in the bag).  Only a bag whose run
 information lacks them (a recorder started by hand) needs the params
 directory of its launch (``--config DIR``: numerical.yaml and bridge.yaml).
@@ -45,8 +45,8 @@ def run_parameters(bag, config=None) -> tuple:
     the run was launched with).
     ValueError names the fix when neither is available.
     """
-    from rths_bringup import bagio, runinfo
-    from rths_bringup.offline import core_params
+    from rths_common import bagio, runinfo
+    from rths_common.params import core_params
 
     info = bagio.run_info(bag)
     numerical = runinfo.section(info, 'numerical')
@@ -75,12 +75,12 @@ def run_damper_model(bridge: dict) -> models.SpecimenModel:
 
 
 def specimen(model: models.SpecimenModel, dt: float, frame_mass_kg=None):
-    """A :class:`rths_numerical.reference.DTMSpecimen` simulating ``model`` with its effects."""
+    """Return a :class:`rths_numerical.reference.DTMSpecimen` simulating ``model``'s effects."""
     from rths_numerical.dtm import FRAME_MASS_KG, DTMParameters
     from rths_numerical.reference import DTMSpecimen
 
     loop = {k: v for k, v in model.effects.items()
-            if k not in ('time_delay', 'sensor_bias', 'mass_error')}
+            if k not in ('time_delay', 'sensor_bias', 'force_offset', 'mass_error')}
     force = fx.specimen_force(loop, model) if loop else None
     frame = FRAME_MASS_KG if frame_mass_kg is None else float(frame_mass_kg)
     return DTMSpecimen(DTMParameters(model.m_d, model.c_d, model.k_d), dt, frame, force=force,
@@ -98,8 +98,7 @@ def _frame_mass(bridge):
 
 def rths_floor_displacement(bag, sub) -> np.ndarray:
     """2nd-floor displacement [m] (relative to the ground) of the RTHS recorded in ``bag``."""
-    from rths_bringup import bagio
-    from rths_common import topics
+    from rths_common import bagio, topics
 
     disp = bagio.step_arrays(bag, topics.INTERFACE_DISPLACEMENT, ('displacement',))
     steps = disp['step']
@@ -165,7 +164,7 @@ def _params(model):
 
 
 def summary_lines(res: dict) -> list:
-    """Printed lines of :func:`compare`."""
+    """Return the printed lines of :func:`compare`."""
     eff = res['updated_model'].get('effects', {})
     names = ', '.join(f'{k} {v:.4g}' for k, v in eff.items()) or 'no effects'
     return [

@@ -32,7 +32,9 @@ with ``tanh+ = max(tanh, 0)``, ``tanh- = min(tanh, 0)``, ``v_eps`` searched in
 [1e-4, 0.03] x rms(v) (a regularised Coulomb law must saturate within the
 velocity range; a wider ``tanh`` would be a second viscous term).  The
 model-measurement alignment (within +-1.5 samples) is a nuisance parameter of
-every fit (Gauss-Newton on the shifted states).
+every fit (Gauss-Newton on the shifted states).  The specimen scenario's
+viscous_damping_error, stiffness_error and mass_error have no place here:
+``m``, ``c`` and ``k`` are fitted with every candidate.
 
 Decision (held out: the later part of the record, the first ``TRAIN_FRACTION``
 trains).  Scores are held-out mean square force errors; every single effect

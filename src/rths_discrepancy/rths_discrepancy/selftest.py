@@ -56,6 +56,7 @@ def effect_size(scenario, name, strength, scales, model, fs=FS_HZ):
             'time_delay': (2.5 + 7.5 * s) / fs,                 # s (10 samples at s = 1)
             'velocity_saturation': scales['v_max'] * (1.0 - 0.6 * s ** 0.5),  # m/s
             'sensor_bias': 0.1 * scales['y_rms'] * s,           # m
+            'force_offset': 0.05 * model.k_d * scales['y_rms'] * s,  # N (5 % of k_d x rms)
         }
     else:
         table = {
@@ -167,7 +168,8 @@ def make_record(scenario, hidden, seed, duration_s=DURATION_S, fs=FS_HZ, noise=N
 #: Pairs of effects in the benchmark (the first two also in --quick).
 PAIRS = [('coulomb_friction', 'stiffness_error'), ('time_delay', 'sensor_bias'),
          ('viscous_damping_error', 'cubic_stiffness'), ('backlash', 'mass_error'),
-         ('backlash', 'sensor_bias'), ('coulomb_friction', 'sensor_bias')]
+         ('backlash', 'sensor_bias'), ('coulomb_friction', 'sensor_bias'),
+         ('backlash', 'force_offset')]
 
 
 def _pair_label(p):
@@ -182,11 +184,13 @@ def bench_cases(quick=False):
     pairs (with --quick: the controls only).
     """
     cases = []
-    pairs = PAIRS[:2] if quick else PAIRS
     for sc in fx.SCENARIOS:
+        pairs = [p for p in (PAIRS[:2] if quick else PAIRS)
+                 if all(n in fx.LIBRARY[sc] for n in p)]
+        names = [n for n in fx.EFFECT_NAMES if n in fx.LIBRARY[sc]]
         cases.append((sc, 'control', [], 1.0, 'none'))
         cases.append((sc, 'control(2% noise)', ['_noise:0.02'], 1.0, 'none'))
-        for name in fx.EFFECT_NAMES:
+        for name in names:
             cases.append((sc, name, [name], 1.0, name))
             if not quick:
                 cases.append((sc, name + '@0.2', [name], 0.2, name))
@@ -201,7 +205,7 @@ def bench_cases(quick=False):
             if quick:
                 continue
             cases.append((sc, f'control(2% noise)[{conv}]', tag + ['_noise:0.02'], 1.0, 'none'))
-            for name in fx.EFFECT_NAMES:
+            for name in names:
                 cases.append((sc, f'{name}[{conv}]', tag + [name], 1.0, name))
             for p in pairs:
                 cases.append((sc, f'{_pair_label(p)}[{conv}]', tag + list(p), 1.0,
@@ -248,7 +252,7 @@ def run_case(args):
 
 
 def run_bench(seeds=3, quick=False, workers=2, progress=None, baselines=False,
-              heldout=None) -> dict:
+              heldout=None, detect=False) -> dict:
     """Run the self-test benchmark; return the summary (confusion matrix, rates, details).
 
     Targets (issues 7 and 15): 100 % correct naming, 0 false effects on the
@@ -256,7 +260,8 @@ def run_bench(seeds=3, quick=False, workers=2, progress=None, baselines=False,
     whose answer is an effect).  ``baselines``: also run pysindy / sysidentpy on
     every record; the summary gets a 'baselines' entry (:func:`.baselines.summarize`).
     ``seeds`` random seeds per case under the rths convention, one under the
-    others.  ``heldout`` (default: not ``quick``): also run the two held-out sets of the
+    others.  ``detect``: also the detectability sweep (:func:`run_detect`).
+    ``heldout`` (default: not ``quick``): also run the two held-out sets of the
     independent simulator (:mod:`.heldout`; targets 13 of 14 and 11 of 12).
     """
     import time
@@ -265,18 +270,8 @@ def run_bench(seeds=3, quick=False, workers=2, progress=None, baselines=False,
     # every seed for the rths convention, the first seed for the other conventions
     jobs = [case + (seed, duration, baselines) for seed in range(seeds)
             for case in bench_cases(quick) if seed == 0 or _convention_of(case[1]) == 'rths']
-    rows = []
     say = progress or (lambda msg: None)
-    if workers > 1:
-        import multiprocessing as mp
-        with mp.get_context('fork').Pool(workers) as pool:
-            for row in pool.imap_unordered(run_case, jobs):
-                rows.append(row)
-                say(_progress_line(len(rows), len(jobs), row))
-    else:
-        for job in jobs:
-            rows.append(run_case(job))
-            say(_progress_line(len(rows), len(jobs), rows[-1]))
+    rows = _run_jobs(jobs, workers, say)
     rows.sort(key=lambda r: (r['scenario'], r['label'], r['seed']))
     confusion = {}
     for r in rows:
@@ -320,9 +315,69 @@ def run_bench(seeds=3, quick=False, workers=2, progress=None, baselines=False,
         from rths_discrepancy import heldout as ho
         summary['heldout'] = ho.run_sets(workers=workers, progress=say)
         met = met and all(v['named'] >= v['target'] for v in summary['heldout'].values())
+    if detect:
+        summary['detectability'] = run_detect(workers=workers, progress=say)
+        met = met and summary['detectability']['false_names_below_total'] == 0
     summary['wall_time_s'] = time.perf_counter() - t0
     summary['targets_met'] = bool(met)
     return summary
+
+
+#: Strengths of the detectability sweep (fractions of the full-strength sizes).
+DETECT_STRENGTHS = (0.01, 0.02, 0.05, 0.1)
+
+
+def detect_cases():
+    """Cases of the detectability sweep: every effect of each scenario at each strength."""
+    return [(sc, f'{name}@{st:g}', [name], st, name) for sc in fx.SCENARIOS
+            for name in fx.EFFECT_NAMES if name in fx.LIBRARY[sc] for st in DETECT_STRENGTHS]
+
+
+def run_detect(workers=2, progress=None, duration=DURATION_S):
+    """Smallest detectable size of each effect at the self-test noise level (one seed).
+
+    For each effect, the smallest strength of :data:`DETECT_STRENGTHS` from which
+    on every stronger one is named correctly, its parameter value, and what the
+    workflow answered below it (it must be 'none' or 'unexplained', never
+    another effect).
+    """
+    jobs = [case + (0, duration, False) for case in detect_cases()]
+    rows = _run_jobs(jobs, workers, progress or (lambda msg: None))
+    out = {}
+    for sc in fx.SCENARIOS:
+        for name in [n for n in fx.EFFECT_NAMES if n in fx.LIBRARY[sc]]:
+            rs = sorted((r for r in rows if r['scenario'] == sc and r['expected'] == name),
+                        key=lambda r: r['strength'])
+            smallest = None
+            for r in reversed(rs):
+                if not r['correct']:
+                    break
+                smallest = r
+            below = [r['named'] for r in rs if smallest is None
+                     or r['strength'] < smallest['strength']]
+            out[f'{sc}/{name}'] = {
+                'smallest_strength': smallest['strength'] if smallest else None,
+                'smallest_size': smallest['truth'][name] if smallest else None,
+                'answers_below': below,
+                'false_names_below': sum(b not in ('none', 'unexplained') for b in below),
+                'answers': {r['strength']: r['named'] for r in rs}}
+    return {'noise': NOISE, 'strengths': list(DETECT_STRENGTHS), 'effects': out,
+            'false_names_below_total': sum(v['false_names_below'] for v in out.values())}
+
+
+def _run_jobs(jobs, workers, say):
+    rows = []
+    if workers > 1:
+        import multiprocessing as mp
+        with mp.get_context('fork').Pool(workers) as pool:
+            for row in pool.imap_unordered(run_case, jobs):
+                rows.append(row)
+                say(_progress_line(len(rows), len(jobs), row))
+    else:
+        for job in jobs:
+            rows.append(run_case(job))
+            say(_progress_line(len(rows), len(jobs), rows[-1]))
+    return rows
 
 
 def _convention_of(label):

@@ -64,6 +64,9 @@ NAME_CLOSURE = 0.95
 UNEXPLAINED_MIN = 0.5
 #: Number of best single effects that are combined with every other effect.
 PAIR_TOP = 3
+#: ... and every pair is fitted when the best fit so far leaves more than this many noise
+#: variances above the floor.
+PAIR_WIDEN = 1.0
 #: Floor of the noise estimates relative to the signal's standard deviation: a noise-free
 #: record (a simulated plant without sensor noise) whose model agrees to round-off has
 #: nothing to explain, so the answer is 'none', not an effect fitted to round-off.
@@ -77,7 +80,7 @@ ALIGN_SAMPLES = 1.5
 
 INPUT = {'specimen': 'base_accel', 'actuator': 'command'}
 OUTPUT = {'specimen': 'rel_disp', 'actuator': 'measured'}
-_OUTPUT_OPS = {'specimen': ('time_delay', 'sensor_bias'),
+_OUTPUT_OPS = {'specimen': ('time_delay', 'sensor_bias', 'force_offset'),
                'actuator': ('time_delay', 'sensor_bias', 'backlash', 'velocity_saturation')}
 
 
@@ -125,7 +128,8 @@ class Context:
             force_nl = np.vectorize(fx.specimen_force(
                 {k: v for k, v in model.effects.items() if k not in ops}, model))
             self.e_r = data['force'] - (model.c_d * st['v'] + model.k_d * st['x']
-                                        + force_nl(st['x'], st['v']))
+                                        + force_nl(st['x'], st['v'])
+                                        + model.effects.get('force_offset', 0.0))
             self.sigma2_f = max(sg.noise_variance(self.e_r, self.fs),
                                 (ROUND_OFF * float(np.std(data['force']))) ** 2)
 
@@ -208,6 +212,8 @@ class Context:
             return np.zeros(self.n)
         if name == 'sensor_bias':
             return np.full(self.n, -m.k_d * params)
+        if name == 'force_offset':
+            return np.full(self.n, float(params))
         if self.lib[name].linear:
             return params * m.m_d * fx.loop_regressor(self.scenario, name, st, m)
         return m.m_d * fx.loop_term_nonlinear(name, params, st, m)
@@ -245,7 +251,8 @@ def _solve_linear(ctx, names_lin, pnl, align=None, free_align=False):
     free_align = free_align and 'time_delay' not in pnl
     if not names_lin and not free_align:
         return dict(pnl), base, base_f, align
-    cols = [np.ones(ctx.n) if n == 'sensor_bias' else ctx.column(n) for n in names_lin]
+    cols = [np.ones(ctx.n) if n == 'sensor_bias' else
+            np.zeros(ctx.n) if n == 'force_offset' else ctx.column(n) for n in names_lin]
     if free_align:
         cols.append(-np.gradient(base, 1.0 / ctx.fs))
     cmat = np.column_stack(cols)
@@ -360,13 +367,20 @@ def select(ctx, progress=None):
         params, pred, pred_f, align = fit_candidate(ctx, names)
         fits[_label(names)] = (params, pred, ctx.score(pred, pred_f, ctx.test), align)
 
-    for name in fx.EFFECT_NAMES:
+    names = [n for n in fx.EFFECT_NAMES if n in ctx.lib]
+    for name in names:
         add([name])
-    singles = sorted(fx.EFFECT_NAMES, key=lambda k: fits[k][2])
+    singles = sorted(names, key=lambda k: fits[k][2])
     for first in singles[:PAIR_TOP]:
-        for other in fx.EFFECT_NAMES:
+        for other in names:
             if other != first and _label([first, other]) not in fits:
                 add([first, other])
+    # when nothing fitted so far comes near the noise floor, a pair of two lesser singles
+    # may explain clearly more: then every pair is fitted
+    if min(v[2] for v in fits.values()) - floor > PAIR_WIDEN:
+        for a, b in itertools.combinations(names, 2):
+            if _label([a, b]) not in fits:
+                add([a, b])
     if progress:
         progress(f'fitted {len(fits)} candidates')
     best1 = singles[0]

@@ -1,9 +1,9 @@
-"""Bag input of the discrepancy workflow: ``rths_bringup.bagio.read_discrepancy(bag, 'actuator')``.
+"""Bag input of the discrepancy workflow: ``rths_discrepancy.io.read_bag(bag, 'actuator')``.
 
-A small bag is written with :class:`rths_bringup.bagio.BagWriter` the way the
+A small bag is written with :class:`rths_common.bagio.BagWriter` the way the
 recorder writes a run: ``/rths/measurement`` messages (``applied`` = what the
 bridge wrote to the actuator, ``displacement`` = measured) and run information
-from :func:`rths_bringup.runinfo.flatten` (``fs_hz``, the bridge's
+from :func:`rths_common.runinfo.flatten` (``fs_hz``, the bridge's
 ``command_delay_steps``).  The record is the self-test's Table 1 3-pole
 actuator with a hidden stiffness error, at 512 Hz.
 """
@@ -25,8 +25,7 @@ DURATION_S = 8.0
 @pytest.fixture(scope='module')
 def actuator_bag(tmp_path_factory):
     """(bag path, record, truth): the record's last step applied nothing (empty ``applied``)."""
-    from rths_bringup import bagio, runinfo
-    from rths_common import topics
+    from rths_common import bagio, runinfo, topics
 
     data, truth = selftest.make_record('actuator', ['stiffness_error'], 3,
                                        duration_s=DURATION_S, fs=FS_HZ)
@@ -52,11 +51,11 @@ def actuator_bag(tmp_path_factory):
     return bag, data, truth
 
 
-def test_read_discrepancy_actuator_columns(actuator_bag):
-    from rths_bringup.bagio import read_discrepancy
+def test_read_bag_actuator_columns(actuator_bag):
+    from rths_discrepancy.io import read_bag
 
     bag, data, _ = actuator_bag
-    got = read_discrepancy(bag, 'actuator')
+    got = read_bag(bag, 'actuator')
     assert sorted(got) == ['command', 'measured', 'time']
     # the step without an applied command is dropped; time is step / fs_hz of the run info
     assert got['time'].size == data['time'].size
@@ -83,11 +82,12 @@ def test_discrepancy_cli_names_the_effect_from_the_bag(actuator_bag, tmp_path):
     assert abs(got - truth['stiffness_error']) <= 0.15 * truth['stiffness_error']
 
 
-def test_read_discrepancy_actuator_bag_without_measurements(tmp_path):
-    from rths_bringup import bagio, runinfo
+def test_read_bag_actuator_bag_without_measurements(tmp_path):
+    from rths_common import bagio, runinfo
+    from rths_discrepancy.io import read_bag
 
     bag = tmp_path / 'empty'
     with bagio.BagWriter(bag, run_info=runinfo.flatten('identification', FS_HZ, 'lockstep', {})):
         pass
     with pytest.raises(ValueError, match='no /rths/measurement messages'):
-        bagio.read_discrepancy(bag, 'actuator')
+        read_bag(bag, 'actuator')

@@ -39,6 +39,7 @@ uz joints floor 2 (6)]``; the interface DOF is Ux2 (index 2), also the output.
 """
 
 from functools import lru_cache
+from itertools import pairwise
 import math
 
 import numpy as np
@@ -149,7 +150,7 @@ def _frame(building_mass_kg):
     for floor in (1, 2):
         z = floor * STORY_H
         for y in ys:
-            for x0, x1 in zip(xs[:-1], xs[1:]):
+            for x0, x1 in pairwise(xs):
                 beams.append(((x0, y, z), (x1, y, z)))
         for x in xs:
             beams.append(((x, ys[0], z), (x, ys[1], z)))
@@ -162,7 +163,7 @@ def _frame(building_mass_kg):
                for s in (0, 1 / 3, 2 / 3, 1)]
         ids = [node(p) for p in pts]
         lm = building_mass_kg / 2 / beam_len[floor]
-        for a, b in zip(ids[:-1], ids[1:]):
+        for a, b in pairwise(ids):
             elems.append((a, b, BEAM_BD, lm, (0.0, 0.0, 1.0)))
     for y in ys:
         for x in xs:
@@ -185,7 +186,9 @@ def _frame(building_mass_kg):
 
 
 def _in_plane_map(coords, floor_of):
-    """Rigid-diaphragm map ``T1``: u_240 = T1 q, q = [Ux1, Uy1, Th1, Ux2, Uy2, Th2, per node
+    """Return the rigid-diaphragm map ``T1`` (u_240 = T1 q).
+
+    Rigid-diaphragm map ``T1``: u_240 = T1 q, q = [Ux1, Uy1, Th1, Ux2, Uy2, Th2, per node
     (uz, rx, ry, rz)].  The in-plane translations of a floor node follow its floor's
     (Ux, Uy, Theta) about the plan centre; every other DOF is its own coordinate.
     """
@@ -295,7 +298,7 @@ def building_240dof(building_mass_kg=BUILDING_MASS_KG, diaphragms=True):
 
 
 def floor2_x_dofs_240(building_mass_kg=BUILDING_MASS_KG):
-    """Indices of ux of every 2nd-floor node of the 240-DOF model (average = floor response)."""
+    """Return the ux indices of the 240-DOF model's 2nd-floor nodes (their mean = the floor)."""
     _, _, coords, _, floor_of = _frame(float(building_mass_kg))
     return [6 * i for i, f in enumerate(floor_of) if f == 2]
 

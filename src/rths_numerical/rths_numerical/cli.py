@@ -8,7 +8,7 @@
 import json
 import os
 
-from .files import atomic_open, save_figure
+from rths_common.files import atomic_open, save_figure
 
 
 def _progress(label):

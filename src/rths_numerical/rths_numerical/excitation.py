@@ -16,16 +16,18 @@ import numpy as np
 from .signals import blwn
 from .stepping import SteppedSubstructure
 
-#: Parameters of ``model: excitation`` and their defaults (SI units).
-EXCITATION_DEFAULTS = {
-    'model': 'excitation',
-    'fs_hz': 1024.0,            # [Hz]
-    'duration_s': 20.0,         # [s]
-    'excitation_band_hz': 64.0,  # [Hz] BLWN band 0..f (seed 4.3.1: 0~64 Hz)
-    'excitation_peak_m': 0.00254,  # [m] peak (seed 4.3.1: 0.1 in = 2.54 mm)
-    'taper_s': 0.5,             # [s] fade in/out so the actuator starts and ends at rest
-    'seed': 0,
+#: Parameters of ``model: excitation``: key -> (default, meaning [unit]).
+EXCITATION_PARAMS = {
+    'model': ('excitation', "'excitation': a prescribed BLWN interface displacement"),
+    'fs_hz': (1024.0, '[Hz] loop rate'),
+    'duration_s': (20.0, '[s] length of the excitation'),
+    'excitation_band_hz': (64.0, '[Hz] BLWN band 0..f (seed 4.3.1: 0~64 Hz)'),
+    'excitation_peak_m': (0.00254, '[m] peak displacement (seed 4.3.1: 0.1 in = 2.54 mm)'),
+    'taper_s': (0.5, '[s] fade in/out so the actuator starts and ends at rest'),
+    'seed': (0, '[-] random seed of the BLWN'),
 }
+#: Default of every parameter of ``model: excitation``.
+EXCITATION_DEFAULTS = {key: default for key, (default, _) in EXCITATION_PARAMS.items()}
 
 
 class PrescribedExcitation(SteppedSubstructure):

@@ -1,44 +1,10 @@
-"""Numerical-substructure node: integrates the building and closes the RTHS loop.
+"""Numerical-substructure node: the ROS shell of :mod:`rths_numerical.substructure`.
 
 ``ros2 run rths_numerical numerical_node --ros-args --params-file config/numerical.yaml``
 
 Publishes the interface displacement of each step on ``/rths/interface_displacement``
-and consumes the measured force of that step from ``/rths/measurement``; all
-physics is in :mod:`rths_numerical.substructure` (no ROS there).
-
-Lock-step mode (``mode: lockstep``): step k+1 is computed only when the
-measurement of step k has arrived, so a run is deterministic and as fast as
-the machine allows.  The node waits until ``wait_for_subscribers`` readers
-(compensator, recorder) have matched its publisher, publishes step 0, and
-exits with code 0 after the last step.  With ``history_out`` set it saves the
-substructure's history (``NumericalSubstructure.history()``) as .npz.
-
-Realtime mode (``mode: realtime``): the actuator bridge is the clock.  The node
-publishes the number of steps on ``/rths/run_steps`` (latched) and step 0 once
-the graph is connected (again every 0.1 s until the first measurement comes
-back: best-effort samples sent before discovery settles can be lost); then it
-computes step k+1 as soon as measurement k arrives.  A measurement that never
-arrives (best-effort loss) is a deadline miss here: when measurement j > k
-arrives the node advances the missing steps with measured forces
-*interpolated* (linearly, :mod:`rths_common.gaps`) between the last received
-one and that of step j, flags them in its status and goes on.  Interpolated,
-not held: both ends are known when j arrives, and a held force is off by
-about force rate x dt per step, the interpolated one by at most
-``max|f''| dt^2 / 2`` for one lost step.  If measurement 0 itself is lost
-there is nothing to interpolate from, and the force of step j fills the
-missing steps.  Stale measurements (j < k) are dropped.  After the last step
-it exits 0 as in lock-step, which ends the run.  ``inject_drop_every`` = N > 0
-(realtime only) does not publish the interface displacement of every N-th
-step: fault injection for the tests of the compensator's miss policy.
-``status_every`` = N > 1 publishes the status of every N-th step only (missed
-steps always), to lighten the status traffic.  ``remote_graph: true``: the rest
-of the graph is in another ROS domain behind a relay (``rths linkemu``,
-distributed RTHS): the node then waits only for ``wait_for_subscribers``
-reader(s) of its output and a measurement publisher before step 0.
-Latency settings (``rt_priority``, ``cpus``, ``gc``) are those of
-:func:`rths_common.node_support.tuning`; the loop messages travel as CDR bytes
-(:mod:`rths_common.cdr`); ``timing_out`` saves per-step publish/receipt times
-for ``rths bench loop``.
+and advances the substructure with the measured force of ``/rths/measurement``
+(lock-step or realtime; behaviour and measurements: docs/nodes.md).
 """
 
 import sys
@@ -63,9 +29,9 @@ class NumericalNode:
     """ROS shell around a :class:`~rths_numerical.substructure.NumericalSubstructure`."""
 
     def __init__(self):
-        from rths_numerical.substructure import make_substructure
+        from rths_numerical.substructure import make_substructure, param_schema
 
-        self.node = ns.make_node('numerical')
+        self.node = ns.make_node('numerical', param_schema(NODE_PARAMS), NODE_PARAMS)
         params = ns.parameters(self.node)
         own = {k: ns.param(params, k, v) for k, v in NODE_PARAMS.items()}
         for key in NODE_PARAMS:
@@ -115,6 +81,7 @@ class NumericalNode:
                       f"waiting for {own['wait_for_subscribers']} subscriber(s)")
 
     def publish(self, step: int, displacement):
+        """Publish the interface displacement of ``step``."""
         if self.realtime:
             drop = self.own['inject_drop_every']
             if drop > 0 and step > 0 and step % drop == 0:
@@ -198,8 +165,8 @@ class NumericalNode:
     def on_measurement_raw(self, data: bytes):
         """Realtime: finish step k (interpolating over lost measurements), publish k+1."""
         t_in = ns.now_ns()
-        if self.finished:
-            return
+        if self.finished or not self.started:
+            return  # before step 0 is out, a measurement cannot be of this run
         stamp_ns, step, _, _, force_values = cdr.unpack_step_arrays(data, 3)
         if step < self.expected:
             self.stale += 1
@@ -248,6 +215,7 @@ class NumericalNode:
             self.finish()
 
     def finish(self):
+        """Mark the run finished (the last step is done)."""
         self.finished = True
         if self.cpu_loop is not None:
             self.cpu_loop[1] = time.process_time()
@@ -262,6 +230,7 @@ class NumericalNode:
                      cpu_loop_s=(cpu[1] or time.process_time()) - cpu[0])
 
     def summary(self) -> str:
+        """Return the one-line summary of the run."""
         wall = time.monotonic() - self.t_start if self.t_start else 0.0
         rate = self.expected / wall if wall > 0 else 0.0
         text = (f'numerical: {self.expected} of {self.sub.n_steps} steps in {wall:.2f} s '
@@ -286,6 +255,7 @@ class NumericalNode:
         return 0 if done else 130
 
     def save_history(self):
+        """Write the response history (``history_out``), if asked."""
         path = self.own['history_out']
         if path:
             np.savez(path, **self.sub.history())

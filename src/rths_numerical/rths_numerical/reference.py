@@ -88,7 +88,7 @@ def metrics(disp, reference=None):
 
 
 def simulate_uncontrolled(model: LinearModel, ag, dt, integrator='cr'):
-    """Building alone; return ``{'time', 'disp', 'accel_abs', 'metrics'}`` of the output DOF."""
+    """Simulate the building alone: ``{'time', 'disp', 'accel_abs', 'metrics'}`` of its output."""
     d, a = integrate_model(model, ag, dt, integrator)
     out = model.output_dof
     disp = d[:, out]
@@ -98,7 +98,7 @@ def simulate_uncontrolled(model: LinearModel, ag, dt, integrator='cr'):
 
 def simulate_reference(model: LinearModel, ag, dt, damper='valve4', n_dtm=5,
                        frame_mass_kg=FRAME_MASS_KG, integrator='cr', uncontrolled=None):
-    """Building + ``n_dtm`` DTMs (Table 4 ``damper``) all numerical (seed 6.3.4).
+    """Simulate the building + ``n_dtm`` DTMs (Table 4 ``damper``), all numerical (seed 6.3.4).
 
     Returns ``{'time', 'disp', 'accel_abs', 'dtm_stroke', 'metrics'}``; the
     metrics include reductions against ``uncontrolled`` (computed if None).

@@ -43,45 +43,15 @@ mass excited by the ground, :func:`.reference.simulate_reference`): the
 absolute frame agrees to a fraction of a percent, the relative frame is off by
 several percent (numbers in the test and the report), hence the default.
 
-Parameters of :func:`make_substructure` (flat dict, as ROS parameters)
----------------------------------------------------------------------
-=================  ========================================================  ==============
-key                meaning                                                   default
-=================  ========================================================  ==============
-backend            'builtin' (this package's integrators) or 'opensees'      'builtin'
-                   (OpenSeesPy, optional: :mod:`.opensees_backend`)
-model              'sdof', 'building2story' (16-DOF), 'silva2020_case1'..4   'sdof'
-                   (benchmark, :mod:`.silva2020`) or a model YAML path;
-                   opensees also: an OpenSeesPy model script (.py path, or a
-                   name in config/models/, e.g. 'frame-steel01')
-integrator         builtin: 'cr', 'kr_alpha', 'newmark', 'central_difference' 'cr' /
-                   opensees: 'central_difference' or 'newmark'               'central_diff..'
-rho_inf            KR-alpha spectral radius at infinity, 0..1                0.5
-fs_hz              loop rate [Hz] (time step 1/fs_hz)                        1024.0
-duration_s         simulated time [s]; 0 = whole record                      10.0 / record
-record             'kobe', 'northridge', 'imperial_valley', 'none', 'blwn',  'harmonic'
-                   'harmonic' or a PEER .AT2 path
-scale              record scale factor; BLWN/harmonic peak in g              0.1
-harmonic_freq_hz   frequency of the 'harmonic' ground acceleration [Hz]      sdof_freq_hz
-blwn_band_hz       BLWN band 0..f [Hz]                                       10.0
-seed               random seed of BLWN                                       0
-interface_dofs     list of model DOF indices at the interface                model's
-force_scale        specimens represented by the one in the lab [-]           5 (building), 1
-interface_frame    'absolute' or 'relative' (see above)                      'absolute'
-specimen_mass_kg   mass of ONE specimen moving with the table [kg], used     DTM frame +
-                   for P_I^E in the relative frame                           moving mass
-sdof_mass_kg       SDOF mass [kg]                                            1000.0
-sdof_freq_hz       SDOF natural frequency [Hz]                               2.81
-sdof_zeta          SDOF damping ratio [-]                                    0.042
-building_mass_kg   total building mass [kg] of 'building2story'              62 706
-=================  ========================================================  ==============
-
-Numbers 0 for ``duration_s``, ``harmonic_freq_hz``, ``building_mass_kg`` and an
-empty ``interface_dofs`` mean "default" (ROS parameters cannot be unset);
+Parameters of :func:`make_substructure` (flat dict, as ROS parameters): the
+registry :data:`PARAMS` (key -> default and meaning with unit).  Numbers 0 for
+``duration_s``, ``harmonic_freq_hz``, ``building_mass_kg`` and an empty
+``interface_dofs`` mean "default" (ROS parameters cannot be unset);
 ``use_sim_time`` and ``qos_overrides.*`` are ignored.
 """
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -94,14 +64,47 @@ from .stepping import BACKENDS, SteppedSubstructure
 FRAMES = ('absolute', 'relative')
 #: Parameters every ROS node has; ignored here.
 ROS_KEYS = ('use_sim_time', 'start_type_description_service')
-DEFAULTS = {
-    'backend': 'builtin', 'model': 'sdof', 'integrator': None, 'rho_inf': 0.5, 'fs_hz': 1024.0,
-    'duration_s': None,
-    'record': 'harmonic', 'scale': 0.1, 'harmonic_freq_hz': None, 'blwn_band_hz': 10.0,
-    'seed': 0, 'interface_dofs': None, 'force_scale': None, 'interface_frame': 'absolute',
-    'specimen_mass_kg': FRAME_MASS_KG + TABLE4['valve4'].m_d, 'sdof_mass_kg': 1000.0,
-    'sdof_freq_hz': 2.81, 'sdof_zeta': 0.042, 'building_mass_kg': None,
+#: The substructure's parameters: key -> (default, meaning [unit]); None = see the meaning.
+PARAMS = {
+    'backend': ('builtin', "'builtin' (this package's integrators) or 'opensees' (OpenSeesPy, "
+                'optional: opensees_backend)'),
+    'model': ('sdof', "'sdof', 'building2story' (16-DOF), 'silva2020_case1'..4 (benchmark, "
+              'silva2020) or a model YAML path; opensees also: an OpenSeesPy model script '
+              "(.py path, or a name in config/models/, e.g. 'frame-steel01')"),
+    'integrator': (None, "builtin: 'cr' (default), 'kr_alpha', 'newmark', 'central_difference'; "
+                   "opensees: 'central_difference' (default) or 'newmark'"),
+    'rho_inf': (0.5, '[-] KR-alpha spectral radius at infinity, 0..1'),
+    'fs_hz': (1024.0, '[Hz] loop rate (time step 1/fs_hz)'),
+    'duration_s': (None, '[s] simulated time; 0 = whole record (10 s for blwn/harmonic/none)'),
+    'record': ('harmonic', "'kobe', 'northridge', 'imperial_valley', 'none', 'blwn', "
+               "'harmonic' or a PEER .AT2 path"),
+    'scale': (0.1, '[-] record scale factor; BLWN/harmonic peak in g'),
+    'harmonic_freq_hz': (None, "[Hz] frequency of the 'harmonic' ground acceleration "
+                         '(0: the first mode)'),
+    'blwn_band_hz': (10.0, '[Hz] BLWN band 0..f'),
+    'seed': (0, '[-] random seed of BLWN'),
+    'interface_dofs': (None, "[-] model DOF indices at the interface (empty: the model's)"),
+    'force_scale': (None, '[-] specimens represented by the one in the lab (5 for '
+                    'building2story, else 1)'),
+    'interface_frame': ('absolute', "'absolute' or 'relative' (module docstring)"),
+    'specimen_mass_kg': (FRAME_MASS_KG + TABLE4['valve4'].m_d,
+                         '[kg] mass of ONE specimen moving with the table, for P_I^E in the '
+                         'relative frame'),
+    'sdof_mass_kg': (1000.0, '[kg] SDOF mass'),
+    'sdof_freq_hz': (2.81, '[Hz] SDOF natural frequency'),
+    'sdof_zeta': (0.042, '[-] SDOF damping ratio'),
+    'building_mass_kg': (None, "[kg] total mass of 'building2story' (0: 62 706 kg)"),
 }
+#: Default of every parameter (None: see :data:`PARAMS`).
+DEFAULTS = {key: default for key, (default, _) in PARAMS.items()}
+
+
+def param_schema(node_params) -> dict:
+    """Return the numerical node's parameter schema: its ``node_params`` and the core's."""
+    from rths_common.params import node_schema
+
+    from .excitation import EXCITATION_PARAMS
+    return node_schema(node_params, {**EXCITATION_PARAMS, **PARAMS})
 
 
 class NumericalSubstructure(SteppedSubstructure):
@@ -165,7 +168,7 @@ class NumericalSubstructure(SteppedSubstructure):
         """Load vector ``p_k`` [N]: ``-M Gamma a_g + F s(t_k)`` plus ``P_I^E`` (relative frame)."""
         a = self.ag[k] if k < self.n_steps else 0.0
         p = -self._mg * a
-        if self._force_ext is not None:
+        if self._force_ext_scale is not None:  # set together with _force_ext
             p += self._force_ext * self._force_ext_scale[min(k, self.n_steps)]
         if self._relative_load:
             p[self.iface] -= self.force_scale * self.specimen_mass * self._gi * a
@@ -316,6 +319,7 @@ def make_substructure(params: dict) -> SteppedSubstructure:
     if script and params.get('interface_dofs') is not None:
         raise ValueError('parameter interface_dofs: a model script names its interface itself '
                          '(interface_node, interface_dof)')
+    model: Any  # a LinearModel; a ScriptModel (opensees backend only) for a model script
     if script:
         from .opensees_backend import ScriptModel, script_builder
         builder, ground_dof = script_builder(script)

@@ -16,7 +16,9 @@ from rths_numerical.integrators import (
 @pytest.mark.parametrize('name', ['cr', 'newmark'])
 @pytest.mark.parametrize('omega_dt', [0.05, 0.3, 1.0, 2.5])
 def test_trapezoidal_period_elongation_and_no_damping(name, omega_dt):
-    """CR and Newmark avg. acc.: T'/T = (Omega/2)/atan(Omega/2), spectral radius 1 (Chen-Ricles
+    """CR and Newmark average acceleration: the exact period error, no damping.
+
+    CR and Newmark avg. acc.: T'/T = (Omega/2)/atan(Omega/2), spectral radius 1 (Chen-Ricles
     2008; Newmark 1959).
     """
     rho, xi, pe = numerical_properties(amplification_matrix(name, omega_dt, 1.0), omega_dt)
@@ -54,7 +56,9 @@ def test_kr_alpha_spectral_radius_at_infinity_and_damping(rho_inf):
 
 @pytest.mark.parametrize('name', ['cr', 'kr_alpha'])
 def test_unconditionally_stable_on_stiff_system(name):
-    """Spectral radius <= 1 for every Omega up to 1e6; a stiff 2-DOF system stepped at 50 x its
+    """Every integrator is stable up to Omega = 1e6 and on a stiff 2-DOF system.
+
+    Spectral radius <= 1 for every Omega up to 1e6; a stiff 2-DOF system stepped at 50 x its
     shortest period (central difference needs dt < T/pi) stays bounded over many beat periods.
     (CR overshoots by O(Omega) in a stiff mode started with an equilibrium acceleration, a known
     property of explicit model-based schemes, but does not grow.)
@@ -110,7 +114,9 @@ def test_predict_is_explicit(name):
 
 
 def test_measured_force_enters_equilibrium():
-    """A spring specimen r = k_e d through correct() shifts the SDOF frequency to
+    """A spring specimen through correct() shifts the SDOF frequency.
+
+    A spring specimen r = k_e d through correct() shifts the SDOF frequency to
     sqrt((k + k_e)/m) (CR, 1024 Hz, 4 s).
     """
     m, k, ke = 1.0, (2 * math.pi * 2) ** 2, (2 * math.pi * 2) ** 2 * 1.25

@@ -30,7 +30,9 @@ def _modal_ratios(model):
 
 
 def test_rayleigh_damping_gives_the_ratios_on_the_chosen_modes(tmp_path):
-    """Rayleigh C = a0 M + a1 K: the two named modes get exactly the requested ratios (seed 6.2
+    """Rayleigh damping gives the two named modes exactly the requested ratios.
+
+    Rayleigh C = a0 M + a1 K: the two named modes get exactly the requested ratios (seed 6.2
     uses 4.2 % and 10 % on the first two x modes; here modes 0 and 2 of a 3-DOF frame).
     """
     path = _write(tmp_path, dict(SHEAR3, damping={'type': 'rayleigh', 'zeta': [0.042, 0.10],
@@ -194,7 +196,9 @@ def test_bad_model_files_name_file_and_field(tmp_path, change, field):
 
 
 def test_whole_numerical_reference_and_coupled_model_keep_the_external_force():
-    """``rths simulate`` / the studies integrate the same load: the reference settles at
+    """The static load F settles the reference at K u = F, with or without a DTM.
+
+    ``rths simulate`` / the studies integrate the same load: the reference settles at
     K u = F, and a DTM attached by coupled_model leaves the static deflection unchanged.
     """
     from rths_numerical.dtm import dtm_configuration

@@ -41,7 +41,9 @@ def test_den_hartog_formulas():
 
 
 def test_tuning_optimum_near_den_hartog_small_grid():
-    """Seed 7.2 on a small grid: the RMS-displacement optimum lies near the building frequency
+    """Seed 7.2 on a small grid: the RMS optimum lies near the building frequency.
+
+    Seed 7.2 on a small grid: the RMS-displacement optimum lies near the building frequency
     (Den Hartog), not at the seed's 1.8 Hz.
     """
     fs = 128.0

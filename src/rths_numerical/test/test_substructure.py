@@ -66,7 +66,9 @@ def test_lockstep_equals_numerical_for_zero_specimen():
 
 
 def test_absolute_frame_reproduces_reference():
-    """Physics note of substructure.py: building + 5 DTMs + 5 frames all numerical (seed 6.3.4)
+    """The absolute frame reproduces the whole-numerical building with DTMs.
+
+    Physics note of substructure.py: building + 5 DTMs + 5 frames all numerical (seed 6.3.4)
     vs RTHS with a simulated DTM.  The absolute frame matches to < 2 % relative RMS error; the
     relative frame (seed eq. 24 with rigid specimen mass) misses the DTM's ground excitation and
     is at least 5x worse.
@@ -99,7 +101,9 @@ class RigidMass:
 
 
 def test_eq24_ground_term_of_a_rigid_specimen_in_the_relative_frame():
-    """Seed eq. 24: in the relative frame the table cannot apply a_g to the specimen, so its
+    """Seed eq. 24's ground term makes the relative frame reproduce the building.
+
+    Seed eq. 24: in the relative frame the table cannot apply a_g to the specimen, so its
     ground term P_I^E = -m^E Gamma_I a_g is added numerically.  Five rigid 2 t masses (force
     scale 5, seed 6.2) in the lab then reproduce the building with the 10 t lumped in; without
     the eq. 24 term (specimen_mass_kg = 0) the response is off by more than 10 %.
@@ -121,7 +125,9 @@ def test_eq24_ground_term_of_a_rigid_specimen_in_the_relative_frame():
 
 @pytest.mark.parametrize('integrator', ['cr', 'kr_alpha', 'newmark'])
 def test_two_interface_dofs_reproduce_the_whole_numerical_model(integrator):
-    """A 3-DOF shear building with specimens at floors 1 and 3 (springs of 0.5 and 0.2 times
+    """Specimens at two floors of a 3-DOF building match the whole-numerical model.
+
+    A 3-DOF shear building with specimens at floors 1 and 3 (springs of 0.5 and 0.2 times
     the story stiffness, relative frame) matches the whole-numerical model with both springs
     in K on every floor; the two measured forces go to their own DOFs (swapped, the error is
     > 100 %).

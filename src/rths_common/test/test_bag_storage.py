@@ -12,8 +12,7 @@ import pytest
 from test_bagio import _measurement
 import yaml
 
-from rths_bringup import bagio
-from rths_common import bagstore, topics
+from rths_common import bagio, bagstore, topics
 
 
 def _command(step):

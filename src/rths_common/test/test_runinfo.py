@@ -1,8 +1,8 @@
-"""Run information and params-file helpers (rths_bringup.runinfo)."""
+"""Run information and params-file helpers (rths_common.runinfo)."""
 
 import pytest
 
-from rths_bringup import runinfo
+from rths_common import runinfo
 
 
 def test_flatten_and_section_round_trip():
@@ -10,7 +10,8 @@ def test_flatten_and_section_round_trip():
         'numerical': {'record': 'kobe', 'scale': 0.135, 'interface_dofs': [2], 'fs_hz': 1024.0,
                       'taps': [1.0, 2.0]},
         'bridge': {'dtm': 'valve4', 'autostart': True},
-        'compensator': {'created': '2026-11-21T10:31:03+00:00'}})
+        'compensator': {'scheme': 'wls',
+                        'provenance': {'created': '2026-11-21T10:31:03+00:00', 'n_taps': 400}}})
     assert all(isinstance(v, str) for v in info.values())  # rosbag2 custom_data holds strings
     assert info['fs_hz'] == '1024.0' and info['kind'] == 'rths'
     assert 'numerical.taps' not in info  # long arrays are not run information
@@ -18,7 +19,10 @@ def test_flatten_and_section_round_trip():
                                                   'interface_dofs': [2], 'fs_hz': 1024.0}
     assert runinfo.section(info, 'bridge') == {'dtm': 'valve4', 'autostart': True}
     # an ISO time stays text (YAML would read it as a datetime, which JSON cannot write)
-    assert runinfo.section(info, 'compensator') == {'created': '2026-11-21T10:31:03+00:00'}
+    # a nested mapping (the compensator's provenance) becomes dotted keys, as ROS names them
+    assert runinfo.section(info, 'compensator') == {
+        'scheme': 'wls', 'provenance.created': '2026-11-21T10:31:03+00:00',
+        'provenance.n_taps': 400}
 
 
 def test_params_file_round_trip_keeps_types(tmp_path):

@@ -24,7 +24,7 @@ def atomic_open(path, mode: str = 'w', suffix: str = '.tmp'):
     fd, tmp = tempfile.mkstemp(prefix='.' + os.path.basename(path) + '-', suffix=suffix,
                                dir=directory)
     try:
-        with os.fdopen(fd, mode, **({} if 'b' in mode else {'encoding': 'utf-8'})) as handle:
+        with os.fdopen(fd, mode, encoding=None if 'b' in mode else 'utf-8') as handle:
             yield handle
         os.replace(tmp, path)
     except BaseException:

@@ -22,7 +22,7 @@ from pathlib import Path
 import sqlite3
 import time
 
-from rths_common import bagstore, topics
+from rths_common import bagstore, runinfo, topics
 
 
 def _msg_dir() -> Path:
@@ -37,7 +37,8 @@ def _msg_dir() -> Path:
     root = Path(os.environ.get('RTHS_ROOT', Path(__file__).resolve().parents[3]))
     path = root / 'src' / 'rths_msgs' / 'msg'
     if not path.is_dir():
-        raise OSError(f'cannot find the rths_msgs .msg files (looked in the ament index and {path}); '
+        raise OSError('cannot find the rths_msgs .msg files (looked in the ament index and '
+                      f'{path}); '
                       "run 'make setup' and 'source env.sh'")
     return path
 
@@ -68,6 +69,7 @@ class BagWriter:
 
     def __init__(self, path, topic_types=None, commit_period_s: float = 0.25, run_info=None,
                  storage: str = bagstore.DEFAULT_STORAGE):
+        from rosbags.interfaces import Connection
         from rosbags.rosbag2 import Writer
 
         self.storage = bagstore.check_storage(storage)
@@ -76,15 +78,17 @@ class BagWriter:
             raise OSError(f'bag {self.path} already exists; choose a new --bag directory '
                           'or delete the old one')
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._writer = Writer(self.path, version=9, storage_plugin=bagstore.plugin(storage))
+        self._writer: Writer | None = Writer(self.path, version=9,
+                                             storage_plugin=bagstore.plugin(storage))
         self._writer.open()
+        self._storage = self._writer.storage
         self.run_info = {str(k): str(v) for k, v in (run_info or {}).items()}
         for key, value in self.run_info.items():
             self._writer.set_custom_data(key, value)
         if self.run_info:  # also beside the database, so a crashed recording keeps it
             import yaml
             (self.path / RUN_INFO_FILE).write_text(yaml.safe_dump(self.run_info))
-        self._connections = {}
+        self._connections: dict[str, Connection] = {}
         self._commit_period_s = commit_period_s
         self._last_commit = time.monotonic()
         self.count = 0
@@ -92,14 +96,19 @@ class BagWriter:
             self.add_topic(topic, msgtype)
         self.commit()
 
+    def _open_writer(self):
+        if self._writer is None:
+            raise OSError(f'bag {self.path} is closed')
+        return self._writer
+
     def add_topic(self, topic: str, msgtype: str):
         """Register ``topic`` with ``msgtype`` (must be known to :func:`typestore`)."""
-        self._connections[topic] = self._writer.add_connection(
+        self._connections[topic] = self._open_writer().add_connection(
             topic, msgtype, typestore=typestore())
 
     def write(self, topic: str, timestamp_ns: int, cdr: bytes):
         """Append one serialized message; commit if the commit period has passed."""
-        self._writer.write(self._connections[topic], int(timestamp_ns), cdr)
+        self._open_writer().write(self._connections[topic], int(timestamp_ns), cdr)
         self.count += 1
         now = time.monotonic()
         if now - self._last_commit >= self._commit_period_s:
@@ -115,7 +124,7 @@ class BagWriter:
         """Make everything written so far durable (survives a SIGKILL of this process)."""
         # rosbags commits (sqlite3) or writes the pending chunk (MCAP) only on close;
         # doing it early is what makes a killed recording recoverable by reindex().
-        bagstore.commit(self._writer.storage, self.storage)
+        bagstore.commit(self._storage, self.storage)
 
     def close(self):
         """Finish the bag: commit and write metadata.yaml."""
@@ -203,8 +212,8 @@ def _reindex_mcap(bag: Path) -> Path:
     path = bagstore.data_file(bag)
     bagstore.repair_mcap(path)
     scan = bagstore.mcap_topics(path)
-    rows = [(name, msgtype, fmt, [], digest, count)
-            for name, msgtype, fmt, digest, count in scan['topics']]
+    rows: list[tuple] = [(name, msgtype, fmt, [], digest, count)
+                         for name, msgtype, fmt, digest, count in scan['topics']]
     return _write_metadata(bag, 'mcap', path, rows, scan['start_ns'], scan['end_ns'])
 
 
@@ -281,7 +290,8 @@ def step_arrays(bag, topic: str, fields) -> dict:
     """
     import numpy as np
 
-    steps, values = [], {f: [] for f in fields}
+    steps: list[int] = []
+    values: dict[str, list] = {f: [] for f in fields}
     for _, msg in read_topic(bag, topic):
         steps.append(msg.step)
         for f in fields:
@@ -297,7 +307,7 @@ def step_arrays(bag, topic: str, fields) -> dict:
 
 
 def sampling_rate(bag) -> float:
-    """The loop rate ``fs_hz`` a bag was recorded at (from its run information)."""
+    """Return the loop rate ``fs_hz`` a bag was recorded at (from its run information)."""
     info = run_info(bag)
     try:
         return float(info['fs_hz'])
@@ -308,9 +318,7 @@ def sampling_rate(bag) -> float:
 
 
 def delay_steps(bag) -> int:
-    """The bridge's ``command_delay_steps`` D of a run (0 if the run info does not set it)."""
-    from rths_bringup import runinfo
-
+    """Return the bridge's ``command_delay_steps`` D of a run (0 if the run info lacks it)."""
     return int(runinfo.section(run_info(bag), 'bridge').get('command_delay_steps', 0) or 0)
 
 
@@ -337,30 +345,23 @@ def read_identification(bag, loop: bool = True):
     step, command, measured = data['step'], data['applied'][:, 0], data['displacement'][:, 0]
     shift = delay_steps(bag) if loop else 0
     if shift:
-        applied_at = dict(zip(step.tolist(), command))
+        applied_at = dict(zip(step.tolist(), command, strict=True))
         command = np.array([applied_at.get(k + shift, np.nan) for k in step.tolist()])
     ok = np.isfinite(command) & np.isfinite(measured)
     return step[ok] / fs, command[ok], measured[ok]
 
 
-def read_discrepancy(bag, scenario: str) -> dict:
-    """The discrepancy workflow's columns from a run bag (rths_discrepancy.io layout).
+def read_specimen(bag, frame_mass_kg: float) -> dict:
+    """``time``, ``base_accel``, ``rel_disp`` and ``force`` of the DTM specimen in a run bag.
 
-    ``actuator``: ``time``, ``command`` (what the bridge wrote), ``measured``.
-    ``specimen``: ``time``, ``base_accel`` (table = DTM frame acceleration),
-    ``rel_disp`` (from ``/rths/specimen``) and ``force``, the force the damper
-    exerts on its frame, ``m_frame * a_table - R`` with ``R`` the measured
-    restoring force (the load cells also carry the frame's inertia).
+    ``base_accel`` is the table (= DTM frame) acceleration and ``rel_disp`` the
+    DTM relative displacement, both from ``/rths/specimen``; ``force`` is the
+    force the damper exerts on its frame, ``m_frame * a_table - R`` with ``R``
+    the measured restoring force (the load cells also carry the frame's
+    inertia).  ``m_frame`` is the bridge's ``frame_mass_kg`` of the run, else
+    ``frame_mass_kg``.  Steps with a non-finite value are dropped.
     """
     import numpy as np
-
-    if scenario == 'actuator':
-        t, command, measured = read_identification(bag, loop=False)  # the actuator itself
-        return {'time': t, 'command': command, 'measured': measured}
-    if scenario != 'specimen':
-        raise ValueError(f"scenario {scenario!r}: use 'specimen' or 'actuator'")
-    from rths_bringup import runinfo
-    from rths_numerical.dtm import FRAME_MASS_KG
 
     fs = sampling_rate(bag)
     spec = step_arrays(bag, topics.SPECIMEN, ('table_accel', 'rel_disp'))
@@ -368,26 +369,15 @@ def read_discrepancy(bag, scenario: str) -> dict:
         raise ValueError(f'{bag}: no {topics.SPECIMEN} messages (the bridge publishes them in '
                          'lock-step mode, or with publish_specimen: true)')
     meas = step_arrays(bag, topics.MEASUREMENT, ('force',))
-    force_by_step = dict(zip(meas['step'].tolist(), meas['force'][:, 0]))
+    force_by_step = dict(zip(meas['step'].tolist(), meas['force'][:, 0], strict=True))
     steps = np.array([k for k in spec['step'] if k in force_by_step], dtype=np.int64)
     index = {k: i for i, k in enumerate(spec['step'].tolist())}
     rows = [index[k] for k in steps]
     frame = runinfo.section(run_info(bag), 'bridge').get('frame_mass_kg')
-    frame = FRAME_MASS_KG if frame in (None, '') or not np.isfinite(float(frame)) else float(frame)
+    frame = frame_mass_kg if frame in (None, '') or not np.isfinite(float(frame)) else float(frame)
     accel = spec['table_accel'][rows, 0]
     restoring = np.array([force_by_step[k] for k in steps])
     ok = np.isfinite(accel) & np.isfinite(restoring) & np.isfinite(spec['rel_disp'][rows, 0])
     return {'time': steps[ok] / fs, 'base_accel': accel[ok],
             'rel_disp': spec['rel_disp'][rows, 0][ok],
             'force': (frame * accel - restoring)[ok]}
-
-
-def read_dtm_characterisation(bag):
-    """``(time [s], base_accel [m/s^2], rel_disp [m])`` of a shake-table test bag (seed 5.1.2).
-
-    The table (= DTM frame) acceleration and the DTM relative displacement come
-    from the bridge's ``/rths/specimen`` topic, e.g. of an identification run
-    (``rths run`` step 1) or any ``rths launch`` with the simulated DTM.
-    """
-    data = read_discrepancy(bag, 'specimen')
-    return data['time'], data['base_accel'], data['rel_disp']

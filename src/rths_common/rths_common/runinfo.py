@@ -1,7 +1,7 @@
 """Run information: the parameters of a run, kept in its bag so the review needs only the bag.
 
 The recorder stores every parameter it is given as the bag's run information
-(rosbag2 ``custom_data`` and a side file, :mod:`.bagio`).  Keys are
+(rosbag2 ``custom_data`` and a side file, :mod:`rths_common.bagio`).  Keys are
 ``fs_hz``, ``mode``, ``kind`` (``identification`` or ``rths``) and the
 numerical and bridge parameters prefixed with ``numerical.`` / ``bridge.``.
 Values are strings in the bag; :func:`section` parses them back with YAML.
@@ -17,7 +17,7 @@ SKIP = {'taps', 'denominator', 'history_out', 'executor', 'wait_for_subscribers'
 
 
 def load_params(path, node: str) -> dict:
-    """The ``ros__parameters`` of ``node`` in a ROS 2 params file (ValueError names the file)."""
+    """Return the ``ros__parameters`` of ``node`` in a params file (ValueError names the file)."""
     path = Path(path)
     if not path.is_file():
         raise OSError(f'params file {path} not found')
@@ -45,14 +45,26 @@ def write_params(path, node: str, params: dict) -> Path:
 
 
 def flatten(kind: str, fs_hz: float, mode: str, sections: dict) -> dict:
-    """Run information for the recorder: ``{'numerical.model': 'sdof', ...}`` as strings."""
+    """Run information for the recorder: ``{'numerical.model': 'sdof', ...}`` as strings.
+
+    A nested mapping (the compensator's ``provenance``) becomes dotted keys, as ROS
+    names it: ``compensator.provenance.plant``.
+    """
     info = {'kind': kind, 'fs_hz': repr(float(fs_hz)), 'mode': mode}
     for name, params in sections.items():
         for key, value in params.items():
             if key not in SKIP:
-                text = yaml.safe_dump(value, default_flow_style=True).strip()
-                info[f'{name}.{key}'] = text.removesuffix('\n...')  # scalar document end
+                _flatten_into(info, f'{name}.{key}', value)
     return info
+
+
+def _flatten_into(info: dict, name: str, value) -> None:
+    if isinstance(value, dict):
+        for key, item in value.items():
+            _flatten_into(info, f'{name}.{key}', item)
+        return
+    text = yaml.safe_dump(value, default_flow_style=True).strip()
+    info[name] = text.removesuffix('\n...')  # scalar document end
 
 
 def section(info: dict, name: str) -> dict:
