@@ -499,9 +499,8 @@ def launch_graph(params: dict, out_dir: str, log=_log) -> dict:
     """
     from pathlib import Path
 
-    from rths_common import topics
+    from rths_common import bagio, runinfo, topics
 
-    from . import bagio, runinfo
     from .bench_loop import domain_id
     from .commands import default_config_dir, launch
     from .run import NODE_FILES
