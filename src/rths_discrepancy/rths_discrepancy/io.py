@@ -77,8 +77,12 @@ def sample_rate(data: dict) -> float:
     return float((t.size - 1) / (t[-1] - t[0]))
 
 
-def load_csv(path, scenario: str) -> dict:
-    """Read a CSV with a header row and return the validated columns of ``scenario``."""
+def read_csv_columns(path, expected, keep=None) -> dict:
+    """Read a CSV with a header row; return ``{column: float array}`` (empty cells NaN).
+
+    ``expected`` names the header a user should write (for the empty-file error);
+    ``keep`` (None: every column) selects the columns returned.
+    """
     import csv
     with open(path, newline='') as fh:
         reader = csv.reader(fh)
@@ -86,10 +90,12 @@ def load_csv(path, scenario: str) -> dict:
             header = [h.strip() for h in next(reader)]
         except StopIteration:
             raise ValueError(f'{path}: empty file; expected a header row '
-                             f'{",".join(COLUMNS.get(scenario, ()))}') from None
+                             f'{",".join(expected)}') from None
         rows = [r for r in reader if r and any(c.strip() for c in r)]
     cols = {}
     for j, name in enumerate(header):
+        if keep is not None and name not in keep:
+            continue
         vals = []
         for i, r in enumerate(rows):
             cell = r[j].strip() if j < len(r) else ''
@@ -99,6 +105,12 @@ def load_csv(path, scenario: str) -> dict:
                 raise ValueError(f'{path}: row {i + 2}, column {name}: {cell!r} is not a '
                                  f'number') from None
         cols[name] = np.array(vals)
+    return cols
+
+
+def load_csv(path, scenario: str) -> dict:
+    """Read a CSV with a header row and return the validated columns of ``scenario``."""
+    cols = read_csv_columns(path, COLUMNS.get(scenario, ()))
     return validate(scenario, cols, source=str(path))
 
 

@@ -120,36 +120,17 @@ def validate(data, source='data'):
 
 def load_csv(path):
     """Read a restoring-force CSV (header row; extra columns ignored)."""
-    import csv
-    with open(path, newline='') as fh:
-        reader = csv.reader(fh)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise ValueError(f'{path}: empty file; expected a header row '
-                             f'{",".join(COLUMNS)}') from None
-        rows = [r for r in reader if r and any(c.strip() for c in r)]
-    cols = {}
-    for j, name in enumerate(header):
-        if name not in COLUMNS + OPTIONAL:
-            continue
-        try:
-            cols[name] = np.array([float(r[j]) if j < len(r) and r[j].strip() else np.nan
-                                   for r in rows])
-        except ValueError:
-            raise ValueError(f'{path}: column {name} holds a value that is not a number') \
-                from None
+    from rths_discrepancy.io import read_csv_columns
+
+    cols = read_csv_columns(path, COLUMNS, keep=COLUMNS + OPTIONAL)
     return validate(cols, source=str(path))
 
 
 def write_csv(path, data):
-    """Write the restoring-force columns of ``data`` (atomic rename)."""
-    import os
-    cols = COLUMNS + tuple(c for c in OPTIONAL if c in data)
-    tmp = f'{path}.tmp'
-    np.savetxt(tmp, np.column_stack([data[c] for c in cols]), delimiter=',',
-               header=','.join(cols), comments='', fmt='%.10g')
-    os.replace(tmp, path)
+    """Write the restoring-force columns of ``data`` (atomic)."""
+    from rths_discrepancy.io import write_csv as write_columns
+
+    write_columns(path, data, COLUMNS + tuple(c for c in OPTIONAL if c in data))
 
 
 def convert(kind, src):
