@@ -236,17 +236,10 @@ def run_sets(workers=2, progress=None):
     """Run sets A and B; return {'A': {...}, 'B': {...}} with counts and rows."""
     jobs = [('A', i) for i in range(len(SET_A))] + [('B', i) for i in range(len(SET_B))]
     say = progress or (lambda msg: None)
-    rows = []
-    if workers > 1:
-        import multiprocessing as mp
-        with mp.get_context('fork').Pool(workers) as pool:
-            for row in pool.imap_unordered(run_one, jobs):
-                rows.append(row)
-                say(_line(len(rows), len(jobs), row))
-    else:
-        for job in jobs:
-            rows.append(run_one(job))
-            say(_line(len(rows), len(jobs), rows[-1]))
+    from rths_discrepancy.selftest import run_parallel
+
+    rows = run_parallel(run_one, jobs, workers,
+                        lambda done: say(_line(len(done), len(jobs), done[-1])))
     rows.sort(key=lambda r: (r['set'], r['index']))
     out = {}
     for s in ('A', 'B'):

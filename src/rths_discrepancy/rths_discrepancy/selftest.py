@@ -366,17 +366,28 @@ def run_detect(workers=2, progress=None, duration=DURATION_S):
 
 
 def _run_jobs(jobs, workers, say):
+    return run_parallel(run_case, jobs, workers,
+                        lambda rows: say(_progress_line(len(rows), len(jobs), rows[-1])))
+
+
+def run_parallel(func, jobs, workers, on_row=None):
+    """``[func(job) for job in jobs]`` on ``workers`` forked processes (in finishing order).
+
+    ``on_row(rows)`` is called after each result with the rows so far (progress).
+    """
     rows = []
     if workers > 1:
         import multiprocessing as mp
         with mp.get_context('fork').Pool(workers) as pool:
-            for row in pool.imap_unordered(run_case, jobs):
+            for row in pool.imap_unordered(func, jobs):
                 rows.append(row)
-                say(_progress_line(len(rows), len(jobs), row))
+                if on_row:
+                    on_row(rows)
     else:
         for job in jobs:
-            rows.append(run_case(job))
-            say(_progress_line(len(rows), len(jobs), rows[-1]))
+            rows.append(func(job))
+            if on_row:
+                on_row(rows)
     return rows
 
 
