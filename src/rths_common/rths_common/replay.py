@@ -27,18 +27,21 @@ LOSABLE = ('interface_displacement', 'command', 'measurement')
 
 
 def closed_loop(numerical, compensator, bridge, n_steps: int, lose=None) -> dict:
-    """Run ``n_steps`` loop steps (fewer if the numerical core finishes); return per-step arrays.
+    """Run up to ``n_steps`` loop steps; return per-step arrays.
 
     ``numerical`` also has ``first_displacement()`` and ``done()``; ``bridge``
     has ``receive(k, command)``/``due(k)`` (its command delay line); an
     adaptive ``compensator`` (attribute ``adaptive`` True) has
     ``measure(k, displacement, applied)``.  ``lose``: message name (one of
-    :data:`LOSABLE`) -> steps whose message is lost.  Returned: arrays of shape
-    (steps run, n_interface), NaN where a step produced nothing:
-    ``interface_displacement``, ``command``, ``applied``, ``displacement``,
-    ``force``; ``safety_state`` and, per core, the inputs its policy filled
-    (``filled_numerical``, ``filled_compensator``) and the bridge's ticks
-    without a command (``missing_commands``).
+    :data:`LOSABLE`) -> steps whose message is lost.  The loop ends when the
+    numerical core is done, or after a step whose measured force is not finite
+    (the bridge stopped and wrote nothing: the numerical node would end the
+    run there).  Returned: arrays of shape (n_steps, n_interface), NaN where a
+    step produced nothing or did not run: ``interface_displacement``,
+    ``command``, ``applied``, ``displacement``, ``force``; ``safety_state``
+    (after the last step run: its state); ``steps_run``; per core, the inputs
+    its policy filled (``filled_numerical``, ``filled_compensator``) and the
+    bridge's ticks without a command (``missing_commands``).
     """
     lose = {name: set(steps) for name, steps in (lose or {}).items()}
     unknown = set(lose) - set(LOSABLE)
@@ -71,6 +74,9 @@ def closed_loop(numerical, compensator, bridge, n_steps: int, lose=None) -> dict
         out['force'][k] = measured.force
         state[k] = measured.state
         displacement = None
+        if not np.all(np.isfinite(measured.force)):   # the bridge wrote nothing: it stopped
+            k += 1
+            break                                      # (the numerical node ends the run)
         if k not in lose.get('measurement', ()):
             if adaptive:
                 compensator.measure(k, measured.displacement, measured.applied)
@@ -78,5 +84,5 @@ def closed_loop(numerical, compensator, bridge, n_steps: int, lose=None) -> dict
             counts['filled_numerical'] += result.filled
             displacement = result.output
         k += 1
-    arrays = {name: values[:k] for name, values in out.items()}
-    return dict(arrays, safety_state=state[:k], **counts)
+    state[k:] = state[k - 1] if k else 0
+    return dict(out, safety_state=state, steps_run=k, **counts)
