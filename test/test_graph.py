@@ -20,6 +20,7 @@ from rths_system_tests import (
     started_pids,
     wait_committed,
     wait_for,
+    wait_steps,
 )
 
 CONFIG = REPO / 'config'
@@ -36,6 +37,8 @@ def test_lockstep_run_progresses_on_every_topic(tmp_path):
     duration = 2.0
     proc = rths('launch', '--config', CONFIG, '--duration', duration, '--bag', bag, timeout=240)
     assert 'run finished' in proc.stdout
+    assert '\r' not in proc.stdout + proc.stderr        # a pipe: no carriage returns
+    assert 'progress: step' not in proc.stdout          # the launcher's progress, on stderr
     # logs are streamed with node-name prefixes
     for name in ('numerical', 'compensator', 'bridge', 'recorder'):
         assert f'[{name}]' in proc.stdout, name
@@ -94,7 +97,7 @@ def test_ctrl_c_or_sigterm_stops_every_node_and_closes_the_bag(tmp_path, sig):
     proc = launch_background(CONFIG, bag, '--duration', 600.0)
     try:
         head = wait_for(proc, 'graph connected')
-        head += wait_for(proc, 'progress: step 1024 ')
+        wait_steps(bag, 1024)
         committed = wait_committed(bag, STEP_TOPICS, 100)   # (the recorder may lag the loop)
         pids = started_pids(head)
         proc.send_signal(sig)

@@ -342,7 +342,7 @@ def run_detect(workers=2, progress=None, duration=DURATION_S):
     another effect).
     """
     jobs = [case + (0, duration, False) for case in detect_cases()]
-    rows = _run_jobs(jobs, workers, progress or (lambda msg: None))
+    rows = _run_jobs(jobs, workers, progress or (lambda msg: None), 'detectability cases')
     out = {}
     for sc in fx.SCENARIOS:
         for name in [n for n in fx.EFFECT_NAMES if n in fx.LIBRARY[sc]]:
@@ -365,9 +365,17 @@ def run_detect(workers=2, progress=None, duration=DURATION_S):
             'false_names_below_total': sum(v['false_names_below'] for v in out.values())}
 
 
-def _run_jobs(jobs, workers, say):
-    return run_parallel(run_case, jobs, workers,
-                        lambda rows: say(_progress_line(len(rows), len(jobs), rows[-1])))
+def _run_jobs(jobs, workers, say, label='self-test cases'):
+    """Run the cases with a progress line (rths_common.progress); ``say`` gets the wrong ones."""
+    from rths_common.progress import Progress
+
+    with Progress(len(jobs), label) as bar:
+        def on_row(rows):
+            if not rows[-1]['correct']:
+                with bar.hidden():
+                    say(_progress_line(len(rows), len(jobs), rows[-1]))
+            bar.update(len(rows))
+        return run_parallel(run_case, jobs, workers, on_row)
 
 
 def run_parallel(func, jobs, workers, on_row=None):
