@@ -57,6 +57,11 @@ def test_lockstep_run_progresses_on_every_topic(tmp_path):
     rths('review', bag, '--out', tmp_path / 'review')
     summary = json.loads((tmp_path / 'review' / 'summary.json').read_text())
     assert summary['steps'] == n_steps and summary['deadline_misses'] == 0
+    # issue 17: the MCAP bag's review is one offline HTML file, every plot embedded
+    assert 'storage_identifier: mcap' in (bag / 'metadata.yaml').read_text()
+    report = (tmp_path / 'review' / 'report.html').read_text()
+    assert report.count('src="data:image/png;base64,') == 3
+    assert 'http://' not in report and 'https://' not in report
 
 
 def test_bag_info_reads_the_bag(tmp_path):
