@@ -91,9 +91,9 @@ class Progress:
         self.t0 = clock()
         self.done = 0
         self._t_update = self.t0                # clock of the last update
-        self._last_draw = None                  # clock of the last line written
+        self._last_draw: float | None = None    # clock of the last line written
         self._last_pct = 0.0                    # log mode: percent done at the last line
-        self._drawn = None                      # steps done at the last line
+        self._drawn: int | None = None          # steps done at the last line
         self._width = 0                         # tty mode: width of the line on screen
         self._lock = threading.RLock()
 
@@ -113,7 +113,8 @@ class Progress:
         if now - self.t0 < 1.0 or (self._last_draw is not None and now - self._last_draw < 1.0):
             return False
         since = now - (self._last_draw if self._last_draw is not None else self.t0)
-        return since >= self.log_s or (self.total and self._pct() - self._last_pct >= self.log_pct)
+        return since >= self.log_s or bool(self.total
+                                           and self._pct() - self._last_pct >= self.log_pct)
 
     def _draw(self, now):
         text = self._text(now)
