@@ -3,6 +3,7 @@
 import io
 import os
 import pty
+import select
 
 import pytest
 
@@ -53,7 +54,10 @@ def test_a_real_pseudo_terminal_gets_the_redrawn_line():
         with os.fdopen(slave, 'w', closefd=False) as tty:
             assert progress.mode(tty) == 'tty'
             _run(tty, steps=10, dt=0.3)
-        text = os.read(master, 65536).decode()
+        chunks = []
+        while select.select([master], [], [], 0.5)[0]:   # everything the terminal got
+            chunks.append(os.read(master, 65536))
+        text = b''.join(chunks).decode()
     finally:
         os.close(master)
         os.close(slave)
@@ -86,6 +90,7 @@ def test_a_quick_job_writes_nothing_to_a_log():
 
 
 def test_quiet_and_rths_progress_force_the_mode(monkeypatch):
+    monkeypatch.setenv('RTHS_PROGRESS', '')          # restored after the test
     parser = __import__('argparse').ArgumentParser()
     progress.add_quiet_argument(parser)
     progress.apply_quiet(parser.parse_args(['--quiet']))
