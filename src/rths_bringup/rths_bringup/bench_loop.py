@@ -477,4 +477,3 @@ def cmd_bench_loop(args) -> int:
         Path(args.out).write_text(json.dumps(report, indent=2))
         print(f'wrote {args.out}')
     return 0
-

@@ -138,7 +138,7 @@ class Child:
 
     @property
     def returncode(self):
-        """The process's exit code, None while it runs."""
+        """Return the process's exit code, None while it runs."""
         return self.proc.poll()
 
 

@@ -391,6 +391,7 @@ def _most_violated(excess, tol, local_max=True):
     mask[np.argmax(excess[:, cols], axis=0), cols] = True
     return mask
 
+
 def min_passband_error(plant, n_taps: int, fc_hz: float, fs_hz: float = None,
                        n_grid: int = 513, n_sides: int = 16) -> float:
     """Smallest achievable ``max |T_com - 1|`` over the passband with unit DC gain (an LP).

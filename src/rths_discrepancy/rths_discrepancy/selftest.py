@@ -236,15 +236,15 @@ def run_case(args):
         got = res['parameters'][name][fx.LIBRARY[scenario][name].param]
         errors[name] = abs(got - val) / abs(val)
     row = {'scenario': scenario, 'label': label, 'strength': strength, 'seed': seed,
-            'expected': expected, 'named': res['effect'], 'correct': res['effect'] == expected,
-            'truth': {k: (list(v) if isinstance(v, tuple) else v) for k, v in truth.items()},
-            'parameters': res['parameters'], 'parameter_rel_errors': errors,
-            'nrmse_before': res['nrmse_before'], 'nrmse_after': res['nrmse_after'],
-            'nrmse_noise': res['nrmse_noise'], 'gap_closed': res['gap_closed'],
-            'alignment_samples': res['alignment_samples'],
-            'best_candidate': res['best_candidate'],
-            'best_closure_fast': res['best_candidate_gap_closed_fast'],
-            'seconds': time.perf_counter() - t0}
+           'expected': expected, 'named': res['effect'], 'correct': res['effect'] == expected,
+           'truth': {k: (list(v) if isinstance(v, tuple) else v) for k, v in truth.items()},
+           'parameters': res['parameters'], 'parameter_rel_errors': errors,
+           'nrmse_before': res['nrmse_before'], 'nrmse_after': res['nrmse_after'],
+           'nrmse_noise': res['nrmse_noise'], 'gap_closed': res['gap_closed'],
+           'alignment_samples': res['alignment_samples'],
+           'best_candidate': res['best_candidate'],
+           'best_closure_fast': res['best_candidate_gap_closed_fast'],
+           'seconds': time.perf_counter() - t0}
     if with_baselines:
         from rths_discrepancy import baselines
         row['baselines'] = baselines.run_baselines(scenario, data)

@@ -453,7 +453,7 @@ def cmd_fit_mr(args):
         'fit_error_mean_pct': float(errors.mean()), 'fit_error_max_pct': float(errors.max()),
         'paper_errors_at_best_voltage': paper,
         'paper_error_mean_pct': float(np.mean([e for v in paper.values()
-                                                for e in v['errors_pct'].values()])),
+                                               for e in v['errors_pct'].values()])),
         'evaluations': nfev,
         'comparable_fitted_0_to_1_A': mr_fit.comparable(best, 1.0),
         'comparable_paper_0_to_2_25_V': mr_fit.comparable(SPENCER_1997, 2.25),
