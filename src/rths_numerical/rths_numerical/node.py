@@ -162,12 +162,12 @@ class NumericalNode:
         if self.finished or not self.started:
             return  # before step 0 is out, a measurement cannot be of this run
         stamp_ns, step, (_, _, force) = self.io_in.decode(msg)
-        if step >= self.expected:
+        expected = self.core.policy.next_step
+        if step >= expected:
             if self.cpu_loop is None:
                 self.cpu_loop = [time.process_time(), None]
             self.timing['recv_step'].append(step)
             self.timing['recv_wall_ns'].append(t_in)
-        expected = self.expected
         t0 = time.perf_counter_ns()
         try:
             result = self.driver.feed(step, force)
@@ -193,9 +193,9 @@ class NumericalNode:
             self.status_pub.publish(self.io_out.status(
                 'numerical', step, period_us=period_us, compute_us=compute_us,
                 latency_us=(t_in - stamp_ns) * 1e-3, misses=self.clock.misses))
-        if self.expected % self.progress_steps == 0:
-            self.log.info(f'progress: step {self.expected} of {self.sub.n_steps} '
-                          f'({self.expected * self.sub.dt:.1f} s simulated)')
+        if (step + 1) % self.progress_steps == 0:
+            self.log.info(f'progress: step {step + 1} of {self.sub.n_steps} '
+                          f'({(step + 1) * self.sub.dt:.1f} s simulated)')
         if result.done:
             self.finish()
 

@@ -107,11 +107,14 @@ class NumericalCore:
     def step(self, k: int, force) -> StepResult:
         """Finish step ``k`` with its measured force [N] (filling lost ones before it)."""
         sub = self.sub
-        f = np.asarray(force, dtype=float)
-        if f.shape != (sub.n_interface,) or not np.all(np.isfinite(f)):
-            raise ValueError(f'step {k}: measured force {f.ravel().tolist()} is not '
-                             f'{sub.n_interface} finite value(s)')
-        x, rows = self.policy.admit(k, f)
+        try:
+            if len(force) != sub.n_interface:
+                self._refuse(k, force)
+        except TypeError:   # not a sequence
+            self._refuse(k, force)
+        x, rows = self.policy.admit(k, force)
+        if not np.isfinite(x).all():
+            self._refuse(k, force)
         filled = 0
         for row in rows:
             if sub.done():
@@ -125,6 +128,11 @@ class NumericalCore:
         self.policy.passed(k)
         done = sub.done()
         return StepResult(k, () if done else (displacement,), filled, done=done)
+
+    def _refuse(self, k, force):
+        values = np.asarray(force, dtype=float).ravel().tolist()
+        raise ValueError(f'step {k}: measured force {values} is not '
+                         f'{self.sub.n_interface} finite value(s)')
 
     def reset(self):
         """Back to step 0 (the substructure and the policy)."""
