@@ -79,17 +79,17 @@ class StepResult(stepping.StepResult):
 
     @property
     def applied(self) -> np.ndarray:
-        """The command written [m] (after safety), empty if none."""
+        """Return the command written [m] (after safety), empty if none."""
         return self.arrays[0]
 
     @property
     def displacement(self) -> np.ndarray:
-        """Measured displacement [m]."""
+        """Return the measured displacement [m]."""
         return self.arrays[1]
 
     @property
     def force(self) -> np.ndarray:
-        """Measured force [N]."""
+        """Return the measured force [N]."""
         return self.arrays[2]
 
 

@@ -245,7 +245,7 @@ class BridgeNode:
 
     @property
     def rejected(self) -> int:
-        """Lock-step: commands of another step than the expected one."""
+        """Return (lock-step) the count of commands of another step than the expected one."""
         return self.driver.rejected
 
     def on_reject(self, step: int, expected: int):

@@ -64,7 +64,7 @@ class StepResult:
 
     @property
     def output(self):
-        """The first output array (None if the step produced none)."""
+        """Return the first output array (None if the step produced none)."""
         return self.arrays[0] if self.arrays else None
 
     def __repr__(self) -> str:
@@ -161,7 +161,7 @@ class TickClock:
 
     @property
     def running(self) -> bool:
-        """True once tick 0 is set."""
+        """Return True once tick 0 is set."""
         return self.t0_ns is not None
 
     def start(self, now_ns: int):

@@ -41,7 +41,7 @@ class CompensatorCore:
 
     @property
     def next_step(self) -> int:
-        """The step whose interface displacement the core expects next."""
+        """Return the step whose interface displacement the core expects next."""
         return self.policy.next_step
 
     def _build(self, n_channels: int):

@@ -89,12 +89,12 @@ class CompensatorNode:
 
     @property
     def expected(self) -> int:
-        """The step whose interface displacement comes next."""
+        """Return the step whose interface displacement comes next."""
         return self.core.next_step
 
     @property
     def rejected(self) -> int:
-        """Interface displacements the driver did not step (out of order or stale)."""
+        """Return the count of displacements the driver did not step (out of order, stale)."""
         return self.driver.rejected
 
     def _setup_adaptive(self):

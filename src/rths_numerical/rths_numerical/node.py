@@ -89,17 +89,17 @@ class NumericalNode:
 
     @property
     def rejected(self) -> int:
-        """Lock-step: measurements of another step than the expected one."""
+        """Return (lock-step) the count of measurements of another step than the expected one."""
         return self.driver.rejected if self.lockstep else 0
 
     @property
     def stale(self) -> int:
-        """Realtime: measurements of a step already passed."""
+        """Return (realtime) the count of measurements of a step already passed."""
         return 0 if self.lockstep else self.driver.rejected
 
     @property
     def expected(self) -> int:
-        """The step whose measurement comes next (= steps finished)."""
+        """Return the step whose measurement comes next (= steps finished)."""
         return self.core.next_step
 
     def publish(self, step: int, displacement):

@@ -93,7 +93,7 @@ class NumericalCore:
 
     @property
     def next_step(self) -> int:
-        """The step whose measured force the core expects next."""
+        """Return the step whose measured force the core expects next."""
         return self.policy.next_step
 
     def first_displacement(self) -> np.ndarray:
