@@ -237,7 +237,7 @@ class Context:
 
     @property
     def channels(self):
-        """Number of residual channels in :meth:`score` (its white-noise floor)."""
+        """Return the number of residual channels in :meth:`score` (its white-noise floor)."""
         return 2 if self.force_rows else 1
 
 
@@ -282,8 +282,8 @@ def _solve_linear(ctx, names_lin, pnl, align=None, free_align=False):
         theta = theta.copy()
         theta[-1] = step
         align = align + step
-    params = {**pnl, **{n: float(t) for n, t in zip(names_lin, theta[:len(names_lin)],
-                                                        strict=True)}}
+    linear = zip(names_lin, theta[:len(names_lin)], strict=True)
+    params = {**pnl, **{n: float(t) for n, t in linear}}
     pred_f = base_f + fmat @ theta if ctx.force_rows else None
     nonlinear_out = ctx.nonlinear_out or any(
         n in pnl for n in ('backlash', 'velocity_saturation')) and ctx.scenario == 'actuator'
@@ -523,7 +523,8 @@ def run_discrepancy(scenario, data, model=None, out_dir=None, rng=None, progress
         'information_criterion': sel['ic'],
         'information_criterion_none': sel['ic_none'],
         'rival': sel['rival'],
-        'rival_ic_margin': float(sel['rival_ic_margin']),
+        'rival_ic_margin': (float(sel['rival_ic_margin'])
+                            if math.isfinite(sel['rival_ic_margin']) else None),
         'coverage': coverage(ctx, sel['fits'][sel['best']][1]),
         'residual_excess_train_heldout': [float(gap_tr), float(gap_te)],
         'coverage_unbalanced': unbalanced,
