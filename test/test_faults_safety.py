@@ -75,7 +75,7 @@ def test_no_output_of_the_bridge_ever_exceeds_a_limit(sequence):
 
 
 def test_nan_command_never_reaches_the_plant_and_the_bridge_stops_safely():
-    """NaN in a command message: hold, ramp to the safe position, STOPPED, at rest."""
+    """A NaN command: hold, ramp to the safe position, STOPPED, at rest."""
     seq = [0.0001 * k for k in range(50)] + [math.nan] + [None] * 400
     written, states = run(seq)
     assert np.all(np.isfinite(written))

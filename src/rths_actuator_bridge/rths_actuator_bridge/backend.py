@@ -51,7 +51,7 @@ class Backend(ABC):
 
     @property
     def limits(self) -> SafetyLimits:
-        """Declared safety limits (from the configure parameters)."""
+        """Return the declared safety limits, from the configure parameters."""
         return self._limits
 
     def configure(self, params: dict):
@@ -124,4 +124,3 @@ class Backend(ABC):
     @abstractmethod
     def _read(self):
         """Backend-specific read."""
-

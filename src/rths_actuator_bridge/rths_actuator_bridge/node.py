@@ -457,7 +457,6 @@ class BridgeNode:
             response.message = 'holding, then ramping to the safe position'
         return response
 
-
     # ---------------------------------------------------------------- run
     def spin(self, executor, nodes=None, is_done=None) -> bool:
         """Spin ``nodes`` (default: this node) until ``is_done()`` (default: a safety stop).

@@ -126,4 +126,3 @@ def converter(x):
 BRIDGE_PARAMS = {'actuator_model': 'silva2020', 'fs_hz': FS_HZ, 'dtm': 'none',
                  'displacement_noise_m': DISPLACEMENT_NOISE_M, 'force_noise_n': FORCE_NOISE_N,
                  'adc_bits': 0, 'daq_filter_hz': 0.0}
-

@@ -241,8 +241,12 @@ def run_bench(out_dir, duration_s=40.0, seed=14, taps=32, scenarios=SCENARIOS, p
     unknown = [s for s in scenarios if s not in ALL_SCENARIOS]
     if unknown:
         raise ValueError(f'scenario {unknown[0]!r} unknown; use {", ".join(ALL_SCENARIOS)}')
+    from rths_common.progress import Progress
+
+    simulated = [s for s in scenarios if s in SCENARIOS]
     summary, events = {'scenarios': {}}, {}
-    for scenario in (s for s in scenarios if s in SCENARIOS):
+    bar = Progress(len(simulated) * len(METHOD_NAMES), 'bench adaptive', 'runs')
+    for scenario in simulated:
         runs, block = {}, {}
         for name in METHOD_NAMES:
             t0 = time.perf_counter()
@@ -251,14 +255,17 @@ def run_bench(out_dir, duration_s=40.0, seed=14, taps=32, scenarios=SCENARIOS, p
             events[f'{scenario}/{name}'] = {'events': runs[name]['events'],
                                             'final_status': runs[name]['final_status']}
             m = block[name]
-            _log(f'{scenario:15s} {name:8s} before {_fmt(m["rms_pct_before_change"])} % '
-                 f'after {_fmt(m["rms_pct_after_change"])} % delay '
-                 f'{_fmt(m["delay_ms_after_change"])} ms recovery {m["recovery_s"]} s '
-                 f'stable {m["stable"]} step {m["step_us_p50"]:.1f} us '
-                 f'({time.perf_counter() - t0:.1f} s)')
+            with bar.hidden():
+                _log(f'{scenario:15s} {name:8s} before {_fmt(m["rms_pct_before_change"])} % '
+                     f'after {_fmt(m["rms_pct_after_change"])} % delay '
+                     f'{_fmt(m["delay_ms_after_change"])} ms recovery {m["recovery_s"]} s '
+                     f'stable {m["stable"]} step {m["step_us_p50"]:.1f} us '
+                     f'({time.perf_counter() - t0:.1f} s)')
+            bar.advance()
         summary['scenarios'][scenario] = block
         if plots:
             _plot(os.path.join(out_dir, f'{scenario}.png'), scenario, target, runs)
+    bar.close()
     config = _config(duration_s, seed, taps, model, design, events)
     config['design']['rls_fir'] = ('all n taps adapt' if taps <= 32 else
                                    f'a correction of {n_correction} taps adapts')

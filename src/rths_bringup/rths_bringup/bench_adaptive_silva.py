@@ -79,14 +79,14 @@ def plants_of(info, fs_hz):
     return (np.convolve(b_model, a_l), gain * np.asarray(model.a)), model
 
 
-def run_method(name, runs, ag, design, plants, seed, options=None, log=rb._log):
+def run_method(name, runs, ag, design, plants, seed, options=None):
     """Run method ``name`` on every ``(case, params)`` of ``runs``; return the batch output."""
     design_plant, identified = plants
     plant = design_plant if name == 'rls_fir' else identified
+    from rths_common.progress import Progress
     ctrl = MethodController(name, design, plant, len(runs), options)
-    t0 = time.perf_counter()
-    out = rb.run_batch(runs, ag, ctrl, seed=seed, progress=lambda k, n: log(
-        f'    {name}: step {k}/{n} ({time.perf_counter() - t0:.0f} s)'))
+    with Progress(len(ag), f'{NAME} {name} ({len(runs)} loops)', 'steps') as bar:
+        out = rb.run_batch(runs, ag, ctrl, seed=seed, progress=bar.report)
     out['step_ns'] = np.asarray(ctrl.step_ns, float)
     out['events'] = ctrl.events
     out['final_status'] = [[m.status.state, m.status.reason] for m in ctrl.methods]
@@ -172,7 +172,7 @@ def run_scenario(record='elcentro', n_draws=20, seed=2020, duration_s=None, data
     for name in methods:
         t1 = time.perf_counter()
         out = run_method(name, runs, ag, design, plants, seed,
-                         (options or {}) if name == 'rls_fir' else None, log)
+                         (options or {}) if name == 'rls_fir' else None)
         rows = [run_metrics(out['x_m'][i], out['y_n'][i], refs[c], dt)
                 for i, (c, _) in enumerate(runs)]
         block = aggregate(rows, len(cases), out['step_ns'], out['events'])

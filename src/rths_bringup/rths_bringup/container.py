@@ -127,7 +127,7 @@ class Container:
 
     @property
     def nodes(self) -> list:
-        """The rclpy nodes of the three shells."""
+        """Return the rclpy nodes of the three shells."""
         return [shell.node for shell in self.shells.values()]
 
     def done(self) -> bool:

@@ -99,4 +99,3 @@ def _replay(args) -> int:
     for topic, n in counts.items():
         print(f'{topic:<32} {n:>8}')
     return 0
-

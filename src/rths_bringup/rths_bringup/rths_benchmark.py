@@ -258,14 +258,14 @@ def target_lowpass(order: int, cutoff_hz: float, fs_hz: float):
 
 
 def _identify_once(seed: int = 7, record_s: float = 20.0, band_hz: float = 50.0,
-                        peak_m: float = 10e-3, prefilter_hz: float = 100.0, n_taps: int = 200,
-                        fc_hz: float = 30.0, scheme: str = 'ls', epsilon: float = 0.002,
-                        lowpass_order: int = 4, lowpass_hz: float = 400.0,
-                        na_min: int = 4, na_max: int = 8, nb_max: int = 1, d_min: int = 0,
-                        d_max: int = 4,
-                        timing: str = 'benchmark', criterion: str = 'bic',
-                        n_train: int = 2, n_validation: int = 1, n_candidates: int = 10,
-                        log=_log):
+                   peak_m: float = 10e-3, prefilter_hz: float = 100.0, n_taps: int = 200,
+                   fc_hz: float = 30.0, scheme: str = 'ls', epsilon: float = 0.002,
+                   lowpass_order: int = 4, lowpass_hz: float = 400.0,
+                   na_min: int = 4, na_max: int = 8, nb_max: int = 1, d_min: int = 0,
+                   d_max: int = 4,
+                   timing: str = 'benchmark', criterion: str = 'bic',
+                   n_train: int = 2, n_validation: int = 1, n_candidates: int = 10,
+                   log=_log):
     """One identification test, ARX grid, candidate designs and verification (below).
 
     The test drives the simulated plant (sensor noise and converters included) with a
@@ -417,7 +417,7 @@ def run_batch(runs, ag, controller, seed: int = 0, progress=None) -> dict:
     x_m = np.empty((n, batch))
     u_out = np.empty((n, batch))
     ag_next = np.append(ag[1:], ag[-1])
-    every = max(1, n // 10)
+    every = max(1, n // 100)
     for k in range(n):
         disp = z[:, :3, 0]
         y_n[k] = disp
@@ -520,7 +520,8 @@ def launch_graph(params: dict, out_dir: str, log=_log) -> dict:
     history = (out / 'numerical_history.npz').resolve()
     log(f'  launching the node graph (lock-step) with {cfg}, bag {out / "bag"}')
     code = launch(cfg, bag=out / 'bag', timeout=7200.0,
-                  overrides={'numerical': {'history_out': str(history)}})
+                  overrides={'numerical': {'history_out': str(history)}},
+                  progress_label=f'{out.name} graph run')
     if code != 0:
         raise RuntimeError(f'the node graph run failed (launcher exit {code}); see {out}')
     hist = np.load(history)
@@ -653,9 +654,11 @@ def run_benchmark(controller: str = 'example', record: str = 'elcentro', n_draws
         f'(seed {seed})')
     ctrl = make_controller(controller, len(runs), dt, fir_options, log)
     refs = {c: reference_response(c, ag, dt) for c in set(c for c, _ in runs)}
+    from rths_common.progress import Progress
+
     t1 = time.perf_counter()
-    out = run_batch(runs, ag, ctrl, seed=seed,
-                    progress=lambda k, n: log(f'  step {k}/{n} ({time.perf_counter() - t1:.1f} s)'))
+    with Progress(len(ag), f'rths-benchmark {len(runs)} loops', 'steps') as bar:
+        out = run_batch(runs, ag, ctrl, seed=seed, progress=bar.report)
     loop_s = time.perf_counter() - t1
     summary = {'controller': controller, 'cases': {}, 'perturbed': {}}
     for i, c in enumerate(cases):
@@ -706,8 +709,8 @@ def table_markdown(summary: dict) -> str:
              '', '| Case | J1 (ms) | J2 (%) | J3 (%) | J4 (%) | J5 (%) | J6 (%) | J7 (%) '
              '| J8 (%) | J9 (%) |', '|---' * 10 + '|']
     for c, row in summary['cases'].items():
-        lines.append(f'| {c} | ' + ' | '.join(f'{row[n]:.1f}' if n == 'J1' else f'{row[n]:.2f}'
-                                               for n in J_NAMES) + ' |')
+        cells = (f'{row[n]:.1f}' if n == 'J1' else f'{row[n]:.2f}' for n in J_NAMES)
+        lines.append(f'| {c} | ' + ' | '.join(cells) + ' |')
     if summary['controller'] == 'example' and summary['settings']['record'] == 'elcentro' \
             and not summary['settings'].get('duration_s', 41.18) < 41.0:
         lines += ['', 'Published (Silva et al. 2020, Table 3):', '',

@@ -148,7 +148,7 @@ def _launch_phase(name, cfg, bag, kind, fs, mode, sections, history=None, storag
         overrides.setdefault(node, {})['mode'] = mode
     _say(f'{name}: launching the node graph ({mode}), recording to {bag}')
     code = launch(cfg, bag=bag, overrides=overrides, timeout=3600.0, storage=storage, live=live,
-                  layout=layout)
+                  layout=layout, progress_label=f'{name} run')
     if code == 0:
         return None
     try:
@@ -269,7 +269,7 @@ def safety_stop_text(s: dict) -> str:
         f"position {s['safe_position_m']:g} m; STOPPED at step {s['stop_step']} "
         f"({s['stop_time_s']:.3f} s)",
         f"  steps run: {s['steps']}" + (f" of {s['planned_steps']} planned"
-                                         if s.get('planned_steps') else ''),
+                                        if s.get('planned_steps') else ''),
         f"  final command {metres(s['final_command_m'], '.3g')}, measured displacement "
         f"{metres(s['final_displacement_m'], '.3g')}; largest command "
         f"{metres(s['max_abs_command_m'], '.4g')}",
@@ -453,4 +453,3 @@ def cmd_review(args) -> int:
     print_review(summary)
     print(f'wrote {out}/report.html, {out}/summary.json, {out}/review.txt and plots')
     return 0
-

@@ -153,7 +153,7 @@ class GapFiller:
 
     @property
     def last_step(self):
-        """The last step received, or None."""
+        """Return the last step received, or None."""
         return self._steps[-1] if self._steps else None
 
     def fill(self, step: int, value) -> np.ndarray:
@@ -197,4 +197,3 @@ def warm_up(order: int, max_lost: int = 3, n_channels: int = 1) -> None:
             step += 1
         step += lost
     filler.fill(step, np.zeros(n_channels))   # closes the last gap
-

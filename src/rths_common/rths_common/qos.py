@@ -25,7 +25,7 @@ LOCKSTEP_DEPTH = 10000
 
 
 def loop_qos(mode: str) -> QoSProfile:
-    """QoS of the interface-displacement, command and measurement topics for ``mode``."""
+    """Return the QoS of the interface-displacement, command and measurement topics for ``mode``."""
     if mode == 'lockstep':
         return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=LOCKSTEP_DEPTH,
                           reliability=ReliabilityPolicy.RELIABLE,
@@ -42,7 +42,7 @@ STATUS_DEPTH = 10000
 
 
 def status_qos() -> QoSProfile:
-    """QoS of the status topic (publishers and the recorder alike).
+    """Return the QoS of the status topic (publishers and the recorder alike).
 
     Reliable and transient-local with a deep history, for the same reason as the
     lock-step loop topics: a recorder that matches a node's status publisher late
@@ -58,7 +58,7 @@ def status_qos() -> QoSProfile:
 
 
 def recorder_qos(mode: str) -> QoSProfile:
-    """QoS the recorder subscribes with: compatible with the publishers, deep history."""
+    """Return the QoS the recorder subscribes with: compatible with the publishers, deep history."""
     if mode == 'lockstep':
         return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=LOCKSTEP_DEPTH,
                           reliability=ReliabilityPolicy.RELIABLE,
@@ -69,7 +69,7 @@ def recorder_qos(mode: str) -> QoSProfile:
 
 
 def run_info_qos() -> QoSProfile:
-    """QoS of once-per-run facts (``/rths/run_steps``): reliable, latched for late joiners."""
+    """Return the QoS of once-per-run facts (``/rths/run_steps``): reliable, latched."""
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                       reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -25,6 +25,7 @@ def sines(steps):
 
 def test_linear_fill_is_exact_on_a_ramp_per_channel():
     filler = gaps.GapFiller(order=1)
+
     def ramp(k):  # two DOFs
         return np.array([0.5 + 2e-3 * k, -1.0 - 7e-4 * k])
 

@@ -168,7 +168,7 @@ class AdaptiveMethod:
 
     @property
     def fallen_back(self) -> bool:
-        """True once the method has switched to the designed FIR."""
+        """Return True once the method has switched to the designed FIR."""
         return bool(self._fallback)
 
     # ----------------------------------------------------------------- guards
@@ -622,7 +622,7 @@ class ChannelMethods:
 
     @property
     def status(self) -> Status:
-        """The worst channel's status (fallback > frozen > adapting > fixed)."""
+        """Return the worst channel's status: fallback > frozen > adapting > fixed."""
         worst = max(self.methods, key=lambda m: _SEVERITY.get(m.status.state, 0))
         return worst.status
 

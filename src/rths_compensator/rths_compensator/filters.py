@@ -44,7 +44,7 @@ class CausalFilter:
 
     @property
     def is_fir(self) -> bool:
-        """True if the denominator is 1 (finite impulse response)."""
+        """Return True if the denominator is 1 (finite impulse response)."""
         return self.denominator.size == 1
 
     def reset(self) -> None:

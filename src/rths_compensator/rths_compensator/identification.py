@@ -72,12 +72,12 @@ class ArxModel:
 
     @property
     def na(self) -> int:
-        """Number of poles (denominator order)."""
+        """Return the number of poles (denominator order)."""
         return self.a.size - 1
 
     @property
     def nb(self) -> int:
-        """Number of numerator coefficients."""
+        """Return the number of numerator coefficients."""
         return self.b.size
 
     @property

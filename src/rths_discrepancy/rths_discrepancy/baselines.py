@@ -155,9 +155,9 @@ def sindy_fit(theta, target, threshold=DEFAULT_THRESHOLD, dt=1.0, names=TERMS):
 
 def sindy_baseline(scenario, data, model=None, diff='fd', thresholds=(DEFAULT_THRESHOLD,),
                    velocity=None):
-    """SINDy on one record at each of ``thresholds``; return {threshold: fit result}."""
+    """Fit SINDy to one record at each of ``thresholds``; return {threshold: fit result}."""
     theta, target, names = sindy_problem(scenario, data, model=model, diff=diff,
-                                     velocity=velocity)
+                                         velocity=velocity)
     dt = float(data['time'][1] - data['time'][0])
     return {float(th): sindy_fit(theta, target, th, dt, names) for th in thresholds}
 
@@ -216,7 +216,7 @@ def run_baselines(scenario, data):
 
 
 def _correct(named, named_set, expected):
-    """SINDy correct: top effect for single/none cases, the kept set for pair cases."""
+    """Return True if SINDy is correct: the top effect (single/none), the kept set (pairs)."""
     if '+' in expected:
         return named_set == expected
     return named == expected

@@ -56,7 +56,7 @@ def _restoring_cmd(args) -> int:
     print(f"effect: {res['effect']}")
     for name, par in res['parameters'].items():
         print(f'  {name}: ' + ', '.join(f"{k} = {v:.6g} {par['unit'][k]}"
-                                         for k, v in par.items() if k != 'unit'))
+                                        for k, v in par.items() if k != 'unit'))
     mp = res['model_parameters']
     print(f"  model: m = {mp['m']:.6g} kg, c = {mp['c']:.6g} N s/m, k = {mp['k']:.6g} N/m")
     print(f"alignment: {res['alignment_samples']:+.2f} samples ({1e3 * res['alignment_s']:+.3f} "

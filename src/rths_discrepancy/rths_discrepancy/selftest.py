@@ -236,15 +236,15 @@ def run_case(args):
         got = res['parameters'][name][fx.LIBRARY[scenario][name].param]
         errors[name] = abs(got - val) / abs(val)
     row = {'scenario': scenario, 'label': label, 'strength': strength, 'seed': seed,
-            'expected': expected, 'named': res['effect'], 'correct': res['effect'] == expected,
-            'truth': {k: (list(v) if isinstance(v, tuple) else v) for k, v in truth.items()},
-            'parameters': res['parameters'], 'parameter_rel_errors': errors,
-            'nrmse_before': res['nrmse_before'], 'nrmse_after': res['nrmse_after'],
-            'nrmse_noise': res['nrmse_noise'], 'gap_closed': res['gap_closed'],
-            'alignment_samples': res['alignment_samples'],
-            'best_candidate': res['best_candidate'],
-            'best_closure_fast': res['best_candidate_gap_closed_fast'],
-            'seconds': time.perf_counter() - t0}
+           'expected': expected, 'named': res['effect'], 'correct': res['effect'] == expected,
+           'truth': {k: (list(v) if isinstance(v, tuple) else v) for k, v in truth.items()},
+           'parameters': res['parameters'], 'parameter_rel_errors': errors,
+           'nrmse_before': res['nrmse_before'], 'nrmse_after': res['nrmse_after'],
+           'nrmse_noise': res['nrmse_noise'], 'gap_closed': res['gap_closed'],
+           'alignment_samples': res['alignment_samples'],
+           'best_candidate': res['best_candidate'],
+           'best_closure_fast': res['best_candidate_gap_closed_fast'],
+           'seconds': time.perf_counter() - t0}
     if with_baselines:
         from rths_discrepancy import baselines
         row['baselines'] = baselines.run_baselines(scenario, data)
@@ -342,7 +342,7 @@ def run_detect(workers=2, progress=None, duration=DURATION_S):
     another effect).
     """
     jobs = [case + (0, duration, False) for case in detect_cases()]
-    rows = _run_jobs(jobs, workers, progress or (lambda msg: None))
+    rows = _run_jobs(jobs, workers, progress or (lambda msg: None), 'detectability cases')
     out = {}
     for sc in fx.SCENARIOS:
         for name in [n for n in fx.EFFECT_NAMES if n in fx.LIBRARY[sc]]:
@@ -365,9 +365,17 @@ def run_detect(workers=2, progress=None, duration=DURATION_S):
             'false_names_below_total': sum(v['false_names_below'] for v in out.values())}
 
 
-def _run_jobs(jobs, workers, say):
-    return run_parallel(run_case, jobs, workers,
-                        lambda rows: say(_progress_line(len(rows), len(jobs), rows[-1])))
+def _run_jobs(jobs, workers, say, label='self-test cases'):
+    """Run the cases with a progress line (rths_common.progress); ``say`` gets the wrong ones."""
+    from rths_common.progress import Progress
+
+    with Progress(len(jobs), label) as bar:
+        def on_row(rows):
+            if not rows[-1]['correct']:
+                with bar.hidden():
+                    say(_progress_line(len(rows), len(jobs), rows[-1]))
+            bar.update(len(rows))
+        return run_parallel(run_case, jobs, workers, on_row)
 
 
 def run_parallel(func, jobs, workers, on_row=None):

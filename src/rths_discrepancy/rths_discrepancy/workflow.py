@@ -227,7 +227,7 @@ class Context:
 
     @property
     def channels(self):
-        """Number of residual channels in :meth:`score` (its white-noise floor)."""
+        """Return the number of residual channels in :meth:`score` (its white-noise floor)."""
         return 2 if self.force_rows else 1
 
 
@@ -272,8 +272,8 @@ def _solve_linear(ctx, names_lin, pnl, align=None, free_align=False):
         theta = theta.copy()
         theta[-1] = step
         align = align + step
-    params = {**pnl, **{n: float(t) for n, t in zip(names_lin, theta[:len(names_lin)],
-                                                        strict=True)}}
+    linear = zip(names_lin, theta[:len(names_lin)], strict=True)
+    params = {**pnl, **{n: float(t) for n, t in linear}}
     pred_f = base_f + fmat @ theta if ctx.force_rows else None
     nonlinear_out = ctx.nonlinear_out or any(
         n in pnl for n in ('backlash', 'velocity_saturation')) and ctx.scenario == 'actuator'

@@ -66,7 +66,7 @@ def test_summary_counts_pairs_by_the_kept_set_and_controls_by_the_top_effect():
     pair = 'coulomb_friction+stiffness_error'
     rows = [row('none', 'stiffness_error', 'stiffness_error'), row('none', 'none', 'none'),
             row(pair, 'stiffness_error', pair), row('backlash', 'stiffness_error',
-                                                   'stiffness_error')]
+                                                    'stiffness_error')]
     s = bl.summarize(rows)
     assert s['sindy_default']['false_effects_on_controls'] == 1
     assert s['sindy_default']['correct_naming_percent'] == pytest.approx(50.0)

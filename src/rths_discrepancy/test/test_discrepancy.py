@@ -26,7 +26,7 @@ def _case(scenario, hidden, seed=0, strength=1.0):
 
 
 @pytest.mark.parametrize('scenario, name', [(sc, n) for sc in fx.SCENARIOS
-                                             for n in fx.EFFECT_NAMES if n in fx.LIBRARY[sc]])
+                                            for n in fx.EFFECT_NAMES if n in fx.LIBRARY[sc]])
 def test_each_effect_is_named_and_recovered(scenario, name):
     data, truth, res = _case(scenario, [name], seed=1)
     assert res['effect'] == name, res['best_candidate']
@@ -252,7 +252,7 @@ def test_bench_cli_summary(tmp_path, monkeypatch):
     # the lag case is deliberately mislabelled: 2 of 3 correct
     assert summary['correct_naming_percent'] == pytest.approx(200.0 / 3)
     assert summary['confusion_matrix']['coulomb_friction'] == {'coulomb_friction': 1,
-                                                                'unexplained': 1}
+                                                               'unexplained': 1}
     assert summary['false_effects_on_controls'] == 0
     assert not summary['targets_met']
 

@@ -118,7 +118,7 @@ class _Integrator:
         raise NotImplementedError
 
     def step(self, p_next, r_next=None):
-        """One purely numerical step (``r`` given or zero); return ``d_{k+1}``."""
+        """Advance one purely numerical step, ``r`` given or zero; return ``d_{k+1}``."""
         d = self.predict(p_next)
         self.correct(p_next, np.zeros(self.n) if r_next is None else r_next)
         return d

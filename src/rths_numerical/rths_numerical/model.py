@@ -79,12 +79,12 @@ class LinearModel:
 
     @property
     def n(self) -> int:
-        """Number of DOFs."""
+        """Return the number of DOFs."""
         return self.M.shape[0]
 
     @property
     def has_external_force(self) -> bool:
-        """True if any entry of the external force is non-zero."""
+        """Return True if any entry of the external force is non-zero."""
         return bool(np.any(self.external_force))
 
     def external_force_scale(self, t):
@@ -106,7 +106,7 @@ class LinearModel:
         return p
 
     def modes(self):
-        """Return natural frequencies [Hz] (ascending) and mass-normalised modes (columns)."""
+        """Return natural frequencies [Hz] (ascending) and mass-normalised mode shapes (columns)."""
         w2, phi = sla.eigh(self.K, self.M)
         return np.sqrt(np.clip(w2, 0.0, None)) / (2 * math.pi), phi
 

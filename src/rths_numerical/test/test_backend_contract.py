@@ -94,6 +94,6 @@ def test_rths_with_a_dtm_equals_the_builtin_central_difference(backend):
     ({'fs_hz': 200.0}, 'central_difference is unstable'),
 ])
 def test_bad_settings_raise_naming_the_field(backend, params, key):
-    """OpenSees only warns on an unknown integrator name; both backends raise."""
+    """An unknown integrator name: OpenSees itself only warns; both backends raise."""
     with pytest.raises(ValueError, match=key):
         make_substructure(dict(BUILDING, backend=backend, duration_s=0.1, **params))
