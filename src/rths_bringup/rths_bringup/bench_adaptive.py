@@ -207,6 +207,34 @@ def _plot(path, scenario, target, runs):
     plt.close(fig)
 
 
+def rls_fir_cost(tap_counts=(32, 200, 400), n_steps=3000):
+    """Median/p99 cost [us] of one rls_fir step at ``tap_counts``: every tap vs the correction.
+
+    The FIR (LS, fc 64 Hz) of each length is designed on the bench's plant model; the
+    method follows a 3 Hz, 5 mm sine with its own delayed copy as the measurement.
+    """
+    from rths_compensator.adaptive import RlsFir
+
+    x = 5e-3 * np.sin(2 * np.pi * 3.0 * np.arange(n_steps + 500) / FS_HZ)
+    out = {}
+    clock = time.perf_counter_ns
+    for taps in tap_counts:
+        model, design = identify_and_design(taps)
+        for label, options in (('every_tap', {'n_full': 10 ** 9}), ('correction', {})):
+            if label == 'correction' and taps <= 32:
+                continue
+            method = RlsFir(design, model, **options)
+            ts = np.empty(x.size)
+            for k in range(x.size):
+                t0 = clock()
+                method.step(x[k], x[k - 1] if k else None)
+                ts[k] = clock() - t0
+            ts = ts[500:] / 1e3
+            out[f'{taps}_taps_{label}'] = {'p50_us': round(float(np.median(ts)), 1),
+                                           'p99_us': round(float(np.percentile(ts, 99)), 1)}
+    return out
+
+
 def _floor_us(repeats=20000):
     """Median cost of an empty Python call on this machine now [us] (timing floor)."""
     def empty(a, b):
@@ -267,6 +295,10 @@ def run_bench(out_dir, duration_s=40.0, seed=14, taps=32, scenarios=SCENARIOS, p
             _plot(os.path.join(out_dir, f'{scenario}.png'), scenario, target, runs)
     bar.close()
     config = _config(duration_s, seed, taps, model, design, events)
+    if SCENARIOS[0] in scenarios:
+        config['rls_fir_step_cost'] = rls_fir_cost()
+        _log('rls_fir step cost [us] (p50/p99): ' + ', '.join(
+            f'{k} {v["p50_us"]}/{v["p99_us"]}' for k, v in config['rls_fir_step_cost'].items()))
     config['design']['rls_fir'] = ('all n taps adapt' if taps <= 32 else
                                    f'a correction of {n_correction} taps adapts')
     if SILVA in scenarios:

@@ -212,6 +212,7 @@ def plot(path, blocks, per_run, n_cases):
     axes[0].set_ylabel('J2: RMS tracking\nerror [%]')
     axes[1].set_ylabel('J1: delay [ms]')
     axes[1].set_xlabel('perturbed plant (case 1, benchmark draw)')
+    axes[1].xaxis.get_major_locator().set_params(integer=True)
     axes[0].legend(ncol=4, fontsize=8)
     axes[0].set_title(f'{NAME}: every method on the benchmark\'s perturbed plants')
     fig.tight_layout()
