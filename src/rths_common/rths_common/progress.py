@@ -164,7 +164,7 @@ class Progress:
         """Terminal: draw the line again now (after :meth:`clear`)."""
         with self._lock:
             if self.mode == 'tty' and self._last_draw is not None:
-                self._draw(self.clock())
+                self._draw(self._t_update)      # as it was: the state of the last update
 
     @contextlib.contextmanager
     def hidden(self):
