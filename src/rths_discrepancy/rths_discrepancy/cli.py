@@ -91,7 +91,11 @@ def bench_real_cmd(args) -> int:
     if not data_dir or not os.path.isdir(data_dir):
         raise OSError('--data DIR (or RTHS_DATA_DIR) must name the directory holding '
                       'DATA_EMPS.mat and the MR-damper .txt files (README: real data)')
-    summary = restoring.run_real(data_dir, out_dir=args.reports, progress=_say)
+    from rths_common.progress import Progress
+
+    with Progress(len(restoring.REAL), 'real records') as bar:
+        summary = restoring.run_real(data_dir, out_dir=args.reports,
+                                     progress=lambda text: bar.write(text), count=bar.report)
     tmp = f'{args.out}.tmp'
     with open(tmp, 'w') as fh:
         json.dump(summary, fh, indent=1)
@@ -137,7 +141,11 @@ def run_discrepancy_cmd(args) -> int:
             _say(f"nominal model: the run's damper {run[1].get('dtm', 'valve4')} "
                  f'(m_d {model.m_d:g} kg, c_d {model.c_d:g} N s/m, k_d {model.k_d:g} N/m)')
     _say(f'rths discrepancy: {args.scenario}, {len(data["time"])} samples from {args.measured}')
-    res = run_discrepancy(args.scenario, data, model=model, out_dir=args.out, progress=_say)
+    from rths_common.progress import Progress
+
+    with Progress(0, 'candidate models') as bar:
+        res = run_discrepancy(args.scenario, data, model=model, out_dir=args.out,
+                              progress=lambda text: bar.write(text), count=bar.report)
     for line in res['localization']['summary']:
         print(f'where: {line}')
     print(f"effect: {res['effect']}")
@@ -153,9 +161,10 @@ def run_discrepancy_cmd(args) -> int:
     print(f'wrote {args.out}/result.json, updated_model.yaml, report.md and PNG plots')
     if run is not None and res['effect'] not in ('none', 'unexplained'):
         _say('re-running the reference of the run with the updated specimen model')
-        cmp = rerun.compare(args.measured, models.model_from_dict('specimen',
-                                                                  res['updated_model']),
-                            config=args.config, nominal_model=model)
+        with Progress(3, 'reference simulations') as bar:
+            cmp = rerun.compare(args.measured, models.model_from_dict('specimen',
+                                                                      res['updated_model']),
+                                config=args.config, nominal_model=model, progress=bar.report)
         _write_reference(cmp, args.out)
     return 0
 
@@ -181,8 +190,11 @@ def reference_cmd(args) -> int:
         raise OSError(f'{args.bag}: no such bag directory')
     if not os.path.isfile(args.specimen_model):
         raise OSError(f'--specimen-model {args.specimen_model}: no such file')
+    from rths_common.progress import Progress
+
     updated = models.load_model('specimen', args.specimen_model)
-    cmp = rerun.compare(args.bag, updated, config=args.config)
+    with Progress(3, 'reference simulations') as bar:
+        cmp = rerun.compare(args.bag, updated, config=args.config, progress=bar.report)
     _write_reference(cmp, args.out or os.path.join(os.path.dirname(
         os.path.abspath(args.specimen_model)), 'reference'))
     return 0
@@ -213,6 +225,12 @@ def bench_discrepancy_cmd(args) -> int:
     print(f'parameters within 15 % (full strength, correctly named): {ok}/{n}')
     ok, n = summary['parameters_within_15_percent_one_fifth_strength']
     print(f'parameters within 15 % (one-fifth strength, correctly named): {ok}/{n}')
+    by_seed = summary.get('by_seed')
+    if by_seed and len(by_seed['seeds']) > 1:
+        lo, hi = by_seed['correct_naming_percent_min_max']
+        glo, ghi = by_seed['median_gap_closed_min_max']
+        print(f"  spread over {len(by_seed['seeds'])} seeds (rths convention, every case): "
+              f'correct naming {lo:.1f}-{hi:.1f} %, median gap_closed {glo:.3f}-{ghi:.3f}')
     for conv, c in summary.get('by_convention', {}).items():
         al = ', '.join(f'{sc} {v:+.2f}' for sc, v in c['median_alignment_samples'].items())
         print(f"  convention {conv:22s}: {c['correct_naming_percent']:.1f} % of {c['cases']} "
@@ -223,7 +241,8 @@ def bench_discrepancy_cmd(args) -> int:
               f"named (target >= {h['target']})")
     det = summary.get('detectability')
     if det:
-        print(f"smallest detectable strength at {100 * det['noise']:g} % noise (of "
+        print(f"smallest detectable strength at {100 * det['noise']:g} % noise over "
+              f"{det.get('seeds', 1)} seed(s) (of "
               f"{', '.join(f'{v:g}' for v in det['strengths'])}; the full-strength size x it):")
         for key, d in det['effects'].items():
             size = 'not detected' if d['smallest_strength'] is None else (
