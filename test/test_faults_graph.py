@@ -4,7 +4,8 @@ Every test checks the two things that must hold whatever happens: the bridge's
 safe stop (the plant ends in the safe state, no output beyond a limit) and the
 recording (the bag is readable and keeps every step up to the fault, in order,
 without gaps).  Faults are injected deterministically (a SIGKILL after a
-logged step, the compensator's ``inject_*`` parameters, a foreign publisher),
+logged step, the compensator's output through the test-only fault wrapper
+``rths_system_tests.faults``, a foreign publisher),
 so no assertion depends on the machine's speed; time bounds are the stated
 ones (``Launcher.safe_stop_bound_s``), with hold and ramp counted in steps.
 """
@@ -41,6 +42,36 @@ def copy_config(directory: Path, **changes) -> Path:
         data[name]['ros__parameters'].update(changes.get(name, {}))
         (directory / f'{name}.yaml').write_text(yaml.safe_dump(data, sort_keys=False))
     return directory
+
+
+def test_fault_wrapper_drops_duplicates_and_delays_the_chosen_steps():
+    """The test-only wrapper (typed and CDR messages); an unknown fault is refused by name."""
+    from rths_common import cdr
+    from rths_msgs.msg import Command
+    from rths_system_tests.faults import FaultyPublisher, check_faults
+
+    class Sink:
+        def __init__(self):
+            self.steps = []
+
+        def publish(self, msg):
+            self.steps.append(FaultyPublisher.step_of(msg))
+
+        def get_subscription_count(self):
+            return 7
+
+    for make in (lambda k: Command(step=k), lambda k: cdr.pack_step_arrays(0, k, [0.0])):
+        sink = Sink()
+        pub = FaultyPublisher(sink, drop_every=3, duplicate_every=4, delay_every=5, delay_ms=1.0)
+        t0 = time.monotonic()
+        for k in range(11):
+            pub.publish(make(k))
+        assert sink.steps == [0, 1, 2, 4, 4, 5, 7, 8, 8, 10]
+        assert pub.counts == {'dropped': 3, 'duplicated': 2, 'delayed': 2}
+        assert time.monotonic() - t0 >= 2e-3
+        assert pub.get_subscription_count() == 7          # everything else is the publisher's
+    with pytest.raises(ValueError, match='loss_pct'):
+        check_faults({'compensator': {'loss_pct': 5}})
 
 
 def read_bag(bag):
@@ -158,12 +189,12 @@ class ForeignPublisher:
 def test_foreign_publisher_and_duplicate_steps_are_logged_and_ignored(tmp_path):
     """A foreign node on /rths/command and duplicated steps change nothing in the run."""
     duration = 2.0
-    config = copy_config(tmp_path / 'config', numerical={'duration_s': duration},
-                         compensator={'inject_duplicate_every': 100})
+    config = copy_config(tmp_path / 'config', numerical={'duration_s': duration})
     bag = tmp_path / 'bag'
     intruder = ForeignPublisher(int(graph_env()['ROS_DOMAIN_ID']))
     try:
-        proc = rths('launch', '--config', config, '--bag', bag, timeout=240)
+        proc = rths('launch', '--config', config, '--bag', bag, timeout=240,
+                    faults={'compensator': {'duplicate_every': 100}})
     finally:
         intruder.close()
     out = proc.stdout
@@ -181,17 +212,12 @@ def test_foreign_publisher_and_duplicate_steps_are_logged_and_ignored(tmp_path):
     assert all(state == 0 for _, state, _, _ in status)
 
 
-def realtime_config(directory, duration_s=3.0, **compensator):
-    """Return a 256 Hz realtime graph (simulated plant, 50-tap unit FIR) with compensator faults."""
+def realtime_config(directory, duration_s=3.0):
+    """Return a 256 Hz realtime graph (simulated plant, 50-tap unit FIR)."""
     from rths_bringup.bench_loop import write_config
 
-    config = write_config(directory, rate_hz=256.0, duration_s=duration_s, taps=50,
-                          model='sdof', priority=0, watchdog_steps=40)
-    path = config / 'compensator.yaml'
-    data = yaml.safe_load(path.read_text())
-    data['compensator']['ros__parameters'].update(compensator)
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return config
+    return write_config(directory, rate_hz=256.0, duration_s=duration_s, taps=50,
+                        model='sdof', priority=0, watchdog_steps=40)
 
 
 def bridge_misses(bag) -> int:
@@ -210,11 +236,11 @@ def test_realtime_delay_bursts_are_deadline_misses_not_faults(tmp_path):
     stall, test_stall.py).
     """
     every, burst_ms = 150, 60.0       # 60 ms at 256 Hz: >= 15 ticks pass; watchdog at 40
-    config = realtime_config(tmp_path / 'config', inject_delay_every=every,
-                             inject_delay_ms=burst_ms)
+    config = realtime_config(tmp_path / 'config')
     bag = tmp_path / 'bag'
     proc = rths('launch', '--config', config, '--bag', bag, '--layout', 'processes',
-                '--timeout', 180, timeout=300)
+                '--timeout', 180, timeout=300,
+                faults={'compensator': {'delay_every': every, 'delay_ms': burst_ms}})
     assert 'run finished' in proc.stdout and 'FAILED' not in proc.stdout
     status, meas = read_bag(bag)
     n_bursts = len(range(every, 768, every))
@@ -258,11 +284,10 @@ def test_realtime_foreign_publisher_is_ignored(tmp_path):
 
 def test_realtime_long_delay_burst_trips_the_watchdog_into_the_safe_state(tmp_path):
     """A burst longer than watchdog_steps: hold, ramp, STOPPED; the bag keeps every step."""
-    config = realtime_config(tmp_path / 'config', duration_s=8.0, inject_delay_every=300,
-                             inject_delay_ms=1000.0)
+    config = realtime_config(tmp_path / 'config', duration_s=8.0)
     bag = tmp_path / 'bag'
     proc = rths('launch', '--config', config, '--bag', bag, '--timeout', 180, timeout=300,
-                check=False)
+                check=False, faults={'compensator': {'delay_every': 300, 'delay_ms': 1000.0}})
     out = proc.stdout
     assert proc.returncode == 1, out[-3000:]
     assert 'node bridge died (exit code 3: safety stop)' in out

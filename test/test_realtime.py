@@ -3,7 +3,8 @@
 Issue 6 ("Tests"): a short realtime run at a modest rate asserting that the
 status/miss accounting is consistent with the bag.  No assertion depends on
 timing: misses are injected deterministically (the compensator drops the
-command of every N-th step) and whatever the machine adds is accounted for
+command of every N-th step, through the test-only fault wrapper
+rths_system_tests.faults) and whatever the machine adds is accounted for
 the same way.
 
 A second run loses interface displacements instead (the numerical node drops
@@ -40,10 +41,10 @@ def realtime_run(tmp_path_factory):
     # The watchdog is set to a whole second: this test checks the miss accounting, and a loaded
     # CI machine can stall a process for tens of milliseconds (10 steps at 256 Hz = 39 ms).
     config = write_config(base / 'config', rate_hz=RATE_HZ, duration_s=DURATION_S, taps=50,
-                          model='sdof', priority=0, drop_every=DROP_EVERY,
-                          watchdog_steps=int(RATE_HZ))
+                          model='sdof', priority=0, watchdog_steps=int(RATE_HZ))
     bag = base / 'bag'
-    proc = rths('launch', '--config', config, '--bag', bag, '--timeout', 180, timeout=300)
+    proc = rths('launch', '--config', config, '--bag', bag, '--timeout', 180, timeout=300,
+                faults={'compensator': {'drop_every': DROP_EVERY}})
     return proc, bag
 
 
@@ -131,11 +132,10 @@ def lost_displacement_run(tmp_path_factory):
     base = tmp_path_factory.mktemp('realtime_lost_displacement')
     config = write_config(base / 'config', rate_hz=RATE_HZ, duration_s=DURATION_S,
                           model='sdof', priority=0, watchdog_steps=int(RATE_HZ),
-                          displacement_drop_every=DISPLACEMENT_DROP_EVERY,
                           compensator_filter=designed_filter())
     bag = base / 'bag'
     proc = rths('launch', '--config', config, '--bag', bag, '--timeout', 180, timeout=300,
-                check=False)
+                check=False, faults={'numerical': {'drop_every': DISPLACEMENT_DROP_EVERY}})
     return proc, bag
 
 

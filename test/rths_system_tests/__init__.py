@@ -29,22 +29,32 @@ def rths_executable() -> str:
     return str(Path(get_package_prefix('rths_bringup')) / 'lib' / 'rths_bringup' / 'rths')
 
 
-def rths(*args, timeout=300, check=True, **kwargs) -> subprocess.CompletedProcess:
-    """Run ``rths ARGS`` and return the completed process (text output)."""
+def rths(*args, timeout=300, check=True, faults=None, **kwargs) -> subprocess.CompletedProcess:
+    """Run ``rths ARGS`` and return the completed process (text output).
+
+    ``faults`` (``{node: {fault: value}}``): the loop nodes of the run inject them
+    (:mod:`rths_system_tests.faults`).
+    """
     proc = subprocess.run([rths_executable(), *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout, env=graph_env(), **kwargs)
+                          timeout=timeout, env=graph_env(faults), **kwargs)
     if check and proc.returncode != 0:
         sys.stderr.write(proc.stdout[-4000:] + proc.stderr[-4000:])
         raise AssertionError(f'rths {" ".join(map(str, args))} exited {proc.returncode}')
     return proc
 
 
-def graph_env() -> dict:
-    """Environment of a test run: a private ROS domain per pytest process, localhost only."""
+def graph_env(faults=None) -> dict:
+    """Environment of a test run: a private ROS domain per pytest process, localhost only.
+
+    ``faults``: an overlay of fault-injecting node executables in front (faults.overlay_env).
+    """
     env = dict(os.environ)
     env.setdefault('ROS_DOMAIN_ID', str(20 + os.getpid() % 80))
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     env['RTHS_ROOT'] = str(REPO)
+    if faults:
+        from rths_system_tests.faults import overlay_env
+        env = overlay_env(env, faults)
     return env
 
 
@@ -54,12 +64,12 @@ def started_pids(output: str) -> dict:
             for m in re.finditer(r'started (\w+) \(pid (\d+)\)', output)}
 
 
-def launch_background(config, bag, *args) -> subprocess.Popen:
+def launch_background(config, bag, *args, faults=None) -> subprocess.Popen:
     """``rths launch --config CONFIG --bag BAG ARGS`` running in the background (text stdout)."""
     return subprocess.Popen(
         [rths_executable(), 'launch', '--config', str(config), '--bag', str(bag),
          *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        env=graph_env())
+        env=graph_env(faults))
 
 
 def wait_for(proc, text, timeout=90.0) -> str:

@@ -115,8 +115,7 @@ def register(commands, benches):
 
 def write_config(directory, rate_hz=1024.0, duration_s=10.0, taps=400, model='sdof',
                  clock='loop', executor='events', priority=0, cpus='', gc_mode='default',
-                 drop_every=0, record='harmonic', watchdog_steps=10,
-                 margin_us=0.0, status_every=1, displacement_drop_every=0,
+                 record='harmonic', watchdog_steps=10, margin_us=0.0, status_every=1,
                  compensator_filter=None) -> Path:
     """Write bridge/compensator/numerical.yaml of a realtime run (simulated plant).
 
@@ -125,10 +124,8 @@ def write_config(directory, rate_hz=1024.0, duration_s=10.0, taps=400, model='sd
     runs the same stable loop; ``compensator_filter`` = ``(taps, denominator)``
     runs that filter instead (e.g. a design at ``rate_hz``; ``taps`` is then
     ignored).  ``cpus`` is one affinity list for all nodes or three separated
-    by '/' (bridge/compensator/numerical).  Fault injection: ``drop_every`` = N
-    > 0, the compensator drops the command of every N-th step;
-    ``displacement_drop_every`` = N > 0, the numerical node drops the
-    interface displacement of every N-th step.
+    by '/' (bridge/compensator/numerical).  (Faults are injected by the system
+    tests' wrapper, ``rths_system_tests.faults``, not by parameters.)
     """
     import yaml
 
@@ -158,11 +155,9 @@ def write_config(directory, rate_hz=1024.0, duration_s=10.0, taps=400, model='sd
     else:
         fir, den = ([float(v) for v in np.ravel(c)] for c in compensator_filter)
     compensator = dict(tuning('compensator'), scheme='wls', fs_hz=float(rate_hz),
-                       taps=fir, denominator=den, inject_drop_every=int(drop_every))
+                       taps=fir, denominator=den)
     numerical = dict(tuning('numerical'), model=model, integrator='cr', fs_hz=float(rate_hz),
                      duration_s=float(duration_s), record=record, scale=0.05)
-    if displacement_drop_every:
-        numerical['inject_drop_every'] = int(displacement_drop_every)
     if model == 'sdof':
         numerical.update(sdof_mass_kg=1000.0, sdof_freq_hz=2.81, sdof_zeta=0.042)
     for name, params in (('bridge', bridge), ('compensator', compensator),

@@ -177,8 +177,12 @@ class Container:
             self.log.info(text)
 
 
-def main(argv=None) -> int:
-    """Entry point of ``ros2 run rths_bringup container``."""
+def main(argv=None, prepare=None) -> int:
+    """Entry point of ``ros2 run rths_bringup container``.
+
+    ``prepare(container)``, if given, is called once the nodes (and the recording
+    tee) are set up, before the run.
+    """
     argv = list(sys.argv if argv is None else argv)
     opts = parse_args(argv)
     rclpy.init(args=argv)
@@ -188,6 +192,8 @@ def main(argv=None) -> int:
         if opts.tee_fd >= 0:
             container.tee = tee_publishers(container.shells.values(), opts.tee_fd,
                                            container.numerical.sub.n_steps)
+        if prepare is not None:
+            prepare(container)
         return container.run()
     except ValueError as err:
         print(f'container: error: {err}', file=sys.stderr)

@@ -47,6 +47,20 @@ def test_every_loop_node_refuses_an_unknown_key(tmp_path, name):
         rclpy.shutdown()
 
 
+@pytest.mark.parametrize('name, key', [('numerical', 'inject_drop_every'),
+                                       ('compensator', 'inject_duplicate_every')])
+def test_production_nodes_refuse_fault_injection_keys(tmp_path, name, key):
+    """Faults are injected by the system tests' wrapper (rths_system_tests.faults), not by keys."""
+    params, _ = UNKNOWN[name]
+    params = {k: v for k, v in params.items() if k not in ('duration', 'solver')}
+    _init_with(tmp_path, name, dict(params, wait_for_subscribers=0, **{key: 5}))
+    try:
+        with pytest.raises(ValueError, match=f'unknown parameter.*{key}'):
+            _node_class(name)()
+    finally:
+        rclpy.shutdown()
+
+
 def test_node_parameters_are_described_and_read_only(tmp_path):
     from rths_common import node_support as ns
     from rths_numerical.node import NODE_PARAMS

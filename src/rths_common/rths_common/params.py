@@ -30,10 +30,6 @@ NODE_KEYS = {
     'cpus': "CPU affinity, e.g. '1' or '0-1' ('' = all)",
     'gc': 'auto | default | freeze | disable: the Python garbage collector (auto: freeze '
           'in realtime mode)',
-    'inject_drop_every': '[steps] fault injection for tests: drop every N-th output (0: off)',
-    'inject_duplicate_every': '[steps] fault injection for tests: publish every N-th twice',
-    'inject_delay_every': '[steps] fault injection for tests: delay every N-th output',
-    'inject_delay_ms': '[ms] fault injection for tests: the delay of inject_delay_every',
     'coefficients_every': '[steps] adaptive compensator: publish its coefficients every N steps',
 }
 

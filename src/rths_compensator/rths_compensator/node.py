@@ -25,9 +25,7 @@ from rths_common.stepping import Driver
 from rths_common.transport import Transport
 from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus
 
-NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'inject_drop_every': 0,
-               'inject_duplicate_every': 0, 'inject_delay_every': 0, 'inject_delay_ms': 0.0,
-               'wait_for_subscribers': 1,
+NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
                'status_every': 1, 'coefficients_every': 64,
                **ns.TUNING_PARAMS}
 
@@ -158,16 +156,8 @@ class CompensatorNode:
             every = max(int(self.own['coefficients_every']), 1)
             if step % every == 0:
                 self.coef_pub.publish(Float64MultiArray(data=self.core.coefficients().tolist()))
-        delay = self.own['inject_delay_every']
-        if delay > 0 and step > 0 and step % delay == 0:
-            time.sleep(self.own['inject_delay_ms'] * 1e-3)  # fault injection: a delay burst
         out = self.io_out.encode(step, result.arrays, self.sender_gid())
-        drop = self.own['inject_drop_every']
-        if not (drop > 0 and step > 0 and step % drop == 0):
-            self.pub.publish(out)
-        dup = self.own['inject_duplicate_every']
-        if dup > 0 and step > 0 and step % dup == 0:
-            self.pub.publish(out)  # fault injection: the same step twice
+        self.pub.publish(out)
         self.last_out = out
         compute_us = (time.perf_counter_ns() - t0) * 1e-3
         period_us = self.clock.period_us(t_in)
@@ -185,12 +175,17 @@ class CompensatorNode:
         self.log.info(f'compensator: {self.expected} steps, {self.rejected} rejected')
 
 
-def main(argv=None):
-    """Entry point of ``ros2 run rths_compensator compensator_node``."""
+def main(argv=None, prepare=None):
+    """Entry point of ``ros2 run rths_compensator compensator_node``.
+
+    ``prepare(shell)``, if given, is called on the constructed node before it spins.
+    """
     rclpy.init(args=argv if argv is not None else sys.argv)
     code = 0
     try:
         shell = CompensatorNode()
+        if prepare is not None:
+            prepare(shell)
         ns.spin_until_done(shell.node, ns.make_executor(shell.own['executor']))
         shell.finish_run()
     except ValueError as err:

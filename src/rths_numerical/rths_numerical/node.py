@@ -23,7 +23,7 @@ from rths_msgs.msg import InterfaceDisplacement, LoopStatus, Measurement
 
 #: Parameters of the node itself; every other parameter goes to make_substructure().
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
-               'remote_graph': False, 'inject_drop_every': 0,
+               'remote_graph': False,
                'history_out': '', 'timing_out': '', 'status_every': 1, **ns.TUNING_PARAMS}
 
 
@@ -104,9 +104,6 @@ class NumericalNode:
 
     def publish(self, step: int, displacement):
         """Publish the interface displacement of ``step``."""
-        drop = self.own['inject_drop_every']
-        if drop > 0 and step > 0 and step % drop == 0:
-            return  # fault injection: this interface displacement is lost
         self.timing['pub_step'].append(step)
         self.timing['pub_wall_ns'].append(ns.now_ns())
         self.pub.publish(self.io_out.encode(step, (displacement,)))
@@ -247,12 +244,17 @@ class NumericalNode:
             self.log.info(f'history written to {path}')
 
 
-def main(argv=None):
-    """Entry point of ``ros2 run rths_numerical numerical_node``."""
+def main(argv=None, prepare=None):
+    """Entry point of ``ros2 run rths_numerical numerical_node``.
+
+    ``prepare(shell)``, if given, is called on the constructed node before it spins.
+    """
     rclpy.init(args=argv if argv is not None else sys.argv)
     code = 0
     try:
         shell = NumericalNode()
+        if prepare is not None:
+            prepare(shell)
         executor = ns.make_executor(shell.own['executor'])
         done = ns.spin_until_done(shell.node, executor, lambda: shell.finished)
         code = shell.finish_run(done)
