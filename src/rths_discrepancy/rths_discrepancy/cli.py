@@ -354,8 +354,9 @@ def register(commands, benches):
                     'counts; write everything to --out as JSON. Progress goes to stderr.')
     b.add_argument('--out', required=True, metavar='FILE.json', help='JSON result file')
     b.add_argument('--seeds', type=int, default=None,
-                   help='random seeds per case under the rths convention (default 2, with '
-                        '--quick 1); one seed under the other conventions')
+                   help='random seeds per case under the rths convention and of the --detect '
+                        'sweep (default 2, with --quick 1); one seed under the other conventions; '
+                        'the summary gives the spread over the seeds')
     b.add_argument('--quick', action='store_true',
                    help='full-strength effects only, two pairs, controls under the other '
                         'conventions, 8 s records, one seed, no held-out sets')
