@@ -51,8 +51,11 @@ def _restoring_cmd(args) -> int:
     if not os.path.exists(args.measured):
         raise OSError(f'--measured {args.measured}: no such file')
     data = restoring.load_csv(args.measured)
-    res = restoring.run(data, out_dir=args.out, progress=_say,
-                        source=os.path.basename(args.measured))
+    from rths_common.progress import Progress
+
+    with Progress(0, 'candidate models') as bar:
+        res = restoring.run(data, out_dir=args.out, progress=lambda text: bar.write(text),
+                            source=os.path.basename(args.measured), count=bar.report)
     print(f"effect: {res['effect']}")
     for name, par in res['parameters'].items():
         print(f'  {name}: ' + ', '.join(f"{k} = {v:.6g} {par['unit'][k]}"
