@@ -24,7 +24,7 @@ from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus
 
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'inject_drop_every': 0,
                'inject_duplicate_every': 0, 'inject_delay_every': 0, 'inject_delay_ms': 0.0,
-               'wait_for_subscribers': 1,
+               'wait_for_subscribers': 1, 'loop_fs_hz': 1024.0,
                'status_every': 1, 'coefficients_every': 64,
                **ns.TUNING_PARAMS}
 
@@ -33,7 +33,12 @@ class CompensatorNode:
     """ROS shell around a :class:`~rths_compensator.filters.MultiChannelFilter`."""
 
     def __init__(self):
-        from rths_compensator.params import check_compensator_params, param_schema, validate_filter
+        from rths_compensator.params import (
+            check_compensator_params,
+            check_sampling_rate,
+            param_schema,
+            validate_filter,
+        )
 
         self.node = ns.make_node('compensator', param_schema(NODE_PARAMS), NODE_PARAMS)
         params = ns.parameters(self.node)
@@ -46,6 +51,9 @@ class CompensatorNode:
             params.get('denominator', [1.0]), params.get('fs_hz', 1024.0),
             params.get('scheme', ''))
         self.params = dict(params, taps=taps, denominator=denominator, fs_hz=fs)
+        check_sampling_rate(self.params, self.own['loop_fs_hz'], 'compensator node parameters',
+                            'loop_fs_hz: the fs_hz of numerical.yaml and bridge.yaml, which '
+                            'rths launch passes')
         self.filter = None  # built on the first message, when the number of DOFs is known
         self.log = self.node.get_logger()
         self.adaptive = None
