@@ -16,7 +16,7 @@ import signal
 import numpy as np
 import pytest
 
-from rths_system_tests import REPO, launch_background, rths, started_pids, wait_for
+from rths_system_tests import REPO, launch_background, rths, started_pids, wait_for, wait_steps
 
 RATE_HZ = 256.0
 DURATION_S = 2.0
@@ -122,7 +122,7 @@ def test_a_signal_to_the_container_stops_all_three_nodes_and_keeps_the_bag(tmp_p
     proc = launch_background(realtime_config(tmp_path / 'config', duration_s=600.0), bag)
     try:
         head = wait_for(proc, 'graph connected', timeout=120)
-        head += wait_for(proc, f'progress: step {int(RATE_HZ)} ', timeout=60)
+        wait_steps(bag, int(RATE_HZ), timeout=60)
         os.kill(started_pids(head)['container'], sig)
         rest, _ = proc.communicate(timeout=120)
     finally:

@@ -18,7 +18,15 @@ import numpy as np
 import pytest
 import yaml
 
-from rths_system_tests import REPO, graph_env, launch_background, rths, sigkill_mid_run, wait_for
+from rths_system_tests import (
+    REPO,
+    graph_env,
+    launch_background,
+    rths,
+    sigkill_mid_run,
+    wait_for,
+    wait_steps,
+)
 
 CONFIG = REPO / 'config'
 STOPPED = 3
@@ -316,7 +324,7 @@ def test_emergency_stop_mid_run_holds_ramps_and_stops(tmp_path, how):
     reason = f'operator pressed stop ({how})'
     try:
         head = wait_for(proc, 'graph connected')
-        head += wait_for(proc, 'progress: step 1024 ')
+        wait_steps(bag, 1024)
         answer = send_emergency_stop(int(graph_env()['ROS_DOMAIN_ID']), how, reason)
         rest, _ = proc.communicate(timeout=120)
     finally:

@@ -20,6 +20,7 @@ from rths_system_tests import (
     started_pids,
     wait_committed,
     wait_for,
+    wait_steps,
 )
 
 CONFIG = REPO / 'config'
@@ -36,6 +37,8 @@ def test_lockstep_run_progresses_on_every_topic(tmp_path):
     duration = 2.0
     proc = rths('launch', '--config', CONFIG, '--duration', duration, '--bag', bag, timeout=240)
     assert 'run finished' in proc.stdout
+    assert '\r' not in proc.stdout + proc.stderr        # a pipe: no carriage returns
+    assert 'progress: step' not in proc.stdout          # the launcher's progress, on stderr
     # logs are streamed with node-name prefixes
     for name in ('numerical', 'compensator', 'bridge', 'recorder'):
         assert f'[{name}]' in proc.stdout, name
@@ -54,6 +57,11 @@ def test_lockstep_run_progresses_on_every_topic(tmp_path):
     rths('review', bag, '--out', tmp_path / 'review')
     summary = json.loads((tmp_path / 'review' / 'summary.json').read_text())
     assert summary['steps'] == n_steps and summary['deadline_misses'] == 0
+    # issue 17: the MCAP bag's review is one offline HTML file, every plot embedded
+    assert 'storage_identifier: mcap' in (bag / 'metadata.yaml').read_text()
+    report = (tmp_path / 'review' / 'report.html').read_text()
+    assert report.count('src="data:image/png;base64,') == 3
+    assert 'http://' not in report and 'https://' not in report
 
 
 def test_bag_info_reads_the_bag(tmp_path):
@@ -94,7 +102,7 @@ def test_ctrl_c_or_sigterm_stops_every_node_and_closes_the_bag(tmp_path, sig):
     proc = launch_background(CONFIG, bag, '--duration', 600.0)
     try:
         head = wait_for(proc, 'graph connected')
-        head += wait_for(proc, 'progress: step 1024 ')
+        wait_steps(bag, 1024)
         committed = wait_committed(bag, STEP_TOPICS, 100)   # (the recorder may lag the loop)
         pids = started_pids(head)
         proc.send_signal(sig)

@@ -185,6 +185,7 @@ def test_compensated_run_of_the_same_configuration_completes(tmp_path):
     proc = rths('run', '--plant', config / 'plant.yaml', *UNSTABLE, '--config', config,
                 '--out', out, timeout=300)
     assert 'safety stop' not in proc.stdout and 'ABORTED' not in proc.stdout
+    _assert_progress_in_a_log(proc, 'RTHS run', int(DURATION_S * FS))
     summary = json.loads((out / 'summary.json').read_text())
     assert 'safety_stop' not in summary and summary['safety_faults'] == []
     assert summary['steps'] == int(DURATION_S * FS)
@@ -193,6 +194,16 @@ def test_compensated_run_of_the_same_configuration_completes(tmp_path):
     cfg = yaml.safe_load((out / 'rths' / 'config' / 'numerical.yaml').read_text())
     assert cfg['numerical']['ros__parameters']['force_scale'] == 60.0
     _assert_mcap_read_by_the_mcap_library(out / 'rths' / 'bag')
+
+
+def _assert_progress_in_a_log(proc, label, steps):
+    """Issue 17: under a pipe, the progress is a few plain lines on stderr, no carriage return."""
+    assert '\r' not in proc.stdout + proc.stderr
+    assert 'progress: step' not in proc.stdout          # the node's lines became the progress
+    lines = [x for x in proc.stderr.splitlines() if x.startswith(f'{label}: ')]
+    assert 2 <= len(lines) <= 30, proc.stderr[-3000:]   # per 10 % or 10 s, not per second
+    assert lines[-1].startswith(f'{label}: {steps}/{steps} steps (100 %)'), lines
+    assert 'ETA' in lines[0] and 'done in' in lines[-1]
 
 
 def _assert_mcap_read_by_the_mcap_library(bag):

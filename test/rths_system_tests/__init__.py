@@ -99,6 +99,17 @@ def wait_committed(bag, topics, count, timeout=60.0) -> dict:
         time.sleep(0.1)
 
 
+def wait_steps(bag, steps, timeout=90.0) -> dict:
+    """Wait until a running launch's bag holds ``steps`` committed measurements.
+
+    (The launcher shows the run's progress on stderr, not the numerical node's
+    ``progress: step`` log lines; the bag is what a test can rely on.)
+    """
+    from rths_common import topics
+
+    return wait_committed(bag, [topics.MEASUREMENT], steps - 1, timeout)
+
+
 def sigkill_mid_run(proc, bag, victim, timeout=120.0) -> str:
     """SIGKILL node ``victim`` of a running ``rths launch`` once the loop is under way.
 
@@ -110,7 +121,7 @@ def sigkill_mid_run(proc, bag, victim, timeout=120.0) -> str:
     from rths_bringup.review import STEP_TOPICS
 
     head = wait_for(proc, 'graph connected')
-    head += wait_for(proc, 'progress: step 1024 ')  # one simulated second is done
+    wait_steps(bag, 1024)                           # one simulated second is done
     wait_committed(bag, STEP_TOPICS, 100)
     os.kill(started_pids(head)[victim], signal.SIGKILL)
     rest, _ = proc.communicate(timeout=timeout)

@@ -97,10 +97,17 @@ def run_characterise(args) -> int:
 
 def run_bench_dtm(args) -> int:
     """Simulate the seed's tests for each configuration, identify, compare with Table 4."""
+    from rths_common.progress import Progress
+    from rths_numerical.dtm import TABLE4
+
     from .characterise import bench_dtm
     configs = args.configs.split(',') if args.configs else None
-    result = bench_dtm(configs, blwn_s=args.blwn_s, chirp_s=args.chirp_s, progress=_progress,
-                       plot_dir=args.plots)
+    with Progress(len(configs or TABLE4), 'bench dtm', 'configurations') as bar:
+        def done(text):
+            bar.write(text)
+            bar.advance()
+        result = bench_dtm(configs, blwn_s=args.blwn_s, chirp_s=args.chirp_s, progress=done,
+                           plot_dir=args.plots)
     flat = {name: {k: e[k] for k in ('c_d', 'k_d', 'zeta', 'f_n')}
             for name, e in result['configurations'].items()}
     out = dict(flat)

@@ -229,7 +229,10 @@ def run_bench(out_dir, duration_s=40.0, seed=14, taps=32, scenarios=SCENARIOS, p
          f'denominator {design.denominator.size} coefficients')
     target = blwn(duration_s, FS_HZ, TARGET_BAND_HZ, TARGET_PEAK_M,
                   np.random.default_rng(seed + 100), taper_s=TAPER_S)
+    from rths_common.progress import Progress
+
     summary, events = {'scenarios': {}}, {}
+    bar = Progress(len(scenarios) * len(METHOD_NAMES), 'bench adaptive', 'runs')
     for scenario in scenarios:
         runs, block = {}, {}
         for name in METHOD_NAMES:
@@ -239,14 +242,17 @@ def run_bench(out_dir, duration_s=40.0, seed=14, taps=32, scenarios=SCENARIOS, p
             events[f'{scenario}/{name}'] = {'events': runs[name]['events'],
                                             'final_status': runs[name]['final_status']}
             m = block[name]
-            _log(f'{scenario:15s} {name:8s} before {_fmt(m["rms_pct_before_change"])} % '
-                 f'after {_fmt(m["rms_pct_after_change"])} % delay '
-                 f'{_fmt(m["delay_ms_after_change"])} ms recovery {m["recovery_s"]} s '
-                 f'stable {m["stable"]} step {m["step_us_p50"]:.1f} us '
-                 f'({time.perf_counter() - t0:.1f} s)')
+            with bar.hidden():
+                _log(f'{scenario:15s} {name:8s} before {_fmt(m["rms_pct_before_change"])} % '
+                     f'after {_fmt(m["rms_pct_after_change"])} % delay '
+                     f'{_fmt(m["delay_ms_after_change"])} ms recovery {m["recovery_s"]} s '
+                     f'stable {m["stable"]} step {m["step_us_p50"]:.1f} us '
+                     f'({time.perf_counter() - t0:.1f} s)')
+            bar.advance()
         summary['scenarios'][scenario] = block
         if plots:
             _plot(os.path.join(out_dir, f'{scenario}.png'), scenario, target, runs)
+    bar.close()
     config = _config(duration_s, seed, taps, model, design, events)
     with open(os.path.join(out_dir, 'summary.json'), 'w', encoding='utf-8') as handle:
         json.dump(summary, handle, indent=2)

@@ -123,10 +123,11 @@ def read_measured(bag):
 
 def run_condition(name, delay_ms, jitter_ms, loss_pct, config, workdir, net=None,
                   domains=(71, 72), seed=1, log=print, priority=0, mode='realtime',
-                  timeout_s=120.0, delay_steps=0) -> dict:
+                  timeout_s=120.0, delay_steps=0, label=None) -> dict:
     """One run of the graph under a link condition; the metrics of its bag.
 
-    ``delay_steps`` > 0 runs the bridge with that delay line (``command_delay_steps``).
+    ``delay_steps`` > 0 runs the bridge with that delay line (``command_delay_steps``);
+    ``label`` names the run's progress line (default ``name``).
     """
     from rths_bringup.commands import run_info_of
     from rths_bringup.launcher import Launcher
@@ -171,7 +172,8 @@ def run_condition(name, delay_ms, jitter_ms, loss_pct, config, workdir, net=None
     t0 = time.monotonic()
     try:
         code = Launcher(config, bag=bag, overrides=overrides, out=out, timeout_s=timeout_s,
-                        node_env=node_env, node_prefix=prefix).run()
+                        node_env=node_env, node_prefix=prefix,
+                        progress_label=label or name).run()
     finally:
         out.close()
         link_stats = ''
@@ -231,7 +233,8 @@ def cmd_bench_distributed(args) -> int:
                     name = f'{name}, D = {steps}'
                 results.append(run_condition(name, delay, jitter, loss, config, work, net,
                                              domains=(args.domain, args.domain + 1),
-                                             priority=args.priority, delay_steps=steps))
+                                             priority=args.priority, delay_steps=steps,
+                                             label=f'[{i + 1}/{len(chosen)}] {name}'))
         finally:
             if net is not None:
                 net.close()

@@ -358,8 +358,8 @@ def domain_id(requested: int) -> int:
     return 100 + os.getpid() % 100
 
 
-def run_once(rate_hz, duration_s, args, workdir: Path, log) -> dict:
-    """One benchmark run at ``rate_hz``; return its result dict."""
+def run_once(rate_hz, duration_s, args, workdir: Path, log, label=None) -> dict:
+    """One benchmark run at ``rate_hz``; return its result dict (``label``: its progress)."""
     from rths_bringup.launcher import Launcher
 
     workdir.mkdir(parents=True, exist_ok=True)
@@ -377,7 +377,8 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log) -> dict:
             overrides['recorder']['cpus'] = f'"{args.recorder_cpus}"'
     load_before = [round(x, 2) for x in os.getloadavg()]
     launcher = Launcher(config, bag=bag, overrides=overrides, out=log,
-                        timeout_s=duration_s * 3 + 120, layout=args.layout)
+                        timeout_s=duration_s * 3 + 120, layout=args.layout,
+                        progress_label=label or f'{rate_hz:g} Hz run')
     if getattr(args, 'live', False):  # one more reader of each loop topic: arm after it too
         readers = 3 if bag is not None and launcher.layout == 'processes' else 2
         for name in ('numerical', 'compensator', 'bridge'):
@@ -452,8 +453,9 @@ def cmd_bench_loop(args) -> int:
             if args.find_max:
                 runs = []
                 best = None
-                for rate in FIND_MAX_RATES:
-                    r = run_once(rate, args.duration, args, base / f'rate{rate}', log)
+                for i, rate in enumerate(FIND_MAX_RATES):
+                    r = run_once(rate, args.duration, args, base / f'rate{rate}', log,
+                                 f'{rate:g} Hz run [{i + 1}/{len(FIND_MAX_RATES)} rates]')
                     print_result(r)
                     runs.append(r)
                     if _within_target(r):

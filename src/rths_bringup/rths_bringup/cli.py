@@ -6,6 +6,10 @@ sub-parser collection of ``rths <command>`` and ``benches`` the one of
 ``rths bench <name>``.  Every sub-parser sets ``func`` (``func(args) -> int``,
 the exit code) with ``set_defaults``.
 
+Commands that can run longer than a few seconds (:data:`PROGRESS_COMMANDS` and
+every benchmark) show their progress on stderr through
+:mod:`rths_common.progress` and take ``--quiet``.
+
 Errors the user can fix (bad input file, missing column, out-of-range value)
 are raised as ``ValueError`` or ``OSError`` with a message that names the
 file/field and the fix; they are printed without a traceback and the command
@@ -33,6 +37,25 @@ CLI_MODULES = (
     'rths_discrepancy.cli',
 )
 
+#: Commands that report progress (rths_common.progress) and so take --quiet; every bench does.
+PROGRESS_COMMANDS = ('run', 'launch', 'review', 'replay', 'reference', 'identify', 'design',
+                     'simulate', 'study', 'fit-mr', 'characterise-dtm', 'discrepancy')
+
+
+def _add_quiet(commands, benches):
+    """Give every progress-reporting sub-command (and its own sub-commands) ``--quiet``."""
+    from rths_common.progress import add_quiet_argument
+
+    parsers = [commands.choices[name] for name in PROGRESS_COMMANDS if name in commands.choices]
+    parsers += list(benches.choices.values())
+    while parsers:
+        parser = parsers.pop()
+        subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        if subs:
+            parsers += list(subs[0].choices.values())
+        elif not any('--quiet' in a.option_strings for a in parser._actions):
+            add_quiet_argument(parser)
+
 
 def build_parser() -> argparse.ArgumentParser:
     """Create the full ``rths`` argument parser from every package's cli module."""
@@ -51,6 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name in CLI_MODULES:
         module = importlib.import_module(name)
         module.register(commands, benches)
+    _add_quiet(commands, benches)
     return parser
 
 
@@ -58,6 +82,8 @@ def main(argv=None) -> int:
     """Parse the command line and run the chosen sub-command."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    from rths_common.progress import apply_quiet
+    apply_quiet(args)
     try:
         return int(args.func(args) or 0)
     except (ValueError, OSError) as err:

@@ -82,7 +82,7 @@ def run_info_of(config, overrides) -> dict:
 
 
 def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, storage=None,
-           live=False, layout=None):
+           live=False, layout=None, progress_label='run'):
     """Run the graph; return the launcher's exit code.
 
     With a bag, the run's parameters (the three params files with the
@@ -102,7 +102,8 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, stora
                                      **overrides.get('recorder', {}))
     if bag and storage:
         overrides.setdefault('recorder', {})['storage'] = storage
-    launcher = Launcher(config, bag=bag, overrides=overrides, timeout_s=timeout, layout=layout)
+    launcher = Launcher(config, bag=bag, overrides=overrides, timeout_s=timeout, layout=layout,
+                        progress_label=progress_label)
     if live:  # the live view is one more reader of each loop topic: arm the chain after it too
         # (composed, the recorder reads the container's pipe, not the topics)
         readers = 3 if bag and launcher.layout == 'processes' else 2

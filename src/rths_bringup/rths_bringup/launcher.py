@@ -43,6 +43,9 @@ and supervises them:
 Timing mode: ``mode`` None (the default) takes the numerical node's ``mode``
 from the config (or its override), so the recorder subscribes with matching
 QoS; an explicit ``mode`` is also passed to every node as an override.
+The numerical node logs ``progress: step K of N`` every simulated second; the
+launcher turns those lines into the run's progress (:mod:`rths_common.progress`,
+on stderr, labelled ``progress_label``) instead of echoing them.
 While the graph runs, the CPU time of every child is sampled
 (:attr:`Launcher.cpu_samples`, from /proc) for ``rths bench loop``.
 
@@ -74,6 +77,8 @@ LAYOUTS = ('composed', 'processes')
 RECORDER_GRACE_S = 60.0
 #: A log line of a ROS node: ``[LEVEL] [stamp] [logger]: text`` (the logger names the node).
 _LOGGER = re.compile(r'^\[\w+\] \[[\d.]+\] \[(\w+)')
+#: The numerical node's progress log line: steps done and the run's steps.
+_PROGRESS = re.compile(r'\]: progress: step (\d+) of (\d+) ')
 
 
 def executable(package: str, name: str) -> Path:
@@ -178,7 +183,8 @@ class Launcher:
 
     def __init__(self, config_dir, bag=None, overrides=None, mode=None, out=sys.stdout,
                  timeout_s=None, cpu_sample_s: float = 0.25, preflight: bool = True,
-                 node_env: dict = None, node_prefix: dict = None, layout: str = None):
+                 node_env: dict = None, node_prefix: dict = None, layout: str = None,
+                 progress_label: str = 'run'):
         self.config_dir = Path(config_dir)
         #: {node: {VAR: value}} environment per node (e.g. its ROS_DOMAIN_ID), and
         #: {node: [argv prefix]} (e.g. ['ip', 'netns', 'exec', 'lab1']): distributed runs
@@ -211,11 +217,33 @@ class Launcher:
         self.children = []
         self._print_lock = threading.Lock()
         self._signal = None
+        self.progress_label = progress_label
+        self.progress = None        # rths_common.progress.Progress, from the first progress line
 
     def say(self, text: str, name: str = 'launch'):
         """Print ``text`` as a line of ``name`` (one line at a time)."""
         with self._print_lock:
-            print(f'[{name}] {text}', file=self.out, flush=True)
+            if self.progress is None:
+                print(f'[{name}] {text}', file=self.out, flush=True)
+                return
+            with self.progress.hidden():
+                print(f'[{name}] {text}', file=self.out, flush=True)
+
+    def _on_progress(self, line: str) -> bool:
+        """Return True if ``line`` is the numerical node's progress line (and count it).
+
+        The progress starts when the numerical node publishes step 0 (``graph connected``).
+        """
+        match = _PROGRESS.search(line)
+        if match is None and 'graph connected' not in line:
+            return False
+        with self._print_lock:
+            if self.progress is None:
+                from rths_common.progress import Progress
+                self.progress = Progress(0, self.progress_label, 'steps')
+            if match is not None:
+                self.progress.update(int(match.group(1)), int(match.group(2)))
+        return match is not None
 
     def _argv(self, name, package, exe, params_file):
         argv = [str(executable(package, exe)), '--ros-args', '-r', f'__node:={name}']
@@ -263,6 +291,8 @@ class Launcher:
                 match = _LOGGER.match(line)
                 if match and match.group(1) in {n[0] for n in NODES}:
                     name = match.group(1)
+            if name == OWNER and self._on_progress(line):
+                continue
             self.say(line, name)
 
     def culprit(self, child: Child) -> str:
@@ -351,6 +381,10 @@ class Launcher:
                 self.stop(child)
             for child in self.children:
                 child.reader.join(timeout=2.0)
+            if self.progress is not None:
+                with self._print_lock:
+                    self.progress.close()
+                self.progress = None
             for s, handler in previous.items():
                 signal.signal(s, handler)
             if self._tmp is not None:

@@ -417,7 +417,7 @@ def run_batch(runs, ag, controller, seed: int = 0, progress=None) -> dict:
     x_m = np.empty((n, batch))
     u_out = np.empty((n, batch))
     ag_next = np.append(ag[1:], ag[-1])
-    every = max(1, n // 10)
+    every = max(1, n // 100)
     for k in range(n):
         disp = z[:, :3, 0]
         y_n[k] = disp
@@ -520,7 +520,8 @@ def launch_graph(params: dict, out_dir: str, log=_log) -> dict:
     history = (out / 'numerical_history.npz').resolve()
     log(f'  launching the node graph (lock-step) with {cfg}, bag {out / "bag"}')
     code = launch(cfg, bag=out / 'bag', timeout=7200.0,
-                  overrides={'numerical': {'history_out': str(history)}})
+                  overrides={'numerical': {'history_out': str(history)}},
+                  progress_label=f'{out.name} graph run')
     if code != 0:
         raise RuntimeError(f'the node graph run failed (launcher exit {code}); see {out}')
     hist = np.load(history)
@@ -653,9 +654,11 @@ def run_benchmark(controller: str = 'example', record: str = 'elcentro', n_draws
         f'(seed {seed})')
     ctrl = make_controller(controller, len(runs), dt, fir_options, log)
     refs = {c: reference_response(c, ag, dt) for c in set(c for c, _ in runs)}
+    from rths_common.progress import Progress
+
     t1 = time.perf_counter()
-    out = run_batch(runs, ag, ctrl, seed=seed,
-                    progress=lambda k, n: log(f'  step {k}/{n} ({time.perf_counter() - t1:.1f} s)'))
+    with Progress(len(ag), f'rths-benchmark {len(runs)} loops', 'steps') as bar:
+        out = run_batch(runs, ag, ctrl, seed=seed, progress=bar.report)
     loop_s = time.perf_counter() - t1
     summary = {'controller': controller, 'cases': {}, 'perturbed': {}}
     for i, c in enumerate(cases):

@@ -148,7 +148,7 @@ def _launch_phase(name, cfg, bag, kind, fs, mode, sections, history=None, storag
         overrides.setdefault(node, {})['mode'] = mode
     _say(f'{name}: launching the node graph ({mode}), recording to {bag}')
     code = launch(cfg, bag=bag, overrides=overrides, timeout=3600.0, storage=storage, live=live,
-                  layout=layout)
+                  layout=layout, progress_label=f'{name} run')
     if code == 0:
         return None
     try:

@@ -122,9 +122,12 @@ def run_study(seed: int = 2024, noise_m: float = 2e-6, eval_s: float = 60.0,
         val.append((u, measure(u)))
     log(f'[2/4] ARX grid na, nb = 1..{na_max}, 1..{nb_max} ({na_max * nb_max} models), '
         f'selection over {n_validation} validation records')
+    from rths_common.progress import Progress
+
     t0 = time.perf_counter()
-    model, info, grid = identify(train, val, fs_hz, na_max, nb_max, 0, 'bic',
-                                 progress=lambda k, n: log(f'      {k}/{n} models'))
+    with Progress(na_max * nb_max, 'ARX grid', 'models') as bar:
+        model, info, grid = identify(train, val, fs_hz, na_max, nb_max, 0, 'bic',
+                                     progress=bar.report)
     arx_s = time.perf_counter() - t0
     zeros = np.roots(model.b) if model.nb > 1 else np.array([])
     log(f'      selected (BIC) na={model.na} nb={model.nb} d={model.d} in {arx_s:.1f} s; '
@@ -151,6 +154,7 @@ def run_study(seed: int = 2024, noise_m: float = 2e-6, eval_s: float = 60.0,
         f'(epsilon = {epsilon})')
     compensators, designs = [], {}
     fir_total = fir_cpu = 0.0
+    bar = Progress(len(dsg.FIR_SCHEMES) * len(taps_list) * len(fc_list), 'FIR designs')
     for scheme in dsg.FIR_SCHEMES:
         for n in taps_list:
             for fc in fc_list:
@@ -172,11 +176,13 @@ def run_study(seed: int = 2024, noise_m: float = 2e-6, eval_s: float = 60.0,
                         (b_true, a_true), d, fc, fs_hz)['highpass_gain_db']
                 if err:
                     entry['error'] = err
-                    log(f'      {name}: FAILED {err}')
+                    with bar.hidden():
+                        log(f'      {name}: FAILED {err}')
                 compensators.append(entry)
                 designs[name] = d
-        log(f'      {scheme} done ({fir_total:.1f} s so far)')
-    log('      comparison compensators')
+                bar.advance()
+    bar.close()
+    log(f'      {len(compensators)} FIR designs in {fir_total:.1f} s; comparison compensators')
     others = []
     for band in BANDS_HZ:
         others.append((f'inverse-tau{band}hz', 'inverse',

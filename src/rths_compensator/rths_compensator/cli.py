@@ -179,8 +179,11 @@ def cmd_design(args) -> int:
         if not args.bandwidth:
             raise ValueError('--auto needs --bandwidth HZ (the operating bandwidth)')
         _log(f'design --auto: searching for 0-{args.bandwidth} Hz')
-        comp, table = dsg.auto_design(plant, args.bandwidth, epsilon=eps, log=_log,
-                                      zero_tol=zero_tol)
+        from rths_common.progress import Progress
+
+        with Progress(0, 'design --auto', 'candidates') as bar:
+            comp, table = dsg.auto_design(plant, args.bandwidth, epsilon=eps,
+                                          zero_tol=zero_tol, progress=bar.report)
         band = args.bandwidth
         print('score = |delay| [ms] + gain error [dB] + 0.1 x max(0, high-pass gain above the '
               'band - 6 dB) + 1e-4 x coefficients (lower is better); top candidates:')

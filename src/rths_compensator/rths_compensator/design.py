@@ -677,12 +677,13 @@ def auto_score(pred: dict, n_coefficients: int) -> float:
 def auto_design(plant, bandwidth_hz: float, fs_hz: float = None, epsilon: float = None,
                 taps=(25, 50, 100, 200), fc_factors=(1.5, 2.0, 3.0, 4.0),
                 schemes=('ls', 'wls', 'mm', 'npz', 'zpetc', 'zmetc'), log=None,
-                zero_tol: float = 1.0):
+                zero_tol: float = 1.0, progress=None):
     """Search scheme, n and fc for the operating ``bandwidth_hz``; return (best, table).
 
     Every candidate is designed on the plant model and scored by :func:`auto_score` from
     its predicted indicators over ``0 < f <= bandwidth_hz``; ``zero_tol`` is passed to
-    the FIR candidates (:func:`design_fir`).  ``table`` lists dicts
+    the FIR candidates (:func:`design_fir`).  ``log(text)`` gets a line per candidate,
+    ``progress(done, total)`` the count.  ``table`` lists dicts
     (scheme, n_taps, fc_hz, score, delay_ms, gain_error_db, highpass_gain_db,
     n_coefficients, error) sorted best first.
     """
@@ -700,7 +701,8 @@ def auto_design(plant, bandwidth_hz: float, fs_hz: float = None, epsilon: float 
         else:
             candidates.append((scheme, None, None))
     table, best = [], None
-    for scheme, n, fc in dict.fromkeys(candidates):
+    candidates = list(dict.fromkeys(candidates))
+    for scheme, n, fc in candidates:
         row = {'scheme': scheme, 'n_taps': n, 'fc_hz': fc}
         try:
             if scheme in FIR_SCHEMES:
@@ -716,6 +718,8 @@ def auto_design(plant, bandwidth_hz: float, fs_hz: float = None, epsilon: float 
         except ValueError as exc:
             row.update(score=float('inf'), error=str(exc))
         table.append(row)
+        if progress is not None:
+            progress(len(table), len(candidates))
         if log is not None:
             log(f"  {scheme:6s} n={n!s:>4} fc={fc!s:>6}: "
                 + (f"score {row['score']:.3f}" if not row['error'] else 'infeasible'))

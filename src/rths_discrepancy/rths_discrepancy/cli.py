@@ -213,6 +213,12 @@ def bench_discrepancy_cmd(args) -> int:
     print(f'parameters within 15 % (full strength, correctly named): {ok}/{n}')
     ok, n = summary['parameters_within_15_percent_one_fifth_strength']
     print(f'parameters within 15 % (one-fifth strength, correctly named): {ok}/{n}')
+    by_seed = summary.get('by_seed')
+    if by_seed and len(by_seed['seeds']) > 1:
+        lo, hi = by_seed['correct_naming_percent_min_max']
+        glo, ghi = by_seed['median_gap_closed_min_max']
+        print(f"  spread over {len(by_seed['seeds'])} seeds (rths convention, every case): "
+              f'correct naming {lo:.1f}-{hi:.1f} %, median gap_closed {glo:.3f}-{ghi:.3f}')
     for conv, c in summary.get('by_convention', {}).items():
         al = ', '.join(f'{sc} {v:+.2f}' for sc, v in c['median_alignment_samples'].items())
         print(f"  convention {conv:22s}: {c['correct_naming_percent']:.1f} % of {c['cases']} "
@@ -223,7 +229,8 @@ def bench_discrepancy_cmd(args) -> int:
               f"named (target >= {h['target']})")
     det = summary.get('detectability')
     if det:
-        print(f"smallest detectable strength at {100 * det['noise']:g} % noise (of "
+        print(f"smallest detectable strength at {100 * det['noise']:g} % noise over "
+              f"{det.get('seeds', 1)} seed(s) (of "
               f"{', '.join(f'{v:g}' for v in det['strengths'])}; the full-strength size x it):")
         for key, d in det['effects'].items():
             size = 'not detected' if d['smallest_strength'] is None else (

@@ -236,10 +236,16 @@ def run_sets(workers=2, progress=None):
     """Run sets A and B; return {'A': {...}, 'B': {...}} with counts and rows."""
     jobs = [('A', i) for i in range(len(SET_A))] + [('B', i) for i in range(len(SET_B))]
     say = progress or (lambda msg: None)
+    from rths_common.progress import Progress
     from rths_discrepancy.selftest import run_parallel
 
-    rows = run_parallel(run_one, jobs, workers,
-                        lambda done: say(_line(len(done), len(jobs), done[-1])))
+    with Progress(len(jobs), 'held-out records') as bar:
+        def on_row(done):
+            if not done[-1]['correct']:
+                with bar.hidden():
+                    say(_line(len(done), len(jobs), done[-1]))
+            bar.update(len(done))
+        rows = run_parallel(run_one, jobs, workers, on_row)
     rows.sort(key=lambda r: (r['set'], r['index']))
     out = {}
     for s in ('A', 'B'):

@@ -244,6 +244,8 @@ def run_case(args):
            'alignment_samples': res['alignment_samples'],
            'best_candidate': res['best_candidate'],
            'best_closure_fast': res['best_candidate_gap_closed_fast'],
+           'rival': res['rival'], 'rival_ic_margin': res['rival_ic_margin'],
+           'unexplained_note': res.get('unexplained_note'),
            'seconds': time.perf_counter() - t0}
     if with_baselines:
         from rths_discrepancy import baselines
@@ -301,6 +303,7 @@ def run_bench(seeds=3, quick=False, workers=2, progress=None, baselines=False,
         'wrong': [{k: r[k] for k in ('scenario', 'label', 'seed', 'named', 'best_candidate',
                                      'best_closure_fast')} for r in rows if not r['correct']],
         'by_convention': _by_convention(rows),
+        'by_seed': _by_seed(rows),
         'wall_time_s': time.perf_counter() - t0,
         'targets': {'correct_naming_percent': 100.0, 'false_effects_on_controls': 0,
                     'median_gap_closed': 0.9, 'heldout_A': 13, 'heldout_B': 11},
@@ -316,7 +319,7 @@ def run_bench(seeds=3, quick=False, workers=2, progress=None, baselines=False,
         summary['heldout'] = ho.run_sets(workers=workers, progress=say)
         met = met and all(v['named'] >= v['target'] for v in summary['heldout'].values())
     if detect:
-        summary['detectability'] = run_detect(workers=workers, progress=say)
+        summary['detectability'] = run_detect(workers=workers, progress=say, seeds=seeds)
         met = met and summary['detectability']['false_names_below_total'] == 0
     summary['wall_time_s'] = time.perf_counter() - t0
     summary['targets_met'] = bool(met)
@@ -333,41 +336,67 @@ def detect_cases():
             for name in fx.EFFECT_NAMES if name in fx.LIBRARY[sc] for st in DETECT_STRENGTHS]
 
 
-def run_detect(workers=2, progress=None, duration=DURATION_S):
-    """Smallest detectable size of each effect at the self-test noise level (one seed).
+def run_detect(workers=2, progress=None, duration=DURATION_S, seeds=1):
+    """Smallest detectable size of each effect at the self-test noise level.
 
-    For each effect, the smallest strength of :data:`DETECT_STRENGTHS` from which
-    on every stronger one is named correctly, its parameter value, and what the
-    workflow answered below it (it must be 'none' or 'unexplained', never
-    another effect).
+    For each effect and seed, the smallest strength of :data:`DETECT_STRENGTHS`
+    from which on every stronger one is named correctly; the reported size is
+    the largest of these over the ``seeds`` (the limit every seed reached).
+    Below each seed's own limit the workflow must answer 'none' or
+    'unexplained' (with its reason), never another effect.
     """
-    jobs = [case + (0, duration, False) for case in detect_cases()]
-    rows = _run_jobs(jobs, workers, progress or (lambda msg: None))
+    jobs = [case + (seed, duration, False) for seed in range(seeds) for case in detect_cases()]
+    rows = _run_jobs(jobs, workers, progress or (lambda msg: None), 'detectability cases')
     out = {}
     for sc in fx.SCENARIOS:
         for name in [n for n in fx.EFFECT_NAMES if n in fx.LIBRARY[sc]]:
-            rs = sorted((r for r in rows if r['scenario'] == sc and r['expected'] == name),
-                        key=lambda r: r['strength'])
-            smallest = None
-            for r in reversed(rs):
-                if not r['correct']:
-                    break
-                smallest = r
-            below = [r['named'] for r in rs if smallest is None
-                     or r['strength'] < smallest['strength']]
-            out[f'{sc}/{name}'] = {
-                'smallest_strength': smallest['strength'] if smallest else None,
-                'smallest_size': smallest['truth'][name] if smallest else None,
-                'answers_below': below,
-                'false_names_below': sum(b not in ('none', 'unexplained') for b in below),
-                'answers': {r['strength']: r['named'] for r in rs}}
-    return {'noise': NOISE, 'strengths': list(DETECT_STRENGTHS), 'effects': out,
+            out[f'{sc}/{name}'] = _detect_limit(
+                [r for r in rows if r['scenario'] == sc and r['expected'] == name], name)
+    return {'noise': NOISE, 'strengths': list(DETECT_STRENGTHS), 'seeds': seeds,
+            'effects': out,
             'false_names_below_total': sum(v['false_names_below'] for v in out.values())}
 
 
-def _run_jobs(jobs, workers, say):
-    return run_parallel(run_case, jobs, workers,
-                        lambda rows: say(_progress_line(len(rows), len(jobs), rows[-1])))
+def _detect_limit(rows, name):
+    """Return the detection limit of one effect over the seeds of ``rows`` (:func:`run_detect`)."""
+    limits, below, reasons, answers = {}, [], [], {}
+    for seed in sorted({r['seed'] for r in rows}):
+        rs = sorted((r for r in rows if r['seed'] == seed), key=lambda r: r['strength'])
+        smallest = None
+        for r in reversed(rs):
+            if not r['correct']:
+                break
+            smallest = r
+        limits[seed] = smallest
+        for r in rs:
+            answers.setdefault(f"{r['strength']:g}", []).append(r['named'])
+            if smallest is None or r['strength'] < smallest['strength']:
+                below.append(r['named'])
+                if r.get('unexplained_note'):
+                    reasons.append(r['unexplained_note'])
+    found = [v for v in limits.values() if v is not None]
+    worst = (max(found, key=lambda r: r['strength'])
+             if found and len(found) == len(limits) else None)
+    return {'smallest_strength': worst['strength'] if worst else None,
+            'smallest_size': worst['truth'][name] if worst else None,
+            'smallest_strength_by_seed': [v['strength'] if v else None for v in limits.values()],
+            'answers_below': below,
+            'false_names_below': sum(b not in ('none', 'unexplained', name) for b in below),
+            'unexplained_reasons': reasons,
+            'answers': answers}
+
+
+def _run_jobs(jobs, workers, say, label='self-test cases'):
+    """Run the cases with a progress line (rths_common.progress); ``say`` gets the wrong ones."""
+    from rths_common.progress import Progress
+
+    with Progress(len(jobs), label) as bar:
+        def on_row(rows):
+            if not rows[-1]['correct']:
+                with bar.hidden():
+                    say(_progress_line(len(rows), len(jobs), rows[-1]))
+            bar.update(len(rows))
+        return run_parallel(run_case, jobs, workers, on_row)
 
 
 def run_parallel(func, jobs, workers, on_row=None):
@@ -412,6 +441,25 @@ def _by_convention(rows):
                              if any(r['scenario'] == sc and 'time_delay' not in r['named']
                                     for r in rs)}}
     return out
+
+
+def _by_seed(rows):
+    """Naming rate, false effects and median gap_closed per seed (rths convention: every seed)."""
+    out = {}
+    for seed in sorted({r['seed'] for r in rows}):
+        rs = [r for r in rows if r['seed'] == seed and _convention_of(r['label']) == 'rths']
+        gaps = [r['gap_closed'] for r in rs if r['expected'] not in ('none', 'unexplained')]
+        out[str(seed)] = {
+            'cases': len(rs),
+            'correct_naming_percent': 100.0 * sum(r['correct'] for r in rs) / max(len(rs), 1),
+            'false_effects_on_controls': sum(r['named'] != 'none' for r in rs
+                                             if r['expected'] == 'none'),
+            'median_gap_closed': float(np.median(gaps)) if gaps else None,
+            'wrong': [r['label'] for r in rs if not r['correct']]}
+    rates = [v['correct_naming_percent'] for v in out.values()]
+    gaps = [v['median_gap_closed'] for v in out.values() if v['median_gap_closed'] is not None]
+    return {'seeds': out, 'correct_naming_percent_min_max': [min(rates), max(rates)],
+            'median_gap_closed_min_max': [min(gaps), max(gaps)] if gaps else None}
 
 
 def _progress_line(i, n, row):

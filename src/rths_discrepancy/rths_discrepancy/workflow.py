@@ -33,6 +33,13 @@
    if it lowers the IC below the nominal model's, and a pair replaces the best
    single only if it lowers the IC further (so an extra parameter must pay for
    itself on unseen data); every candidate's IC is reported with the evidence.
+   Distinct from its rivals: a name is given only if the winner's IC is
+   ``DISTINCT_IC`` below that of the best candidate sharing none of its
+   effects (the rival).  Near the detection limit two different effects can
+   explain a small residual equally well (a 0.08 N Coulomb friction and a
+   viscous error); the record then shows that something is there but not what:
+   the answer is ``unexplained``, with the tie as the reason, never the rival's
+   name.
 5. The winner is added to the model and the model is re-simulated *without*
    measured states (output error); ``gap_closed = (NRMSE_before^2 -
    NRMSE_after^2) / (NRMSE_before^2 - NRMSE_noise^2)`` on the held-out blocks.
@@ -62,6 +69,9 @@ PAIR_REMAINING = 0.75
 NAME_CLOSURE = 0.95
 #: ... and the output's remaining excess must exceed this many noise variances.
 UNEXPLAINED_MIN = 0.5
+#: IC margin by which the winner must beat its best rival that shares none of its effects
+#: (6: "strong" evidence on the scale of Kass and Raftery, 1995); below it, 'unexplained'.
+DISTINCT_IC = 6.0
 #: Number of best single effects that are combined with every other effect.
 PAIR_TOP = 3
 #: ... and every pair is fitted when the best fit so far leaves more than this many noise
@@ -409,14 +419,28 @@ def select(ctx, progress=None):
     sx0 = ctx.mse(ctx.y_nom, scored) / ctx.sigma2
     sxc = ctx.mse(fits[choice][1], scored) / ctx.sigma2
     closure = (sx0 - sxc) / (sx0 - 1.0) if sx0 > 1.0 else 0.0
+    mine = set(choice.split('+'))
+    rivals = [k for k in fits if not mine & set(k.split('+'))]
+    rival = min(rivals, key=lambda k: ic[k]) if rivals else None
+    margin = ic[rival] - ic[choice] if rival else math.inf
+    reason = None
     if gain < MIN_GAIN or gain < MIN_REL_GAIN * gap or ic[choice] >= ic_none:
         decision = 'none'
     elif closure < NAME_CLOSURE and sxc - 1.0 > UNEXPLAINED_MIN:
         decision = 'unexplained'
+        reason = (f'best candidate {choice} closes only {100 * closure:.0f} % of the reducible '
+                  f'gap (< {100 * NAME_CLOSURE:.0f} %): an effect outside the library')
+    elif margin < DISTINCT_IC:
+        decision = 'unexplained'
+        reason = (f'a discrepancy is there (held-out gain {gain:.3g} noise variances) but '
+                  f'{choice} and {rival}, which share no effect, explain it equally well '
+                  f'(information criteria {margin:.1f} apart, < {DISTINCT_IC:g}): below the '
+                  'size at which the library tells them apart')
     else:
         decision = choice
     return {'decision': decision, 'best': choice, 'fits': fits, 's0': s0, 'floor': floor,
-            'gap': gap, 'closure_fast': closure, 'ic': ic, 'ic_none': ic_none}
+            'gap': gap, 'closure_fast': closure, 'ic': ic, 'ic_none': ic_none,
+            'rival': rival, 'rival_ic_margin': margin, 'reason': reason}
 
 
 def coverage(ctx, pred):
@@ -498,6 +522,9 @@ def run_discrepancy(scenario, data, model=None, out_dir=None, rng=None, progress
         'best_candidate_gap_closed_fast': sel['closure_fast'],
         'information_criterion': sel['ic'],
         'information_criterion_none': sel['ic_none'],
+        'rival': sel['rival'],
+        'rival_ic_margin': (float(sel['rival_ic_margin'])
+                            if math.isfinite(sel['rival_ic_margin']) else None),
         'coverage': coverage(ctx, sel['fits'][sel['best']][1]),
         'residual_excess_train_heldout': [float(gap_tr), float(gap_te)],
         'coverage_unbalanced': unbalanced,
@@ -507,9 +534,7 @@ def run_discrepancy(scenario, data, model=None, out_dir=None, rng=None, progress
         'updated_model': models.with_effects(model, added).to_dict(),
     }
     if decision == 'unexplained':
-        result['unexplained_note'] = (
-            f"best candidate {sel['best']} closes only {100 * sel['closure_fast']:.0f} % of the "
-            f'reducible gap (< {100 * NAME_CLOSURE:.0f} %): an effect outside the library')
+        result['unexplained_note'] = sel['reason']
     say(f'alignment {1e3 * align:+.3f} ms ({align * ctx.fs:+.2f} samples; the DAQ-convention '
         f'band is +-{ALIGN_SAMPLES:g} samples)')
     say(f"effect: {decision}  NRMSE held-out {before:.4f} -> {after:.4f} "

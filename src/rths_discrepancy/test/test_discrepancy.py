@@ -13,7 +13,7 @@ import yaml
 
 from rths_discrepancy import effects as fx
 from rths_discrepancy import io as dio
-from rths_discrepancy import models, selftest
+from rths_discrepancy import models, selftest, workflow
 from rths_discrepancy.workflow import run_discrepancy
 
 SHORT_S = 8.0
@@ -65,6 +65,21 @@ def test_first_order_lag_is_unexplained():
     assert res['effect'] == 'unexplained'
     assert 'unexplained_note' in res
     assert res['parameters'] == {}
+
+
+def test_effect_below_its_detection_limit_is_not_named_as_another():
+    """A 0.08 N Coulomb friction (strength 0.01 of the detectability sweep, seed 0).
+
+    Below the detection limit a viscous error explains the small residual as well
+    as a friction law does: the answer is 'unexplained' with the tie as the reason
+    (the sweep of the v1 rule named it viscous_damping_error).
+    """
+    data, truth = selftest.make_record('specimen', ['coulomb_friction'], 0, strength=0.01)
+    assert truth['coulomb_friction'] == pytest.approx(0.08)
+    res = run_discrepancy('specimen', data, plots=False)
+    assert res['effect'] == 'unexplained'
+    assert res['rival_ic_margin'] < workflow.DISTINCT_IC
+    assert 'explain it equally well' in res['unexplained_note']
 
 
 def test_stribeck_friction_is_named_coulomb():
@@ -255,6 +270,7 @@ def test_bench_cli_summary(tmp_path, monkeypatch):
                                                                'unexplained': 1}
     assert summary['false_effects_on_controls'] == 0
     assert not summary['targets_met']
+    assert summary['by_seed']['seeds']['0']['wrong'] == ['first_order_lag']
 
 
 def test_fractional_delay_is_band_limited_and_exact_for_whole_samples():

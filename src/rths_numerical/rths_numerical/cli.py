@@ -199,11 +199,13 @@ def cmd_study_model_reduction(args):
     models = {'16dof': bld.building_16dof(), '240dof': bld.building_240dof(),
               '240dof_bare': bld.building_240dof(diaphragms=False)}
     resp = {}
+    report = _progress('model-reduction')
     for k, (key, model) in enumerate(models.items()):
-        _progress('model-reduction')(k + 1, len(models))
+        report(k, len(models))
         d, _ = integrate_model(model, ag, dt)
         # 240 DOF: mean ux of the 20 2nd-floor nodes (with diaphragms they all move alike)
         resp[key] = d[:, bld.IX2] if key == '16dof' else d[:, bld.floor2_x_dofs_240()].mean(1)
+    report(len(models), len(models))
     data = {'record': args.record, 'scale': args.scale, 'fs_hz': args.fs_hz,
             'duration_s': args.duration_s, 'integrator': 'cr',
             'diaphragm_penalty': bld.DIAPHRAGM_PENALTY}
@@ -377,7 +379,7 @@ def cmd_bench_numerical(args):
               f'{steps[name]["advance_16"]:.1f} / {steps[name]["advance_240"]:.1f} us',
               flush=True)
     t0 = time.perf_counter()
-    res = run_dtm_tuning(n_fn=args.n_fn, n_zeta=args.n_zeta)
+    res = run_dtm_tuning(n_fn=args.n_fn, n_zeta=args.n_zeta, progress=_progress('dtm-tuning'))
     tuning_s = time.perf_counter() - t0
     f1_240 = building_240dof().dominant_frequencies(2)[0]
     data = {'f1_hz': f1, 'f2_hz': f2, 'seed_f1_hz': 2.81, 'seed_f2_hz': 7.77,
@@ -424,8 +426,11 @@ def cmd_fit_mr(args):
     tests = mr_fit.load_tests(mr_fit.data_dir(args.data))
     print(f'{len(tests)} sinusoid tests, currents '
           f'{sorted({t["current_a"] for t in tests})} A; fitting (about a minute)', flush=True)
+    from rths_common.progress import Progress
+
     t0 = time.perf_counter()
-    best, errors, nfev = mr_fit.fit(tests, max_nfev=args.max_nfev)
+    with Progress(0, 'fit-mr', 'model evaluations') as bar:
+        best, errors, nfev = mr_fit.fit(tests, max_nfev=args.max_nfev, progress=bar.report)
     names = [t['name'] for t in tests]
     worst = names[int(np.argmax(errors))]
     print(f'fitted in {time.perf_counter() - t0:.1f} s ({nfev} evaluations): relative RMS '

@@ -131,8 +131,11 @@ def _params(theta, base=SPENCER_1997):
     return MRParameters(**values)
 
 
-def fit(tests, start: MRParameters = None, per_cycle=1000, max_nfev=200):
-    """Least-squares fit of :data:`FIT_KEYS` to all tests; return (parameters, errors [%])."""
+def fit(tests, start: MRParameters = None, per_cycle=1000, max_nfev=200, progress=None):
+    """Least-squares fit of :data:`FIT_KEYS` to all tests; return (parameters, errors [%]).
+
+    ``progress(done, 0)`` gets the number of model evaluations so far (total unknown).
+    """
     from scipy.optimize import least_squares
     if start is None:   # the paper's values, its voltage dependence spread over 0-1 A
         start = _params(np.log([getattr(SPENCER_1997, k) * (2.25 if k.endswith('b') else 1.0)
@@ -140,7 +143,12 @@ def fit(tests, start: MRParameters = None, per_cycle=1000, max_nfev=200):
     inputs = _inputs(tests, per_cycle, 1.25)
     scale = np.sqrt(np.mean(_scored(inputs[2], per_cycle) ** 2, axis=0))
 
+    calls = [0]
+
     def residual(theta):
+        calls[0] += 1
+        if progress is not None:
+            progress(calls[0], 0)
         model, measured = simulate_tests(_params(theta), tests, inputs=inputs)
         res = (_scored(model, per_cycle) - _scored(measured, per_cycle)) / scale
         return np.nan_to_num(res.ravel(), nan=1e3, posinf=1e3, neginf=-1e3)
