@@ -194,3 +194,9 @@ class Bridge:
         """Release the backend."""
         if self.backend is not None:
             self.backend.close()
+
+    def cleanup(self):
+        """Deactivate and release the backend: unconfigured again (configure() to reuse)."""
+        self.deactivate()
+        self.close()
+        self.backend = None

@@ -156,8 +156,11 @@ class Container:
         return [shell.node for shell in self.shells.values()]
 
     def done(self) -> bool:
-        """Return True once the numerical node finished (or failed) or the bridge stopped."""
-        return self.numerical.finished or self.bridge.stopped
+        """Return True once the numerical node finished (or failed) or the bridge stopped.
+
+        (The bridge stopped: a safety stop, or its managed node was shut down.)
+        """
+        return self.numerical.finished or self.bridge.stopped or self.bridge.finalized
 
     def tune(self) -> str:
         """Realtime: the bridge's latency settings for the whole process, memory locked."""
