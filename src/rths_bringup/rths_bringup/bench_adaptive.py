@@ -29,6 +29,9 @@ import numpy as np
 
 METHOD_NAMES = ('fir', 'rls_fir', 'ats', 'amb')
 SCENARIOS = ('unchanged', 'stiffness_drop', 'plant_drift')
+#: The RTHS benchmark's perturbed plants (:mod:`.bench_adaptive_silva`; needs its record).
+SILVA = 'silva2020_perturbed'
+ALL_SCENARIOS = SCENARIOS + (SILVA,)
 STIFFNESS_DROP = 0.3
 SPECIMEN_SHARE = 0.5
 DRIFT = 0.1
@@ -81,12 +84,13 @@ def _schedule(scenario, n, fs_hz):
     raise ValueError(f'scenario {scenario!r} unknown; use one of {", ".join(SCENARIOS)}')
 
 
-def run_method(name, scenario, target, model, design, seed):
+def run_method(name, scenario, target, model, design, seed, n_correction=16):
     """Closed-loop run of one method in one scenario; return arrays and events."""
     from rths_actuator_bridge.simulated import SimulatedPlant
     from rths_compensator.adaptive import make_method
 
-    method = make_method(name, design, model)
+    options = {'n_correction': n_correction} if name == 'rls_fir' else {}
+    method = make_method(name, design, model, **options)
     plant = SimulatedPlant(fs_hz=FS_HZ, displacement_noise_m=NOISE_M, seed=seed + 1)
     schedule = _schedule(scenario, target.size, FS_HZ)
     n = target.size
@@ -203,6 +207,34 @@ def _plot(path, scenario, target, runs):
     plt.close(fig)
 
 
+def rls_fir_cost(tap_counts=(32, 200, 400), n_steps=3000):
+    """Median/p99 cost [us] of one rls_fir step at ``tap_counts``: every tap vs the correction.
+
+    The FIR (LS, fc 64 Hz) of each length is designed on the bench's plant model; the
+    method follows a 3 Hz, 5 mm sine with its own delayed copy as the measurement.
+    """
+    from rths_compensator.adaptive import RlsFir
+
+    x = 5e-3 * np.sin(2 * np.pi * 3.0 * np.arange(n_steps + 500) / FS_HZ)
+    out = {}
+    clock = time.perf_counter_ns
+    for taps in tap_counts:
+        model, design = identify_and_design(taps)
+        for label, options in (('every_tap', {'n_full': 10 ** 9}), ('correction', {})):
+            if label == 'correction' and taps <= 32:
+                continue
+            method = RlsFir(design, model, **options)
+            ts = np.empty(x.size)
+            for k in range(x.size):
+                t0 = clock()
+                method.step(x[k], x[k - 1] if k else None)
+                ts[k] = clock() - t0
+            ts = ts[500:] / 1e3
+            out[f'{taps}_taps_{label}'] = {'p50_us': round(float(np.median(ts)), 1),
+                                           'p99_us': round(float(np.percentile(ts, 99)), 1)}
+    return out
+
+
 def _floor_us(repeats=20000):
     """Median cost of an empty Python call on this machine now [us] (timing floor)."""
     def empty(a, b):
@@ -216,8 +248,13 @@ def _floor_us(repeats=20000):
     return float(np.median(ts) / 1e3)
 
 
-def run_bench(out_dir, duration_s=40.0, seed=14, taps=32, scenarios=SCENARIOS, plots=True):
-    """Run every method in every scenario; write the files; return the summary dict."""
+def run_bench(out_dir, duration_s=40.0, seed=14, taps=32, scenarios=SCENARIOS, plots=True,
+              n_correction=16, silva=None):
+    """Run every method in every scenario; write the files; return the summary dict.
+
+    ``silva``: keyword arguments of :func:`.bench_adaptive_silva.run_scenario` (record,
+    n_draws, seed, duration_s, data_dir, cases, fir_options) for ``silva2020_perturbed``.
+    """
     from rths_numerical.signals import blwn
 
     if duration_s < 8.0:
@@ -229,15 +266,19 @@ def run_bench(out_dir, duration_s=40.0, seed=14, taps=32, scenarios=SCENARIOS, p
          f'denominator {design.denominator.size} coefficients')
     target = blwn(duration_s, FS_HZ, TARGET_BAND_HZ, TARGET_PEAK_M,
                   np.random.default_rng(seed + 100), taper_s=TAPER_S)
+    unknown = [s for s in scenarios if s not in ALL_SCENARIOS]
+    if unknown:
+        raise ValueError(f'scenario {unknown[0]!r} unknown; use {", ".join(ALL_SCENARIOS)}')
     from rths_common.progress import Progress
 
+    simulated = [s for s in scenarios if s in SCENARIOS]
     summary, events = {'scenarios': {}}, {}
-    bar = Progress(len(scenarios) * len(METHOD_NAMES), 'bench adaptive', 'runs')
-    for scenario in scenarios:
+    bar = Progress(len(simulated) * len(METHOD_NAMES), 'bench adaptive', 'runs')
+    for scenario in simulated:
         runs, block = {}, {}
         for name in METHOD_NAMES:
             t0 = time.perf_counter()
-            runs[name] = run_method(name, scenario, target, model, design, seed)
+            runs[name] = run_method(name, scenario, target, model, design, seed, n_correction)
             block[name] = metrics(target, runs[name])
             events[f'{scenario}/{name}'] = {'events': runs[name]['events'],
                                             'final_status': runs[name]['final_status']}
@@ -254,11 +295,51 @@ def run_bench(out_dir, duration_s=40.0, seed=14, taps=32, scenarios=SCENARIOS, p
             _plot(os.path.join(out_dir, f'{scenario}.png'), scenario, target, runs)
     bar.close()
     config = _config(duration_s, seed, taps, model, design, events)
+    if SCENARIOS[0] in scenarios:
+        config['rls_fir_step_cost'] = rls_fir_cost()
+        _log('rls_fir step cost [us] (p50/p99): ' + ', '.join(
+            f'{k} {v["p50_us"]}/{v["p99_us"]}' for k, v in config['rls_fir_step_cost'].items()))
+    config['design']['rls_fir'] = ('all n taps adapt' if taps <= 32 else
+                                   f'a correction of {n_correction} taps adapts')
+    if SILVA in scenarios:
+        summary['scenarios'][SILVA], config[SILVA] = _run_silva(out_dir, n_correction, silva,
+                                                                plots)
     with open(os.path.join(out_dir, 'summary.json'), 'w', encoding='utf-8') as handle:
         json.dump(summary, handle, indent=2)
     with open(os.path.join(out_dir, 'config.json'), 'w', encoding='utf-8') as handle:
         json.dump(config, handle, indent=2)
     return summary
+
+
+def _run_silva(out_dir, n_correction, options, plots):
+    """Run ``silva2020_perturbed``: ``(summary block, config entry)``."""
+    from . import bench_adaptive_silva as silva
+    options = dict(options or {})
+    blocks, details, per_run = silva.run_scenario(options={'n_correction': n_correction},
+                                                  log=_log, **options)
+    n_cases = len(details['cases'])
+    if plots:
+        silva.plot(os.path.join(out_dir, f'{SILVA}.png'), blocks, per_run, n_cases)
+    details['definition'] = (
+        'the RTHS benchmark (Silva et al. 2020; rths bench rths-benchmark): its loop, timing '
+        'and converters, its FIR procedure (BLWN test, ARX grid, design against a 400 Hz '
+        'target low-pass), the nominal plant of each case and the perturbed plants of case '
+        '1 (draws of the benchmark seed); every method as the controller, one object per run')
+    details['metrics'] = {
+        'J1_ms': "the benchmark's J1: lag of best correlation of x_m with y_n (0.1 ms)",
+        'J2_pct': "the benchmark's J2: RMS tracking error of x_m vs y_n, % (std ratio)",
+        'J3_pct': "the benchmark's J3: peak tracking error, %",
+        'delay_ms': 'eq. 42 delay of x_m vs y_n (H1 FRF, 0-10 Hz); worst = largest |delay|',
+        'stable': 'count of perturbed plants with x_m finite, within 10 x the reference '
+                  'floor-1 peak and max |x_m| <= 2 max |y_n|',
+        'fallbacks': 'count of perturbed plants on which the method fell back to the FIR',
+        'median/worst': 'over the perturbed plants (worst = largest)',
+        'vs_fir': "ratios of the method's J2 median/worst to fir's",
+        'nominal': 'J1-J3 of the nominal plant of each case',
+        'step_us_p50': 'median wall time of method.step over every step of every run'}
+    details['per_run'] = per_run
+    details['load_average'] = list(os.getloadavg())
+    return blocks, details
 
 
 def _fmt(value):
@@ -307,10 +388,30 @@ def _config(duration_s, seed, taps, model, design, events):
     }
 
 
+def _scenarios(args):
+    """Return the requested scenarios.
+
+    The benchmark's is left out by default when its record is absent; named explicitly,
+    a missing record is an error.
+    """
+    if args.scenarios:
+        return tuple(s.strip() for s in args.scenarios.split(',') if s.strip())
+    from .rths_benchmark import record_path
+    try:
+        record_path(args.record, args.data_dir)
+    except OSError as exc:
+        _log(f'{SILVA} skipped: {exc}')
+        return SCENARIOS
+    return ALL_SCENARIOS
+
+
 def _cmd_bench(args):
     t0 = time.perf_counter()
+    silva = {'record': args.record, 'data_dir': args.data_dir, 'n_draws': args.draws,
+             'duration_s': args.benchmark_duration or None}
     summary = run_bench(args.out, duration_s=args.duration, seed=args.seed, taps=args.taps,
-                        plots=not args.no_plots)
+                        plots=not args.no_plots, n_correction=args.n_correction,
+                        scenarios=_scenarios(args), silva=silva)
     _log(f'wrote {args.out}/summary.json in {time.perf_counter() - t0:.0f} s')
     print(json.dumps(summary, indent=2))
     return 0
@@ -320,19 +421,37 @@ def register(commands, benches):
     """Add ``rths bench adaptive``."""
     p = benches.add_parser(
         'adaptive', help='designed FIR vs RLS-adaptive FIR, ATS and AMB on a changing plant',
-        description='Identify the simulated plant, design the FIR, then run fir, rls_fir, ats '
+        description='Design the FIR on the simulated plant, then run fir, rls_fir, ats '
                     'and amb in closed loop through three scenarios (unchanged, '
-                    'stiffness_drop, plant_drift; the change at mid-run). Writes '
-                    'DIR/summary.json ({"scenarios": {SCENARIO: {METHOD: {...}}}}), '
-                    'DIR/config.json (definitions, windows, events, load) and one PNG per '
-                    'scenario (error envelope and coefficients over time). About 1 min '
-                    'for the default 40 s runs.')
+                    'stiffness_drop, plant_drift; the change at mid-run; about 1 min), and '
+                    'on the RTHS benchmark (Silva et al. 2020): the nominal plant of each case '
+                    'and the 20 perturbed plants (silva2020_perturbed; its record from '
+                    '$RTHS_DATA_DIR or --data-dir, left out with a message when absent; '
+                    'about 10-20 min). Writes DIR/summary.json ({"scenarios": {SCENARIO: '
+                    '{METHOD: {...}}}}), DIR/config.json (definitions, windows, events, '
+                    'load, per-run results) and one PNG per scenario (error envelope and '
+                    'coefficients over time; J1/J2 per perturbed plant).')
     p.add_argument('--out', required=True, help='output directory')
     p.add_argument('--duration', type=float, default=40.0,
                    help='run length [s] (default 40; the change is at mid-run)')
     p.add_argument('--seed', type=int, default=14, help='seed of target, noise, '
                    'identification (default 14)')
-    p.add_argument('--taps', type=int, default=32, help='FIR length n of H (default 32; '
-                   "rls_fir's cost grows as n^2)")
+    p.add_argument('--taps', type=int, default=32, help='FIR length n of H (default 32)')
+    p.add_argument('--n-correction', type=int, default=16,
+                   help='rls_fir: taps of the correction C (H = H0 (1 + C)) that it adapts '
+                        'when H has more than 32 taps (default 16; the cost per step grows '
+                        'as n + n_correction^2)')
+    p.add_argument('--scenarios', default='',
+                   help=f'comma-separated subset of {",".join(ALL_SCENARIOS)} (default all; '
+                        f'{SILVA} only when its record is found)')
+    p.add_argument('--record', default='elcentro',
+                   help=f'{SILVA}: benchmark record (elcentro, kobe, morganhill, or a file '
+                        'path; default elcentro)')
+    p.add_argument('--data-dir', default=None,
+                   help=f'{SILVA}: directory of the records (default $RTHS_DATA_DIR)')
+    p.add_argument('--draws', type=int, default=20,
+                   help=f'{SILVA}: perturbed plants of case 1 (default 20, seed 2020)')
+    p.add_argument('--benchmark-duration', type=float, default=0.0,
+                   help=f'{SILVA}: shorten the record [s] (default 0: all of it)')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG files')
     p.set_defaults(func=_cmd_bench)

@@ -219,6 +219,7 @@ class Launcher:
         self._signal = None
         self.progress_label = progress_label
         self.progress = None        # rths_common.progress.Progress, from the first progress line
+        self._progress_over = False
 
     def say(self, text: str, name: str = 'launch'):
         """Print ``text`` as a line of ``name`` (one line at a time)."""
@@ -229,6 +230,16 @@ class Launcher:
             with self.progress.hidden():
                 print(f'[{name}] {text}', file=self.out, flush=True)
 
+    def _progress_done(self):
+        """Count every step once the run finished (the node logs whole seconds only)."""
+        with self._print_lock:
+            if self.progress is not None:
+                if self.progress.done < self.progress.total:
+                    self.progress.update(self.progress.total)
+                self.progress.close()
+            self.progress = None
+            self._progress_over = True      # late progress lines are dropped
+
     def _on_progress(self, line: str) -> bool:
         """Return True if ``line`` is the numerical node's progress line (and count it).
 
@@ -238,6 +249,8 @@ class Launcher:
         if match is None and 'graph connected' not in line:
             return False
         with self._print_lock:
+            if self._progress_over:
+                return match is not None
             if self.progress is None:
                 from rths_common.progress import Progress
                 self.progress = Progress(0, self.progress_label, 'steps')
@@ -358,6 +371,7 @@ class Launcher:
                     break
                 owner = self._child(self.owner)
                 if owner.returncode == 0:
+                    self._progress_done()
                     self.say('run finished')
                     break
                 dead = [c for c in self.children if c.returncode is not None and not c.stopping]

@@ -270,24 +270,47 @@ class RlsFir(AdaptiveMethod):
     counts 1).  Bounds: each tap stays within ``bound`` x max|h0|
     of its designed value and moves at most ``rate`` x max|h0| per second; the covariance
     trace never exceeds ``trace_factor`` times its initial value.
+
+    Long filters (n > ``n_full``): the n x n covariance would cost O(n^2) per step, so
+    the same RLS adapts instead a correction ``C`` of ``n_correction`` taps that multiplies
+    the designed H: ``H = H0 (1 + C)``, C started at 0 (its regressor is the measured
+    history through H0; each c_i within +-``correction_bound``, moving at most ``rate``
+    per second).  A plant change ``T -> T (1 + delta)`` asks ``C = 1/(1 + delta) - 1``,
+    smooth over the band: a short FIR spans it (a gain change is c_0 alone).  The cost per
+    step is O(n + n_correction^2).
     """
 
     name = 'rls_fir'
 
     def __init__(self, design, plant, guards=None, forgetting=0.995, prior=1.0, bound=0.5,
-                 rate=2.0, trace_factor=10.0, lowpass_hz=30.0):
+                 rate=2.0, trace_factor=10.0, lowpass_hz=30.0, n_full=32, n_correction=16,
+                 correction_bound=2.0):
         super().__init__(design, guards)
         if not 0.9 < forgetting < 1.0:
             raise ValueError(f'rls_fir forgetting factor {forgetting} must lie in (0.9, 1)')
+        if int(n_correction) < 1:
+            raise ValueError(f'rls_fir n_correction {n_correction} must be >= 1 (taps of the '
+                             'correction of a long filter)')
         h0, pre_b, pre_a = split_fir(design, plant, self.fs_hz)
         self.h0 = h0
         self.h = h0.copy()
         n = h0.size
+        self.correction = n > int(n_full)
+        m = int(n_correction) if self.correction else n
+        self.n_adapt = m            # adapted coefficients
         self.lam = float(forgetting)
-        scale = float(np.max(np.abs(h0)))
-        self.lower = h0 - bound * scale
-        self.upper = h0 + bound * scale
-        self.max_step = rate * scale * self.dt
+        if self.correction:
+            self.c = np.zeros(m)
+            self.lower = np.full(m, -correction_bound)
+            self.upper = np.full(m, correction_bound)
+            self.max_step = rate * self.dt
+            self._s = _Ring(m)      # target history through H0 (the command's correction)
+            self._r = _Ring(m)      # regressor history through H0 (the regression's)
+        else:
+            scale = float(np.max(np.abs(h0)))
+            self.lower = h0 - bound * scale
+            self.upper = h0 + bound * scale
+            self.max_step = rate * scale * self.dt
         self.prior = float(prior)
         self.trace_factor = float(trace_factor)
         self.P = None               # set at the first adapting step (scale of the regressor)
@@ -308,7 +331,12 @@ class RlsFir(AdaptiveMethod):
     def _command(self, target):
         self._one[0] = target
         self._v.push(self._pre_target.step(self._one)[0])
-        u = float(self.h @ self._v.view())
+        if self.correction:
+            s = float(self.h0 @ self._v.view())
+            self._s.push(s)
+            u = s + float(self.c @ self._s.view())
+        else:
+            u = float(self.h @ self._v.view())
         self._u_prev = u
         return u
 
@@ -319,32 +347,50 @@ class RlsFir(AdaptiveMethod):
         pair[1] = self._u_prev
         w_f, u_f = self._lp.step(pair)
         self._w.push(w_f)
-        self._ms_w += self._monitor.alpha * (w_f * w_f - self._ms_w)
-        if not adapt:
-            return
-        phi = self._w.view()
+        if self.correction:
+            known = float(self.h0 @ self._w.view())
+            self._r.push(known)
+            phi, theta = self._r.view(), self.c
+            u_f -= known
+            self._ms_w += self._monitor.alpha * (known * known - self._ms_w)
+        else:
+            phi, theta = self._w.view(), self.h
+            self._ms_w += self._monitor.alpha * (w_f * w_f - self._ms_w)
+        if adapt:
+            theta[:] = self._rls(phi, theta, u_f)
+
+    def _rls(self, phi, theta, u_f):
+        """One RLS step of ``u_f = theta . phi``: the bounded new theta."""
         if self.P is None:
             size = phi.size * self._ms_w
             if not size > 0.0:
-                return
+                return theta
             self.P = np.eye(phi.size) * (self.prior / size)
             self.trace_max = self.trace_factor * np.trace(self.P)
         pphi = self.P @ phi
         r = float(phi @ pphi)
         if not r > 0.0:
-            return
-        err = u_f - self.h @ phi
-        new = self.h + pphi * (err / (1.0 + r))
-        self.h = _clip_step(new, self.h, self.lower, self.upper, self.max_step)
+            return theta
+        err = u_f - theta @ phi
+        new = theta + pphi * (err / (1.0 + r))
+        new = _clip_step(new, theta, self.lower, self.upper, self.max_step)
         # directional forgetting: P <- P - P phi phi' P eps / (lam (1 + r)),
         # eps = lam - (1 - lam) / r  (eps < 0 re-inflates P along phi only)
         eps = self.lam - (1.0 - self.lam) / r
         if eps < 0.0 and np.trace(self.P) > self.trace_max:
             eps = 0.0
         self.P -= np.outer(pphi, pphi * (eps / (self.lam * (1.0 + r))))
+        return new
 
     def coefficients(self):
-        """Return the current taps h of H (the adapted part of G)."""
+        """Return the current taps of H, the adapted part of G.
+
+        A long filter has n + n_correction - 1 of them: ``H0 (1 + C)``.
+        """
+        if self.correction:
+            one_plus_c = self.c.copy()
+            one_plus_c[0] += 1.0
+            return np.convolve(self.h0, one_plus_c)
         return self.h.copy()
 
 

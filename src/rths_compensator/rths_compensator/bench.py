@@ -128,6 +128,7 @@ def run_study(seed: int = 2024, noise_m: float = 2e-6, eval_s: float = 60.0,
     with Progress(na_max * nb_max, 'ARX grid', 'models') as bar:
         model, info, grid = identify(train, val, fs_hz, na_max, nb_max, 0, 'bic',
                                      progress=bar.report)
+        bar.update(bar.total)                         # (the grid reports every 100 models)
     arx_s = time.perf_counter() - t0
     zeros = np.roots(model.b) if model.nb > 1 else np.array([])
     log(f'      selected (BIC) na={model.na} nb={model.nb} d={model.d} in {arx_s:.1f} s; '

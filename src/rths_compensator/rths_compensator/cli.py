@@ -145,6 +145,7 @@ def cmd_identify(args) -> int:
     with Progress(0, 'identify: ARX models') as bar:
         model, info, _ = identify(train, val, fs, args.na_max, args.nb_max, args.d_max,
                                   args.criterion, args.error, progress=bar.report)
+        bar.update(bar.total)                         # (the grid reports every 100 models)
     info['source'] = str(args.bag or args.csv)
     save_plant(args.out, model, info)
     print(f'selected ({args.criterion}): na={model.na} nb={model.nb} d={model.d}, '

@@ -239,3 +239,27 @@ def test_channel_methods_from_params(setup, tmp_path):
         applied = cmd if k < 1500 else cmd + 1e-3   # from 1500 on the bridge holds/limits
     assert amb.coefficients().size == 8
     assert amb.status.state == 'frozen' and 'bridge changed the command' in amb.status.reason
+
+
+def test_rls_fir_adapts_a_short_correction_of_a_long_fir(setup, gain_step):
+    """A 128-tap H: a 16-tap correction C (H = H0 (1 + C)) adapts; the gain drop is followed."""
+    plant, _ = setup
+    x, kc, after, fir_error = gain_step
+    design = design_fir(plant, n_taps=128, fc_hz=64.0, scheme='ls', fs_hz=FS, zero_tol=0.98)
+    method = RlsFir(design, plant)
+    assert method.correction and method.n_adapt == 16
+    y = closed_loop(method, Plant(*plant), x, change_at=kc, gain=0.85)
+    assert method.P.shape == (16, 16) and method.coefficients().size == 128 + 15
+    assert not method.fallen_back and np.all(np.abs(method.c) <= 2.0)
+    assert relative_rms_pct(x[after], y[after]) < 1.0 < 10.0 < fir_error
+
+
+def test_rls_fir_up_to_n_full_taps_adapts_every_tap(setup):
+    plant, design = setup
+    x = target(3.0)
+    runs = [closed_loop(RlsFir(design, plant, n_full=n_full), Plant(*plant), x,
+                        change_at=1024, gain=0.9) for n_full in (32, 1000)]
+    assert np.array_equal(runs[0], runs[1])
+    assert not RlsFir(design, plant).correction and RlsFir(design, plant, n_full=16).correction
+    with pytest.raises(ValueError, match='n_correction'):
+        RlsFir(design, plant, n_full=16, n_correction=0)

@@ -91,7 +91,11 @@ def bench_real_cmd(args) -> int:
     if not data_dir or not os.path.isdir(data_dir):
         raise OSError('--data DIR (or RTHS_DATA_DIR) must name the directory holding '
                       'DATA_EMPS.mat and the MR-damper .txt files (README: real data)')
-    summary = restoring.run_real(data_dir, out_dir=args.reports, progress=_say)
+    from rths_common.progress import Progress
+
+    with Progress(len(restoring.REAL), 'real records') as bar:
+        summary = restoring.run_real(data_dir, out_dir=args.reports,
+                                     progress=lambda text: bar.write(text), count=bar.report)
     tmp = f'{args.out}.tmp'
     with open(tmp, 'w') as fh:
         json.dump(summary, fh, indent=1)
@@ -137,7 +141,11 @@ def run_discrepancy_cmd(args) -> int:
             _say(f"nominal model: the run's damper {run[1].get('dtm', 'valve4')} "
                  f'(m_d {model.m_d:g} kg, c_d {model.c_d:g} N s/m, k_d {model.k_d:g} N/m)')
     _say(f'rths discrepancy: {args.scenario}, {len(data["time"])} samples from {args.measured}')
-    res = run_discrepancy(args.scenario, data, model=model, out_dir=args.out, progress=_say)
+    from rths_common.progress import Progress
+
+    with Progress(0, 'candidate models') as bar:
+        res = run_discrepancy(args.scenario, data, model=model, out_dir=args.out,
+                              progress=lambda text: bar.write(text), count=bar.report)
     for line in res['localization']['summary']:
         print(f'where: {line}')
     print(f"effect: {res['effect']}")
@@ -153,9 +161,10 @@ def run_discrepancy_cmd(args) -> int:
     print(f'wrote {args.out}/result.json, updated_model.yaml, report.md and PNG plots')
     if run is not None and res['effect'] not in ('none', 'unexplained'):
         _say('re-running the reference of the run with the updated specimen model')
-        cmp = rerun.compare(args.measured, models.model_from_dict('specimen',
-                                                                  res['updated_model']),
-                            config=args.config, nominal_model=model)
+        with Progress(3, 'reference simulations') as bar:
+            cmp = rerun.compare(args.measured, models.model_from_dict('specimen',
+                                                                      res['updated_model']),
+                                config=args.config, nominal_model=model, progress=bar.report)
         _write_reference(cmp, args.out)
     return 0
 
@@ -181,8 +190,11 @@ def reference_cmd(args) -> int:
         raise OSError(f'{args.bag}: no such bag directory')
     if not os.path.isfile(args.specimen_model):
         raise OSError(f'--specimen-model {args.specimen_model}: no such file')
+    from rths_common.progress import Progress
+
     updated = models.load_model('specimen', args.specimen_model)
-    cmp = rerun.compare(args.bag, updated, config=args.config)
+    with Progress(3, 'reference simulations') as bar:
+        cmp = rerun.compare(args.bag, updated, config=args.config, progress=bar.report)
     _write_reference(cmp, args.out or os.path.join(os.path.dirname(
         os.path.abspath(args.specimen_model)), 'reference'))
     return 0

@@ -115,11 +115,12 @@ def rths_floor_displacement(bag, sub) -> np.ndarray:
     return desired[:n] - ug
 
 
-def compare(bag, updated_model, config=None, nominal_model=None) -> dict:
+def compare(bag, updated_model, config=None, nominal_model=None, progress=None) -> dict:
     """RTHS-vs-reference relative RMS error [%] with the nominal and the updated specimen model.
 
     ``updated_model`` is a :class:`.models.SpecimenModel` or a YAML path;
-    ``nominal_model`` defaults to the run's Table 4 damper.
+    ``nominal_model`` defaults to the run's Table 4 damper.  ``progress(done, 3)``
+    follows the three simulations (nominal, updated, whole numerical).
     """
     from rths_numerical.dtm import FRAME_MASS_KG
     from rths_numerical.reference import coupled_rths, relative_rms_error, simulate_reference
@@ -140,16 +141,22 @@ def compare(bag, updated_model, config=None, nominal_model=None) -> dict:
     out = {'bag': str(bag), 'steps': n, 'duration_s': n * sub.dt,
            'nominal_model': nominal.to_dict(), 'updated_model': updated_model.to_dict()}
     refs = {}
-    for label, model in (('nominal', nominal), ('updated', updated_model)):
+    for k, (label, model) in enumerate((('nominal', nominal), ('updated', updated_model))):
+        if progress:
+            progress(k, 3)
         hist = coupled_rths(make_substructure(numerical), specimen(model, sub.dt, frame))
         refs[label] = hist['output_disp'][:n]
         out[f'rths_vs_{label}_reference_rel_rms_pct'] = relative_rms_error(floor2, refs[label])
         out[f'{label}_reference_max_disp_2nd_m'] = float(np.max(np.abs(refs[label])))
+    if progress:
+        progress(2, 3)
     whole = simulate_reference(sub.model, sub.ag, sub.dt, damper=_params(nominal),
                                n_dtm=sub.force_scale, frame_mass_kg=frame or FRAME_MASS_KG,
                                integrator=numerical.get('integrator', 'cr'))
     out['rths_vs_linear_whole_numerical_rel_rms_pct'] = relative_rms_error(
         floor2, whole['disp'][:n])
+    if progress:
+        progress(3, 3)
     out['rths_max_disp_2nd_m'] = float(np.max(np.abs(floor2)))
     before = out['rths_vs_nominal_reference_rel_rms_pct']
     after = out['rths_vs_updated_reference_rel_rms_pct']

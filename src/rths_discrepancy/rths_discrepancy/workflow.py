@@ -360,8 +360,10 @@ def _label(names):
     return '+'.join(sorted(names, key=fx.EFFECT_NAMES.index))
 
 
-def select(ctx, progress=None):
+def select(ctx, progress=None, count=None):
     """Fit all candidates and decide; return a dict with the decision and the evidence.
+
+    ``count(done, most)`` gets the candidates fitted so far and the most there can be.
 
     Scores are noise-normalised held-out mean square errors (:meth:`Context.score`),
     so the white-noise floor is ``ctx.channels`` and every threshold is in units
@@ -376,8 +378,11 @@ def select(ctx, progress=None):
     def add(names):
         params, pred, pred_f, align = fit_candidate(ctx, names)
         fits[_label(names)] = (params, pred, ctx.score(pred, pred_f, ctx.test), align)
+        if count:
+            count(len(fits), most)
 
     names = [n for n in fx.EFFECT_NAMES if n in ctx.lib]
+    most = len(names) * (len(names) + 1) // 2            # every single and every pair
     for name in names:
         add([name])
     singles = sorted(names, key=lambda k: fits[k][2])
@@ -391,6 +396,8 @@ def select(ctx, progress=None):
         for a, b in itertools.combinations(names, 2):
             if _label([a, b]) not in fits:
                 add([a, b])
+    if count:
+        count(len(fits), len(fits))
     if progress:
         progress(f'fitted {len(fits)} candidates')
     best1 = singles[0]
@@ -456,13 +463,14 @@ def coverage(ctx, pred):
 
 
 def run_discrepancy(scenario, data, model=None, out_dir=None, rng=None, progress=None,
-                    plots=True):
+                    plots=True, count=None):
     """Run the workflow on ``data`` (column -> array, see :mod:`.io`); return result.json's dict.
 
     ``model`` is a model object of :mod:`.models`, a YAML dict, or None (Table 4
     valve #4 / Table 1 3-pole).  With ``out_dir``, writes result.json,
     updated_model.yaml, report.md and PNG plots there.  ``rng`` is accepted
-    for interface stability (the workflow itself is deterministic).
+    for interface stability (the workflow itself is deterministic).  ``progress(text)``
+    gets the steps, ``count(done, most)`` the candidates fitted (:func:`select`).
     """
     del rng
     data = dio.validate(scenario, data)
@@ -482,7 +490,7 @@ def run_discrepancy(scenario, data, model=None, out_dir=None, rng=None, progress
     if unbalanced:
         say('warning: the training and held-out blocks excite the discrepancy unequally '
             f'(residual excess {gap_tr:.3g} vs {gap_te:.3g} noise variances)')
-    sel = select(ctx, progress=say)
+    sel = select(ctx, progress=say, count=count)
     decision = sel['decision']
     te = ctx.test
     noise = math.sqrt(ctx.sigma2) / float(np.std(ctx.y[te]))
