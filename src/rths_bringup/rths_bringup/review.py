@@ -125,12 +125,18 @@ def _numerical_params(info: dict) -> dict:
     return core_params(runinfo.section(info, 'numerical'))
 
 
-def review_rths(bag, out_dir) -> dict:
+#: Stages of :func:`review_rths` reported to its ``progress``.
+REVIEW_STAGES = 4
+
+
+def review_rths(bag, out_dir, progress=None) -> dict:
     """Tables 5-9 of an RTHS bag: JSON summary, text report, PNG plots and ``report.html``.
 
     ``report.html`` (:mod:`rths_bringup.report_html`) holds the tables and every
-    plot in one self-contained file.
+    plot in one self-contained file.  ``progress(done, 4)`` follows the stages: bag
+    read, references simulated, plots drawn, report written.
     """
+    stage = progress or (lambda done, total: None)
     import json
 
     from rths_common import runinfo
@@ -183,6 +189,7 @@ def review_rths(bag, out_dir) -> dict:
     if not ok.all():
         n = int(np.argmin(ok))
         desired, applied, measured = desired[:n], applied[:n], measured[:n]
+    stage(1, REVIEW_STAGES)
 
     # Table 5: the plant (command -> measured; with D > 0 it includes the D-step delay line)
     # and the compensated actuator (desired -> measured)
@@ -210,6 +217,7 @@ def review_rths(bag, out_dir) -> dict:
                                        integrator=numerical.get('integrator', 'cr'),
                                        uncontrolled=uncontrolled) if damper != 'none' else None
     ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
+    stage(2, REVIEW_STAGES)
     unc = uncontrolled['metrics']
     max_d, rms_d = float(np.max(np.abs(floor2))), float(np.sqrt(np.mean(floor2 ** 2)))
     bridge_steps = max(len(status.get('step', [])), 1)
@@ -250,8 +258,10 @@ def review_rths(bag, out_dir) -> dict:
         (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
         _hysteresis_plot(out_dir / 'mr_hysteresis.png', measured, meas['force'][:n, 0], fs,
                          f"MR damper at {summary['mr_voltage_v']:g} V (measured)")
+    stage(3, REVIEW_STAGES)
     from rths_bringup.report_html import write_report
     write_report(out_dir, summary)
+    stage(4, REVIEW_STAGES)
     return summary
 
 

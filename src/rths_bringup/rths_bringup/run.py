@@ -310,7 +310,7 @@ def cmd_run(args) -> int:
 
 def _run(args) -> int:
     from rths_bringup.cli import main as rths_main
-    from rths_bringup.review import print_review, review_rths
+    from rths_bringup.review import print_review
 
     if not args.force_scale > 0:
         raise ValueError(f'--force-scale must be > 0 (DTMs the one in the lab stands for), '
@@ -414,7 +414,7 @@ def _run(args) -> int:
 
     # 4: review
     _say('step 4: review')
-    summary = review_rths(rths_dir / 'bag', out)
+    summary = _review(rths_dir / 'bag', out)
     summary['adaptive'] = args.adaptive
     (out / 'summary.json').write_text(json.dumps(summary, indent=2))
     print_review(summary)
@@ -443,13 +443,22 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path) -> in
     return EXIT_SAFETY_STOP
 
 
+def _review(bag, out) -> dict:
+    """Run :func:`rths_bringup.review.review_rths` with a progress line over its stages."""
+    from rths_bringup.review import REVIEW_STAGES, review_rths
+    from rths_common.progress import Progress
+
+    with Progress(REVIEW_STAGES, 'review', 'stages') as bar:
+        return review_rths(bag, out, progress=bar.report)
+
+
 def cmd_review(args) -> int:
     """``rths review``."""
-    from rths_bringup.review import print_review, review_rths
+    from rths_bringup.review import print_review
 
     bag = Path(args.bag)
     out = Path(args.out) if args.out else bag.parent
-    summary = review_rths(bag, out)
+    summary = _review(bag, out)
     print_review(summary)
     print(f'wrote {out}/report.html, {out}/summary.json, {out}/review.txt and plots')
     return 0

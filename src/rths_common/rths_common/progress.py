@@ -64,6 +64,11 @@ def format_eta(seconds: float | None) -> str:
     return f'{hours}:{minutes:02d}:{secs:02d}' if hours else f'{minutes}:{secs:02d}'
 
 
+def format_rate(rate: float) -> str:
+    """Return ``N/s``, or ``T s each`` when a step takes longer than a second."""
+    return f'{1.0 / rate:.3g} s each' if 0 < rate < 1 else f'{rate:.4g}/s'
+
+
 def line(label: str, done: int, total: int, elapsed_s: float, unit: str = '') -> str:
     """Return the progress text: ``label: done/total unit (pct %), rate/s, ETA m:ss``."""
     unit = f' {unit}' if unit else ''
@@ -71,8 +76,8 @@ def line(label: str, done: int, total: int, elapsed_s: float, unit: str = '') ->
     if total:
         eta = (total - done) / rate if rate > 0 else None
         return (f'{label}: {done}/{total}{unit} ({100.0 * done / total:3.0f} %), '
-                f'{rate:.4g}/s, ETA {format_eta(eta)}')
-    return f'{label}: {done}{unit}, {rate:.4g}/s, {format_eta(elapsed_s)} elapsed'
+                f'{format_rate(rate)}, ETA {format_eta(eta)}')
+    return f'{label}: {done}{unit}, {format_rate(rate)}, {format_eta(elapsed_s)} elapsed'
 
 
 class Progress:
@@ -102,8 +107,8 @@ class Progress:
         if self.total and self.done >= self.total:
             rate = self.done / elapsed if elapsed > 0 else 0.0
             unit = f' {self.unit}' if self.unit else ''
-            return (f'{self.label}: {self.done}/{self.total}{unit} (100 %), {rate:.4g}/s, '
-                    f'done in {format_eta(elapsed)}')
+            return (f'{self.label}: {self.done}/{self.total}{unit} (100 %), '
+                    f'{format_rate(rate)}, done in {format_eta(elapsed)}')
         return line(self.label, self.done, self.total, elapsed, self.unit)
 
     def _pct(self) -> float:

@@ -123,7 +123,7 @@ def test_track_counts_the_items():
         return clock.t
 
     assert list(progress.track(range(4), 'runs', stream=out, clock=tick)) == [0, 1, 2, 3]
-    assert out.getvalue().splitlines()[-1].startswith('runs: 4/4 (100 %)')
+    assert out.getvalue().splitlines()[-1] == 'runs: 4/4 (100 %), 1.5 s each, done in 0:06'
 
 
 def test_eta_and_unknown_totals():

@@ -91,7 +91,11 @@ def bench_real_cmd(args) -> int:
     if not data_dir or not os.path.isdir(data_dir):
         raise OSError('--data DIR (or RTHS_DATA_DIR) must name the directory holding '
                       'DATA_EMPS.mat and the MR-damper .txt files (README: real data)')
-    summary = restoring.run_real(data_dir, out_dir=args.reports, progress=_say)
+    from rths_common.progress import Progress
+
+    with Progress(len(restoring.REAL), 'real records') as bar:
+        summary = restoring.run_real(data_dir, out_dir=args.reports,
+                                     progress=lambda text: bar.write(text), count=bar.report)
     tmp = f'{args.out}.tmp'
     with open(tmp, 'w') as fh:
         json.dump(summary, fh, indent=1)

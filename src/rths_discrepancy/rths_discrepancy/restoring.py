@@ -714,13 +714,18 @@ def emps_comparison(result):
             'within_10_percent': bool(len(errors) == 4 and max(errors.values()) <= 0.10)}
 
 
-def run_real(data_dir, out_dir=None, progress=None):
-    """Run every record of :data:`REAL` found under ``data_dir``; return the summary."""
+def run_real(data_dir, out_dir=None, progress=None, count=None):
+    """Run every record of :data:`REAL` found under ``data_dir``; return the summary.
+
+    ``progress(text)`` gets the steps, ``count(done, total)`` the records done.
+    """
     import os
     import time
     say = progress or (lambda msg: None)
     rows = []
     for label, kind, name, target in REAL:
+        if count:
+            count(len(rows), len(REAL))
         path = find_file(data_dir, name)
         if path is None:
             say(f'{label}: {name} not found under {data_dir}; skipped')
@@ -747,6 +752,8 @@ def run_real(data_dir, out_dir=None, progress=None):
                 any(k in res['parameters'] for k in ('coulomb_friction', 'asymmetric_friction'))
                 and 'force_offset' in res['parameters'])
         rows.append(row)
+    if count:
+        count(len(rows), len(REAL))
     return {'records': rows,
             'sources': {
                 'EMPS': 'github.com/forgi86/sysid-neural-continuous, examples/EMPS/data '
