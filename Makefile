@@ -24,7 +24,8 @@ test: setup  ## build and run every test through colcon test; non-zero on any fa
 lint: setup  ## ruff over src/ and test/ (ruff.toml), mypy on rths_common and the three step cores (mypy.ini)
 	@source env.sh && ruff check src test && \
 	  mypy --config-file mypy.ini -p rths_common -p rths_numerical.substructure \
-	    -p rths_compensator.filters -p rths_actuator_bridge.bridge && \
+	    -p rths_compensator.filters -p rths_compensator.core -p rths_numerical.stepping \
+	    -p rths_actuator_bridge.bridge && \
 	  echo "make lint: clean"
 
 setup-opensees: setup  ## optional: install OpenSeesPy (backend: opensees; not open source for commercial use)

@@ -4,6 +4,10 @@ The ROS node is a thin shell over :class:`Bridge`: on configure it calls
 :meth:`Bridge.configure`, on activate :meth:`Bridge.activate`, per loop step
 :meth:`Bridge.step` (with the step's command, or None when none arrived in
 time), and on the emergency-stop topic/service :meth:`Bridge.emergency_stop`.
+``Bridge.step(k, command) -> StepResult`` is the loop cores' step contract
+(:mod:`rths_common.stepping`); its missing-input policy is the safety
+supervisor's: a missing command (None) is extrapolated at constant velocity
+within every limit, ``watchdog_steps`` misses in a row trip hold -> ramp -> stop.
 Lifecycle: nothing is written to the backend before configure + activate;
 when the supervisor reaches STOPPED the backend is deactivated.
 
@@ -19,9 +23,9 @@ D identifies it, and the compensator designed on that plant compensates it
 write the command of step 0 (the position at rest).
 """
 
-from dataclasses import dataclass, field
-
 import numpy as np
+
+from rths_common import stepping
 
 from . import safety
 from .backend import Backend
@@ -60,17 +64,33 @@ def make_backend(params: dict) -> Backend:
     return backend
 
 
-@dataclass
-class StepResult:
-    """What one bridge step did (fields map onto Measurement and LoopStatus messages)."""
+class StepResult(stepping.StepResult):
+    """What one bridge step did: ``arrays`` = (applied, displacement, force) of Measurement.
 
-    step: int
-    applied: np.ndarray          # [m] command written (after safety), empty if none
-    displacement: np.ndarray     # [m] measured (NaN if lost / nothing written)
-    force: np.ndarray            # [N] measured
-    state: int                   # safety state (LoopStatus.SAFETY_*)
-    fault: str = ''
-    channels: dict = field(default_factory=dict)
+    ``applied`` [m]: the command written (after safety), empty if none;
+    ``displacement`` [m] and ``force`` [N]: measured (NaN if nothing was written).
+    """
+
+    __slots__ = ()
+
+    def __init__(self, step: int, applied, displacement, force, state: int, fault: str = '',
+                 channels=None):
+        super().__init__(step, (applied, displacement, force), 0, state, fault, False, channels)
+
+    @property
+    def applied(self) -> np.ndarray:
+        """Return the command written [m] (after safety), empty if none."""
+        return self.arrays[0]
+
+    @property
+    def displacement(self) -> np.ndarray:
+        """Return the measured displacement [m]."""
+        return self.arrays[1]
+
+    @property
+    def force(self) -> np.ndarray:
+        """Return the measured force [N]."""
+        return self.arrays[2]
 
 
 #: Largest command delay line [steps] (0.5 s at 1024 Hz: far beyond any lab network).
@@ -117,6 +137,7 @@ class Bridge:
         self.backend = None
         self.supervisor = safety.SafetySupervisor()
         self.delay = DelayLine(0)
+        self.next_step = 0   # the tick after the last one stepped
 
     @property
     def delay_steps(self) -> int:
@@ -165,6 +186,7 @@ class Bridge:
     def step(self, step: int, command=None) -> StepResult:
         """Run tick ``step``: write ``command`` [m] now (None: none arrived: extrapolate)."""
         sup = self.supervisor
+        self.next_step = step + 1
         out, state, fault = sup.filter(step, command)
         backend = self.backend
         if (out is not None and backend is not None and backend.n_channels == 1

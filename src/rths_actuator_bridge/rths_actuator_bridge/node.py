@@ -17,9 +17,11 @@ import numpy as np
 import rclpy
 from std_msgs.msg import String, UInt64
 
-from rths_common import cdr, topics
 from rths_common import node_support as ns
+from rths_common import topics
 from rths_common.qos import loop_qos, run_info_qos, status_qos
+from rths_common.stepping import Driver, TickClock
+from rths_common.transport import Transport
 from rths_msgs.msg import Command, LoopStatus, Measurement, Specimen
 from rths_msgs.srv import EmergencyStop
 
@@ -88,7 +90,7 @@ class BridgeNode:
         self.own = {k: ns.param(params, k, v) for k, v in NODE_PARAMS.items()}
         params = check_bridge_params(params)
         self.log = self.node.get_logger()
-        self.realtime = self.own['mode'] == 'realtime'
+        self.lockstep = self.own['mode'] == 'lockstep'
         if self.own['mode'] not in ('lockstep', 'realtime'):
             raise ValueError(f"bridge node: mode {self.own['mode']!r}: use lockstep or realtime")
         if self.own['clock'] not in CLOCKS:
@@ -104,14 +106,13 @@ class BridgeNode:
         # in realtime only when asked for, each publish costs tens of microseconds).
         self.specimen_pub = None
         publish = self.own['publish_specimen']  # 'auto': in lock-step only
-        if publish is True or publish == 'true' or (publish == 'auto' and not self.realtime):
+        if publish is True or publish == 'true' or (publish == 'auto' and self.lockstep):
             self.specimen_pub = self.node.create_publisher(Specimen, topics.SPECIMEN, status_qos())
         ns.wait_for_readers(self.node, self.pub, self.own['wait_for_subscribers'])
-        if self.realtime:  # lean messages: CDR bytes in and out (rths_common.cdr)
-            self.node.create_subscription(Command, topics.COMMAND, self.on_command_raw, qos,
-                                          raw=True)
-        else:
-            self.node.create_subscription(Command, topics.COMMAND, self.on_command, qos)
+        raw = not self.lockstep   # lean messages: CDR bytes in and out (rths_common.cdr)
+        self.io_in = Transport(Command, ('command',), raw)
+        self.io_out = Transport(Measurement, ('applied', 'displacement', 'force'), raw)
+        self.node.create_subscription(Command, topics.COMMAND, self.on_command, qos, raw=raw)
         self.node.create_subscription(String, topics.EMERGENCY_STOP, self.on_estop_topic, 10)
         self.node.create_service(EmergencyStop, topics.EMERGENCY_STOP_SERVICE, self.on_estop_srv)
         # Command source guard: only the configured node's writer may command the actuator.
@@ -121,30 +122,26 @@ class BridgeNode:
         self.last_scan = float('-inf')  # monotonic time of the last scan for the source's gids
         self.clock = ns.StepClock()
         self.step = -1                 # last step written to the backend
-        self.expected = 0
-        self.rejected = 0
+        # lock-step: a command's arrival is its tick; realtime: the clock hands k to the bridge
+        self.driver = Driver(self.bridge, True, self.on_reject, step=self.tick_now)
+        self.ticks = None if self.lockstep else TickClock(self.fs_hz)
         self.last_command_t = None
         self.stopped = False
         self.fault_logged = False
         self.stop_timer = None
         self.node.create_timer(0.1, self.watchdog)
-        # realtime clock state
-        self.period_ns = int(round(1e9 / self.fs_hz))
-        self.t0_ns = None              # monotonic time of tick 0
-        self.k = 0                     # next tick's step
         self.n_steps = None            # steps of the run (from the numerical node)
         self.late = 0                  # commands that arrived after their tick
-        self.overruns = 0              # ticks more than a period late (clock re-anchored)
         self.run_over = False
         self.clock_timer = None
         self.timing = {'tick_step': [], 'tick_wall_ns': [], 'tick_late_ns': [], 'missed': [],
                        'recv_step': [], 'recv_wall_ns': [], 'recv_stamp_ns': []}
         self.cpu_loop = None
-        if self.realtime:
+        if self.ticks is not None:
             self.node.create_subscription(UInt64, topics.RUN_STEPS, self.on_run_steps,
                                           run_info_qos())
             self.tuning = ns.tune_process(*ns.tuning(self.own, 'bridge'))
-            self.log.info(f"realtime: bridge is the clock at {self.fs_hz:g} Hz "
+            self.log.info(f"{self.own['mode']}: bridge is the clock at {self.fs_hz:g} Hz "
                           f"(clock {self.own['clock']}, executor {self.own['executor']}); "
                           f'{self.tuning}')
         self.log.info(f'bridge configured: backend {params.get("backend", "simulated")}, '
@@ -246,61 +243,66 @@ class BridgeNode:
                              f'ignored; {self.foreign_rejected} foreign command(s) so far')
         return False
 
-    def on_command(self, msg: Command):
-        """Apply the command of step k and publish the measurement of step k."""
+    @property
+    def rejected(self) -> int:
+        """Return (lock-step) the count of commands of another step than the expected one."""
+        return self.driver.rejected
+
+    def on_reject(self, step: int, expected: int):
+        """Log a lock-step command of another step than the expected one."""
+        self.log.warning(f'command of step {step} ignored: expected step '
+                         f'{expected} (duplicate or out of order)')
+
+    def on_command(self, msg):
+        """Take the command of step k: lock-step, its tick is now; else it waits for its tick."""
         t_in = ns.now_ns()
         if self.stopped:
             return
-        if not self.command_from_source(msg.header.frame_id, msg.step):
-            return
-        if msg.step != self.expected:
-            self.rejected += 1
-            self.log.warning(f'command of step {msg.step} ignored: expected step '
-                             f'{self.expected} (duplicate or out of order)')
-            return
-        self.expected += 1
-        self.last_command_t = time.monotonic()
-        if self.stop_timer is not None:
-            return  # an autonomous safe stop is running; commands are ignored
-        self.bridge.receive(msg.step, list(msg.command))
-        self.apply(msg.step, self.bridge.due(msg.step), t_in,   # step - D's (command_delay_steps)
-                   latency_us=(t_in - ns.stamp_ns(msg.header)) * 1e-3)
-
-    # ---------------------------------------------------------------- realtime
-    def on_run_steps(self, msg: UInt64):
-        """Take the number of steps of the run (lock-step: the loop ends there)."""
-        self.n_steps = int(msg.data)
-
-    def on_command_raw(self, data: bytes):
-        """Keep the newest command for its tick; the first command starts the clock."""
-        t_in = ns.now_ns()
-        if self.stopped:
-            return
-        stamp_ns, step, command = cdr.unpack_step_arrays(data)
-        if not self.command_from_source(cdr.sender_of(data), step):
+        stamp_ns, step, (command,) = self.io_in.decode(msg)
+        if not self.command_from_source(self.io_in.sender(msg), step):
             return
         timing = self.timing
         timing['recv_step'].append(step)
         timing['recv_wall_ns'].append(t_in)
         timing['recv_stamp_ns'].append(stamp_ns)
         latency_us = (t_in - stamp_ns) * 1e-3
-        if self.t0_ns is None:
+        if self.ticks is not None:
+            self.offer(step, (command, latency_us))
+        elif self.stop_timer is None:   # else an autonomous safe stop runs: commands ignored
+            self.last_command_t = time.monotonic()
+            self.driver.feed(step, (command, latency_us))
+
+    def tick_now(self, step: int, command):
+        """Lock-step tick ``step``: the command of step - D (command_delay_steps) is written."""
+        self.bridge.receive(step, command)
+        due = self.bridge.due(step)
+        command, latency_us = (None, -1.0) if due is None else due
+        return self.apply(step, command, ns.now_ns(), latency_us=latency_us)
+
+    def on_run_steps(self, msg: UInt64):
+        """Take the number of steps of the run (the clock stops there)."""
+        self.n_steps = int(msg.data)
+
+    def offer(self, step: int, command):
+        """Keep the newest command for its tick; the first command starts the clock."""
+        ticks = self.ticks
+        if not ticks.running:
             if step != 0:
                 return
-            self.bridge.receive(0, (command, latency_us))
+            self.bridge.receive(0, command)
             self.start_clock()
             return
-        if step + self.bridge.delay_steps < self.k:
+        if step + self.bridge.delay_steps < ticks.k:
             if step > 0:
                 self.late += 1  # its tick has passed: already counted as a miss
             return
-        self.bridge.receive(step, (command, latency_us))  # waits for tick step + D
+        self.bridge.receive(step, command)  # waits for tick step + D
 
     def start_clock(self):
         """Tick 0 is now; start the clock thread or timer if one is used."""
         from rclpy.clock import Clock, ClockType
 
-        self.t0_ns = time.monotonic_ns()
+        self.ticks.start(time.monotonic_ns())
         prio, cpus, _ = ns.tuning(self.own, 'bridge')
         self.tuning = ns.tune_process(prio, cpus, 'default')  # threads created since
         self.cpu_loop = [time.process_time(), None]
@@ -310,24 +312,26 @@ class BridgeNode:
         elif self.own['clock'] == 'timer':
             self.tick()
             steady = Clock(clock_type=ClockType.STEADY_TIME)
-            self.clock_timer = self.node.create_timer(self.period_ns * 1e-9, self.timer_tick,
+            self.clock_timer = self.node.create_timer(self.ticks.period_ns * 1e-9,
+                                                      self.timer_tick,
                                                       clock=steady)
 
     def next_due_ns(self):
         """Monotonic time of the next tick, or None when the clock is not running."""
-        if self.t0_ns is None or self.stopped:
+        ticks = self.ticks
+        if ticks is None or not ticks.running or self.stopped:
             return None
-        if self.n_steps is not None and self.k >= self.n_steps:
+        if self.n_steps is not None and ticks.k >= self.n_steps:
             from rths_actuator_bridge.safety import HOLD, RAMP
             if self.bridge.state not in (HOLD, RAMP):
                 if not self.run_over:
                     self.run_over = True
                     self.cpu_loop[1] = time.process_time()
-                    self.log.info(f'run complete after {self.k} ticks: holding the last '
+                    self.log.info(f'run complete after {ticks.k} ticks: holding the last '
                                   f'position; {self.clock.misses} deadline miss(es), '
-                                  f'{self.late} late command(s), {self.overruns} overrun(s)')
+                                  f'{self.late} late command(s), {ticks.overruns} overrun(s)')
                 return None
-        return self.t0_ns + self.k * self.period_ns
+        return ticks.due_ns()
 
     def timer_tick(self):
         """Run the ticks that are due (the timer clock)."""
@@ -336,15 +340,9 @@ class BridgeNode:
 
     def tick(self):
         """Tick k: write the newest command (or extrapolate: deadline miss), publish step k."""
-        due = self.t0_ns + self.k * self.period_ns
-        now = time.monotonic_ns()
-        late_ns = now - due
-        if late_ns > self.period_ns:   # a stall: re-anchor instead of bursting to catch up
-            self.overruns += 1
-            self.t0_ns = now - self.k * self.period_ns
-            # the stall policy (safety.py): the skipped ticks are missing commands
-            self.bridge.supervisor.stalled(late_ns // self.period_ns, self.k)
-        k = self.k
+        k, late_ns, skipped = self.ticks.take(time.monotonic_ns())
+        if skipped:   # a stall: the skipped ticks are missing commands (safety.py's policy)
+            self.bridge.supervisor.stalled(skipped, k)
         t_in = ns.now_ns()
         in_run = self.n_steps is None or k < self.n_steps
         due = self.bridge.due(k)   # (command, latency) of step k - D (command_delay_steps)
@@ -359,7 +357,6 @@ class BridgeNode:
         timing['tick_wall_ns'].append(t_in)
         timing['tick_late_ns'].append(late_ns)
         timing['missed'].append(missed)
-        self.k = k + 1
         self.apply(k, command, t_in, latency_us=latency_us, missed=missed)
 
     def save_timing(self):
@@ -369,8 +366,9 @@ class BridgeNode:
             return
         data = {key: np.asarray(val, dtype=np.int64) for key, val in self.timing.items()}
         cpu = self.cpu_loop or [0.0, 0.0]
+        ticks = self.ticks or TickClock(self.fs_hz)
         np.savez(path, **data, misses=self.clock.misses, late=self.late,
-                 overruns=self.overruns, period_ns=self.period_ns,
+                 overruns=ticks.overruns, period_ns=ticks.period_ns,
                  n_steps=-1 if self.n_steps is None else self.n_steps,
                  cpu_loop_s=(cpu[1] or time.process_time()) - cpu[0])
 
@@ -382,24 +380,11 @@ class BridgeNode:
         result = self.bridge.step(step, command)
         state, fault = result.state, result.fault
         self.step = step
-        if self.realtime:
-            self.pub.publish(cdr.pack_step_arrays(
-                ns.now_ns(), step, result.applied.tolist(), result.displacement.tolist(),
-                result.force.tolist()))
-            self.status_pub.publish(cdr.pack_status(
-                ns.now_ns(), 'bridge', step, self.clock.period_us(t_in),
-                (time.perf_counter_ns() - t0) * 1e-3, latency_us, missed, self.clock.misses,
-                state, fault))
-        else:
-            out = Measurement(step=step, applied=result.applied.tolist(),
-                              displacement=result.displacement.tolist(),
-                              force=result.force.tolist())
-            ns.stamp(out.header, ns.now_ns())
-            self.pub.publish(out)
-            self.status_pub.publish(ns.status_msg(
-                'bridge', step, period_us=self.clock.period_us(t_in),
-                compute_us=(time.perf_counter_ns() - t0) * 1e-3, latency_us=latency_us,
-                missed=missed, misses=self.clock.misses, safety_state=state, fault=fault))
+        self.pub.publish(self.io_out.encode(step, result.arrays))
+        self.status_pub.publish(self.io_out.status(
+            'bridge', step, period_us=self.clock.period_us(t_in),
+            compute_us=(time.perf_counter_ns() - t0) * 1e-3, latency_us=latency_us,
+            missed=missed, misses=self.clock.misses, safety_state=state, fault=fault))
         if self.specimen_pub is not None and result.channels:
             ch = result.channels
             spec = Specimen(step=step, table_accel=[float(ch.get('table_accel', np.nan))],
@@ -414,6 +399,7 @@ class BridgeNode:
         if state == STOPPED and not self.stopped:
             self.stopped = True  # Bridge.step has deactivated the backend
             self.log.error(f'safety stop at step {step}: {fault}; backend deactivated')
+        return result
 
     # ---------------------------------------------------------------- stops
     def start_safe_stop(self, reason: str):
@@ -422,7 +408,7 @@ class BridgeNode:
             return
         self.bridge.emergency_stop(reason)
         self.log.warning(f'safe stop: {reason}')
-        if self.realtime and self.t0_ns is not None and not self.run_over:
+        if self.ticks is not None and self.ticks.running and not self.run_over:
             return  # the clock's ticks drive hold, ramp and stop
         if self.stop_timer is None:
             self.stop_timer = self.node.create_timer(1.0 / self.fs_hz, self._stop_tick)
@@ -435,9 +421,10 @@ class BridgeNode:
 
     def watchdog(self):
         """Lock-step watchdog: no command for watchdog_timeout_s once the run has started."""
-        if self.t0_ns is None and self.last_command_t is None or not self.realtime:
+        clock_running = self.ticks is not None and self.ticks.running
+        if (not clock_running and self.last_command_t is None) or self.lockstep:
             self.scan_command_publishers()  # before and (lock-step) during the run
-        if self.realtime:
+        if not self.lockstep:
             return  # the supervisor's watchdog_steps watch every tick
         if (self.last_command_t is not None and not self.stopped and self.stop_timer is None
                 and time.monotonic() - self.last_command_t > self.own['watchdog_timeout_s']):
@@ -468,7 +455,7 @@ class BridgeNode:
         composed = nodes is not None
         nodes = self.node if nodes is None else nodes
         is_done = is_done or (lambda: self.stopped)
-        if self.realtime and self.own['clock'] == 'loop':
+        if self.ticks is not None and self.own['clock'] == 'loop':
             return ns.spin_clocked(nodes, executor, self.next_due_ns, self.tick, is_done,
                                    margin_us=self.own['spin_margin_us'],
                                    ready=self.command_due if composed else None)
@@ -476,7 +463,7 @@ class BridgeNode:
 
     def command_due(self) -> bool:
         """Return True if the command the next tick writes has arrived (composed: the drain)."""
-        step = self.k - self.bridge.delay_steps
+        step = self.ticks.k - self.bridge.delay_steps
         return step < 0 or step in self.bridge.delay.pending
 
     def finish_run(self) -> int:

@@ -63,7 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog='rths',
         description='Real-time hybrid simulation (RTHS) on ROS 2: run the node graph, '
                     'identify and compensate the actuator, simulate the building, review runs.',
-        epilog="Run 'rths COMMAND --help' for the options of one command.")
+        epilog="Run 'rths COMMAND --help' for the options of one command. Long commands show "
+               'their progress (steps, rate, ETA) on stderr: one redrawn line on a terminal, a '
+               'plain line per 10 % or 10 s in logs and pipes; --quiet turns it off.')
     commands = parser.add_subparsers(dest='command', metavar='COMMAND')
     commands.required = True
     bench = commands.add_parser(

@@ -136,7 +136,7 @@ class Container:
 
     def tune(self) -> str:
         """Realtime: the bridge's latency settings for the whole process, memory locked."""
-        if not self.bridge.realtime:
+        if self.bridge.lockstep:
             return 'lock-step: normal scheduling'
         text = ns.tune_process(*ns.tuning(self.bridge.own, 'bridge'))
         return f'{text}, {lock_memory()}'

@@ -356,6 +356,9 @@ class Launcher:
                     self.say('run finished')
                     break
                 dead = [c for c in self.children if c.returncode is not None and not c.stopping]
+                if dead and owner.returncode == 0:   # the owner exited since the check above
+                    self.say('run finished')
+                    break
                 if dead:
                     failed = dead[0]
                     where = (f' in the container (pid {failed.proc.pid})'

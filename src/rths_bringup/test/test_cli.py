@@ -1,6 +1,7 @@
 """The rths command line: every package's commands are registered, errors are clean."""
 
 import argparse
+import os
 
 import pytest
 
@@ -56,3 +57,20 @@ def test_every_command_help_formats(capsys):
         assert parser.format_help().startswith('usage:'), path   # what --help prints
         paths.append(path)
     assert ('study',) in paths and ('bench', 'distributed') in paths
+
+
+def test_long_commands_and_every_bench_take_quiet(monkeypatch):
+    """Issue 17: --quiet on the commands that show progress turns it off (here and in children)."""
+    parser = cli.build_parser()
+    for argv in (['run'], ['launch'], ['review', 'BAG'], ['study', 'dtm-tuning'],
+                 ['discrepancy', '--scenario', 'specimen', '--measured', 'M', '--out', 'O'],
+                 ['bench', 'loop'], ['bench', 'adaptive', '--out', 'D'],
+                 ['bench', 'discrepancy', '--out', 'F']):
+        assert parser.parse_args(argv + ['--quiet']).quiet, argv
+    with pytest.raises(SystemExit):            # a quick command has no progress to silence
+        parser.parse_args(['bag', 'info', 'BAG', '--quiet'])
+    monkeypatch.setenv('RTHS_PROGRESS', 'log')
+    assert cli.main(['review', '/nonexistent/bag']) == 2
+    assert os.environ['RTHS_PROGRESS'] == 'log'           # without --quiet: left alone
+    assert cli.main(['review', '/nonexistent/bag', '--quiet']) == 2
+    assert os.environ['RTHS_PROGRESS'] == '0'             # inherited by the nodes too

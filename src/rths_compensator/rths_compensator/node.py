@@ -16,10 +16,13 @@ import time
 
 import numpy as np
 import rclpy
+from std_msgs.msg import Float64MultiArray
 
-from rths_common import cdr, gaps, topics
+from rths_common import gaps, topics
 from rths_common import node_support as ns
 from rths_common.qos import loop_qos, status_qos
+from rths_common.stepping import Driver
+from rths_common.transport import Transport
 from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus
 
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'inject_drop_every': 0,
@@ -30,9 +33,16 @@ NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'inject_drop_every': 0,
 
 
 class CompensatorNode:
-    """ROS shell around a :class:`~rths_compensator.filters.MultiChannelFilter`."""
+    """ROS shell around a :class:`~rths_compensator.core.CompensatorCore`.
+
+    One step path: an interface displacement (typed, or CDR bytes with
+    ``mode: realtime``) becomes ``(k, x_k)``, the driver steps the core
+    (lock-step: only the expected step; realtime: the newest, lost
+    displacements filled by the core's policy) and the command of step k goes out.
+    """
 
     def __init__(self):
+        from rths_compensator.core import CompensatorCore
         from rths_compensator.params import check_compensator_params, param_schema, validate_filter
 
         self.node = ns.make_node('compensator', param_schema(NODE_PARAMS), NODE_PARAMS)
@@ -46,40 +56,46 @@ class CompensatorNode:
             params.get('denominator', [1.0]), params.get('fs_hz', 1024.0),
             params.get('scheme', ''))
         self.params = dict(params, taps=taps, denominator=denominator, fs_hz=fs)
-        self.filter = None  # built on the first message, when the number of DOFs is known
+        self.lockstep = self.own['mode'] == 'lockstep'
+        self.core = CompensatorCore(self.params)
+        self.driver = Driver(self.core, self.lockstep, self.on_reject)
         self.log = self.node.get_logger()
-        self.adaptive = None
-        if str(params.get('method', 'fir') or 'fir') != 'fir':
-            self._setup_adaptive()
         qos = loop_qos(self.own['mode'])
+        raw = not self.lockstep   # lean messages: CDR bytes in and out (rths_common.cdr)
+        self.io_in = Transport(InterfaceDisplacement, ('displacement',), raw)
+        self.io_out = Transport(Command, ('command',), raw)
+        self.adaptive = self.core.adaptive
+        if self.adaptive:
+            self._setup_adaptive()
         self.pub = self.node.create_publisher(Command, topics.COMMAND, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
         self.sender = ''  # this node's writer gid, in frame_id: the bridge checks the sender
         ns.wait_for_readers(self.node, self.pub, self.own['wait_for_subscribers'])
-        if self.own['mode'] == 'realtime':  # lean messages: CDR bytes (rths_common.cdr)
-            self.node.create_subscription(InterfaceDisplacement, topics.INTERFACE_DISPLACEMENT,
-                                          self.on_displacement_raw, qos, raw=True)
-        else:
-            self.node.create_subscription(InterfaceDisplacement, topics.INTERFACE_DISPLACEMENT,
-                                          self.on_displacement, qos)
+        self.node.create_subscription(InterfaceDisplacement, topics.INTERFACE_DISPLACEMENT,
+                                      self.on_displacement, qos, raw=raw)
         self.clock = ns.StepClock()
-        self.expected = 0
-        self.rejected = 0
-        self.realtime = self.own['mode'] == 'realtime'
-        self.gaps = gaps.GapFiller(gaps.DISPLACEMENT_ORDER)  # realtime: lost displacements
         self.last_out = None
         self.misses = 0
-        if self.realtime:
-            from rths_compensator.filters import MultiChannelFilter
+        if not self.lockstep:
             # warm-up: the first call of every code path is slow (imports, numpy dispatch)
-            MultiChannelFilter(taps, denominator, n_channels=1).step(np.zeros(1))
+            self.core.warm_up()
             gaps.warm_up(gaps.DISPLACEMENT_ORDER)
-            cdr.unpack_step_arrays(cdr.pack_step_arrays(0, 0, [0.0]))
+            self.io_in.decode(self.io_out.encode(0, (np.zeros(1),)))
             tuning = ns.tune_process(*ns.tuning(self.own, 'compensator'))
-            self.log.info(f'realtime: {tuning}')
+            self.log.info(f"{self.own['mode']}: {tuning}")
         self.log.info(f"compensator ready: scheme {self.params['scheme']}, "
                       f"{len(self.params['taps'])} taps, "
                       f"{len(self.params['denominator']) - 1} denominator order")
+
+    @property
+    def expected(self) -> int:
+        """Return the step whose interface displacement comes next."""
+        return self.core.next_step
+
+    @property
+    def rejected(self) -> int:
+        """Return the count of displacements the driver did not step (out of order, stale)."""
+        return self.driver.rejected
 
     def _setup_adaptive(self):
         """Adaptive method (rths_compensator.adaptive): measurements in, coefficients out."""
@@ -88,11 +104,11 @@ class CompensatorNode:
         from rths_compensator.adaptive import methods_from_params
         from rths_msgs.msg import Measurement
 
-        if self.own['mode'] != 'lockstep':
+        if not self.lockstep:
             raise ValueError(f"parameter method = {self.params['method']}: the adaptive "
                              'methods run in lock-step mode only (mode: lockstep)')
         methods_from_params(self.params, 1)          # check the method and its plant now
-        self.adaptive = {'pending': None, 'measured': {}}
+        self.pending = None                          # the displacement message waiting
         self.coef_pub = self.node.create_publisher(Float64MultiArray,
                                                    topics.COMPENSATOR_COEFFICIENTS,
                                                    loop_qos(self.own['mode']))
@@ -101,29 +117,9 @@ class CompensatorNode:
 
     def on_measurement(self, msg):
         """Keep measurement k for the command of step k + 1 (and run it if it waits)."""
-        self.adaptive['measured'][msg.step] = (list(msg.displacement), list(msg.applied))
-        pending = self.adaptive['pending']
-        if pending is not None and pending.step == msg.step + 1:
-            self.adaptive['pending'] = None
-            self.on_displacement(pending)
-
-    def _adaptive_command(self, step, x):
-        """Command of step k from the adaptive method, or None until measurement k-1 is here."""
-        from std_msgs.msg import Float64MultiArray
-
-        from rths_compensator.adaptive import methods_from_params
-
-        measured = self.adaptive['measured']
-        if step > 0 and (step - 1) not in measured:
-            return None
-        if self.filter is None:
-            self.filter = methods_from_params(self.params, max(x.size, 1))
-        prev, applied = measured.pop(step - 1, (None, None))
-        command = self.filter.step(x, prev, applied)
-        every = max(int(self.own['coefficients_every']), 1)
-        if step % every == 0:
-            self.coef_pub.publish(Float64MultiArray(data=self.filter.coefficients().tolist()))
-        return command
+        result = self.core.measure(msg.step, list(msg.displacement), list(msg.applied))
+        if result is not None:
+            self.publish(result, *self.pending)
 
     def sender_gid(self) -> str:
         """Return this node's writer gid on /rths/command, sent in ``header.frame_id``.
@@ -134,86 +130,54 @@ class CompensatorNode:
             self.sender = ns.own_writer_gid(self.node, topics.COMMAND)
         return self.sender
 
-    def on_displacement(self, msg: InterfaceDisplacement):
-        """Filter the interface displacement of step k and publish the command of step k."""
-        from rths_compensator.filters import MultiChannelFilter
+    def on_reject(self, step: int, expected: int):
+        """Log (lock-step) a displacement the driver did not step; re-send command 0 if due."""
+        if self.lockstep:
+            self.log.warning(f'interface displacement of step {step} ignored: expected '
+                             f'step {expected} (duplicate or out of order)')
+        elif step == 0 and expected == 1 and self.last_out is not None:
+            self.driver.rejected -= 1
+            self.pub.publish(self.last_out)  # step 0 re-sent: the loop has not started
 
+    def on_displacement(self, msg):
+        """Filter the interface displacement of step k (lost ones filled); publish command k."""
         t_in = ns.now_ns()
-        if msg.step != self.expected:
-            self.rejected += 1
-            self.log.warning(f'interface displacement of step {msg.step} ignored: expected '
-                             f'step {self.expected} (duplicate or out of order)')
-            return
+        stamp_ns, step, (x,) = self.io_in.decode(msg)
         t0 = time.perf_counter_ns()
-        x = np.asarray(msg.displacement, dtype=float)
-        fault = ''
-        if self.adaptive is not None:
-            command = self._adaptive_command(msg.step, x)
-            if command is None:            # lock-step: wait for measurement k-1
-                self.adaptive['pending'] = msg
-                return
-            status = self.filter.status
-            fault = status.reason if status.state == 'fallback' else ''
-        else:
-            if self.filter is None:
-                self.filter = MultiChannelFilter(self.params['taps'],
-                                                 self.params['denominator'],
-                                                 n_channels=max(x.size, 1))
-            command = self.filter.step(x)
-        out = Command(step=msg.step, command=command.tolist())
-        out.header.frame_id = self.sender_gid()
-        ns.stamp(out.header, ns.now_ns())
-        self.pub.publish(out)
-        dup = self.own['inject_duplicate_every']
-        if dup > 0 and msg.step > 0 and msg.step % dup == 0:
-            self.pub.publish(out)  # fault injection: the same step twice
-        compute_us = (time.perf_counter_ns() - t0) * 1e-3
-        self.status_pub.publish(ns.status_msg(
-            'compensator', msg.step, period_us=self.clock.period_us(t_in), compute_us=compute_us,
-            latency_us=(t_in - ns.stamp_ns(msg.header)) * 1e-3, misses=self.clock.misses,
-            fault=fault))
-        self.expected += 1
-
-    def on_displacement_raw(self, data: bytes):
-        """Realtime: filter step j (interpolating over lost steps) and publish its command."""
-        from rths_compensator.filters import MultiChannelFilter
-
-        t_in = ns.now_ns()
-        stamp_ns, step, values = cdr.unpack_step_arrays(data)
-        if step < self.expected:
-            if step == 0 and self.expected == 1 and self.last_out is not None:
-                self.pub.publish(self.last_out)  # step 0 re-sent: the loop has not started
-            else:
-                self.rejected += 1
+        result = self.driver.feed(step, x)
+        if result is None:
+            if self.adaptive and self.core.pending is not None:
+                self.pending = (t_in, stamp_ns, t0)   # lock-step: waits for measurement k-1
             return
-        t0 = time.perf_counter_ns()
-        x = np.array(values, dtype=float)
-        if self.filter is None:
-            self.filter = MultiChannelFilter(self.params['taps'], self.params['denominator'],
-                                             n_channels=max(x.size, 1))
-        lost = step - self.expected
-        filled = self.gaps.fill(step, x)  # interpolated lost displacements (none before step 0)
-        for i in range(lost):  # lost displacement(s): interpolated, or x if nothing came before
-            self.filter.step(filled[i] if len(filled) == lost else x)
-        self.misses += lost
-        missed = lost > 0
-        command = self.filter.step(x)
+        self.publish(result, t_in, stamp_ns, t0)
+
+    def publish(self, result, t_in: int, stamp_ns: int, t0: int):
+        """Publish the command of ``result`` and the step's status."""
+        step = result.step
+        if self.adaptive:
+            every = max(int(self.own['coefficients_every']), 1)
+            if step % every == 0:
+                self.coef_pub.publish(Float64MultiArray(data=self.core.coefficients().tolist()))
         delay = self.own['inject_delay_every']
         if delay > 0 and step > 0 and step % delay == 0:
             time.sleep(self.own['inject_delay_ms'] * 1e-3)  # fault injection: a delay burst
-        out = cdr.pack_step_arrays(ns.now_ns(), step, command.tolist(),
-                                   frame_id=self.sender_gid())
+        out = self.io_out.encode(step, result.arrays, self.sender_gid())
         drop = self.own['inject_drop_every']
         if not (drop > 0 and step > 0 and step % drop == 0):
             self.pub.publish(out)
+        dup = self.own['inject_duplicate_every']
+        if dup > 0 and step > 0 and step % dup == 0:
+            self.pub.publish(out)  # fault injection: the same step twice
         self.last_out = out
         compute_us = (time.perf_counter_ns() - t0) * 1e-3
         period_us = self.clock.period_us(t_in)
+        self.misses += result.filled
+        missed = result.filled > 0
         if missed or step % self.own['status_every'] == 0:
-            self.status_pub.publish(cdr.pack_status(
-                ns.now_ns(), 'compensator', step, period_us=period_us, compute_us=compute_us,
-                latency_us=(t_in - stamp_ns) * 1e-3, missed=missed, misses=self.misses))
-        self.expected = step + 1
+            self.status_pub.publish(self.io_out.status(
+                'compensator', step, period_us=period_us, compute_us=compute_us,
+                latency_us=(t_in - stamp_ns) * 1e-3, missed=missed, misses=self.misses,
+                fault=result.fault))
 
     def finish_run(self):
         """After spinning: flush what was published and log the count."""

@@ -51,8 +51,11 @@ def _restoring_cmd(args) -> int:
     if not os.path.exists(args.measured):
         raise OSError(f'--measured {args.measured}: no such file')
     data = restoring.load_csv(args.measured)
-    res = restoring.run(data, out_dir=args.out, progress=_say,
-                        source=os.path.basename(args.measured))
+    from rths_common.progress import Progress
+
+    with Progress(0, 'candidate models') as bar:
+        res = restoring.run(data, out_dir=args.out, progress=lambda text: bar.write(text),
+                            source=os.path.basename(args.measured), count=bar.report)
     print(f"effect: {res['effect']}")
     for name, par in res['parameters'].items():
         print(f'  {name}: ' + ', '.join(f"{k} = {v:.6g} {par['unit'][k]}"
@@ -354,8 +357,9 @@ def register(commands, benches):
                     'counts; write everything to --out as JSON. Progress goes to stderr.')
     b.add_argument('--out', required=True, metavar='FILE.json', help='JSON result file')
     b.add_argument('--seeds', type=int, default=None,
-                   help='random seeds per case under the rths convention (default 2, with '
-                        '--quick 1); one seed under the other conventions')
+                   help='random seeds per case under the rths convention and of the --detect '
+                        'sweep (default 2, with --quick 1); one seed under the other conventions; '
+                        'the summary gives the spread over the seeds')
     b.add_argument('--quick', action='store_true',
                    help='full-strength effects only, two pairs, controls under the other '
                         'conventions, 8 s records, one seed, no held-out sets')

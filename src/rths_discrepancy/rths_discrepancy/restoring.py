@@ -387,18 +387,22 @@ def _params(cand):
     return out
 
 
-def select(fit, progress=None):
-    """Fit the nominal, every effect and every pair; decide (see the module doc)."""
+def select(fit, progress=None, count=None):
+    """Fit the nominal, every effect and every pair; decide (see the module doc).
+
+    ``count(done, total)`` gets the candidates fitted so far.
+    """
     say = progress or (lambda msg: None)
     nominal = fit_candidate(fit, [], 0.0)
     align0 = nominal['tau']
+    friction = {'coulomb_friction', 'asymmetric_friction', 'stribeck'}
+    todo = [[name] for name in EFFECTS] + [   # friction laws of one kind are not combined
+        [a, b] for a, b in itertools.combinations(EFFECTS, 2) if not {a, b} <= friction]
     cands = {}
-    for name in EFFECTS:
-        cands[name] = fit_candidate(fit, [name], align0)
-    for a, b in itertools.combinations(EFFECTS, 2):
-        if {a, b} <= {'coulomb_friction', 'asymmetric_friction', 'stribeck'}:
-            continue   # friction laws of the same kind are not combined
-        cands[f'{a}+{b}'] = fit_candidate(fit, [a, b], align0)
+    for names in todo:
+        cands['+'.join(names)] = fit_candidate(fit, names, align0)
+        if count:
+            count(len(cands), len(todo))
     say(f'fitted {len(cands)} candidates')
     n_te = int(fit.test.sum())
 
@@ -499,15 +503,18 @@ def _defence(fit, sel):
     return out
 
 
-def run(data, out_dir=None, progress=None, plots=True, source=None):
-    """Run the restoring-force workflow on validated ``data``; return result.json's dict."""
+def run(data, out_dir=None, progress=None, plots=True, source=None, count=None):
+    """Run the restoring-force workflow on validated ``data``; return result.json's dict.
+
+    ``progress(text)`` gets the steps, ``count(done, total)`` the candidates fitted.
+    """
     if 'fs' not in data:
         data = validate(data)
     say = progress or (lambda msg: None)
     fit = Fit(data)
     say(f"restoring force: {fit.n} samples at {fit.fs:g} Hz; smoothing differentiator "
         f"cut-off {fit.st['fc']:.3g} Hz; training {TRAIN_FRACTION:.0%}, held out the rest")
-    sel = select(fit, progress=say)
+    sel = select(fit, progress=say, count=count)
     nom = sel['nominal']
     win = sel['cands'][sel['choice']]
     named = sel['decision'] not in ('none', 'unexplained')

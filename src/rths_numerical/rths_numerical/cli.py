@@ -369,15 +369,21 @@ def cmd_bench_numerical(args):
     b240 = building_240dof()
     f1, f2 = x_frequencies(b16)
     dt = 1.0 / args.fs_hz
+    from rths_common.progress import Progress
+
     steps = {}
+    bar = Progress(3, 'integrator timings')
     for name in ('cr', 'kr_alpha', 'newmark'):
         steps[name] = {'16': _time_steps(b16, name, dt), '240': _time_steps(b240, name, dt),
                        'advance_16': _time_advance(b16, name, dt),
                        'advance_240': _time_advance(b240, name, dt)}
-        print(f'{name:9s} step: 16 DOF {steps[name]["16"]:.1f} us, '
-              f'240 DOF {steps[name]["240"]:.1f} us; substructure advance (the node\'s step): '
-              f'{steps[name]["advance_16"]:.1f} / {steps[name]["advance_240"]:.1f} us',
-              flush=True)
+        with bar.hidden():
+            print(f'{name:9s} step: 16 DOF {steps[name]["16"]:.1f} us, '
+                  f'240 DOF {steps[name]["240"]:.1f} us; substructure advance (the node\'s '
+                  f'step): {steps[name]["advance_16"]:.1f} / {steps[name]["advance_240"]:.1f} us',
+                  flush=True)
+        bar.advance()
+    bar.close()
     t0 = time.perf_counter()
     res = run_dtm_tuning(n_fn=args.n_fn, n_zeta=args.n_zeta, progress=_progress('dtm-tuning'))
     tuning_s = time.perf_counter() - t0

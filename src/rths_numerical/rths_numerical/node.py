@@ -14,9 +14,11 @@ import numpy as np
 import rclpy
 from std_msgs.msg import UInt64
 
-from rths_common import cdr, gaps, topics
+from rths_common import gaps, topics
 from rths_common import node_support as ns
 from rths_common.qos import loop_qos, run_info_qos, status_qos
+from rths_common.stepping import Driver
+from rths_common.transport import Transport
 from rths_msgs.msg import InterfaceDisplacement, LoopStatus, Measurement
 
 #: Parameters of the node itself; every other parameter goes to make_substructure().
@@ -26,9 +28,17 @@ NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers':
 
 
 class NumericalNode:
-    """ROS shell around a :class:`~rths_numerical.substructure.NumericalSubstructure`."""
+    """ROS shell around a :class:`~rths_numerical.stepping.NumericalCore`.
+
+    One step path: a measurement (typed, or CDR bytes with ``mode: realtime``)
+    becomes ``(k, force_k)`` (:class:`rths_common.transport.Transport`), the
+    driver steps the core (lock-step: only the expected step; realtime: the
+    newest step, lost forces filled by the core's policy) and the interface
+    displacement of step k + 1 goes out.
+    """
 
     def __init__(self):
+        from rths_numerical.stepping import NumericalCore
         from rths_numerical.substructure import make_substructure, param_schema
 
         self.node = ns.make_node('numerical', param_schema(NODE_PARAMS), NODE_PARAMS)
@@ -39,179 +49,154 @@ class NumericalNode:
         if own['mode'] not in ('lockstep', 'realtime'):
             raise ValueError(f"numerical node: mode {own['mode']!r}: use lockstep or realtime")
         self.own = own
-        self.realtime = own['mode'] == 'realtime'
+        self.lockstep = own['mode'] == 'lockstep'
         self.sub = make_substructure(params)
+        self.core = NumericalCore(self.sub)
+        self.driver = Driver(self.core, self.lockstep, self.on_reject)
         self.log = self.node.get_logger()
         qos = loop_qos(own['mode'])
+        raw = not self.lockstep   # lean messages: CDR bytes in and out (rths_common.cdr)
+        self.io_in = Transport(Measurement, ('applied', 'displacement', 'force'), raw)
+        self.io_out = Transport(InterfaceDisplacement, ('displacement',), raw)
         self.pub = self.node.create_publisher(InterfaceDisplacement,
                                               topics.INTERFACE_DISPLACEMENT, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
-        if self.realtime:  # lean messages: CDR bytes in and out (rths_common.cdr)
-            self.node.create_subscription(Measurement, topics.MEASUREMENT,
-                                          self.on_measurement_raw, qos, raw=True)
-        else:
-            self.node.create_subscription(Measurement, topics.MEASUREMENT, self.on_measurement,
-                                          qos)
+        self.node.create_subscription(Measurement, topics.MEASUREMENT, self.on_measurement, qos,
+                                      raw=raw)
         self.clock = ns.StepClock()
-        self.expected = 0
         self.started = False
         self.finished = False
-        self.rejected = 0
         self.failed = False
         self.t_start = None
         self.progress_steps = max(1, int(round(1.0 / self.sub.dt)))  # every simulated second
-        self.stale = 0
-        self.gaps = gaps.GapFiller(gaps.FORCE_ORDER)  # realtime: lost measured forces
         self.last_publish = 0.0
         self.timing = {'pub_step': [], 'pub_wall_ns': [], 'recv_step': [], 'recv_wall_ns': []}
         self.cpu_loop = None
-        if self.realtime:
+        if not self.lockstep:
             self.steps_pub = self.node.create_publisher(UInt64, topics.RUN_STEPS, run_info_qos())
             self.steps_pub.publish(UInt64(data=self.sub.n_steps))
             # warm-up: the first call of every code path is slow (numpy dispatch, caches); reset()
             # rather than a deep copy: an OpenSees model lives in one global domain
-            self.sub.advance(np.zeros(self.sub.n_interface))
-            self.sub.reset()
+            self.core.step(0, np.zeros(self.sub.n_interface))
+            self.core.reset()
             gaps.warm_up(gaps.FORCE_ORDER, n_channels=self.sub.n_interface)
             tuning = ns.tune_process(*ns.tuning(own, 'numerical'))
-            self.log.info(f'realtime: {tuning}')
+            self.log.info(f'{own["mode"]}: {tuning}')
         self.start_timer = self.node.create_timer(0.05, self.try_start)
         self.log.info(f'numerical substructure ready: {self.sub.n_steps} steps at '
                       f'{1.0 / self.sub.dt:g} Hz, {self.sub.n_interface} interface DOF(s); '
                       f"waiting for {own['wait_for_subscribers']} subscriber(s)")
 
+    @property
+    def rejected(self) -> int:
+        """Return (lock-step) the count of measurements of another step than the expected one."""
+        return self.driver.rejected if self.lockstep else 0
+
+    @property
+    def stale(self) -> int:
+        """Return (realtime) the count of measurements of a step already passed."""
+        return 0 if self.lockstep else self.driver.rejected
+
+    @property
+    def expected(self) -> int:
+        """Return the step whose measurement comes next (= steps finished)."""
+        return self.core.next_step
+
     def publish(self, step: int, displacement):
         """Publish the interface displacement of ``step``."""
-        if self.realtime:
-            drop = self.own['inject_drop_every']
-            if drop > 0 and step > 0 and step % drop == 0:
-                return  # fault injection: this interface displacement is lost
-            t_ns = ns.now_ns()
-            self.pub.publish(cdr.pack_step_arrays(t_ns, step, displacement))
-            self.timing['pub_step'].append(step)
-            self.timing['pub_wall_ns'].append(t_ns)
-            return
-        msg = InterfaceDisplacement(step=step, displacement=[float(x) for x in displacement])
-        ns.stamp(msg.header, ns.now_ns())
-        self.pub.publish(msg)
+        drop = self.own['inject_drop_every']
+        if drop > 0 and step > 0 and step % drop == 0:
+            return  # fault injection: this interface displacement is lost
+        self.timing['pub_step'].append(step)
+        self.timing['pub_wall_ns'].append(ns.now_ns())
+        self.pub.publish(self.io_out.encode(step, (displacement,)))
 
     def try_start(self):
         """Publish step 0 once the graph is connected (realtime: until the loop runs)."""
         if self.started:
-            if self.realtime and self.expected == 0 and time.monotonic() - self.last_publish > 0.1:
+            if (not self.lockstep and self.expected == 0
+                    and time.monotonic() - self.last_publish > 0.1):
                 self.last_publish = time.monotonic()
                 self.publish(0, self.first)
             elif self.expected > 0:
                 self.start_timer.cancel()
             return
-        # Every loop topic must reach its consumer (and the recorder, if any) before step 0:
-        # a reader that matches late would otherwise miss the first steps.
-        wanted = self.own['wait_for_subscribers']
-        if self.own['remote_graph']:
-            # the rest of the graph is in another domain behind a relay (rths linkemu): only
-            # the relay's reader of our output and its measurement publisher are visible
-            if (self.pub.get_subscription_count() < wanted
-                    or self.node.count_publishers(topics.MEASUREMENT) < 1
-                    or (self.realtime and self.node.count_subscribers(topics.RUN_STEPS) < 1)):
-                return
-        elif (self.pub.get_subscription_count() < wanted
-                or self.node.count_subscribers(topics.COMMAND) < wanted
-                or self.node.count_subscribers(topics.MEASUREMENT) < wanted
-                or self.node.count_publishers(topics.MEASUREMENT) < 1
-                or self.node.count_publishers(topics.COMMAND) < 1):
-            return
-        if self.realtime and self.node.count_subscribers(topics.RUN_STEPS) < 1:
+        if not self.graph_connected():
             return
         self.started = True
-        if not self.realtime:
+        if self.lockstep:
             self.start_timer.cancel()
         self.t_start = time.monotonic()
         self.log.info('graph connected: publishing step 0')
-        self.first = self.sub.first_displacement()
+        self.first = self.core.first_displacement()
         self.last_publish = time.monotonic()
         self.publish(0, self.first)
 
-    def on_measurement(self, msg: Measurement):
-        """Finish step k with its measured force and publish step k+1."""
-        t_in = ns.now_ns()
-        if msg.step != self.expected:
-            self.rejected += 1
-            self.log.warning(f'measurement of step {msg.step} ignored: expected step '
-                             f'{self.expected} (duplicate or out of order)')
-            return
-        force = np.asarray(msg.force, dtype=float)
-        if force.shape != (self.sub.n_interface,) or not np.all(np.isfinite(force)):
-            self.log.error(f'step {msg.step}: measured force {list(msg.force)} is not '
-                           f'{self.sub.n_interface} finite value(s); stopping the run')
-            self.finished = True
-            self.failed = True
-            return
-        t0 = time.perf_counter_ns()
-        displacement = self.sub.advance(force)
-        compute_us = (time.perf_counter_ns() - t0) * 1e-3
-        latency_us = (t_in - ns.stamp_ns(msg.header)) * 1e-3
-        self.status_pub.publish(ns.status_msg(
-            'numerical', msg.step, period_us=self.clock.period_us(t_in),
-            compute_us=compute_us, latency_us=latency_us, misses=self.clock.misses))
-        self.expected += 1
-        if self.expected % self.progress_steps == 0:
-            self.log.info(f'progress: step {self.expected} of {self.sub.n_steps} '
-                          f'({self.expected * self.sub.dt:.1f} s simulated)')
-        if self.sub.done():
-            self.finished = True
-            return
-        self.publish(self.expected, displacement)
+    def graph_connected(self) -> bool:
+        """Return True once every loop topic reaches its consumer (and the recorder, if any).
 
-    def on_measurement_raw(self, data: bytes):
-        """Realtime: finish step k (interpolating over lost measurements), publish k+1."""
+        A reader that matches late would otherwise miss the first steps.
+        """
+        wanted = self.own['wait_for_subscribers']
+        run_steps = self.lockstep or self.node.count_subscribers(topics.RUN_STEPS) >= 1
+        if self.own['remote_graph']:
+            # the rest of the graph is in another domain behind a relay (rths linkemu): only
+            # the relay's reader of our output and its measurement publisher are visible
+            return (self.pub.get_subscription_count() >= wanted
+                    and self.node.count_publishers(topics.MEASUREMENT) >= 1 and run_steps)
+        return (self.pub.get_subscription_count() >= wanted
+                and self.node.count_subscribers(topics.COMMAND) >= wanted
+                and self.node.count_subscribers(topics.MEASUREMENT) >= wanted
+                and self.node.count_publishers(topics.MEASUREMENT) >= 1
+                and self.node.count_publishers(topics.COMMAND) >= 1 and run_steps)
+
+    def on_reject(self, step: int, expected: int):
+        """Log a measurement the driver did not step: out of order (lock-step) or stale."""
+        if self.lockstep:
+            self.log.warning(f'measurement of step {step} ignored: expected step '
+                             f'{expected} (duplicate or out of order)')
+
+    def on_measurement(self, msg):
+        """Finish step k with its measured force (lost ones filled) and publish step k + 1."""
         t_in = ns.now_ns()
         if self.finished or not self.started:
             return  # before step 0 is out, a measurement cannot be of this run
-        stamp_ns, step, _, _, force_values = cdr.unpack_step_arrays(data, 3)
-        if step < self.expected:
-            self.stale += 1
-            return
-        if self.cpu_loop is None:
-            self.cpu_loop = [time.process_time(), None]
-        self.timing['recv_step'].append(step)
-        self.timing['recv_wall_ns'].append(t_in)
-        force = np.array(force_values, dtype=float)
-        if force.shape != (self.sub.n_interface,) or not np.all(np.isfinite(force)):
-            self.log.error(f'step {step}: measured force {list(force_values)} is not '
-                           f'{self.sub.n_interface} finite value(s); stopping the run')
+        stamp_ns, step, (_, _, force) = self.io_in.decode(msg)
+        expected = self.core.policy.next_step
+        if step >= expected:
+            if self.cpu_loop is None:
+                self.cpu_loop = [time.process_time(), None]
+            self.timing['recv_step'].append(step)
+            self.timing['recv_wall_ns'].append(t_in)
+        t0 = time.perf_counter_ns()
+        try:
+            result = self.driver.feed(step, force)
+        except ValueError as err:
+            self.log.error(f'{err}; stopping the run')
             self.finished = True
             self.failed = True
             return
+        if result is None:
+            return
+        compute_us = (time.perf_counter_ns() - t0) * 1e-3
         period_us = self.clock.period_us(t_in)
-        latency_us = (t_in - stamp_ns) * 1e-3
-        lost = step - self.expected
-        filled = self.gaps.fill(step, force)  # interpolated lost forces (none before step 0)
-        while self.expected < step and not self.sub.done():
-            # measurement lost: the interpolated force (or, before any, the new one)
+        for lost in range(expected, expected + result.filled):   # lost: force filled
             self.clock.misses += 1
-            i = lost - (step - self.expected)
-            self.sub.advance(filled[i] if len(filled) == lost else force)
-            self.status_pub.publish(cdr.pack_status(
-                ns.now_ns(), 'numerical', self.expected, period_us=period_us, missed=True,
-                misses=self.clock.misses))
-            self.expected += 1
-        if self.sub.done():
+            self.status_pub.publish(self.io_out.status(
+                'numerical', lost, period_us=period_us, missed=True, misses=self.clock.misses))
+        if result.filled < step - expected:   # the run ended inside the gap
             self.finish()
             return
-        t0 = time.perf_counter_ns()
-        displacement = self.sub.advance(force)
-        compute_us = (time.perf_counter_ns() - t0) * 1e-3
-        self.expected += 1
-        if not self.sub.done():
-            self.publish(self.expected, displacement)
+        if result.arrays:
+            self.publish(step + 1, result.output)
         if step % self.own['status_every'] == 0:
-            self.status_pub.publish(cdr.pack_status(
-                ns.now_ns(), 'numerical', step, period_us=period_us, compute_us=compute_us,
-                latency_us=latency_us, misses=self.clock.misses))
-        if self.expected % self.progress_steps == 0:
-            self.log.info(f'progress: step {self.expected} of {self.sub.n_steps} '
-                          f'({self.expected * self.sub.dt:.1f} s simulated)')
-        if self.sub.done():
+            self.status_pub.publish(self.io_out.status(
+                'numerical', step, period_us=period_us, compute_us=compute_us,
+                latency_us=(t_in - stamp_ns) * 1e-3, misses=self.clock.misses))
+        if (step + 1) % self.progress_steps == 0:
+            self.log.info(f'progress: step {step + 1} of {self.sub.n_steps} '
+                          f'({(step + 1) * self.sub.dt:.1f} s simulated)')
+        if result.done:
             self.finish()
 
     def finish(self):
@@ -235,7 +220,7 @@ class NumericalNode:
         rate = self.expected / wall if wall > 0 else 0.0
         text = (f'numerical: {self.expected} of {self.sub.n_steps} steps in {wall:.2f} s '
                 f'({rate:.0f} steps/s), {self.rejected} measurement(s) rejected')
-        if self.realtime:
+        if not self.lockstep:
             text += (f', {self.clock.misses} measurement(s) missed (force interpolated), '
                      f'{self.stale} stale')
         return text

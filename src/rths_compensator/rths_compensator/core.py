@@ -1,0 +1,106 @@
+"""The compensator core behind the loop cores' step contract (no ROS).
+
+``CompensatorCore(params).step(k, x)``: the interface displacement of step k
+in, the command of step k out (a :class:`rths_common.stepping.StepResult`),
+through the designed filter ``G = taps / denominator`` per interface DOF
+(:class:`~rths_compensator.filters.MultiChannelFilter`) or an adaptive
+method started from it (:mod:`rths_compensator.adaptive`, parameter
+``method``).  The compensator node and :mod:`rths_common.replay` step it.
+
+Missing-input policy: displacements lost before k are interpolated
+(:data:`rths_common.gaps.DISPLACEMENT_ORDER`, cubic: the designed taps turn a
+held displacement into a command spike) and filtered, so the filter's delay
+line sees one value per step.  An adaptive method needs measurement k - 1 for
+command k: until :meth:`CompensatorCore.measure` brings it, ``step`` returns
+None and keeps the displacement; it takes no gaps (lock-step only).
+"""
+
+from typing import Any
+
+import numpy as np
+
+from rths_common.gaps import DISPLACEMENT_ORDER
+from rths_common.stepping import GapPolicy, StaleStep, StepResult
+
+
+class CompensatorCore:
+    """The designed (or adaptive) compensator, one step per interface displacement.
+
+    ``params``: the validated compensator parameters (``taps``, ``denominator``,
+    ``fs_hz``, ``scheme``, ``method``, ``provenance``...).  The filter is built
+    on the first step, when the number of interface DOFs is known.
+    """
+
+    def __init__(self, params: dict):
+        self.params = params
+        self.adaptive = str(params.get('method', 'fir') or 'fir') != 'fir'
+        self.filter: Any = None   # MultiChannelFilter or adaptive.ChannelMethods
+        self.policy = GapPolicy(DISPLACEMENT_ORDER)
+        self.measured: dict = {}   # adaptive: step -> (measured displacement, applied)
+        self.pending: tuple | None = None   # adaptive: (k, x) waiting for measurement k - 1
+
+    @property
+    def next_step(self) -> int:
+        """Return the step whose interface displacement the core expects next."""
+        return self.policy.next_step
+
+    def _build(self, n_channels: int):
+        if self.adaptive:
+            from rths_compensator.adaptive import methods_from_params
+            return methods_from_params(self.params, n_channels)
+        from rths_compensator.filters import MultiChannelFilter
+        return MultiChannelFilter(self.params['taps'], self.params['denominator'],
+                                  n_channels=n_channels)
+
+    def warm_up(self):
+        """Run the filter's code path once on a throwaway filter (realtime start-up)."""
+        from rths_compensator.filters import MultiChannelFilter
+
+        MultiChannelFilter(self.params['taps'], self.params['denominator'],
+                           n_channels=1).step(np.zeros(1))
+
+    def step(self, k: int, x) -> StepResult | None:
+        """Return the command of step ``k`` for its interface displacement ``x`` [m].
+
+        None: an adaptive method waits for measurement k - 1 (x is kept).
+        """
+        if self.adaptive:
+            return self._adaptive_step(k, x)
+        x, rows = self.policy.admit(k, x)
+        filt = self.filter
+        if filt is None:
+            filt = self.filter = self._build(max(x.size, 1))
+        for row in rows:   # lost displacements: interpolated (or x, if nothing came before)
+            filt.step(row)
+        command = filt.step(x)
+        self.policy.passed(k)
+        return StepResult(k, (command,), len(rows))
+
+    def _adaptive_step(self, k, x):
+        if k != self.next_step:
+            raise StaleStep(f'adaptive compensator: step {k} is not the expected step '
+                            f'{self.next_step} (adaptive methods run in lock-step)')
+        x = np.asarray(x, dtype=float)
+        if k > 0 and (k - 1) not in self.measured:
+            self.pending = (k, x)
+            return None
+        self.pending = None
+        if self.filter is None:
+            self.filter = self._build(max(x.size, 1))
+        prev, applied = self.measured.pop(k - 1, (None, None))
+        command = self.filter.step(x, prev, applied)
+        status = self.filter.status
+        self.policy.passed(k)
+        return StepResult(k, (command,), 0,
+                          fault=status.reason if status.state == 'fallback' else '')
+
+    def measure(self, k: int, displacement, applied) -> StepResult | None:
+        """Adaptive: keep measurement k; return the result of step k + 1 if it was waiting."""
+        self.measured[k] = (displacement, applied)
+        if self.pending is not None and self.pending[0] == k + 1:
+            return self._adaptive_step(*self.pending)
+        return None
+
+    def coefficients(self) -> np.ndarray:
+        """Adaptive: the current coefficients of every channel."""
+        return self.filter.coefficients()
