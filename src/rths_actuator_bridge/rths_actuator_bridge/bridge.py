@@ -47,10 +47,12 @@ def param_schema(node_params) -> dict:
     """Return the bridge node's parameter schema: its ``node_params``, the core's, the backends'."""
     from rths_common.params import node_schema
 
-    from .simulated import SIM_PARAMS
-    from .udp import UDP_PARAMS
+    from .simulated import SIM_PARAMS, SIM_RANGES
+    from .udp import UDP_PARAMS, UDP_RANGES
+    ranges = {**UDP_RANGES, **SIM_RANGES, **safety.SAFETY_RANGES,
+              'command_delay_steps': (0, MAX_DELAY_STEPS)}
     return node_schema(node_params, {**UDP_PARAMS, **SIM_PARAMS, **safety.SAFETY_PARAMS,
-                                     **PARAMS})
+                                     **PARAMS}, ranges)
 
 
 def make_backend(params: dict) -> Backend:
@@ -214,3 +216,9 @@ class Bridge:
         """Release the backend."""
         if self.backend is not None:
             self.backend.close()
+
+    def cleanup(self):
+        """Deactivate and release the backend: unconfigured again (configure() to reuse)."""
+        self.deactivate()
+        self.close()
+        self.backend = None

@@ -11,10 +11,10 @@ realtime clocks (behaviour and measurements: docs/nodes.md).
 import sys
 import time
 
-from lifecycle_msgs.msg import State, Transition
-from lifecycle_msgs.srv import ChangeState, GetState
+from lifecycle_msgs.msg import State
 import numpy as np
 import rclpy
+from rclpy.lifecycle import TransitionCallbackReturn
 from std_msgs.msg import String, UInt64
 
 from rths_common import node_support as ns
@@ -83,22 +83,26 @@ class BridgeNode:
     """ROS shell around a backend and its safety supervisor."""
 
     def __init__(self):
-        from rths_actuator_bridge.bridge import Bridge, param_schema
+        import functools
 
-        self.node = ns.make_node('bridge', param_schema(NODE_PARAMS), NODE_PARAMS)
+        from rths_actuator_bridge.bridge import Bridge, param_schema
+        from rths_actuator_bridge.managed import ManagedNode
+        from rths_actuator_bridge.safety import SafetyLimits
+
+        managed = functools.partial(ManagedNode, shell=self)   # UNCONFIGURED
+        self.node = ns.make_node('bridge', param_schema(NODE_PARAMS), NODE_PARAMS, managed)
         params = ns.parameters(self.node)
         self.own = {k: ns.param(params, k, v) for k, v in NODE_PARAMS.items()}
-        params = check_bridge_params(params)
+        self.params = params = check_bridge_params(params)
         self.log = self.node.get_logger()
         self.lockstep = self.own['mode'] == 'lockstep'
         if self.own['mode'] not in ('lockstep', 'realtime'):
             raise ValueError(f"bridge node: mode {self.own['mode']!r}: use lockstep or realtime")
         if self.own['clock'] not in CLOCKS:
             raise ValueError(f"bridge node: clock {self.own['clock']!r}: use one of {CLOCKS}")
-        self.bridge = Bridge()
-        self.bridge.configure(params)                 # configured: INACTIVE, nothing moves
-        self.backend = self.bridge.backend
-        self.fs_hz = self.backend.limits.fs_hz
+        self.bridge = Bridge()                        # configured by on_configure
+        self.fs_hz = SafetyLimits.from_params(params).fs_hz
+        self.finalized = False
         qos = loop_qos(self.own['mode'])
         self.pub = self.node.create_publisher(Measurement, topics.MEASUREMENT, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
@@ -144,60 +148,84 @@ class BridgeNode:
             self.log.info(f"{self.own['mode']}: bridge is the clock at {self.fs_hz:g} Hz "
                           f"(clock {self.own['clock']}, executor {self.own['executor']}); "
                           f'{self.tuning}')
-        self.log.info(f'bridge configured: backend {params.get("backend", "simulated")}, '
-                      f'{self.backend.n_channels} channel(s), stroke '
-                      f'+-{self.backend.limits.stroke_m} m')
-        # the managed-node interface: `ros2 lifecycle get /bridge`, `ros2 lifecycle set /bridge
-        # activate|deactivate` (lifecycle_msgs services on ~/get_state and ~/change_state)
-        self.node.create_service(GetState, '~/get_state', self.on_get_state)
-        self.node.create_service(ChangeState, '~/change_state', self.on_change_state)
-        if self.own['autostart']:
-            self.activate()
+        self.config_error = None       # why configure/activate failed, for autostart
+        if self.own['autostart']:      # configure and activate now, as `ros2 lifecycle set` would
+            for trigger in (self.node.trigger_configure, self.node.trigger_activate):
+                if trigger() != TransitionCallbackReturn.SUCCESS:
+                    raise self.config_error or RuntimeError(f'bridge: {trigger.__name__} failed')
 
-    def activate(self):
-        """INACTIVE -> ACTIVE: from now on commands may move the actuator."""
-        self.bridge.activate()
+    # ---------------------------------------------------------------- lifecycle
+    def on_configure(self, _state) -> TransitionCallbackReturn:
+        """UNCONFIGURED -> INACTIVE: the backend and the supervisor from the parameters."""
+        try:
+            self.bridge.configure(self.params)        # INACTIVE: nothing moves
+        except Exception as err:   # kept for autostart and logged (rclpy would drop it)
+            self.config_error = err
+            self.log.error(f'configure failed: {err}')
+            return TransitionCallbackReturn.FAILURE
+        backend = self.bridge.backend
+        self.log.info(f'bridge configured: backend {self.params.get("backend", "simulated")}, '
+                      f'{backend.n_channels} channel(s), stroke +-{backend.limits.stroke_m} m')
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, _state) -> TransitionCallbackReturn:
+        """INACTIVE -> ACTIVE: from now on commands may move the actuator (not after a stop)."""
+        if self.stopped:
+            self.log.warning('activate refused: the bridge stopped safely in this run; start a '
+                             'new bridge node for a new run')
+            return TransitionCallbackReturn.FAILURE
+        try:
+            self.bridge.activate()
+        except Exception as err:   # kept for autostart and logged (rclpy would drop it)
+            self.config_error = err
+            self.log.error(f'activate failed: {err}')
+            return TransitionCallbackReturn.FAILURE
         self.log.info('bridge active')
+        return TransitionCallbackReturn.SUCCESS
 
-    def lifecycle_state(self) -> State:
-        """Return the managed-node state: ACTIVE while the backend is, else INACTIVE."""
-        from rths_actuator_bridge.backend import ACTIVE
-
-        if self.backend.lifecycle == ACTIVE:
-            return State(id=State.PRIMARY_STATE_ACTIVE, label='active')
-        return State(id=State.PRIMARY_STATE_INACTIVE, label='inactive')
-
-    def on_get_state(self, _request, response):
-        """Answer ``~/get_state`` with the current lifecycle state."""
-        response.current_state = self.lifecycle_state()
-        return response
-
-    def on_change_state(self, request, response):
-        """Change the lifecycle state (the ``~/change_state`` service).
-
-        Activate (INACTIVE -> ACTIVE, not after a safety stop) or deactivate (ACTIVE ->
-        INACTIVE: once a command has moved the actuator, through the safe stop: hold, ramp,
-        stop); other transitions are refused (the node configures itself at start-up and
-        cleans up when it exits).
-        """
-        transition = request.transition.id
-        active = self.lifecycle_state().id == State.PRIMARY_STATE_ACTIVE
-        response.success = False
-        if transition == Transition.TRANSITION_ACTIVATE and not active and not self.stopped:
-            self.activate()
-            response.success = True
-        elif transition == Transition.TRANSITION_DEACTIVATE and active:
-            if self.step >= 0:
-                self.start_safe_stop('deactivate requested')
-            else:
-                self.bridge.deactivate()
-                self.log.info('bridge inactive')
-            response.success = True
+    def on_deactivate(self, _state) -> TransitionCallbackReturn:
+        """ACTIVE -> INACTIVE: once a command has moved the actuator, through the safe stop."""
+        if self.stopped:
+            return TransitionCallbackReturn.SUCCESS   # the safety stop deactivated the backend
+        if self.step >= 0:
+            self.start_safe_stop('deactivate requested')   # hold, ramp, stop: then inactive
         else:
-            self.log.warning(f'lifecycle transition {transition} refused in state '
-                             f'{self.lifecycle_state().label}'
-                             f'{" (stopped)" if self.stopped else ""}')
-        return response
+            self.bridge.deactivate()
+            self.log.info('bridge inactive')
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, _state) -> TransitionCallbackReturn:
+        """INACTIVE -> UNCONFIGURED: release the backend; refused once the actuator has moved."""
+        if self.step >= 0:
+            self.log.warning('cleanup refused: commands have moved the actuator in this run; '
+                             'shut the node down and start a new one')
+            return TransitionCallbackReturn.FAILURE
+        self.bridge.cleanup()
+        self.log.info('bridge unconfigured: backend released')
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, _state) -> TransitionCallbackReturn:
+        """-> FINALIZED: a moved actuator stops safely first (exit 3); the spin then ends."""
+        if self.step >= 0 and not self.stopped:
+            self.start_safe_stop('shutdown requested')
+        else:
+            self.bridge.cleanup()
+            self.finalized = True
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, _state) -> TransitionCallbackReturn:
+        """Handle a transition that raised: safe stop if the actuator moved, else unconfigure."""
+        self.log.error('lifecycle transition failed with an exception')
+        if self.step >= 0 and not self.stopped:
+            self.start_safe_stop('lifecycle error')
+            return TransitionCallbackReturn.FAILURE
+        self.bridge.cleanup()
+        return TransitionCallbackReturn.SUCCESS
+
+    def settle_inactive(self):
+        """After a safety stop the backend is inactive: so is the managed node."""
+        if self.node.state().id == State.PRIMARY_STATE_ACTIVE:
+            self.node.trigger_deactivate()
 
     # ---------------------------------------------------------------- loop
     def scan_command_publishers(self):
@@ -398,6 +426,7 @@ class BridgeNode:
                            'position')
         if state == STOPPED and not self.stopped:
             self.stopped = True  # Bridge.step has deactivated the backend
+            self.settle_inactive()
             self.log.error(f'safety stop at step {step}: {fault}; backend deactivated')
         return result
 
@@ -454,7 +483,7 @@ class BridgeNode:
         """
         composed = nodes is not None
         nodes = self.node if nodes is None else nodes
-        is_done = is_done or (lambda: self.stopped)
+        is_done = is_done or (lambda: self.stopped or self.finalized)
         if self.ticks is not None and self.own['clock'] == 'loop':
             return ns.spin_clocked(nodes, executor, self.next_due_ns, self.tick, is_done,
                                    margin_us=self.own['spin_margin_us'],

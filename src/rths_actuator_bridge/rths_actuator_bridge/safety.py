@@ -100,6 +100,27 @@ SAFETY_PARAMS = {
     'instability_growth': (1.5, '[-] window-to-window RMS growth factor counted as growing'),
     'instability_growth_windows': (4, '[windows] consecutive growing windows that abort'),
 }
+#: Ranges of the limits (inclusive; ints: integer parameters): beyond them a value is
+#: almost surely in the wrong unit or a typo.  The checks below add > 0 and the stroke.
+SAFETY_RANGES = {
+    'fs_hz': (1.0, 100_000.0),
+    'stroke_m': (0.0, 1.0),
+    'velocity_m_s': (0.0, 10.0),
+    'acceleration_m_s2': (0.0, 100_000.0),
+    'force_n': (0.0, 1.0e7),
+    'dtm_rel_disp_m': (0.0, 1.0),
+    'safe_position_m': (-1.0, 1.0),
+    'ramp_time_s': (0.0, 600.0),
+    'hold_time_s': (0.0, 600.0),
+    'watchdog_steps': (1, 1_000_000),
+    'stall_limit_s': (0.0, 600.0),
+    'max_invalid_measurements': (1, 1_000_000),
+    'instability_window_steps': (2, 10_000_000),
+    'instability_tracking_m': (0.0, 1.0),
+    'instability_force_n': (0.0, 1.0e7),
+    'instability_growth': (1.0, 1000.0),
+    'instability_growth_windows': (1, 10_000),
+}
 _INT_KEYS = {'watchdog_steps', 'max_invalid_measurements', 'instability_window_steps',
              'instability_growth_windows'}
 

@@ -141,6 +141,16 @@ SIM_PARAMS = {
     'mr_voltage_v': (float, 1.0, '[V] constant command voltage of the MR damper (dtm: mr)'),
     'mr_substeps': (int, 8, '[-] RK4 sub-steps per sample of the MR damper model (dtm: mr)'),
 }
+#: Ranges of the rates, counts and specimen settings of :data:`SIM_PARAMS` (inclusive).
+SIM_RANGES = {
+    'fs_hz': (1.0, 100_000.0),
+    'adc_bits': (0, 32),
+    'friction_n': (0.0, 1.0e6),
+    'friction_substeps': (1, 4096),
+    'daq_filter_hz': (0.0, 100_000.0),
+    'mr_voltage_v': (0.0, 10.0),
+    'mr_substeps': (1, 4096),
+}
 
 #: Specimen instrumentation channels that pass the DAQ anti-alias filter.
 DAQ_FILTERED = ('table_accel', 'rel_disp', 'rel_vel')

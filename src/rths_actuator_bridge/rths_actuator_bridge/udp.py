@@ -50,6 +50,13 @@ UDP_PARAMS = {
     'timeout_s': (float, 0.05, '[s] how long read() waits for the reply of the current step'),
     'n_channels': (int, 1, '[-] number of actuators'),
 }
+#: Ranges of the ports, timeout and channel count of :data:`UDP_PARAMS` (inclusive).
+UDP_RANGES = {
+    'port': (0, 65535),
+    'local_port': (0, 65535),
+    'timeout_s': (0.0, 10.0),
+    'n_channels': (1, 64),
+}
 
 
 def pack(kind: int, step: int, values=(), n_channels: int = 1) -> bytes:

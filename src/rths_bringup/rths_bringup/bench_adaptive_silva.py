@@ -31,13 +31,14 @@ class MethodController:
 
     feedback = True
 
-    def __init__(self, name, design, plant, batch, options=None):
+    def __init__(self, name, design, plant, batch, options=None, info=None):
         """Build ``batch`` copies of method ``name`` (``adaptive.make_method``)."""
         from rths_actuator_bridge.silva2020 import converter
         from rths_compensator.adaptive import make_method
         self.name = name
         self.conv = converter
         self.options = dict(options or {})
+        self.info = info or {}
         self.methods = [make_method(name, design, None if name == 'fir' else plant,
                                     **self.options) for _ in range(batch)]
         self.step_ns = []
@@ -62,7 +63,7 @@ class MethodController:
 
     def describe(self) -> dict:
         """Return the settings for the JSON."""
-        return {'method': self.name, 'options': self.options}
+        return {'method': self.name, 'options': self.options, **self.info}
 
 
 def plants_of(info, fs_hz):

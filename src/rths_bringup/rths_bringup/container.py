@@ -48,6 +48,9 @@ EXIT_SAFETY_STOP = 3
 TEE_RECORDS_PER_STEP = 8
 TEE_SLACK_RECORDS = 100_000
 _MCL_CURRENT, _MCL_FUTURE = 1, 2
+#: The nodes of the container in construction order: numerical first, it subscribes to the
+#: measurements the bridge waits to be read.
+NODE_NAMES = ('numerical', 'bridge', 'compensator')
 
 
 def parse_args(argv) -> argparse.Namespace:
@@ -78,6 +81,27 @@ def params_file_of(argv, node_name: str) -> str:
         except (OSError, ValueError):
             continue
     return ''
+
+
+def check_sections(argv) -> None:
+    """Refuse a params-file section that no node of the container reads (a misspelt node name).
+
+    A ROS node ignores the sections of other nodes, so a typo there would run the
+    node on its defaults without a word.  ``/**`` (every node) is allowed.
+    """
+    import yaml
+
+    known = NODE_NAMES
+    for path in params_files(argv):
+        try:
+            with open(path) as f:
+                doc = yaml.safe_load(f) or {}
+        except (OSError, yaml.YAMLError) as err:
+            raise ValueError(f'params file {path}: {err}') from None
+        for key in (doc if isinstance(doc, dict) else {}):
+            if str(key).strip('/') not in (*known, '**'):
+                raise ValueError(f'params file {path}: section {key!r} is no node of the '
+                                 f'container; name one of {", ".join(known)} (or /**)')
 
 
 def lock_memory() -> str:
@@ -111,12 +135,13 @@ class Container:
         from rths_compensator.node import CompensatorNode
         from rths_numerical.node import NumericalNode
 
+        check_sections(argv)
         self.shells = {}
-        # numerical first: it subscribes to the measurements the bridge waits to be read
-        for name, cls in (('numerical', NumericalNode), ('bridge', BridgeNode),
-                          ('compensator', CompensatorNode)):
+        classes = {'numerical': NumericalNode, 'bridge': BridgeNode,
+                   'compensator': CompensatorNode}
+        for name in NODE_NAMES:
             try:
-                self.shells[name] = cls()
+                self.shells[name] = classes[name]()
             except ValueError as err:
                 raise ValueError(f'{name} node: {params_file_of(argv, name)}{err}') from None
         self.numerical = self.shells['numerical']
@@ -131,8 +156,11 @@ class Container:
         return [shell.node for shell in self.shells.values()]
 
     def done(self) -> bool:
-        """Return True once the numerical node finished (or failed) or the bridge stopped."""
-        return self.numerical.finished or self.bridge.stopped
+        """Return True once the numerical node finished (or failed) or the bridge stopped.
+
+        (The bridge stopped: a safety stop, or its managed node was shut down.)
+        """
+        return self.numerical.finished or self.bridge.stopped or self.bridge.finalized
 
     def tune(self) -> str:
         """Realtime: the bridge's latency settings for the whole process, memory locked."""

@@ -95,21 +95,39 @@ def executable(package: str, name: str) -> Path:
     return path
 
 
-def config_mode(config_dir: Path, overrides: dict) -> str:
-    """Return a run's timing mode: the numerical override, else its params file, else lockstep."""
-    mode = overrides.get(OWNER, {}).get('mode')
-    if mode:
-        return str(mode)
+def config_param(config_dir: Path, overrides: dict, key: str, default):
+    """Return the numerical node's ``key``: its override, else its params file, else ``default``."""
+    value = overrides.get(OWNER, {}).get(key)
+    if value not in (None, ''):
+        return value
     path = Path(config_dir) / 'numerical.yaml'
     try:
         import yaml
         data = yaml.safe_load(path.read_text()) or {}
     except (OSError, ValueError):
-        return 'lockstep'
+        return default
     for section in data.values():
-        if isinstance(section, dict) and 'mode' in section.get('ros__parameters', {}):
-            return str(section['ros__parameters']['mode'])
-    return 'lockstep'
+        if isinstance(section, dict) and key in (section.get('ros__parameters') or {}):
+            return section['ros__parameters'][key]
+    return default
+
+
+def config_mode(config_dir: Path, overrides: dict) -> str:
+    """Return a run's timing mode: the numerical override, else its params file, else lockstep."""
+    return str(config_param(config_dir, overrides, 'mode', 'lockstep'))
+
+
+def loop_rate_override(config_dir: Path, overrides: dict) -> None:
+    """Give the compensator the loop rate (``loop_fs_hz``): it refuses taps for another rate.
+
+    The loop rate is the numerical node's ``fs_hz``; a value that is not a
+    number is left to the pre-flight check, which names it.
+    """
+    try:
+        fs = float(config_param(config_dir, overrides, 'fs_hz', 1024.0))
+    except (TypeError, ValueError):
+        return
+    overrides.setdefault('compensator', {}).setdefault('loop_fs_hz', fs)
 
 
 _CLK_TCK = os.sysconf('SC_CLK_TCK')
@@ -179,6 +197,7 @@ class Launcher:
             for name, *_ in NODES:
                 self.overrides.setdefault(name, {})['mode'] = mode
         self.mode = mode or config_mode(self.config_dir, self.overrides)
+        loop_rate_override(self.config_dir, self.overrides)
         if layout is None:
             layout = ('composed' if self.mode == 'realtime' and not self.node_env
                       and not self.node_prefix else 'processes')

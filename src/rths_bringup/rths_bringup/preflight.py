@@ -18,8 +18,10 @@ checked by the same plain-Python core its node uses:
   :func:`rths_actuator_bridge.bridge.make_backend`.
 
 On top of that every file is scanned for values no node can use: ``.nan`` /
-``.inf`` and numbers written with a unit (``'0.254 m'``: the files hold SI
-numbers only).  Every ValueError names the file, the field and the fix.
+``.inf``, numbers written with a unit (``'0.254 m'``: the files hold SI
+numbers only) and values outside the range the node declares
+(:func:`rths_common.params.check_range`).  Every ValueError names the file,
+the field and the fix.
 """
 
 import math
@@ -138,3 +140,29 @@ def check_config(config_dir) -> None:
                           f'{", ".join(n for n, _ in CHECKS)}')
         checked[name] = check(path)
     check_rates(config_dir, checked['numerical.yaml'], checked['compensator.yaml'])
+    for name, params in checked.items():
+        check_ranges(config_dir / name, name.removesuffix('.yaml'), params)
+
+
+def node_schema_of(node: str) -> dict:
+    """Return the parameter schema (key -> Spec) the node ``node`` declares."""
+    if node == 'bridge':
+        from rths_actuator_bridge.bridge import param_schema
+        from rths_actuator_bridge.node import NODE_PARAMS
+    elif node == 'compensator':
+        from rths_compensator.node import NODE_PARAMS
+        from rths_compensator.params import param_schema
+    else:
+        from rths_numerical.node import NODE_PARAMS
+        from rths_numerical.substructure import param_schema
+    return param_schema(NODE_PARAMS)
+
+
+def check_ranges(path, node: str, params: dict) -> None:
+    """Refuse a value outside its declared range, as the node would at start-up."""
+    from rths_common.params import check_range
+
+    schema = node_schema_of(node)
+    for key, value in params.items():
+        if key in schema:
+            _wrap(path, node, check_range, key, value, schema[key])

@@ -64,6 +64,8 @@ CASES = ('1', '2', '3', '4')
 #: Example controller (paper eq. 23-24): PI gains and phase lead G_T(s).
 EXAMPLE_KP, EXAMPLE_KI = 2.0, 95.0
 EXAMPLE_GT = ([50.8316, 8570.40], [1.0, 8570.40])
+#: Adaptive compensators that ``--controller`` also runs (:mod:`rths_compensator.adaptive`).
+ADAPTIVE_CONTROLLERS = ('rls_fir', 'ats', 'amb')
 #: A run counts as unstable when its measured displacement leaves this multiple of the
 #: reference floor-1 peak (or turns non-finite).
 UNSTABLE_FACTOR = 10.0
@@ -624,13 +626,24 @@ def unstable(x_m, ref) -> bool:
 
 # ----------------------------------------------------------------------------- the bench
 def make_controller(name: str, batch: int, dt: float, fir_options: dict = None, log=_log):
-    """Build controller ``name`` ('example' or 'fir') for ``batch`` runs."""
+    """Build controller ``name`` (example, fir or an adaptive method) for ``batch`` runs.
+
+    ``rls_fir``, ``ats`` and ``amb`` start from the same identification and FIR design
+    as ``fir`` (:class:`.bench_adaptive_silva.MethodController`, one method per run).
+    """
     if name == 'example':
         return ExampleController(dt, batch)
     if name == 'fir':
         design, info = identify_and_design(log=log, **(fir_options or {}))
         return FirController(design, batch, info)
-    raise ValueError(f'--controller {name!r} unknown; use example or fir')
+    if name in ADAPTIVE_CONTROLLERS:
+        from .bench_adaptive_silva import MethodController, plants_of
+        design, info = identify_and_design(log=log, **(fir_options or {}))
+        design_plant, identified = plants_of(info, 1.0 / dt)
+        return MethodController(name, design, design_plant if name == 'rls_fir'
+                                else identified, batch, info=info)
+    raise ValueError(f'--controller {name!r} unknown; use example, fir, '
+                     f'{", ".join(ADAPTIVE_CONTROLLERS)}')
 
 
 def run_benchmark(controller: str = 'example', record: str = 'elcentro', n_draws: int = 20,
@@ -809,7 +822,9 @@ def _cmd(args) -> int:
     elif args.controller != 'fir':
         raise ValueError(f'--via {args.via} runs the feed-forward fir controller only: the '
                          'example controller needs the measured displacement in the '
-                         'compensator, which the compensator node does not receive')
+                         'compensator, which the compensator node does not receive; the '
+                         'adaptive ones run with --via loop (in the graph: rths run '
+                         '--adaptive)')
     else:
         summary = run_graph_benchmark(args.via, args.record, args.data_dir, args.out,
                                       _cases(args.cases), args.duration or None, args.seed,
@@ -835,9 +850,12 @@ def register(commands, benches):
                     '(settings, the drawn parameters, the published comparison), table.md (the '
                     "paper's Table 3 layout) and tracking.png / floors.png. The records are the "
                     f"benchmark's MAT files, read from ${DATA_ENV} (or --data-dir).")
-    p.add_argument('--controller', default='example', choices=('example', 'fir'),
+    p.add_argument('--controller', default='example',
+                   choices=('example', 'fir') + ADAPTIVE_CONTROLLERS,
                    help='example: PI + phase lead of the paper; fir: the project\'s ARX '
-                        'identification from a BLWN test + FIR design (feed-forward)')
+                        'identification from a BLWN test + FIR design (feed-forward); '
+                        'rls_fir, ats, amb: the adaptive compensators started from that '
+                        'identification and design (docs/adaptive.md)')
     p.add_argument('--out', required=True, help='output directory')
     p.add_argument('--record', default='elcentro',
                    help='elcentro (default), kobe, morganhill (x 0.4, from the data '

@@ -60,3 +60,18 @@ def test_silva2020_perturbed_tiny_configuration(tmp_path):
     config = json.loads((tmp_path / 'config.json').read_text())
     assert config[SILVA]['fir_design']['arx']['na'] <= 6
     assert len(config[SILVA]['per_run']['amb']['runs']) == 3
+
+
+def test_rths_benchmark_runs_an_adaptive_controller(tmp_path):
+    # rths bench rths-benchmark --controller amb: its summary carries the adaptive method
+    from rths_bringup import rths_benchmark as rb
+    t = np.arange(0, 2.0, 0.02)
+    record = tmp_path / 'burst.txt'
+    np.savetxt(record, np.column_stack([t, np.sin(2 * np.pi * 3.5 * t)]))
+    fir = {'record_s': 4.0, 'n_candidates': 1, 'attempts': 1, 'na_max': 6, 'd_max': 4}
+    summary = rb.run_benchmark('amb', str(record), n_draws=1, fir_options=fir, cases=('1',),
+                               log=lambda msg: None)
+    assert summary['controller'] == 'amb' and summary['perturbed']['unstable'] == 0
+    assert summary['settings']['controller']['method'] == 'amb'
+    assert summary['settings']['controller']['arx']['na'] <= 6
+    assert summary['cases']['1']['J2'] < 20.0

@@ -103,3 +103,141 @@ def test_preflight_refuses_taps_designed_for_another_rate(tmp_path):
         check_config(config)
     # the identity compensator holds at every rate
     check_sampling_rate({'scheme': 'identity', 'fs_hz': 1024.0}, 512.0, 'c', 'loop')
+
+
+#: One out-of-range value per node: (node, params, parameter, words of the message).
+OUT_OF_RANGE = [
+    ('numerical', {'model': 'sdof', 'fs_hz': 0.5}, 'fs_hz', ['[1, 100000]', '[Hz]']),
+    ('bridge', {'backend': 'simulated', 'watchdog_steps': 0}, 'watchdog_steps',
+     ['[1, 1000000]', '[steps]']),
+    ('compensator', {'scheme': 'identity', 'taps': [1.0], 'status_every': 0}, 'status_every',
+     ['[1, 1000000]', '[steps]']),
+]
+
+
+@pytest.mark.parametrize('name,params,key,words', OUT_OF_RANGE,
+                         ids=[case[0] for case in OUT_OF_RANGE])
+def test_out_of_range_value_is_refused_naming_the_parameter(tmp_path, name, params, key, words):
+    _init_with(tmp_path, name, dict(params, wait_for_subscribers=0))
+    try:
+        with pytest.raises(ValueError, match=f'parameter {key} = .* outside its range') as info:
+            _node_class(name)()
+    finally:
+        rclpy.shutdown()
+    for word in [*words, 'fix it in the params file']:
+        assert word in str(info.value), (word, str(info.value))
+
+
+def test_descriptors_carry_ranges_and_no_parameter_can_be_added_at_run_time(tmp_path):
+    from rcl_interfaces.msg import ParameterType
+
+    from rths_common import node_support as ns
+    from rths_numerical.node import NODE_PARAMS
+    from rths_numerical.substructure import param_schema
+
+    _init_with(tmp_path, 'numerical', {'fs_hz': 512, 'model': 'sdof'})   # an int for a float
+    try:
+        node = ns.make_node('numerical', param_schema(NODE_PARAMS), NODE_PARAMS)
+        fs = node.describe_parameter('fs_hz')
+        assert fs.type == ParameterType.PARAMETER_DOUBLE
+        assert node.get_parameter('fs_hz').value == 512.0
+        assert (fs.floating_point_range[0].from_value, fs.floating_point_range[0].to_value) == (
+            1.0, 100_000.0)
+        every = node.describe_parameter('status_every')
+        assert every.integer_range[0].from_value == 1 and every.read_only
+        assert not node.describe_parameter('model').floating_point_range   # no range: a name
+        with pytest.raises(rclpy.exceptions.ParameterNotDeclaredException):
+            node.set_parameters([Parameter('duration', value=5.0)])   # a typo at run time
+        node.destroy_node()
+    finally:
+        rclpy.shutdown()
+
+
+#: Taps designed at 512 Hz (a FIR of three taps).
+TAPS_512 = {'scheme': 'wls', 'fs_hz': 512.0, 'taps': [2.0, -1.5, 0.5], 'denominator': [1.0]}
+
+
+def test_compensator_node_refuses_taps_for_another_loop_rate(tmp_path):
+    from rths_compensator.node import CompensatorNode
+
+    _init_with(tmp_path, 'compensator', dict(TAPS_512, wait_for_subscribers=0,
+                                             loop_fs_hz=1024.0))
+    try:
+        with pytest.raises(ValueError) as info:
+            CompensatorNode()
+    finally:
+        rclpy.shutdown()
+    message = str(info.value)
+    for word in ('fs_hz = 512 Hz', 'loop runs at 1024 Hz', 'loop_fs_hz', 'rths design',
+                 'params file designed for 1024 Hz'):
+        assert word in message, (word, message)
+    # the same taps in a loop at their own rate, and the identity at any rate, are accepted
+    for params in (dict(TAPS_512, loop_fs_hz=512.0),
+                   {'scheme': 'identity', 'taps': [1.0], 'loop_fs_hz': 512.0}):
+        _init_with(tmp_path, 'compensator', dict(params, wait_for_subscribers=0))
+        try:
+            CompensatorNode().node.destroy_node()
+        finally:
+            rclpy.shutdown()
+
+
+def test_launcher_passes_the_loop_rate_to_the_compensator(tmp_path):
+    from rths_bringup.launcher import Launcher
+
+    config = _config_copy(tmp_path)
+    numerical = config / 'numerical.yaml'
+    doc = yaml.safe_load(numerical.read_text())
+    doc['numerical']['ros__parameters']['fs_hz'] = 2048
+    numerical.write_text(yaml.safe_dump(doc))
+    assert Launcher(config).overrides['compensator']['loop_fs_hz'] == 2048.0
+    # an explicit numerical override wins over the file
+    over = {'numerical': {'fs_hz': 512.0}}
+    assert Launcher(config, overrides=over).overrides['compensator']['loop_fs_hz'] == 512.0
+
+
+def test_container_refuses_a_section_no_node_reads(tmp_path):
+    from rths_bringup.container import check_sections
+
+    good, bad = tmp_path / 'good.yaml', tmp_path / 'bad.yaml'
+    good.write_text(yaml.safe_dump({'bridge': {'ros__parameters': {}},
+                                    '/**': {'ros__parameters': {}}}))
+    bad.write_text(yaml.safe_dump({'brige': {'ros__parameters': {'stroke_m': 0.1}}}))
+    check_sections(['container', '--ros-args', '--params-file', str(good)])
+    with pytest.raises(ValueError, match=r"bad.yaml: section 'brige' is no node"):
+        check_sections(['container', '--ros-args', '--params-file', str(good),
+                        '--params-file', str(bad)])
+
+
+def test_the_parameter_table_of_docs_nodes_md_is_the_schema():
+    from rths_actuator_bridge.bridge import param_schema as bridge_schema
+    from rths_actuator_bridge.node import NODE_PARAMS as BRIDGE
+    from rths_compensator.node import NODE_PARAMS as COMPENSATOR
+    from rths_compensator.params import param_schema as compensator_schema
+    from rths_numerical.node import NODE_PARAMS as NUMERICAL
+    from rths_numerical.substructure import param_schema as numerical_schema
+
+    root = Path(os.environ.get('RTHS_ROOT') or Path(__file__).resolve().parents[3])
+    rows = set()
+    for line in (root / 'docs' / 'nodes.md').read_text().splitlines():
+        cells = [c.strip() for c in line.strip('|').split('|')]
+        if len(cells) >= 3 and cells[1].startswith('`'):
+            rows.add((cells[0], cells[1].strip('`'), cells[2].split(' ', 1)[1]))
+    schemas = {'numerical': numerical_schema(NUMERICAL),
+               'compensator': compensator_schema(COMPENSATOR), 'bridge': bridge_schema(BRIDGE)}
+    want = {(node, key, '[{}, {}]'.format(*(v if isinstance(v, int) else f'{v:g}'
+                                            for v in spec.range)))
+            for node, schema in schemas.items() for key, spec in schema.items() if spec.range}
+    assert rows == want
+
+
+def test_preflight_refuses_a_value_outside_its_range(tmp_path):
+    from rths_bringup.preflight import check_config
+
+    config = _config_copy(tmp_path)
+    bridge = config / 'bridge.yaml'
+    doc = yaml.safe_load(bridge.read_text())
+    doc['bridge']['ros__parameters']['rt_priority'] = 120   # SCHED_FIFO has 1..99
+    bridge.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ValueError, match=r'bridge.yaml: bridge: parameter rt_priority = 120 is '
+                                         r'outside its range \[-1, 99\] \[-\]'):
+        check_config(config)

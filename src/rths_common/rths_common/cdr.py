@@ -1,12 +1,11 @@
 """Lean (de)serialization of the loop messages: CDR bytes packed and parsed with ``struct``.
 
 In realtime mode the nodes subscribe to the loop topics with ``raw=True`` and
-publish bytes: rclpy's generic path (message object -> C struct -> CDR and
-back) costs ~20 us to serialize and ~50 us to deserialize a Measurement on
-the 2-core VM, several times per step; the fixed layouts below take ~2 us.
-The bytes are exactly what rclpy would produce (XCDR1, little endian), so
-every ROS tool, the recorder and the bag reader see ordinary messages
-(``src/rths_common/test/test_cdr.py`` checks this against rclpy).
+publish bytes, skipping rclpy's generic path (message object -> C struct ->
+CDR and back; the costs of both: docs/nodes.md).  The bytes are exactly what
+rclpy would produce (XCDR1, little endian), so every ROS tool, the recorder
+and the bag reader see ordinary messages (``src/rths_common/test/test_cdr.py``
+checks this against rclpy).
 
 Layouts (offsets after the 4-byte encapsulation header, CDR alignment = size):
 ``InterfaceDisplacement``/``Command``: header, uint64 step, float64[];

@@ -14,7 +14,7 @@ import threading
 import time
 from typing import Any
 
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -26,31 +26,59 @@ from rths_msgs.msg import LoopStatus
 ROS_BUILTIN_PARAMS = ('use_sim_time', 'start_type_description_service')
 
 
-def make_node(name: str, schema: dict | None = None, defaults: dict | None = None) -> Node:
-    """Create a node whose parameters are everything its params file sets.
+def make_node(name: str, schema: dict | None = None, defaults: dict | None = None,
+              node_class=Node) -> Node:
+    """Create a node whose parameters are everything its params file sets, described.
 
-    ``schema`` (key -> description with unit, :func:`rths_common.params.node_schema`)
-    describes them: each key it names gets a read-only descriptor with its type and
-    description, so ``ros2 param describe`` shows them.  Keys of ``defaults`` (the
-    node-level ``NODE_PARAMS``) that the file does not set are declared with their
-    default.  A key the schema does not name is left to the core's check, which
-    rejects it by name.
+    ``schema`` (key -> :class:`rths_common.params.Spec`, from
+    :func:`rths_common.params.node_schema`) describes them: each key it names gets
+    a read-only descriptor with its type, description and range (a value outside
+    the range raises ValueError naming the parameter), so ``ros2 param describe``
+    shows them.  Keys of ``defaults`` (the node-level ``NODE_PARAMS``) that the
+    file does not set are declared with their default.  A key the schema does not
+    name is left to the core's check, which rejects it by name; no parameter can
+    be added or changed at run time.  ``node_class``: ``Node`` or
+    ``rclpy.lifecycle.LifecycleNode``.
     """
-    node = Node(name, automatically_declare_parameters_from_overrides=True,
-                allow_undeclared_parameters=True)
-    for key, description in (schema or {}).items():
+    node = node_class(name, automatically_declare_parameters_from_overrides=True)
+    for key, spec in (schema or {}).items():
         if node.has_parameter(key):
-            value = node.get_parameter(key)
-            node.set_descriptor(key, _descriptor(key, value.type_.value, description))
+            _describe(node, key, spec)
         elif defaults is not None and key in defaults:
             value = Parameter(key, value=defaults[key])
-            node.declare_parameter(key, defaults[key],
-                                   _descriptor(key, value.type_.value, description))
+            node.declare_parameter(key, defaults[key], descriptor(key, value.type_, spec))
     return node
 
 
-def _descriptor(key: str, type_id: int, description: str) -> ParameterDescriptor:
-    return ParameterDescriptor(name=key, type=type_id, description=description, read_only=True)
+def _describe(node: Node, key: str, spec) -> None:
+    """Check the file's value against ``spec``'s range, then set the descriptor.
+
+    An integer given for a float parameter (``fs_hz: 1024``) becomes a float.
+    """
+    from rths_common.params import check_range
+
+    value = node.get_parameter(key)
+    check_range(key, value.value, spec)
+    type_, alternative = value.type_, None
+    if (spec.range is not None and isinstance(spec.range[0], float)
+            and type_ == Parameter.Type.INTEGER):
+        type_ = Parameter.Type.DOUBLE
+        alternative = Parameter(key, type_, float(value.value)).get_parameter_value()
+    node.set_descriptor(key, descriptor(key, type_, spec), alternative)
+
+
+def descriptor(key: str, type_: Parameter.Type, spec) -> ParameterDescriptor:
+    """Return the read-only descriptor of ``key``: type, description and ``spec``'s range."""
+    out = ParameterDescriptor(name=key, type=type_.value, description=spec.description,
+                              read_only=True)
+    if spec.range is not None:
+        low, high = spec.range
+        if type_ == Parameter.Type.INTEGER:
+            out.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=0)]
+        elif type_ == Parameter.Type.DOUBLE:
+            out.floating_point_range = [FloatingPointRange(from_value=float(low),
+                                                           to_value=float(high), step=0.0)]
+    return out
 
 
 def parameters(node: Node) -> dict:

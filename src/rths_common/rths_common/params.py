@@ -6,9 +6,15 @@ with the unit in brackets): :data:`rths_numerical.substructure.PARAMS`,
 ``SAFETY_PARAMS``, ``UDP_PARAMS`` and :data:`rths_actuator_bridge.bridge.PARAMS`.
 The keys that configure a node itself, not its core, are described here once
 (:data:`NODE_KEYS`); each node takes the subset its ``NODE_PARAMS`` names.
-:func:`rths_common.node_support.make_node` turns a schema (key -> description)
-into ROS parameter descriptors, so ``ros2 param describe`` shows them.
+Beside each registry a table of ranges (``*_RANGES``: key -> inclusive (low,
+high), ints for an integer parameter) bounds the rates, limits, gains and counts.
+:func:`node_schema` joins both into the node's schema (key -> :class:`Spec`) and
+:func:`rths_common.node_support.make_node` turns it into ROS parameter
+descriptors (type, range, read-only, description), so ``ros2 param describe``
+shows them; :func:`check_range` gives the error of a value outside its range.
 """
+
+from typing import NamedTuple
 
 #: Parameters that configure a node itself, not its core (the union of the nodes'
 #: NODE_PARAMS; test_offline_node_keys checks it), with their descriptions.
@@ -31,7 +37,27 @@ NODE_KEYS = {
     'gc': 'auto | default | freeze | disable: the Python garbage collector (auto: freeze '
           'in realtime mode)',
     'coefficients_every': '[steps] adaptive compensator: publish its coefficients every N steps',
+    'loop_fs_hz': '[Hz] the loop rate (fs_hz of numerical.yaml and bridge.yaml; rths launch '
+                  'passes it): the taps must be designed for it',
 }
+
+#: Ranges of the node-level keys (inclusive; ints for an integer parameter).
+NODE_RANGES = {
+    'wait_for_subscribers': (0, 64),
+    'status_every': (1, 1_000_000),
+    'watchdog_timeout_s': (0.01, 3600.0),
+    'spin_margin_us': (0.0, 100_000.0),
+    'rt_priority': (-1, 99),
+    'coefficients_every': (1, 1_000_000),
+    'loop_fs_hz': (1.0, 100_000.0),
+}
+
+
+class Spec(NamedTuple):
+    """One parameter of a node's schema: what it is (unit in brackets) and its range."""
+
+    description: str
+    range: tuple | None = None   # inclusive (low, high); ints: an integer parameter
 
 
 def core_params(params: dict) -> dict:
@@ -39,13 +65,43 @@ def core_params(params: dict) -> dict:
     return {k: v for k, v in params.items() if k not in NODE_KEYS}
 
 
-def node_schema(node_params, core: dict) -> dict:
-    """Return the schema (key -> description) of a node: its node-level keys and its core's.
+def node_schema(node_params, core: dict, ranges: dict | None = None) -> dict:
+    """Return the schema (key -> :class:`Spec`) of a node: its node-level keys and its core's.
 
     ``core`` maps a key to a description, or to a tuple whose last item is
-    the description (the packages' registries).
+    the description (the packages' registries); ``ranges`` are the core's
+    ranges (the node-level keys take theirs from :data:`NODE_RANGES`).
     """
-    schema = {key: NODE_KEYS[key] for key in node_params}
+    ranges = {**NODE_RANGES, **(ranges or {})}
+    schema = {key: Spec(NODE_KEYS[key], ranges.get(key)) for key in node_params}
     for key, spec in core.items():
-        schema[key] = spec[-1] if isinstance(spec, tuple) else str(spec)
+        text = spec[-1] if isinstance(spec, tuple) else str(spec)
+        schema[key] = Spec(text, ranges.get(key))
     return schema
+
+
+def check_range(key: str, value, spec: Spec) -> None:
+    """Refuse a value outside ``spec.range`` (ValueError naming the parameter, range and fix).
+
+    A non-number for a ranged parameter is refused too (a bool is not a number).
+    """
+    if spec.range is None:
+        return
+    low, high = spec.range
+    span = f'[{_num(low)}, {_num(high)}]'
+    unit = spec.description.split(']')[0] + ']' if spec.description.startswith('[') else ''
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        problem = f'must be a number in {span}'
+    elif not low <= value <= high:   # also refuses nan
+        problem = f'is outside its range {span}'
+    elif isinstance(low, int) and isinstance(high, int) and value != int(value):
+        problem = f'must be an integer in {span}'
+    else:
+        return
+    raise ValueError(f'parameter {key} = {value!r} {problem} {unit}; fix it in the params '
+                     f'file ({spec.description})')
+
+
+def _num(value) -> str:
+    """``value`` as written in a range: an int as it is, a float in ``%g``."""
+    return str(value) if isinstance(value, int) else f'{value:g}'

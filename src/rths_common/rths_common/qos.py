@@ -7,8 +7,7 @@ published before it matched, so a run can never dead-lock at start-up.  The
 history is deep (LOCKSTEP_DEPTH = 10000 samples, ~10 s of steps at the lock-step
 rate) because a reliable KEEP_LAST writer (and reader) drops unacknowledged
 samples once its history is full: a reader that lags (the recorder, on a busy
-machine) must not lose steps.  1000 was measured to lose steps of a 41 s Kobe
-run while the 2-core machine ran other heavy jobs (load average 5).
+machine) must not lose steps (the depth's measurement: docs/nodes.md).
 
 realtime: the newest sample is the only useful one; BEST_EFFORT, KEEP_LAST 1,
 VOLATILE avoids retransmissions and queues in the 1 kHz path.  A sample that is

@@ -26,6 +26,7 @@ from rths_common.transport import Transport
 from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus
 
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
+               'loop_fs_hz': 1024.0,
                'status_every': 1, 'coefficients_every': 64,
                **ns.TUNING_PARAMS}
 
@@ -41,7 +42,12 @@ class CompensatorNode:
 
     def __init__(self):
         from rths_compensator.core import CompensatorCore
-        from rths_compensator.params import check_compensator_params, param_schema, validate_filter
+        from rths_compensator.params import (
+            check_compensator_params,
+            check_sampling_rate,
+            param_schema,
+            validate_filter,
+        )
 
         self.node = ns.make_node('compensator', param_schema(NODE_PARAMS), NODE_PARAMS)
         params = ns.parameters(self.node)
@@ -54,6 +60,9 @@ class CompensatorNode:
             params.get('denominator', [1.0]), params.get('fs_hz', 1024.0),
             params.get('scheme', ''))
         self.params = dict(params, taps=taps, denominator=denominator, fs_hz=fs)
+        check_sampling_rate(self.params, self.own['loop_fs_hz'], 'compensator node parameters',
+                            'loop_fs_hz: the fs_hz of numerical.yaml and bridge.yaml, which '
+                            'rths launch passes')
         self.lockstep = self.own['mode'] == 'lockstep'
         self.core = CompensatorCore(self.params)
         self.driver = Driver(self.core, self.lockstep, self.on_reject)

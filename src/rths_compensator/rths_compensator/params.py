@@ -42,6 +42,8 @@ FILTER_PARAMS = {
     'taps': ([1.0], '[-] numerator coefficients b0..bn of G(z^-1)'),
     'denominator': ([1.0], '[-] denominator coefficients a0..am ([1.0]: a FIR)'),
 }
+#: Range of the design rate (inclusive).
+FILTER_RANGES = {'fs_hz': (1.0, 100_000.0)}
 #: The compensator's method key (not a filter field): key -> (default, meaning).
 METHOD_PARAMS = {
     'method': ('fir', 'fir | rls_fir | ats | amb: the designed filter, or an adaptive method '
@@ -56,7 +58,7 @@ def param_schema(node_params) -> dict:
     """Return the compensator node's parameter schema: its ``node_params`` and the filter's."""
     from rths_common.params import node_schema
 
-    return node_schema(node_params, {**FILTER_PARAMS, **METHOD_PARAMS})
+    return node_schema(node_params, {**FILTER_PARAMS, **METHOD_PARAMS}, FILTER_RANGES)
 
 
 def check_compensator_params(params: dict, where: str) -> None:
@@ -87,9 +89,10 @@ def check_sampling_rate(params: dict, loop_fs_hz: float, where: str, loop_where:
         raise ValueError(f'{where}: field fs_hz = {fs:g} Hz: the taps were designed for '
                          f'{fs:g} Hz but the loop runs at {loop_fs_hz:g} Hz '
                          f'({loop_where}); design them for {loop_fs_hz:g} Hz (a plant '
-                         f"identified at {loop_fs_hz:g} Hz, then 'rths design'; 'rths run' does "
-                         f"both), or run the loop at {fs:g} Hz (fs_hz of numerical.yaml and "
-                         'bridge.yaml)')
+                         f"identified at {loop_fs_hz:g} Hz, then 'rths design --plant PLANT "
+                         f"--out compensator.yaml'; 'rths run' does both) or give the "
+                         f'compensator a params file designed for {loop_fs_hz:g} Hz, or run '
+                         f'the loop at {fs:g} Hz (fs_hz of numerical.yaml and bridge.yaml)')
 
 
 def _check(where, taps, denominator, fs_hz, scheme):

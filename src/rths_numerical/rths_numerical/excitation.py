@@ -26,6 +26,14 @@ EXCITATION_PARAMS = {
     'taper_s': (0.5, '[s] fade in/out so the actuator starts and ends at rest'),
     'seed': (0, '[-] random seed of the BLWN'),
 }
+#: Ranges of :data:`EXCITATION_PARAMS` (inclusive).
+EXCITATION_RANGES = {
+    'fs_hz': (1.0, 100_000.0),
+    'duration_s': (0.0, 1.0e6),
+    'excitation_band_hz': (0.0, 100_000.0),
+    'excitation_peak_m': (0.0, 1.0),
+    'taper_s': (0.0, 3600.0),
+}
 #: Default of every parameter of ``model: excitation``.
 EXCITATION_DEFAULTS = {key: default for key, (default, _) in EXCITATION_PARAMS.items()}
 

@@ -95,6 +95,21 @@ PARAMS = {
     'sdof_zeta': (0.042, '[-] SDOF damping ratio'),
     'building_mass_kg': (None, "[kg] total mass of 'building2story' (0: 62 706 kg)"),
 }
+#: Ranges of the rates, durations, gains and model settings of :data:`PARAMS` (inclusive).
+RANGES = {
+    'rho_inf': (0.0, 1.0),
+    'fs_hz': (1.0, 100_000.0),
+    'duration_s': (0.0, 1.0e6),
+    'scale': (0.0, 1000.0),
+    'harmonic_freq_hz': (0.0, 100_000.0),
+    'blwn_band_hz': (0.0, 100_000.0),
+    'force_scale': (0.0, 1.0e6),
+    'specimen_mass_kg': (0.0, 1.0e9),
+    'sdof_mass_kg': (0.0, 1.0e12),
+    'sdof_freq_hz': (0.0, 100_000.0),
+    'sdof_zeta': (0.0, 10.0),
+    'building_mass_kg': (0.0, 1.0e12),
+}
 #: Default of every parameter (None: see :data:`PARAMS`).
 DEFAULTS = {key: default for key, (default, _) in PARAMS.items()}
 
@@ -103,8 +118,9 @@ def param_schema(node_params) -> dict:
     """Return the numerical node's parameter schema: its ``node_params`` and the core's."""
     from rths_common.params import node_schema
 
-    from .excitation import EXCITATION_PARAMS
-    return node_schema(node_params, {**EXCITATION_PARAMS, **PARAMS})
+    from .excitation import EXCITATION_PARAMS, EXCITATION_RANGES
+    return node_schema(node_params, {**EXCITATION_PARAMS, **PARAMS},
+                       {**EXCITATION_RANGES, **RANGES})
 
 
 class NumericalSubstructure(SteppedSubstructure):
