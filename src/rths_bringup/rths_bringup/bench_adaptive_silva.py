@@ -26,66 +26,12 @@ NAME = 'silva2020_perturbed'
 DELAY_BAND_HZ = 10.0
 
 
-class MethodController:
-    """A benchmark controller (``step(desired, measured)`` over the batch) of one method."""
-
-    feedback = True
-
-    def __init__(self, name, design, plant, batch, options=None, info=None):
-        """Build ``batch`` copies of method ``name`` (``adaptive.make_method``)."""
-        from rths_actuator_bridge.silva2020 import converter
-        from rths_compensator.adaptive import make_method
-        self.name = name
-        self.conv = converter
-        self.options = dict(options or {})
-        self.info = info or {}
-        self.methods = [make_method(name, design, None if name == 'fir' else plant,
-                                    **self.options) for _ in range(batch)]
-        self.step_ns = []
-        self.events = [[] for _ in range(batch)]
-        self._k = 0
-
-    def step(self, desired, measured):
-        """Command [m] of every run for this sample (timing each method's step)."""
-        meas = self.conv(measured)
-        out = np.empty(len(self.methods))
-        clock = time.perf_counter_ns
-        first = self._k == 0
-        for i, method in enumerate(self.methods):
-            was = method.fallen_back if hasattr(method, 'fallen_back') else False
-            t0 = clock()
-            out[i] = method.step(float(desired[i]), None if first else float(meas[i]))
-            self.step_ns.append(clock() - t0)
-            if not was and getattr(method, 'fallen_back', False):
-                self.events[i].append({'step': self._k, 'status': method.status.reason})
-        self._k += 1
-        return self.conv(out)
-
-    def describe(self) -> dict:
-        """Return the settings for the JSON."""
-        return {'method': self.name, 'options': self.options, **self.info}
-
-
-def plants_of(info, fs_hz):
-    """``(design_plant, identified)``: the FIR's design plant ``P / L`` and the ARX model P.
-
-    ``info`` is :func:`.rths_benchmark.identify_and_design`'s record of the identification.
-    """
-    from rths_compensator.identification import ArxModel
-    arx = info['arx']
-    model = ArxModel(a=arx['a'], b=arx['b'], d=arx['d'], fs_hz=fs_hz)
-    gain, a_l = rb.target_lowpass(info['target_lowpass']['order'],
-                                  info['target_lowpass']['cutoff_hz'], fs_hz)
-    b_model = np.concatenate([np.zeros(model.d), model.b])
-    return (np.convolve(b_model, a_l), gain * np.asarray(model.a)), model
-
-
 def run_method(name, runs, ag, design, plants, seed, options=None):
     """Run method ``name`` on every ``(case, params)`` of ``runs``; return the batch output."""
     design_plant, identified = plants
     plant = design_plant if name == 'rls_fir' else identified
     from rths_common.progress import Progress
-    ctrl = MethodController(name, design, plant, len(runs), options)
+    ctrl = rb.MethodController(name, design, plant, len(runs), options)
     with Progress(len(ag), f'{NAME} {name} ({len(runs)} loops)', 'steps') as bar:
         out = rb.run_batch(runs, ag, ctrl, seed=seed, progress=bar.report)
     out['step_ns'] = np.asarray(ctrl.step_ns, float)
@@ -167,7 +113,7 @@ def run_scenario(record='elcentro', n_draws=20, seed=2020, duration_s=None, data
     log(f'{NAME}: record {record} ({t[-1]:.2f} s, {len(t)} steps at {FS_HZ:g} Hz), '
         f'{len(cases)} nominal cases + {n_draws} perturbed plants (seed {seed})')
     design, info = rb.identify_and_design(log=log, **(fir_options or {}))
-    plants = plants_of(info, FS_HZ)
+    plants = rb.plants_of(info, FS_HZ)
     refs = {c: rb.reference_response(c, ag, dt) for c in set(c for c, _ in runs)}
     blocks, per_run = {}, {}
     for name in methods:

@@ -624,12 +624,67 @@ def unstable(x_m, ref) -> bool:
                 or np.max(np.abs(x_m)) > UNSTABLE_FACTOR * np.max(np.abs(ref[:, 0])))
 
 
+# ------------------------------------------------ the adaptive methods as controllers
+class MethodController:
+    """A benchmark controller (``step(desired, measured)`` over the batch) of one method."""
+
+    feedback = True
+
+    def __init__(self, name, design, plant, batch, options=None, info=None):
+        """Build ``batch`` copies of method ``name`` (``adaptive.make_method``)."""
+        from rths_actuator_bridge.silva2020 import converter
+        from rths_compensator.adaptive import make_method
+        self.name = name
+        self.conv = converter
+        self.options = dict(options or {})
+        self.info = info or {}
+        self.methods = [make_method(name, design, None if name == 'fir' else plant,
+                                    **self.options) for _ in range(batch)]
+        self.step_ns = []
+        self.events = [[] for _ in range(batch)]
+        self._k = 0
+
+    def step(self, desired, measured):
+        """Command [m] of every run for this sample (timing each method's step)."""
+        meas = self.conv(measured)
+        out = np.empty(len(self.methods))
+        clock = time.perf_counter_ns
+        first = self._k == 0
+        for i, method in enumerate(self.methods):
+            was = method.fallen_back if hasattr(method, 'fallen_back') else False
+            t0 = clock()
+            out[i] = method.step(float(desired[i]), None if first else float(meas[i]))
+            self.step_ns.append(clock() - t0)
+            if not was and getattr(method, 'fallen_back', False):
+                self.events[i].append({'step': self._k, 'status': method.status.reason})
+        self._k += 1
+        return self.conv(out)
+
+    def describe(self) -> dict:
+        """Return the settings for the JSON."""
+        return {'method': self.name, 'options': self.options, **self.info}
+
+
+def plants_of(info, fs_hz):
+    """``(design_plant, identified)``: the FIR's design plant ``P / L`` and the ARX model P.
+
+    ``info`` is :func:`identify_and_design`'s record of the identification.
+    """
+    from rths_compensator.identification import ArxModel
+    arx = info['arx']
+    model = ArxModel(a=arx['a'], b=arx['b'], d=arx['d'], fs_hz=fs_hz)
+    gain, a_l = target_lowpass(info['target_lowpass']['order'],
+                                  info['target_lowpass']['cutoff_hz'], fs_hz)
+    b_model = np.concatenate([np.zeros(model.d), model.b])
+    return (np.convolve(b_model, a_l), gain * np.asarray(model.a)), model
+
+
 # ----------------------------------------------------------------------------- the bench
 def make_controller(name: str, batch: int, dt: float, fir_options: dict = None, log=_log):
     """Build controller ``name`` (example, fir or an adaptive method) for ``batch`` runs.
 
     ``rls_fir``, ``ats`` and ``amb`` start from the same identification and FIR design
-    as ``fir`` (:class:`.bench_adaptive_silva.MethodController`, one method per run).
+    as ``fir`` (:class:`MethodController`, one method per run).
     """
     if name == 'example':
         return ExampleController(dt, batch)
@@ -637,7 +692,6 @@ def make_controller(name: str, batch: int, dt: float, fir_options: dict = None, 
         design, info = identify_and_design(log=log, **(fir_options or {}))
         return FirController(design, batch, info)
     if name in ADAPTIVE_CONTROLLERS:
-        from .bench_adaptive_silva import MethodController, plants_of
         design, info = identify_and_design(log=log, **(fir_options or {}))
         design_plant, identified = plants_of(info, 1.0 / dt)
         return MethodController(name, design, design_plant if name == 'rls_fir'

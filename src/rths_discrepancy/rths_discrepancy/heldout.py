@@ -236,16 +236,9 @@ def run_sets(workers=2, progress=None):
     """Run sets A and B; return {'A': {...}, 'B': {...}} with counts and rows."""
     jobs = [('A', i) for i in range(len(SET_A))] + [('B', i) for i in range(len(SET_B))]
     say = progress or (lambda msg: None)
-    from rths_common.progress import Progress
-    from rths_discrepancy.selftest import run_parallel
+    from rths_discrepancy.jobs import run_with_progress
 
-    with Progress(len(jobs), 'held-out records') as bar:
-        def on_row(done):
-            if not done[-1]['correct']:
-                with bar.hidden():
-                    say(_line(len(done), len(jobs), done[-1]))
-            bar.update(len(done))
-        rows = run_parallel(run_one, jobs, workers, on_row)
+    rows = run_with_progress(run_one, jobs, workers, 'held-out records', say, _line)
     rows.sort(key=lambda r: (r['set'], r['index']))
     out = {}
     for s in ('A', 'B'):

@@ -22,6 +22,7 @@ import numpy as np
 
 from rths_discrepancy import effects as fx
 from rths_discrepancy import models
+from rths_discrepancy.jobs import run_with_progress
 
 DURATION_S = 16.0
 QUICK_DURATION_S = 8.0
@@ -388,36 +389,7 @@ def _detect_limit(rows, name):
 
 def _run_jobs(jobs, workers, say, label='self-test cases'):
     """Run the cases with a progress line (rths_common.progress); ``say`` gets the wrong ones."""
-    from rths_common.progress import Progress
-
-    with Progress(len(jobs), label) as bar:
-        def on_row(rows):
-            if not rows[-1]['correct']:
-                with bar.hidden():
-                    say(_progress_line(len(rows), len(jobs), rows[-1]))
-            bar.update(len(rows))
-        return run_parallel(run_case, jobs, workers, on_row)
-
-
-def run_parallel(func, jobs, workers, on_row=None):
-    """``[func(job) for job in jobs]`` on ``workers`` forked processes (in finishing order).
-
-    ``on_row(rows)`` is called after each result with the rows so far (progress).
-    """
-    rows = []
-    if workers > 1:
-        import multiprocessing as mp
-        with mp.get_context('fork').Pool(workers) as pool:
-            for row in pool.imap_unordered(func, jobs):
-                rows.append(row)
-                if on_row:
-                    on_row(rows)
-    else:
-        for job in jobs:
-            rows.append(func(job))
-            if on_row:
-                on_row(rows)
-    return rows
+    return run_with_progress(run_case, jobs, workers, label, say, _progress_line)
 
 
 def _convention_of(label):
