@@ -674,7 +674,7 @@ def plants_of(info, fs_hz):
     arx = info['arx']
     model = ArxModel(a=arx['a'], b=arx['b'], d=arx['d'], fs_hz=fs_hz)
     gain, a_l = target_lowpass(info['target_lowpass']['order'],
-                                  info['target_lowpass']['cutoff_hz'], fs_hz)
+                               info['target_lowpass']['cutoff_hz'], fs_hz)
     b_model = np.concatenate([np.zeros(model.d), model.b])
     return (np.convolve(b_model, a_l), gain * np.asarray(model.a)), model
 
