@@ -21,8 +21,8 @@ test: setup  ## build and run every test through colcon test; non-zero on any fa
 	  if [ $$rc -ne 0 ] || [ $$rc2 -ne 0 ]; then echo "make test: FAILED"; exit 1; fi; \
 	  echo "make test: all tests passed"
 
-lint: setup  ## ruff over src/ and test/ (ruff.toml), mypy on rths_common and the three step cores (mypy.ini)
-	@source env.sh && ruff check src test && \
+lint: setup  ## ruff and flake8 over src/ and test/ (ruff.toml, ament_lint.ini), mypy on rths_common and the step cores (mypy.ini)
+	@source env.sh && ruff check src test && flake8 --config ament_lint.ini src test && \
 	  mypy --config-file mypy.ini -p rths_common -p rths_numerical.substructure \
 	    -p rths_compensator.filters -p rths_compensator.core -p rths_numerical.stepping \
 	    -p rths_actuator_bridge.bridge && \
