@@ -68,6 +68,8 @@ import math
 
 import numpy as np
 
+from rths_common.params import LOOP_RATE_RANGE_HZ
+
 #: Commands that must pass unchanged in a row before a rejoin after missing commands ends.
 REJOIN_SETTLE_STEPS = 3
 
@@ -103,7 +105,7 @@ SAFETY_PARAMS = {
 #: Ranges of the limits (inclusive; ints: integer parameters): beyond them a value is
 #: almost surely in the wrong unit or a typo.  The checks below add > 0 and the stroke.
 SAFETY_RANGES = {
-    'fs_hz': (1.0, 100_000.0),
+    'fs_hz': LOOP_RATE_RANGE_HZ,
     'stroke_m': (0.0, 1.0),
     'velocity_m_s': (0.0, 10.0),
     'acceleration_m_s2': (0.0, 100_000.0),

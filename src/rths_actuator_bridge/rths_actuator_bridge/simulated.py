@@ -76,6 +76,8 @@ import math
 import numpy as np
 from scipy.linalg import expm
 
+from rths_common.params import LOOP_RATE_RANGE_HZ
+
 from .backend import Backend
 from .channels import CHANNELS, zoh
 
@@ -143,7 +145,7 @@ SIM_PARAMS = {
 }
 #: Ranges of the rates, counts and specimen settings of :data:`SIM_PARAMS` (inclusive).
 SIM_RANGES = {
-    'fs_hz': (1.0, 100_000.0),
+    'fs_hz': LOOP_RATE_RANGE_HZ,
     'adc_bits': (0, 32),
     'friction_n': (0.0, 1.0e6),
     'friction_substeps': (1, 4096),

@@ -41,6 +41,10 @@ NODE_KEYS = {
                   'passes it): the taps must be designed for it',
 }
 
+#: Range of every loop rate (``fs_hz``, ``loop_fs_hz``) [Hz], inclusive: beyond it a value is
+#: almost surely in the wrong unit or a typo.
+LOOP_RATE_RANGE_HZ = (1.0, 100_000.0)
+
 #: Ranges of the node-level keys (inclusive; ints for an integer parameter).
 NODE_RANGES = {
     'wait_for_subscribers': (0, 64),
@@ -49,7 +53,7 @@ NODE_RANGES = {
     'spin_margin_us': (0.0, 100_000.0),
     'rt_priority': (-1, 99),
     'coefficients_every': (1, 1_000_000),
-    'loop_fs_hz': (1.0, 100_000.0),
+    'loop_fs_hz': LOOP_RATE_RANGE_HZ,
 }
 
 

@@ -32,6 +32,7 @@ import numpy as np
 import yaml
 
 from rths_common.files import atomic_open
+from rths_common.params import LOOP_RATE_RANGE_HZ
 
 SCHEMES = ('ls', 'wls', 'mm', 'inverse', 'mff', 'npz', 'zpetc', 'zmetc', 'identity')
 
@@ -43,7 +44,7 @@ FILTER_PARAMS = {
     'denominator': ([1.0], '[-] denominator coefficients a0..am ([1.0]: a FIR)'),
 }
 #: Range of the design rate (inclusive).
-FILTER_RANGES = {'fs_hz': (1.0, 100_000.0)}
+FILTER_RANGES = {'fs_hz': LOOP_RATE_RANGE_HZ}
 #: The compensator's method key (not a filter field): key -> (default, meaning).
 METHOD_PARAMS = {
     'method': ('fir', 'fir | rls_fir | ats | amb: the designed filter, or an adaptive method '

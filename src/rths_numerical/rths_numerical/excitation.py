@@ -13,6 +13,8 @@ import math
 
 import numpy as np
 
+from rths_common.params import LOOP_RATE_RANGE_HZ
+
 from .signals import blwn
 from .stepping import SteppedSubstructure
 
@@ -28,7 +30,7 @@ EXCITATION_PARAMS = {
 }
 #: Ranges of :data:`EXCITATION_PARAMS` (inclusive).
 EXCITATION_RANGES = {
-    'fs_hz': (1.0, 100_000.0),
+    'fs_hz': LOOP_RATE_RANGE_HZ,
     'duration_s': (0.0, 1.0e6),
     'excitation_band_hz': (0.0, 100_000.0),
     'excitation_peak_m': (0.0, 1.0),

@@ -55,6 +55,8 @@ from typing import Any
 
 import numpy as np
 
+from rths_common.params import LOOP_RATE_RANGE_HZ
+
 from .dtm import FRAME_MASS_KG, TABLE4
 from .ground_motion import G, baseline_correct, ground_motion, integrate
 from .integrators import INTEGRATORS, make_integrator
@@ -98,7 +100,7 @@ PARAMS = {
 #: Ranges of the rates, durations, gains and model settings of :data:`PARAMS` (inclusive).
 RANGES = {
     'rho_inf': (0.0, 1.0),
-    'fs_hz': (1.0, 100_000.0),
+    'fs_hz': LOOP_RATE_RANGE_HZ,
     'duration_s': (0.0, 1.0e6),
     'scale': (0.0, 1000.0),
     'harmonic_freq_hz': (0.0, 100_000.0),
