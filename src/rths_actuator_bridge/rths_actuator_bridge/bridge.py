@@ -29,16 +29,25 @@ from rths_common import stepping
 
 from . import safety
 from .backend import Backend
-from .simulated import SimulatedBackend
-from .udp import UdpBackend
+from .genericclient import CLIENT_PARAMS, CLIENT_RANGES, GenericClientBackend
+from .ideal import IDEAL_PARAMS, IDEAL_RANGES, IdealBackend
+from .simulated import SIM_PARAMS, SIM_RANGES, SimulatedBackend
+from .udp import UDP_PARAMS, UDP_RANGES, UdpBackend
 
 #: Backend name (the ``backend`` parameter) -> class; 'simulated' is the default.
-BACKENDS = {'simulated': SimulatedBackend, 'udp': UdpBackend}
+BACKENDS = {'simulated': SimulatedBackend, 'udp': UdpBackend, 'ideal': IdealBackend,
+            'genericclient': GenericClientBackend}
+#: Backend name -> its parameters (key -> (type,) default, meaning) and their ranges.
+BACKEND_PARAMS = {'simulated': (SIM_PARAMS, SIM_RANGES), 'udp': (UDP_PARAMS, UDP_RANGES),
+                  'ideal': (IDEAL_PARAMS, IDEAL_RANGES),
+                  'genericclient': (CLIENT_PARAMS, CLIENT_RANGES)}
 
 #: The bridge's own parameters: key -> (default, meaning [unit]).  The backends' are
 #: ``simulated.SIM_PARAMS`` and ``udp.UDP_PARAMS``, the limits ``safety.SAFETY_PARAMS``.
 PARAMS = {
-    'backend': ('simulated', "'simulated' (the plant model) or 'udp' (a servo controller)"),
+    'backend': ('simulated', "'simulated' (the plant model), 'udp' (a servo controller), "
+                "'ideal' (perfect actuator on a linear spring) or 'genericclient' (a remote "
+                'experimental site: rths site, OpenFresco)'),
     'command_delay_steps': (0, '[steps] the command of step k is written at tick k + D'),
 }
 
@@ -47,12 +56,46 @@ def param_schema(node_params) -> dict:
     """Return the bridge node's parameter schema: its ``node_params``, the core's, the backends'."""
     from rths_common.params import node_schema
 
-    from .simulated import SIM_PARAMS, SIM_RANGES
-    from .udp import UDP_PARAMS, UDP_RANGES
-    ranges = {**UDP_RANGES, **SIM_RANGES, **safety.SAFETY_RANGES,
-              'command_delay_steps': (0, MAX_DELAY_STEPS)}
-    return node_schema(node_params, {**UDP_PARAMS, **SIM_PARAMS, **safety.SAFETY_PARAMS,
-                                     **PARAMS}, ranges)
+    ranges, keys = {}, {}
+    for params, backend_ranges in BACKEND_PARAMS.values():
+        ranges.update(backend_ranges)
+        keys.update(params)
+    ranges.update(safety.SAFETY_RANGES, command_delay_steps=(0, MAX_DELAY_STEPS))
+    return node_schema(node_params, {**keys, **safety.SAFETY_PARAMS, **PARAMS}, ranges)
+
+
+#: Plausibility bounds of the limits [SI]: a larger value is almost surely in the wrong unit
+#: (inches or mm for metres, kN for N is the other way round and passes).
+PLAUSIBLE_MAX = {'stroke_m': (1.0, 'm', 'inches or mm'),
+                 'velocity_m_s': (10.0, 'm/s', 'mm/s or in/s'),
+                 'dtm_rel_disp_m': (1.0, 'm', 'inches or mm'),
+                 'safe_position_m': (1.0, 'm', 'inches or mm')}
+
+
+def check_core_params(core: dict, node_keys=()) -> dict:
+    """Validate the bridge core's flat parameters (node-level keys removed); return them.
+
+    Unknown keys (typos; ``node_keys`` are listed as known in the message), an
+    unknown backend, non-finite or out-of-unit limits raise ValueError naming
+    the field and the fix.
+    """
+    backend = core.get('backend', 'simulated')
+    if backend not in BACKENDS:
+        raise ValueError(f"parameter 'backend' = {backend!r} is unknown; use one of "
+                         f"{', '.join(repr(b) for b in BACKENDS)}")
+    known = {*PARAMS, *safety.SAFETY_PARAMS, *BACKEND_PARAMS[backend][0]}
+    unknown = sorted(set(core) - known)
+    if unknown:
+        raise ValueError(f'unknown parameter(s) {", ".join(unknown)} for backend {backend!r}; '
+                         f'known: {", ".join(sorted(known | set(node_keys)))}')
+    safety.SafetyLimits.from_params(core)
+    DelayLine(core.get('command_delay_steps', 0))
+    for key, (bound, unit, other) in PLAUSIBLE_MAX.items():
+        value = core.get(key)
+        if isinstance(value, (int, float)) and abs(value) > bound:
+            raise ValueError(f'parameter {key} = {value} {unit} is beyond any lab actuator '
+                             f'(> {bound:g} {unit}): it looks like {other}; give it in {unit}')
+    return core
 
 
 def make_backend(params: dict) -> Backend:

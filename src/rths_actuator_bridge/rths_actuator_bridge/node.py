@@ -36,14 +36,6 @@ EXIT_SAFETY_STOP = 3
 #: Shortest time between two graph scans for the command source's writer gids [s].
 RESCAN_S = 0.05
 
-#: Plausibility bounds of the limits [SI]: a larger value is almost surely in the wrong unit
-#: (inches or mm for metres, kN for N is the other way round and passes).
-PLAUSIBLE_MAX = {'stroke_m': (1.0, 'm', 'inches or mm'),
-                 'velocity_m_s': (10.0, 'm/s', 'mm/s or in/s'),
-                 'dtm_rel_disp_m': (1.0, 'm', 'inches or mm'),
-                 'safe_position_m': (1.0, 'm', 'inches or mm')}
-
-
 def check_bridge_params(params: dict) -> dict:
     """Validate the bridge's flat parameters; return those of the core (backend + safety).
 
@@ -51,32 +43,12 @@ def check_bridge_params(params: dict) -> dict:
     naming the field and the fix.  Used by the node and by ``rths launch``'s
     pre-flight check (:mod:`rths_bringup.preflight`).
     """
-    from rths_actuator_bridge.bridge import BACKENDS, PARAMS, DelayLine
-    from rths_actuator_bridge.safety import SAFETY_PARAMS, SafetyLimits
-    from rths_actuator_bridge.simulated import SIM_PARAMS
-    from rths_actuator_bridge.udp import UDP_PARAMS
+    from rths_actuator_bridge.bridge import check_core_params
 
     core = {k: v for k, v in params.items()
             if k not in NODE_PARAMS and k not in ns.ROS_BUILTIN_PARAMS
             and not k.startswith('qos_overrides')}
-    backend = core.get('backend', 'simulated')
-    if backend not in BACKENDS:
-        raise ValueError(f"parameter 'backend' = {backend!r} is unknown; use one of "
-                         f"{', '.join(repr(b) for b in BACKENDS)}")
-    known = {*PARAMS, *SAFETY_PARAMS,
-             *(UDP_PARAMS if backend == 'udp' else SIM_PARAMS)}
-    unknown = sorted(set(core) - known)
-    if unknown:
-        raise ValueError(f'unknown parameter(s) {", ".join(unknown)} for backend {backend!r}; '
-                         f'known: {", ".join(sorted(known | set(NODE_PARAMS)))}')
-    SafetyLimits.from_params(core)
-    DelayLine(core.get('command_delay_steps', 0))
-    for key, (bound, unit, other) in PLAUSIBLE_MAX.items():
-        value = core.get(key)
-        if isinstance(value, (int, float)) and abs(value) > bound:
-            raise ValueError(f'parameter {key} = {value} {unit} is beyond any lab actuator '
-                             f'(> {bound:g} {unit}): it looks like {other}; give it in {unit}')
-    return core
+    return check_core_params(core, NODE_PARAMS)
 
 
 class BridgeNode:
