@@ -135,8 +135,8 @@ def run_site(args) -> int:
     import os
     from pathlib import Path
 
-    from .site import build_site, load_site_config
-    from .site_server import check_allow, listen, log, serve, server_tls_context
+    from .site import load_site_config
+    from .site_server import check_allow, listen, run, server_tls_context
 
     if not 0 <= args.port <= 65535:
         raise ValueError(f'--port {args.port} must be 0 (any free port) .. 65535')
@@ -154,24 +154,13 @@ def run_site(args) -> int:
     stamp = datetime.datetime.now().strftime('%Y%m%d-%H%M%S')
     bag = Path(args.bag) if args.bag else Path('out') / f'site-{stamp}' / 'bag'
     listener = listen(args.host, args.port)
-    core = build_site(config, bag, log)
-    host, port = listener.getsockname()[:2]
-    backend = config['bridge'].get('backend', 'simulated')
-    log(f'listening on {host}:{port} ({"TLS" if tls else "TCP"}; {site["mode"]}; backend '
-        f'{backend}, {core.n} interface DOF(s) at {core.fs_hz:g} Hz); bag {bag}')
-    code = 2
     try:
-        code, _ = serve(core, listener, site, tls, args.wait_s or None)
+        summary = run(config, listener, bag, tls, args.wait_s or None)
     finally:
         listener.close()
-        if core.recorder is not None:
-            core.recorder.close()
-        core.bridge.close()
-        summary = core.summary()
-        log(f'done: {summary["steps"]} loop steps, {summary["commits"]} commits, safety state '
-            f'{summary["safety_state"]}{", " + summary["fault"] if summary["fault"] else ""}; '
-            f'bag {bag} closed')
-    return code
+    if args.summary:
+        _write_json(args.summary, summary)
+    return summary['exit_code']
 
 
 def _add_site_parser(commands):
@@ -207,6 +196,9 @@ def _add_site_parser(commands):
     p.add_argument('--tls-key', default='', help='private key of --tls-cert (PEM)')
     p.add_argument('--tls-ca', default='',
                    help='CA (PEM) that must have signed the client certificate: mutual TLS')
+    p.add_argument('--summary', default=None, metavar='FILE.json',
+                   help='write the session summary (steps, commits, messages, safety_state, '
+                        'fault, exit_code, bag) here at the end')
     p.add_argument('--wait-s', type=float, default=0.0,
                    help='give up if no client connects within this many seconds (0 = wait)')
     p.set_defaults(func=run_site)

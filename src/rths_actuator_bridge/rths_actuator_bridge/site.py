@@ -177,6 +177,8 @@ class SiteCore:
         self.commits = 0
         self.lock = threading.Lock()  # realtime: the clock thread and the client thread
         self.stopped = ''             # why the site stopped ('' while it runs)
+        self.messages = 0             # client messages handled
+        self.final_state = None       # the supervisor's state when the session ended
         self._prev = np.zeros((2, self.n))   # measured displacements of the last two steps
 
     # ------------------------------------------------------------------ session
@@ -189,6 +191,7 @@ class SiteCore:
 
     def handle(self, request: of.Request):
         """Carry out one client message; return the reply bytes, or None (no reply)."""
+        self.messages += 1
         action = request.action
         if action == of.SET_TRIAL_RESPONSE:
             self.trial_time = request.time
@@ -290,13 +293,15 @@ class SiteCore:
 
     def finish(self):
         """The client said goodbye: deactivate the bridge (the actuator holds its position)."""
+        self.final_state = self.bridge.state
         self.bridge.deactivate()
 
     def summary(self) -> dict:
-        """Steps, commits and the supervisor's final state and fault."""
+        """Steps, commits, messages, the supervisor's state at the session's end and fault."""
         sup = self.bridge.supervisor
-        return {'steps': self.k, 'commits': self.commits, 'safety_state': int(sup.state),
-                'fault': sup.fault, 'stopped': self.stopped}
+        state = sup.state if self.final_state is None else self.final_state
+        return {'steps': self.k, 'commits': self.commits, 'messages': self.messages,
+                'safety_state': int(state), 'fault': sup.fault, 'stopped': self.stopped}
 
 
 # ---------------------------------------------------------------------- configuration

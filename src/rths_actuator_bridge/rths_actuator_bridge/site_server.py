@@ -30,7 +30,7 @@ import time
 from rths_common.stepping import TickClock
 
 from . import openfresco as of
-from .site import SiteStopped
+from .site import SiteStopped, build_site
 
 #: Exit codes of :func:`serve`: 0 the client said goodbye, 3 a safety stop (bad peer, fault).
 EXIT_DONE, EXIT_SAFETY_STOP = 0, 3
@@ -284,3 +284,29 @@ def serve(core, listener, params, tls=None, wait_s=None) -> tuple:
     if core.recorder is not None:
         core.recorder.event(f'client {peer} said goodbye')
     return EXIT_DONE, ''
+
+
+def run(config: dict, listener, bag, tls=None, wait_s=None) -> dict:
+    """Build the site from ``config``, serve one session on ``listener``, close; the summary.
+
+    The summary: :meth:`.site.SiteCore.summary` with ``exit_code`` (0 goodbye, 3 safety
+    stop), ``problem`` (the bad peer's fault, '' if none) and ``bag``.
+    """
+    site = config['site']
+    core = build_site(config, bag, log)
+    host, port = listener.getsockname()[:2]
+    log(f'listening on {host}:{port} ({"TLS" if tls else "TCP"}; {site["mode"]}; backend '
+        f'{config["bridge"].get("backend", "simulated")}, {core.n} interface DOF(s) at '
+        f'{core.fs_hz:g} Hz); bag {bag}')
+    code, problem = 2, 'the site failed'
+    try:
+        code, problem = serve(core, listener, site, tls, wait_s)
+    finally:
+        if core.recorder is not None:
+            core.recorder.close()
+        core.bridge.close()
+        summary = dict(core.summary(), exit_code=code, problem=problem, bag=str(bag))
+        log(f'done: {summary["steps"]} loop steps, {summary["commits"]} commits, '
+            f'{summary["messages"]} messages, safety state {summary["safety_state"]}'
+            f'{", " + summary["fault"] if summary["fault"] else ""}; bag {bag} closed')
+    return summary
