@@ -14,7 +14,9 @@ motion; its top floor carries the specimen.  Two runs of the same specimen:
 
 Reported (exactly these JSON fields): ``steps`` (analysis steps),
 ``round_trip_us_p50``/``_p99`` (wall time of one ``analyze(1, dt)`` of the
-site run: every message of the step and OpenSees' own work),
+site run: every message of the step and OpenSees' own work; the site and the
+client share one CPU and run SCHED_FIFO where allowed, as a lab's real-time
+host would: on a loaded machine that is what keeps the p99 near the p50),
 ``max_abs_diff_vs_direct`` (top-floor displacement, site vs direct, over the
 peak of the direct one), ``messages_per_step`` (client messages the site
 handled per analysis step), ``safety_state_final`` (the site supervisor's
@@ -32,6 +34,7 @@ bench uses gmspy's Imperial Valley 1979 record at USGS station 5115 (an El
 Centro array station) scaled by 0.10, the seed's El Centro factor.
 """
 
+import contextlib
 import json
 import os
 from pathlib import Path
@@ -47,6 +50,8 @@ FIELDS = ('steps', 'round_trip_us_p50', 'round_trip_us_p99', 'max_abs_diff_vs_di
           'messages_per_step', 'safety_state_final')
 RECORD, SCALE = 'imperial_valley', 0.10
 FS_HZ = 1024.0
+#: SCHED_FIFO priority of the site and of the client during the timed run (if allowed).
+RT_PRIORITY = 80
 #: Stiffness of the ideal specimen's spring [N/m] (a tenth of a storey's).
 IDEAL_STIFFNESS_N_M = 1.6e5
 #: The 2-DOF building: storey masses [kg], storey stiffnesses [N/m], modal damping.
@@ -124,6 +129,39 @@ class SiteProcess:
     def log(self) -> str:
         """Everything the site printed."""
         return ''.join(self.lines)
+
+
+@contextlib.contextmanager
+def fifo(priority: int):
+    """This process SCHED_FIFO at ``priority`` inside the block, if the system allows it."""
+    try:
+        before = os.sched_getscheduler(0), os.sched_getparam(0)
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, ValueError):
+        yield False
+        return
+    try:
+        yield True
+    finally:
+        os.sched_setscheduler(0, before[0], before[1])
+
+
+@contextlib.contextmanager
+def pinned(cpu):
+    """This process (and the children it starts) on CPU ``cpu`` inside the block (None: all)."""
+    if cpu is None:
+        yield
+        return
+    before = os.sched_getaffinity(0)
+    try:
+        os.sched_setaffinity(0, {int(cpu)})
+    except (OSError, ValueError) as err:
+        raise ValueError(f'--cpu {cpu}: {err} (this machine has CPUs {sorted(before)})') \
+            from None
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, before)
 
 
 def _apply_ground(ops, spec, model, ag, dt):
@@ -221,7 +259,8 @@ def tcp_specimen_diff(model, ag, dt, workdir) -> float:
     return relative_diff(through['disp'][1:], direct['disp'][1:])
 
 
-def bench_site(steps: int, specimen: str, workdir, progress=None) -> tuple:
+def bench_site(steps: int, specimen: str, workdir, progress=None, priority=RT_PRIORITY,
+               cpu=None) -> tuple:
     """Run the bench; return ``(result with FIELDS, extra facts printed beside it)``."""
     from rths_actuator_bridge.site import load_site_config
     from rths_numerical.opensees_backend import OpenSeesSubstructure, linear_model_builder
@@ -235,11 +274,13 @@ def bench_site(steps: int, specimen: str, workdir, progress=None) -> tuple:
     (workdir / 'config.yaml').write_text(yaml.safe_dump(config))
     params = load_site_config(workdir / 'config.yaml')
     load_before = os.getloadavg()
-    site = SiteProcess(config, workdir / 'site')
-    try:
-        client = run_client(model, ag, dt, site.port)
-    finally:
-        summary = site.finish()
+    with pinned(cpu):   # the site inherits the CPU: client and site hand over on one core
+        site = SiteProcess(config, workdir / 'site', ('--rt-priority', str(priority)))
+        try:
+            with fifo(priority):
+                client = run_client(model, ag, dt, site.port)
+        finally:
+            summary = site.finish()
     report(1, 3)
     if summary['exit_code'] != 0:
         raise RuntimeError(f'rths site ended with {summary}: {site.log()}')
@@ -262,7 +303,7 @@ def bench_site(steps: int, specimen: str, workdir, progress=None) -> tuple:
         'messages_per_step': round(summary['messages'] / analysis_steps, 3),
         'safety_state_final': int(summary['safety_state']),
     }
-    extra = {'specimen': specimen, 'record': f'{RECORD} x {SCALE} (USGS 5115)',
+    extra = {'specimen': specimen, 'cpu': cpu, 'rt_priority': priority, 'record': f'{RECORD} x {SCALE} (USGS 5115)',
              'fs_hz': FS_HZ, 'site_loop_steps': summary['steps'],
              'floor_us_p50': round(float(np.percentile(floor_ns, 50)) / 1e3, 1),
              'peak_disp_m': float(np.max(np.abs(direct['disp'][1:]))),
@@ -288,7 +329,8 @@ def cmd_bench_site(args) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         workdir = Path(args.keep) if args.keep else Path(tmp)
         with Progress(3, 'bench site', 'runs') as bar:
-            result, extra = bench_site(args.steps + 1, args.specimen, workdir, bar.report)
+            result, extra = bench_site(args.steps + 1, args.specimen, workdir, bar.report,
+                                       args.rt_priority, None if args.cpu < 0 else args.cpu)
     assert tuple(result) == FIELDS
     for key, value in {**result, **extra}.items():
         print(f'{key:28s} {value}')
@@ -316,6 +358,14 @@ def register(commands, benches):
                    help='simulated: the repo config (3-pole actuator + DTM valve4, designed '
                         'compensator; default); ideal: perfect actuator on a spring (also runs '
                         'rths on both sides through --specimen tcp://)')
+    p.add_argument('--rt-priority', type=int, default=RT_PRIORITY, choices=range(0, 100),
+                   metavar='0..99',
+                   help=f'SCHED_FIFO priority of the site and of the client while timed '
+                        f'(default {RT_PRIORITY}; 0 = normal scheduling)')
+    p.add_argument('--cpu', type=int, default=max(os.sched_getaffinity(0)),
+                   help='CPU the client and the site share while timed (default the last one; '
+                        '-1 = no pinning): one core hands each message over without a '
+                        'cross-CPU wake-up')
     p.add_argument('--keep', default=None, metavar='DIR',
                    help='keep the site configs, bags and summaries here')
     p.set_defaults(func=cmd_bench_site)
