@@ -35,12 +35,13 @@ from .simulated import SIM_PARAMS, SIM_RANGES, SimulatedBackend
 from .udp import UDP_PARAMS, UDP_RANGES, UdpBackend
 
 #: Backend name (the ``backend`` parameter) -> class; 'simulated' is the default.
-BACKENDS = {'simulated': SimulatedBackend, 'udp': UdpBackend, 'ideal': IdealBackend,
-            'genericclient': GenericClientBackend}
+BACKENDS: dict[str, type[Backend]] = {
+    'simulated': SimulatedBackend, 'udp': UdpBackend, 'ideal': IdealBackend,
+    'genericclient': GenericClientBackend}
 #: Backend name -> its parameters (key -> (type,) default, meaning) and their ranges.
-BACKEND_PARAMS = {'simulated': (SIM_PARAMS, SIM_RANGES), 'udp': (UDP_PARAMS, UDP_RANGES),
-                  'ideal': (IDEAL_PARAMS, IDEAL_RANGES),
-                  'genericclient': (CLIENT_PARAMS, CLIENT_RANGES)}
+BACKEND_PARAMS: dict[str, tuple[dict, dict]] = {
+    'simulated': (SIM_PARAMS, SIM_RANGES), 'udp': (UDP_PARAMS, UDP_RANGES),
+    'ideal': (IDEAL_PARAMS, IDEAL_RANGES), 'genericclient': (CLIENT_PARAMS, CLIENT_RANGES)}
 
 #: The bridge's own parameters: key -> (default, meaning [unit]).  The backends' are
 #: ``simulated.SIM_PARAMS`` and ``udp.UDP_PARAMS``, the limits ``safety.SAFETY_PARAMS``.
@@ -56,7 +57,8 @@ def param_schema(node_params) -> dict:
     """Return the bridge node's parameter schema: its ``node_params``, the core's, the backends'."""
     from rths_common.params import node_schema
 
-    ranges, keys = {}, {}
+    ranges: dict = {}
+    keys: dict = {}
     for params, backend_ranges in BACKEND_PARAMS.values():
         ranges.update(backend_ranges)
         keys.update(params)

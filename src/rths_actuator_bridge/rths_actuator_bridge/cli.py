@@ -169,6 +169,7 @@ def realtime_priority(priority: int) -> bool:
     """Run this process SCHED_FIFO at ``priority`` (1..99); say so, or why not."""
     import gc
     import os
+
     from .site_server import log
     gc.freeze()   # what exists now is never scanned again: shorter collections in the session
     try:

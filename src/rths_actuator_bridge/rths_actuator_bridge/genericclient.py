@@ -4,14 +4,15 @@ The bridge speaks the OpenSees ``genericClient`` protocol (:mod:`.openfresco`)
 to a site: an OpenFresco ``SimAppSiteServer``/experimental site, or another
 rths (``rths site``).  Per loop step k::
 
-    write(u_k):  setTrialResponse(disp u_k, vel, accel, time k/fs), commitState (k > 0)
+    write(u_k):  setTrialResponse(disp u_k, vel, accel, time k/fs); commitState if k > 0
     read():      getDaqResponse -> measured displacement (daq disp) and force
 
 The trial carries the velocity and acceleration of the commands (backward
 differences at ``fs_hz``).  Step 0 is sent as OpenSees sends the structure at
 rest, a trial without a commit; every later step commits before it reads, so
 each reading is the one of this step, also when a trial repeats the previous
-displacement (an rths site then steps at the commit).  The set-up asks for the daq displacement and force
+displacement (an rths site then steps at the commit).  The set-up asks for the
+daq displacement and force
 (``sizeDaq = n, 0, 0, n, 0``).  A site that does not answer within
 ``site_timeout_s``, closes the connection or answers with non-finite numbers makes
 ``read()`` return NaN (as the UDP backend on a lost reply): the safety

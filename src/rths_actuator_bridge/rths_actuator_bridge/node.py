@@ -36,6 +36,7 @@ EXIT_SAFETY_STOP = 3
 #: Shortest time between two graph scans for the command source's writer gids [s].
 RESCAN_S = 0.05
 
+
 def check_bridge_params(params: dict) -> dict:
     """Validate the bridge's flat parameters; return those of the core (backend + safety).
 

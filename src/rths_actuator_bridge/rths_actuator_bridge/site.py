@@ -198,8 +198,8 @@ class SiteCore:
             if self.realtime:
                 with self.lock:
                     self.target = request.disp
-            elif self.applied_trial is None or not np.array_equal(request.disp,
-                                                                   self.applied_trial):
+            elif self.applied_trial is None \
+                    or not np.array_equal(request.disp, self.applied_trial):
                 self._step(request.disp)
             return None
         if action == of.COMMIT_STATE:
@@ -216,7 +216,7 @@ class SiteCore:
         return of.encode_reply(self.sizes, self._reading(action))
 
     def _reading(self, action: int) -> np.ndarray:
-        """The values of a get-action from the latest measurement (zeros before the first)."""
+        """Return a get-action's values from the latest measurement (zeros before the first)."""
         with self.lock:
             latest, prev = self.latest, self._prev.copy()
         if latest is None:
@@ -292,12 +292,12 @@ class SiteCore:
         return steps
 
     def finish(self):
-        """The client said goodbye: deactivate the bridge (the actuator holds its position)."""
+        """End the session after the goodbye: deactivate the bridge (the actuator holds)."""
         self.final_state = self.bridge.state
         self.bridge.deactivate()
 
     def summary(self) -> dict:
-        """Steps, commits, messages, the supervisor's state at the session's end and fault."""
+        """Return steps, commits, messages, the supervisor's state at the end and fault."""
         sup = self.bridge.supervisor
         state = sup.state if self.final_state is None else self.final_state
         return {'steps': self.k, 'commits': self.commits, 'messages': self.messages,
@@ -306,7 +306,7 @@ class SiteCore:
 
 # ---------------------------------------------------------------------- configuration
 def _section(doc: dict, name: str, node: str, base: Path, default: Path) -> dict:
-    """A node's parameters: a params file path (relative to the config), inline, or the default."""
+    """Return a node's parameters: a params file (relative to the config), inline, default."""
     from rths_common.runinfo import load_params
     value = doc.get(name, str(default))
     if isinstance(value, dict):
@@ -366,7 +366,7 @@ def load_site_config(path=None, config_dir=None) -> dict:
 
 
 def run_info(config: dict, peer: str = '') -> dict:
-    """The bag's run information of a site run (kind ``rths``, no numerical section)."""
+    """Return the bag's run information of a site run (kind ``rths``, no numerical section)."""
     from rths_common.runinfo import flatten
     fs = float(config['bridge'].get('fs_hz', safety.SAFETY_PARAMS['fs_hz'][0]))
     info = flatten('rths', fs, config['site']['mode'],

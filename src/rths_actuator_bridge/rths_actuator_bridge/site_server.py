@@ -101,7 +101,7 @@ def listen(host: str, port: int) -> socket.socket:
 
 
 def tune(conn: socket.socket):
-    """Replies out at once (TCP_NODELAY), ACKs at once (TCP_QUICKACK, re-armed per receive)."""
+    """Send replies at once (TCP_NODELAY), ACKs at once (TCP_QUICKACK, re-armed per receive)."""
     conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     if _QUICKACK is not None:
         conn.setsockopt(socket.IPPROTO_TCP, _QUICKACK, 1)
@@ -188,7 +188,7 @@ class Session:
                     raise SiteStopped(core.stopped)
 
     def _watch(self):
-        """A second connection during the session: refuse it; an allowed one stops the run."""
+        """Watch for a second connection: refuse it; an allowed one stops the run."""
         self.listener.settimeout(0.1)
         while not self.done.is_set():
             try:

@@ -21,7 +21,7 @@ FS = 1000.0
 
 
 def ideal_config(n=1, k=(1.0e5,), mode='pseudodynamic', **site):
-    """A site over the ideal specimen (force = K x) with the identity compensator."""
+    """Return a site over the ideal specimen (force = K x) with the identity compensator."""
     return {'site': site_params(dict(site, mode=mode)),
             'bridge': {'backend': 'ideal', 'n_channels': n, 'stiffness_n_m': list(k),
                        'fs_hz': FS, 'velocity_m_s': 1.0, 'acceleration_m_s2': 1000.0},
@@ -80,7 +80,7 @@ class Client:
 
 
 def bag_status(bag):
-    """The bridge's safety states and the site's events, read back from the closed bag."""
+    """Return the bridge's safety states and the site's events, read back from the closed bag."""
     states, events = [], []
     for _, _, msg in bagio.read_messages(bag, [topics.STATUS]):
         (states if msg.node == 'bridge' else events).append(msg.safety_state if
@@ -288,7 +288,7 @@ def test_realtime_mode_ticks_its_own_loop(tmp_path):
 
 
 def _certs(tmp_path):
-    """A CA and a site and a client certificate signed by it (openssl)."""
+    """Make a CA and a site and a client certificate signed by it (openssl)."""
     def sh(*args):
         subprocess.run(['openssl', *args], cwd=tmp_path, check=True, capture_output=True)
     sh('req', '-x509', '-newkey', 'rsa:2048', '-nodes', '-keyout', 'ca.key', '-out', 'ca.pem',
@@ -303,7 +303,7 @@ def _certs(tmp_path):
 
 
 def test_mutual_tls_and_the_genericclient_backend(tmp_path):
-    """rths on both sides over mutual TLS: the bridge's genericclient backend reads K x."""
+    """Rths on both sides over mutual TLS: the bridge's genericclient backend reads K x."""
     from rths_actuator_bridge.bridge import Bridge
     from rths_actuator_bridge.site_server import server_tls_context
     c = _certs(tmp_path)
@@ -324,6 +324,7 @@ def test_mutual_tls_and_the_genericclient_backend(tmp_path):
 
 def test_tls_site_refuses_a_client_without_certificate(tmp_path):
     import ssl
+
     from rths_actuator_bridge.site_server import server_tls_context
     c = _certs(tmp_path)
     served = Served(ideal_config(), tmp_path / 'bag',

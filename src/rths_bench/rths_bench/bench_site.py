@@ -59,7 +59,7 @@ STOREY_MASS_KG, STOREY_STIFFNESS_N_M, ZETA = 2000.0, 1.63e6, 0.02
 
 
 def two_dof_model():
-    """A 2-storey shear building (first mode ~2.8 Hz, the DTM's); the top floor is the interface."""
+    """Return a 2-storey shear building (first mode ~2.8 Hz, the DTM's); top floor: interface."""
     from rths_numerical.model import model_from_dict
     m, k = STOREY_MASS_KG, STOREY_STIFFNESS_N_M
     return model_from_dict({
@@ -70,7 +70,7 @@ def two_dof_model():
 
 
 def ground_accel(steps: int, fs_hz: float = FS_HZ) -> np.ndarray:
-    """The first ``steps`` samples at ``fs_hz`` of the record (module docstring) [m/s^2]."""
+    """Return the first ``steps`` samples at ``fs_hz`` of the record (module docstring) [m/s^2]."""
     from rths_numerical.ground_motion import ground_motion
     ag = ground_motion(RECORD, fs_hz, SCALE)
     if ag.size < steps:
@@ -79,7 +79,7 @@ def ground_accel(steps: int, fs_hz: float = FS_HZ) -> np.ndarray:
 
 
 def site_config(specimen: str, fs_hz: float = FS_HZ, n: int = 1, stiffness=None) -> dict:
-    """The ``rths site`` config of a bench/test specimen: 'ideal' or 'simulated' (repo config)."""
+    """Return the ``rths site`` config of a specimen: 'ideal' or 'simulated' (repo config)."""
     if specimen == 'ideal':
         k = [IDEAL_STIFFNESS_N_M] * n if stiffness is None else list(stiffness)
         return {'site': {'mode': 'pseudodynamic'},
@@ -133,7 +133,7 @@ class SiteProcess:
 
 @contextlib.contextmanager
 def fifo(priority: int):
-    """This process SCHED_FIFO at ``priority`` inside the block, if the system allows it."""
+    """Run this process SCHED_FIFO at ``priority`` inside the block, if the system allows it."""
     try:
         before = os.sched_getscheduler(0), os.sched_getparam(0)
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
@@ -148,7 +148,7 @@ def fifo(priority: int):
 
 @contextlib.contextmanager
 def pinned(cpu):
-    """This process (and the children it starts) on CPU ``cpu`` inside the block (None: all)."""
+    """Pin this process (and its new children) to CPU ``cpu`` inside the block (None: all)."""
     if cpu is None:
         yield
         return
@@ -165,7 +165,7 @@ def pinned(cpu):
 
 
 def _apply_ground(ops, spec, model, ag, dt):
-    """The ground load of a linear model, as the OpenSees numerical core applies it."""
+    """Apply the ground load of a linear model, as the OpenSees numerical core applies it."""
     ops.timeSeries('Path', 1, '-dt', dt, '-values', *ag.tolist(), 0.0)
     ops.pattern('Plain', 1, 1)
     loads = spec['transform'].T @ -(model.M @ model.gamma)
@@ -208,7 +208,7 @@ def run_client(model, ag, dt, port: int, host: str = '127.0.0.1') -> dict:
 
 
 def run_direct(model, ag, dt, bridge_params: dict, compensator_params: dict) -> dict:
-    """The same building as rths's OpenSees core, bridge and compensator in process, lock-step."""
+    """Run the same building as rths's OpenSees core, bridge, compensator in process, lock-step."""
     from rths_actuator_bridge.bridge import Bridge
     from rths_common.replay import closed_loop
     from rths_compensator.core import CompensatorCore
@@ -230,7 +230,7 @@ def run_direct(model, ag, dt, bridge_params: dict, compensator_params: dict) -> 
 
 
 def relative_diff(a, b) -> float:
-    """max |a - b| over max |b| (NaN anywhere: inf)."""
+    """Max |a - b| over max |b| (NaN anywhere: inf)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
         return float('inf')
@@ -238,9 +238,10 @@ def relative_diff(a, b) -> float:
 
 
 def tcp_specimen_diff(model, ag, dt, workdir) -> float:
-    """rths on both sides: the direct loop with ``backend: genericclient`` vs in process (ideal)."""
-    from rths_actuator_bridge.site import load_site_config
+    """Rths on both sides: the direct loop with ``backend: genericclient`` vs in process (ideal)."""
     import yaml
+
+    from rths_actuator_bridge.site import load_site_config
     cfg_dir = Path(workdir)
     config = site_config('ideal')
     (cfg_dir / 'ideal.yaml').parent.mkdir(parents=True, exist_ok=True)
@@ -262,9 +263,10 @@ def tcp_specimen_diff(model, ag, dt, workdir) -> float:
 def bench_site(steps: int, specimen: str, workdir, progress=None, priority=RT_PRIORITY,
                cpu=None) -> tuple:
     """Run the bench; return ``(result with FIELDS, extra facts printed beside it)``."""
+    import yaml
+
     from rths_actuator_bridge.site import load_site_config
     from rths_numerical.opensees_backend import OpenSeesSubstructure, linear_model_builder
-    import yaml
     report = progress or (lambda done, total: None)
     workdir = Path(workdir)
     model, dt = two_dof_model(), 1.0 / FS_HZ
@@ -303,7 +305,8 @@ def bench_site(steps: int, specimen: str, workdir, progress=None, priority=RT_PR
         'messages_per_step': round(summary['messages'] / analysis_steps, 3),
         'safety_state_final': int(summary['safety_state']),
     }
-    extra = {'specimen': specimen, 'cpu': cpu, 'rt_priority': priority, 'record': f'{RECORD} x {SCALE} (USGS 5115)',
+    extra = {'specimen': specimen, 'cpu': cpu, 'rt_priority': priority,
+             'record': f'{RECORD} x {SCALE} (USGS 5115)',
              'fs_hz': FS_HZ, 'site_loop_steps': summary['steps'],
              'floor_us_p50': round(float(np.percentile(floor_ns, 50)) / 1e3, 1),
              'peak_disp_m': float(np.max(np.abs(direct['disp'][1:]))),
