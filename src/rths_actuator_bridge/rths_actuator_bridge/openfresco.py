@@ -97,7 +97,7 @@ class Sizes:
 
     @property
     def n(self) -> int:
-        """Basic DOFs of the element: the size of the trial displacement."""
+        """Return the basic DOFs of the element: the size of the trial displacement."""
         return self.ctrl[0]
 
     def check(self):
@@ -148,7 +148,7 @@ class Request:
 
     @property
     def name(self) -> str:
-        """The action's OpenSees name."""
+        """Return the action's OpenSees name."""
         return ACTIONS[self.action]
 
 

@@ -134,7 +134,7 @@ class SiteRecorder:
             fault=result.fault))
 
     def event(self, text: str):
-        """Record a site event (a bad peer, the end of the session) on the status topic."""
+        """Write what happened to the session (a bad peer, its end) to the status topic."""
         stamp = time.time_ns()
         self.writer.write(topics.STATUS, stamp, cdr.pack_status(stamp, 'site', 0, fault=text))
 
