@@ -365,14 +365,13 @@ def load_site_config(path=None, config_dir=None) -> dict:
     return {'site': site, 'bridge': bridge, 'compensator': compensator}
 
 
-def run_info(config: dict, peer: str = '') -> dict:
+def run_info(config: dict) -> dict:
     """Return the bag's run information of a site run (kind ``rths``, no numerical section)."""
     from rths_common.runinfo import flatten
     fs = float(config['bridge'].get('fs_hz', safety.SAFETY_PARAMS['fs_hz'][0]))
     info = flatten('rths', fs, config['site']['mode'],
                    {'bridge': config['bridge'], 'compensator': config['compensator'],
                     'site': config['site']})
-    info['site.client'] = peer
     return info
 
 

@@ -75,7 +75,7 @@ def _figure(name: str, data: bytes, caption: str) -> str:
 def render(summary: dict, images: dict) -> str:
     """Return the whole page; ``images`` maps a plot's file name to its PNG bytes."""
     s = summary
-    what = (f"site review: backend {s['backend']}, client {s['client']}"
+    what = (f"site review: backend {s['backend']}"
             if s.get('kind') == 'site' else f"RTHS review: {s['record']} x {s['scale']}")
     title = (f"{what}, DTM {s['damper']}, {s['mode']}, "
              f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)")

@@ -90,7 +90,7 @@ def loop_summary(bag) -> dict:
 DELAY_BAND_HZ = 10.0
 ZOOM_S = 3.0
 #: ``specimen`` of the summary per bridge ``dtm`` value (every Table 4 DTM is a ``dtm``).
-SPECIMENS = {'mr': 'mr_damper', 'none': 'none'}
+SPECIMENS = {'mr': 'mr_damper', 'none': 'none', 'remote': 'remote site'}
 
 
 def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
@@ -221,10 +221,15 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     floor2 = desired - ug
     dt = 1.0 / fs
     damper = bridge.get('dtm', 'valve4')
+    if bridge.get('backend') == 'genericclient':
+        damper = 'remote'
     uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
                     if isinstance(model, LinearModel) else None)
     backend = numerical.get('backend', 'builtin')
-    if damper == 'mr' or backend != 'builtin':
+    if damper == 'remote':   # a remote site (rths site, OpenFresco): no model of its specimen
+        uncontrolled = uncontrolled or offline_references(numerical, {'dtm': 'none'}, dt)[0]
+        reference = None
+    elif damper == 'mr' or backend != 'builtin':
         # nonlinear specimen or OpenSees model: the same substructure, offline, with the same
         # specimen model on a perfect actuator (and without it for the uncontrolled response)
         uncontrolled, reference = offline_references(numerical, bridge, dt)
@@ -294,10 +299,9 @@ def review_site(bag, out_dir, info, fs, stage) -> dict:
     desired, applied, measured, meas, status, n = _tracking(bag, fs)
     stage(1, REVIEW_STAGES)
     bridge = runinfo.section(info, 'bridge')
-    site = runinfo.section(info, 'site')
     summary = {
         'kind': 'site', 'mode': info.get('mode'), 'fs_hz': fs, 'steps': n,
-        'duration_s': n / fs, 'client': site.get('client', ''),
+        'duration_s': n / fs,
         'backend': bridge.get('backend', 'simulated'), 'damper': bridge.get('dtm', '-'),
         'compensator': runinfo.section(info, 'compensator'),
         **table5_of(desired, applied, measured, fs),
@@ -322,7 +326,7 @@ def review_site(bag, out_dir, info, fs, stage) -> dict:
 
 def _site_text(s: dict) -> str:
     lines = [
-        f"Site review (rths site, client {s['client'] or '?'}): backend {s['backend']}, "
+        f"Site review (rths site): backend {s['backend']}, "
         f"specimen {s['damper']}, {s['mode']}, {s['steps']} steps at {s['fs_hz']:g} Hz "
         f"({s['duration_s']:.1f} s)", '',
         'Table 5 layout: actuator time delay and relative RMS tracking error',
@@ -366,7 +370,9 @@ def review_text(s: dict) -> str:
         f"{s['rms_disp_2nd_m']:.4e}  {s['rms_disp_2nd_m'] / inch:8.4f}   "
         f"{s['reduction_rms_pct']:7.1f}",
         '',
-        'Table 9 layout: RTHS vs whole-numerical reference',
+        'Table 9 layout: RTHS vs whole-numerical reference'
+        + (' (here the uncontrolled building: a remote specimen has no model here)'
+           if s['damper'] == 'remote' else ''),
         f"  actuator time delay {s['delay_ms_after']:.3f} ms, relative RMS error "
         f"{s['rths_vs_reference_rel_rms_pct']:.2f} %",
         '',

@@ -67,6 +67,12 @@ def register(commands, benches):
                         'default valve4) or mr, an MR damper between the 2nd floor and the '
                         'ground (Bouc-Wen model of Spencer et al. 1997; the table then follows '
                         'the relative floor displacement)')
+    p.add_argument('--specimen', default=None, metavar='tcp://HOST:PORT',
+                   help='a remote experimental site as the specimen (rths site, an OpenFresco '
+                        'site): the bridge speaks the OpenSees genericClient protocol to it. '
+                        'Steps 1-2 are skipped (the site compensates its own actuator: identity '
+                        'taps here); the review compares with the uncontrolled building (the '
+                        "remote specimen's model is not known here)")
     p.add_argument('--mr-voltage', type=float, default=1.0,
                    help='--damper mr: constant command voltage [V] (Spencer et al. 1997 '
                         'tested 0-2.25 V; default 1.0)')
@@ -282,6 +288,22 @@ def safety_stop_text(s: dict) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def remote_bridge(bridge: dict, site: str) -> dict:
+    """Return the bridge parameters for a remote site ``tcp://host:port`` as the specimen.
+
+    The node's own keys, the safety limits and the loop rate stay; the local
+    plant's keys go (the specimen is the site's); ``backend: genericclient``.
+    """
+    from rths_actuator_bridge.bridge import PARAMS
+    from rths_actuator_bridge.genericclient import parse_site
+    from rths_actuator_bridge.safety import SAFETY_PARAMS
+    from rths_common.params import NODE_KEYS
+    parse_site(site)
+    keep = {k: v for k, v in bridge.items() if k in NODE_KEYS or k in SAFETY_PARAMS
+            or k in PARAMS}
+    return dict(keep, backend='genericclient', site=site)
+
+
 def _model_param(model: str, config: Path) -> str:
     """Return the numerical node's ``model``: a shipped script name becomes its path."""
     if model in ('building2story', 'sdof') or model.endswith(('.yaml', '.yml', '.py')):
@@ -325,6 +347,9 @@ def _run(args) -> int:
     fs = float(base['numerical'].get('fs_hz', 1024.0))
     base['bridge']['fs_hz'] = fs
     base['bridge']['dtm'] = args.damper
+    if args.specimen:
+        base['bridge'] = remote_bridge(base['bridge'], args.specimen)
+        args.no_compensation = True
     model_param = _model_param(args.model, config)   # bad names fail before the long phases
     if args.numerical == 'opensees':
         from rths_numerical.opensees_backend import import_opensees
@@ -340,7 +365,8 @@ def _run(args) -> int:
         runinfo.write_params(comp_file, 'compensator',
                              {'scheme': 'identity', 'fs_hz': fs, 'taps': [1.0],
                               'denominator': [1.0]})
-        _say('no compensation: identity taps')
+        _say(f'remote site {args.specimen}: identity taps here (the site compensates its own '
+             'actuator)' if args.specimen else 'no compensation: identity taps')
     else:
         plant = Path(args.plant) if args.plant else out / 'plant.yaml'
         if not args.plant:
