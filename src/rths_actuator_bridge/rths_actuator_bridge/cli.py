@@ -134,6 +134,7 @@ def run_site(args) -> int:
     import datetime
     import os
     from pathlib import Path
+    import signal
 
     from .site import load_site_config
     from .site_server import check_allow, listen, run, server_tls_context
@@ -154,6 +155,7 @@ def run_site(args) -> int:
     stamp = datetime.datetime.now().strftime('%Y%m%d-%H%M%S')
     bag = Path(args.bag) if args.bag else Path('out') / f'site-{stamp}' / 'bag'
     listener = listen(args.host, args.port)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)   # SIGTERM stops safely too
     if args.rt_priority:
         realtime_priority(args.rt_priority)
     try:

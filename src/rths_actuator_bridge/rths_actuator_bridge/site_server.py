@@ -301,6 +301,12 @@ def run(config: dict, listener, bag, tls=None, wait_s=None) -> dict:
     code, problem = 2, 'the site failed'
     try:
         code, problem = serve(core, listener, site, tls, wait_s)
+    except KeyboardInterrupt:   # Ctrl-C or SIGTERM (the CLI maps it): stop safely, keep the bag
+        problem, code = 'the operator interrupted the site (Ctrl-C/SIGTERM)', EXIT_SAFETY_STOP
+        log(f'{problem}; the actuator goes to its safe state')
+        core.safe_stop(problem)
+        if core.recorder is not None:
+            core.recorder.event(problem)
     finally:
         if core.recorder is not None:
             core.recorder.close()
