@@ -87,17 +87,9 @@ def records_from_columns(columns, input_col, output_cols, fs=None, time_col=None
         raise ValueError(f'{source}: only {n} rows; the io scenario needs at least '
                          f'{MIN_SAMPLES} (training, validation and held-out parts)')
     if time_col:
-        t = np.asarray(columns[time_col], float)
-        dt = np.diff(t)
-        if np.any(dt <= 0) or not np.all(np.isfinite(dt)):
-            raise ValueError(f'{source}: column {time_col} is not increasing at row '
-                             f'{int(np.argmax(~(dt > 0))) + 2}')
-        step = float(np.median(dt))
-        if np.max(np.abs(dt - step)) > 1e-3 * step:
-            raise ValueError(f'{source}: column {time_col} is not uniformly sampled; resample '
-                             'to a uniform rate first')
-        fs_t = 1.0 / step
-        if fs is not None and abs(fs_t - fs) > 1e-3 * fs:
+        from rths_common.timebase import same_rate, sampling_rate_hz
+        fs_t = sampling_rate_hz(columns[time_col], where=f'{source} column {time_col}')
+        if fs is not None and not same_rate(fs_t, fs):
             raise ValueError(f'{source}: --fs {fs:g} disagrees with column {time_col} '
                              f'({fs_t:g} Hz); give one of them')
         fs = fs_t

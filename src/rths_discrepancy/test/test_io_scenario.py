@@ -130,3 +130,13 @@ def test_cascaded_tanks_against_the_published_errors():
     assert row['named_effect_matches_paper']
     assert row['after_rmse'] <= 1.5 * 0.54
     assert row['after_rmse'] < row['baseline_rmse']
+
+
+def test_io_rate_from_a_time_column():
+    t = np.arange(400) / 610.35
+    cols = {'time_s': np.round(t, 6), 'u': np.sin(t * 40), 'y': np.cos(t * 40)}
+    rec = iodisc.records_from_columns(cols, 'u', ['y'], time_col='time_s', source='a.csv')
+    assert rec['fs'] == pytest.approx(610.35, rel=1e-4)
+    with pytest.raises(ValueError, match='disagrees'):
+        iodisc.records_from_columns(cols, 'u', ['y'], fs=400.0, time_col='time_s',
+                                    source='a.csv')
