@@ -9,6 +9,8 @@
 
 import sys
 
+from rths_common.columns import read_columns, sampling_rate_hz
+
 
 def _log(msg):
     print(msg, file=sys.stderr, flush=True)
@@ -110,8 +112,7 @@ def register(commands, benches):
 
 
 def _read_run(args, path):
-    from .io import read_csv_columns, sampling_rate_hz
-    cols = read_csv_columns(path, ('time', 'command', 'measured'))
+    cols = read_columns(path, ('time', 'command', 'measured'))
     return cols['time'], cols['command'], cols['measured'], sampling_rate_hz(cols['time'], path)
 
 
@@ -121,7 +122,6 @@ def cmd_identify(args) -> int:
 
     from ._blas import limit_blas_threads
     from .identification import identify, save_plant, split_records
-    from .io import sampling_rate_hz
     limit_blas_threads(1)
     if args.bag:
         t, u, y = read_identification(args.bag)
@@ -240,10 +240,10 @@ def cmd_design(args) -> int:
 def cmd_compensate(args) -> int:
     """``rths compensate``."""
     from .filters import CausalFilter
-    from .io import read_csv_columns, sampling_rate_hz, write_csv_columns
+    from .io import write_csv_columns
     from .params import load_compensator_params
     params = load_compensator_params(args.params)
-    cols = read_csv_columns(args.csv, ('time', 'command'))
+    cols = read_columns(args.csv, ('time', 'command'))
     fs = sampling_rate_hz(cols['time'], args.csv)
     if abs(fs - params['fs_hz']) > 1e-3 * params['fs_hz']:
         raise ValueError(f'{args.csv}: sampling rate {fs:.6g} Hz differs from fs_hz '
