@@ -559,6 +559,11 @@ def silva2020_plant(params=None, **config) -> SimulatedPlant:
 class SimulatedBackend(Backend):
     """Backend over :class:`SimulatedPlant`; each ``write()`` advances exactly one sample."""
 
+    summary = 'simulated plant: actuator + shake table + specimen (simulated.py)'
+    params = SIM_PARAMS
+    ranges = SIM_RANGES
+    in_process = True
+
     def _configure(self, params: dict):
         self.plant = SimulatedPlant(plant_config(params))
         self.n_channels = 1

@@ -118,8 +118,9 @@ def check_bridge(path) -> dict:
 
     params = load_params_file(path, 'bridge')
     core = _wrap(path, 'bridge', check_bridge_params, params)
-    if core.get('backend', 'simulated') == 'simulated':
-        from rths_actuator_bridge.bridge import make_backend
+    from rths_actuator_bridge.bridge import backend_class, make_backend
+
+    if backend_class(core).in_process:   # build the plant: its own checks run
         _wrap(path, 'bridge', make_backend, core).close()
     return params
 

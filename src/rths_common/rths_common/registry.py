@@ -68,7 +68,7 @@ class Registry(Mapping):
             return self._entries[name]
         except (KeyError, TypeError):
             prefix = f'{where}: ' if where else ''
-            raise ValueError(f'{prefix}{self.key} = {name!r} is not a known {self.what}; use '
+            raise ValueError(f'{prefix}{self.key} = {name!r} is an unknown {self.what}; use '
                              f'one of {", ".join(self._entries)}') from None
 
     def text(self, sep: str = ' | ') -> str:

@@ -15,7 +15,7 @@ class Entry(NamedTuple):
 def test_registry_lookup_lists_the_choices():
     reg = Registry('colour', 'colour', {'red': Entry('warm'), 'blue': Entry('cold')})
     assert reg.names() == ('red', 'blue') and reg.entry('blue').summary == 'cold'
-    with pytest.raises(ValueError, match=r"bridge.yaml: colour = 'green' is not a known colour; "
+    with pytest.raises(ValueError, match=r"bridge.yaml: colour = 'green' is an unknown colour; "
                                          'use one of red, blue'):
         reg.entry('green', 'bridge.yaml')
     with pytest.raises(ValueError, match='already registered'):

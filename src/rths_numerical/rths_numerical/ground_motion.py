@@ -34,7 +34,6 @@ import os
 from typing import Callable, NamedTuple
 
 import numpy as np
-from scipy.signal import resample as fft_resample
 
 from rths_common.columns import read_columns, sampling_rate_hz
 from rths_common.registry import Registry
@@ -175,6 +174,9 @@ def scale(accel, factor):
 
 def resample(accel, dt, fs_hz):
     """Resample ``accel`` sampled at ``dt`` [s] to ``fs_hz`` [Hz] (band-limited FFT method)."""
+    # scipy.signal costs the numerical node ~0.7 s at start-up; only records are resampled
+    from scipy.signal import resample as fft_resample
+
     accel = np.asarray(accel, dtype=float)
     duration = accel.size * dt
     n_new = int(round(duration * fs_hz))
