@@ -33,7 +33,8 @@ import math
 
 import numpy as np
 
-from rths_common.columns import read_columns, sampling_rate_hz
+from rths_common.columns import read_columns
+from rths_common.timebase import sampling_rate_hz
 
 #: Moving mass of the DTM: 569.5 lbm (seed section 5.1) in kg.
 MOVING_MASS_KG = 569.5 * 0.45359237

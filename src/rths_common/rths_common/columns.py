@@ -18,10 +18,9 @@ records and ground motions.  The file layout it accepts::
   contract, e.g. a record in g) or else from the header's bracket; a unit not in
   :data:`UNITS` is refused, never guessed.
 
-:func:`sampling_rate_hz` gives a time column's rate: checked strictly increasing and
-uniform, then the slope of a least-squares line through the whole column (robust to
-rounding of the printed times).  Every problem is a ValueError (OSError for a missing
-file) naming the file, the column or row, and the fix.
+A time column's sampling rate comes from :mod:`rths_common.timebase`.  Every problem
+is a ValueError (OSError for a missing file) naming the file, the column or row, and
+the fix.
 """
 
 import os
@@ -185,31 +184,3 @@ def _parse(path, lines, sep, index, header, keep_nan):
                                  'cell must be a finite number')
             data[r, j] = value
     return data
-
-
-def sampling_rate_hz(time, where: str = 'time', tolerance: float = 0.01) -> float:
-    """Return the sampling rate [Hz] of a uniformly sampled ``time`` column [s].
-
-    Refuses a column that is not strictly increasing or whose steps differ from
-    their median by more than ``tolerance`` (relative).  The rate is the inverse
-    slope of the least-squares line through every sample, so the rounding of
-    printed times averages out instead of deciding the result.
-    """
-    t = np.asarray(time, dtype=float).ravel()
-    if t.size < 2:
-        raise ValueError(f'{where}: column time needs at least 2 samples')
-    dt = np.diff(t)
-    if not np.all(dt > 0):
-        i = int(np.argmax(~(dt > 0)))
-        raise ValueError(f'{where}: column time is not increasing at row {i + 1} '
-                         f'({t[i]:g} -> {t[i + 1]:g} s)')
-    step = float(np.median(dt))
-    if np.max(np.abs(dt - step)) > tolerance * step:
-        i = int(np.argmax(np.abs(dt - step)))
-        raise ValueError(f'{where}: column time is not uniformly sampled (step {dt[i]:g} s at '
-                         f'row {i + 1}, median {step:g} s; steps between {dt.min():.6g} and '
-                         f'{dt.max():.6g} s); resample the record to a uniform rate first')
-    k = np.arange(t.size, dtype=float)
-    k -= k.mean()
-    slope = float(np.dot(k, t - t.mean()) / np.dot(k, k))
-    return 1.0 / slope

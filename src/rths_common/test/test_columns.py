@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from rths_common.columns import read_columns, read_header, sampling_rate_hz
+from rths_common.columns import read_columns, read_header
 
 
 def _write(tmp_path, text, name='r.csv'):
@@ -53,14 +53,3 @@ def test_keep_nan_leaves_empty_cells_to_the_caller(tmp_path):
     col = read_columns(_write(tmp_path, 'time,x\n0,1\n0.1,\n0.2,3\n'), ('time', 'x'),
                        keep_nan=True)
     assert np.isnan(col['x'][1]) and col['x'][2] == 3.0
-
-
-def test_rate_is_the_whole_record_fit():
-    # times printed with 6 decimals at 1024 Hz: single steps are off by up to 1e-6 s
-    # (0.1 % of a step), the fit over the record is not
-    t = np.round(np.arange(40 * 1024) / 1024.0, 6)
-    assert sampling_rate_hz(t) == pytest.approx(1024.0, rel=1e-7)
-    with pytest.raises(ValueError, match='not uniformly sampled'):
-        sampling_rate_hz(np.r_[t[:100], t[100:] + 0.5 / 1024])
-    with pytest.raises(ValueError, match='not increasing at row 2'):
-        sampling_rate_hz([0.0, 0.1, 0.1, 0.3])

@@ -35,8 +35,9 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from rths_common.columns import read_columns, sampling_rate_hz
+from rths_common.columns import read_columns
 from rths_common.registry import Registry
+from rths_common.timebase import sampling_rate_hz
 
 from .signals import blwn
 
@@ -79,7 +80,7 @@ def read_csv_record(path):
     """
     col = read_columns(path, ('time', 'accel'), require_units=True,
                        contract='time [s], accel [UNIT] (UNIT: g, m/s^2, gal, ...)')
-    return 1.0 / sampling_rate_hz(col['time'], str(path), tolerance=1e-3), col['accel']
+    return 1.0 / sampling_rate_hz(col['time'], str(path)), col['accel']
 
 
 def read_at2(path):
