@@ -344,7 +344,7 @@ def simulated_test(dtm: str, kind: str, band_hz: float, peak_in: float, seed: in
         u = sine_displacement(duration_s, fs_hz, band_hz, peak)
     else:
         raise ValueError(f'unknown test kind {kind!r}; use blwn, chirp or sine')
-    params = {'dtm': dtm, 'fs_hz': fs_hz, 'seed': seed,
+    params = {'specimen': dtm, 'fs_hz': fs_hz, 'seed': seed,
               'rel_disp_noise_m': 2e-5, 'accel_noise_m_s2': 5e-3, 'force_noise_n': 1.0,
               'displacement_noise_m': 1e-5}
     params.update(noise or {})

@@ -19,6 +19,7 @@ from std_msgs.msg import String, UInt64
 
 from rths_common import node_support as ns
 from rths_common import topics
+from rths_common.params import renamed
 from rths_common.qos import loop_qos, run_info_qos, status_qos
 from rths_common.stepping import Driver, TickClock
 from rths_common.transport import Transport
@@ -57,6 +58,7 @@ def check_bridge_params(params: dict) -> dict:
     core = {k: v for k, v in params.items()
             if k not in NODE_PARAMS and k not in ns.ROS_BUILTIN_PARAMS
             and not k.startswith('qos_overrides')}
+    core = renamed(core, 'dtm', 'specimen', 'bridge parameters')
     backend = core.get('backend', 'simulated')
     known = {*PARAMS, *SAFETY_PARAMS, *backend_class(core).params}
     unknown = sorted(set(core) - known)

@@ -19,6 +19,7 @@ its range or its choices.  :func:`renamed` accepts a key under its former name
 with a one-line deprecation note.
 """
 
+import argparse
 import sys
 from typing import NamedTuple
 
@@ -161,18 +162,39 @@ _NOTED: set = set()
 def renamed(params: dict, old: str, new: str, where: str) -> dict:
     """Return ``params`` with the key ``old`` renamed ``new`` and a one-line note on stderr.
 
-    Both given: ValueError (which one is meant is not clear).  Keys under their former
-    name are accepted for a while; the note names the file or option to change.
+    Keys under their former name are accepted for a while; the note names the file or
+    option to change.  Both given: the one given last wins (an override of a file that
+    already has the new key), as a later line of a file would.
     """
     if old not in params:
         return params
-    if new in params:
-        raise ValueError(f'{where}: both {old!r} and {new!r} are set; {old!r} is the former '
-                         f'name of {new!r}: keep only {new!r}')
+    keys = list(params)
+    later = old if new not in params or keys.index(old) > keys.index(new) else new
     if (old, new, where) not in _NOTED:
         _NOTED.add((old, new, where))
+        both = (f'; both are given, the later ({later}: {params[later]!r}) is used'
+                if new in params and params[new] != params[old] else '')
         print(f'note: {where}: {old!r} is now called {new!r}; the old name is accepted for '
-              'now, rename it', file=sys.stderr)
+              f'now, rename it{both}', file=sys.stderr)
     out = {k: v for k, v in params.items() if k != old}
-    out[new] = params[old]
+    out[new] = params[later]
     return out
+
+
+def add_renamed_option(parser, old: str, new: str) -> None:
+    """Accept the command-line option ``old`` (hidden from --help) as ``new``, with a note.
+
+    ``new`` must already be an option of ``parser``; ``old`` stores into its ``dest``.
+    """
+    target = next(a for a in parser._actions if new in a.option_strings)
+
+    class Renamed(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None):
+            print(f'note: {old} is now called {new}; the old name is accepted for now',
+                  file=sys.stderr)
+            if target.choices is not None and values not in target.choices:
+                parser.error(f'argument {new}: invalid choice: {values!r} (choose from '
+                             f'{", ".join(map(str, target.choices))})')
+            setattr(namespace, target.dest, values)
+
+    parser.add_argument(old, action=Renamed, help=argparse.SUPPRESS, metavar=target.metavar)

@@ -42,5 +42,6 @@ def test_renamed_key_is_accepted_with_one_note(capsys):
     renamed({'dtm': 'valve1'}, 'dtm', 'specimen', 'bridge.yaml')
     err = capsys.readouterr().err
     assert err.count('\n') == 1 and "'dtm' is now called 'specimen'" in err
-    with pytest.raises(ValueError, match='keep only'):
-        renamed({'dtm': 'a', 'specimen': 'b'}, 'dtm', 'specimen', 'bridge.yaml')
+    # both given: the later one wins (an override of a file that has the new key)
+    assert renamed({'specimen': 'b', 'dtm': 'a'}, 'dtm', 'specimen', 'x') == {'specimen': 'a'}
+    assert renamed({'dtm': 'a', 'specimen': 'b'}, 'dtm', 'specimen', 'y') == {'specimen': 'b'}

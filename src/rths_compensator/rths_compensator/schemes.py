@@ -55,6 +55,9 @@ SCHEMES = Registry('compensator scheme', 'scheme', {
     'identity': Scheme('no compensation, G = 1 (rths run --no-compensation)'),
 })
 
+#: The scheme of seed section 6.1 (rths run's default).
+DEFAULT_SCHEME = 'wls'
+
 
 def designed() -> tuple:
     """Return the names of the schemes ``rths design --scheme`` can design."""

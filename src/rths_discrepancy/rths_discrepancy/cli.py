@@ -140,8 +140,10 @@ def run_discrepancy_cmd(args) -> int:
             _say(f'note: {err}; the nominal model is the default valve #4 and the reference '
                  'is not re-run')
         if run is not None and model is None:
+            from rths_numerical.specimens import specimen_of
+
             model = rerun.run_damper_model(run[1])
-            _say(f"nominal model: the run's damper {run[1].get('dtm', 'valve4')} "
+            _say(f"nominal model: the run's specimen {specimen_of(run[1])} "
                  f'(m_d {model.m_d:g} kg, c_d {model.c_d:g} N s/m, k_d {model.k_d:g} N/m)')
     _say(f'rths discrepancy: {args.scenario}, {len(data["time"])} samples from {args.measured}')
     from rths_common.progress import Progress
