@@ -2,7 +2,8 @@
 
 ``method`` of the compensator parameters chooses how the designed filter runs:
 ``fir`` as designed, or an adaptive method started from it (:mod:`.adaptive`,
-docs/adaptive.md).  Each entry names its class (``module:Class``, built by
+docs/adaptive.md).  Each entry names its class (the class, or ``module:Class`` to import
+it on first use; built by
 ``Class.from_design(design, plant, guards, **options)``) and whether it needs the
 identified plant.  The parameters' allowed values, ``rths run --adaptive`` and the
 docs tables take their names from :data:`METHODS`; docs/extending.md adds one.
@@ -13,7 +14,7 @@ never needs.
 """
 
 import importlib
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from rths_common.registry import Registry
 
@@ -22,11 +23,13 @@ class Method(NamedTuple):
     """One compensation method: its class and what it needs."""
 
     summary: str
-    runner: str                  # 'module:Class' with a from_design classmethod
+    runner: Any                  # the class, or 'module:Class'; it has a from_design classmethod
     adaptive: bool = True        # adapts on line (lock-step only, needs the plant)
 
     def method_class(self):
-        """Return the class that runs the method (imports its module: SciPy)."""
+        """Return the class that runs the method (a ``module:Class`` path: imports its module)."""
+        if not isinstance(self.runner, str):
+            return self.runner
         module, _, name = self.runner.partition(':')
         return getattr(importlib.import_module(module), name)
 

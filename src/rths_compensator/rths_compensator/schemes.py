@@ -1,6 +1,7 @@
 """Compensator schemes: the registry from a scheme's name to how it is designed.
 
-Each entry names its design function (``module:function``, called as
+Each entry names its design function (the function, or ``module:function`` to import it
+on first use; called as
 ``function(plant, fs_hz=None, **options)`` and returning a
 :class:`rths_compensator.design.Design`), the options of ``rths design`` it takes,
 and whether ``rths design --auto`` searches it.  The parameters file's ``scheme``
@@ -13,7 +14,7 @@ compensator node, that only validates the name, never needs.
 """
 
 import importlib
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from rths_common.registry import Registry
 
@@ -25,13 +26,15 @@ class Scheme(NamedTuple):
     """One compensator scheme: its design function and the options it takes."""
 
     summary: str
-    designer: str = ''          # 'module:function'; '' = not designed (identity)
+    designer: Any = ''          # the function, or 'module:function'; '' = not designed
     options: tuple = ()         # option names the design function takes
     fir: bool = False           # an FIR (eq. 28): --auto searches its n and fc
     auto: bool = False          # one of the candidates of rths design --auto
 
     def design_function(self):
-        """Return the design function (imports its module: SciPy, see the module doc)."""
+        """Return the design function (a ``module:function`` path: imports its module)."""
+        if callable(self.designer):
+            return self.designer
         module, _, name = self.designer.partition(':')
         return getattr(importlib.import_module(module), name)
 
