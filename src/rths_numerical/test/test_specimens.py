@@ -1,4 +1,4 @@
-"""The specimen registry: each entry's reference, frame and parameters (seed Table 4, eq. 24, 46)."""
+"""The specimen registry: each entry's reference, frame and parameters (Table 4, eq. 24, 46)."""
 
 import numpy as np
 import pytest
