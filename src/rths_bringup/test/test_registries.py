@@ -24,19 +24,11 @@ from rths_numerical.specimens import SPECIMENS
 ROOT = Path(os.environ.get('RTHS_ROOT') or Path(__file__).resolve().parents[3])
 
 #: Words that are a registry name and also an ordinary word of another concept, with the
-#: files where they mean that other concept (the count below skips them there).
+#: files where they mean that other concept (None: everywhere).  'none' is the word for
+#: nothing in several places (the bare-table specimen, the ground-motion record, the
+#: discrepancy workflow's answer), so its count says nothing about the specimen.
 SHARED_WORDS = {
-    # the ground-motion record 'none' and the discrepancy workflow's answer 'none'
-    'none': {'rths_numerical/rths_numerical/substructure.py',
-             'rths_numerical/rths_numerical/ground_motion.py',
-             'rths_numerical/rths_numerical/cli.py',
-             'rths_discrepancy/rths_discrepancy/cli.py',
-             'rths_discrepancy/rths_discrepancy/heldout.py',
-             'rths_discrepancy/rths_discrepancy/selftest.py',
-             'rths_discrepancy/rths_discrepancy/workflow.py',
-             'rths_discrepancy/rths_discrepancy/restoring.py',
-             'rths_discrepancy/rths_discrepancy/baselines.py',
-             'rths_bringup/rths_bringup/run.py'},
+    'none': None,
     # the unit millimetre
     'mm': {'rths_common/rths_common/columns.py', 'rths_bringup/rths_bringup/preflight.py'},
 }
@@ -105,6 +97,8 @@ def test_each_name_is_written_in_at_most_two_source_files():
     too_many = {}
     for registry in (SPECIMENS, SCHEMES, FORMATS):
         for name in registry:
+            if name in SHARED_WORDS and SHARED_WORDS[name] is None:
+                continue
             files = sorted(f for f, values in strings.items()
                            if name in values and f not in SHARED_WORDS.get(name, ()))
             if len(files) > 2:

@@ -61,7 +61,9 @@ def _name_unit(cell: str):
 
 
 def _split(line: str, delimiter):
-    return [c.strip() for c in (line.split(delimiter) if delimiter else line.split())]
+    """Return the cells of ``line``, stripped of blanks and of surrounding double quotes."""
+    cells = line.split(delimiter) if delimiter else line.split()
+    return [c.strip().strip('"').strip() for c in cells]
 
 
 def _is_number(cell: str) -> bool:
@@ -107,15 +109,17 @@ def read_columns(path, columns, *, units=None, keep_nan: bool = False, min_rows:
     """Read ``columns`` of a column text file; return ``{column: float array in SI}``.
 
     ``columns``: names (need a header row) or 0-based indices, or a mapping
-    ``{output name: name or index}``.  ``units``: ``{output name: unit}`` of
-    the data (else the header's bracket, else SI).  ``keep_nan``: an empty or
-    ``nan`` cell becomes NaN (the caller decides); otherwise any non-finite
-    value is refused.  ``contract`` is what the user should write (for the
+    ``{output name: name or index}``; None: every named column of the header.
+    ``units``: ``{output name: unit}`` of the data (else the header's bracket, else SI).
+    ``keep_nan``: an empty or ``nan`` cell becomes NaN (the caller decides); otherwise
+    any non-finite value is refused.  ``contract`` is what the user should write (for the
     errors; default: the asked names).  ``min_rows``: fewest data rows.
     ``skip_lines``: leading lines to pass over (a fixed preamble); ``require_units``:
     refuse a column whose unit neither ``units`` nor the header gives.
     """
     path = os.fspath(path)
+    if columns is None:
+        columns = [name for name in read_header(path, delimiter) if name]
     wanted = dict(columns) if isinstance(columns, dict) else {c: c for c in columns}
     need = contract or ', '.join(str(c) for c in wanted.values())
     lines = _lines(path, skip_lines)

@@ -123,13 +123,13 @@ def bench_real_cmd(args) -> int:
 def _io_records(paths, args, what):
     import os
 
+    from rths_common.columns import read_columns
     from rths_discrepancy import iodisc
-    from rths_discrepancy.io import read_csv_columns
     recs = []
     for path in paths:
         if not os.path.exists(path):
             raise OSError(f'{what} {path}: no such file')
-        cols = read_csv_columns(path, [args.input] + list(args.output))
+        cols = read_columns(path, None, keep_nan=True, min_rows=0)
         recs.append(iodisc.records_from_columns(cols, args.input, args.output, fs=args.fs,
                                                 time_col=args.time,
                                                 source=os.path.basename(path)))
