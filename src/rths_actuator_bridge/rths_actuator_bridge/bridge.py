@@ -26,44 +26,48 @@ write the command of step 0 (the position at rest).
 import numpy as np
 
 from rths_common import stepping
+from rths_common.params import node_schema, renamed
+from rths_common.registry import Registry
 
 from . import safety
 from .backend import Backend
-from .genericclient import CLIENT_PARAMS, CLIENT_RANGES, GenericClientBackend
-from .ideal import IDEAL_PARAMS, IDEAL_RANGES, IdealBackend
-from .simulated import SIM_PARAMS, SIM_RANGES, SimulatedBackend
-from .udp import UDP_PARAMS, UDP_RANGES, UdpBackend
+from .genericclient import GenericClientBackend
+from .ideal import IdealBackend
+from .simulated import SimulatedBackend
+from .udp import UdpBackend
 
-#: Backend name (the ``backend`` parameter) -> class; 'simulated' is the default.
-BACKENDS: dict[str, type[Backend]] = {
-    'simulated': SimulatedBackend, 'udp': UdpBackend, 'ideal': IdealBackend,
-    'genericclient': GenericClientBackend}
-#: Backend name -> its parameters (key -> (type,) default, meaning) and their ranges.
-BACKEND_PARAMS: dict[str, tuple[dict, dict]] = {
-    'simulated': (SIM_PARAMS, SIM_RANGES), 'udp': (UDP_PARAMS, UDP_RANGES),
-    'ideal': (IDEAL_PARAMS, IDEAL_RANGES), 'genericclient': (CLIENT_PARAMS, CLIENT_RANGES)}
+#: Backend name (the ``backend`` parameter) -> class (a :class:`.backend.Backend`, which
+#: carries its summary, parameters, ranges and choices).
+BACKENDS = Registry('bridge backend', 'backend',
+                    {'simulated': SimulatedBackend, 'udp': UdpBackend, 'ideal': IdealBackend,
+                     'genericclient': GenericClientBackend})
+#: The backend of a params file that names none.
+DEFAULT_BACKEND = 'simulated'
 
-#: The bridge's own parameters: key -> (default, meaning [unit]).  The backends' are
-#: ``simulated.SIM_PARAMS`` and ``udp.UDP_PARAMS``, the limits ``safety.SAFETY_PARAMS``.
+#: The bridge's own parameters: key -> (default, meaning [unit]).  The backends' are their
+#: classes' ``params`` (``simulated.SIM_PARAMS``, ``udp.UDP_PARAMS``), the limits
+#: ``safety.SAFETY_PARAMS``.
 PARAMS = {
-    'backend': ('simulated', "'simulated' (the plant model), 'udp' (a servo controller), "
-                "'ideal' (perfect actuator on a linear spring) or 'genericclient' (a remote "
-                'experimental site: rths site, OpenFresco)'),
+    'backend': (DEFAULT_BACKEND, 'what the bridge drives (rths_actuator_bridge.bridge.BACKENDS)'),
     'command_delay_steps': (0, '[steps] the command of step k is written at tick k + D'),
 }
 
 
+def backend_class(params: dict, where: str = "parameter 'backend'"):
+    """Return the class of the backend ``params`` name (ValueError listing the backends)."""
+    return BACKENDS.entry(params.get('backend', DEFAULT_BACKEND), where)
+
+
 def param_schema(node_params) -> dict:
     """Return the bridge node's parameter schema: its ``node_params``, the core's, the backends'."""
-    from rths_common.params import node_schema
-
-    ranges: dict = {}
-    keys: dict = {}
-    for params, backend_ranges in BACKEND_PARAMS.values():
-        ranges.update(backend_ranges)
-        keys.update(params)
+    params, ranges, choices = {}, {}, {'backend': BACKENDS.names()}
+    for cls in reversed(list(BACKENDS.values())):
+        params.update(cls.params)
+        ranges.update(cls.ranges)
+        choices.update(cls.choices)
     ranges.update(safety.SAFETY_RANGES, command_delay_steps=(0, MAX_DELAY_STEPS))
-    return node_schema(node_params, {**keys, **safety.SAFETY_PARAMS, **PARAMS}, ranges)
+    return node_schema(node_params, {**params, **safety.SAFETY_PARAMS, **PARAMS}, ranges,
+                       choices)
 
 
 #: Plausibility bounds of the limits [SI]: a larger value is almost surely in the wrong unit
@@ -81,11 +85,9 @@ def check_core_params(core: dict, node_keys=()) -> dict:
     unknown backend, non-finite or out-of-unit limits raise ValueError naming
     the field and the fix.
     """
-    backend = core.get('backend', 'simulated')
-    if backend not in BACKENDS:
-        raise ValueError(f"parameter 'backend' = {backend!r} is unknown; use one of "
-                         f"{', '.join(repr(b) for b in BACKENDS)}")
-    known = {*PARAMS, *safety.SAFETY_PARAMS, *BACKEND_PARAMS[backend][0]}
+    core = renamed(core, 'dtm', 'specimen', 'bridge parameters')
+    backend = core.get('backend', DEFAULT_BACKEND)
+    known = {*PARAMS, *safety.SAFETY_PARAMS, *backend_class(core).params}
     unknown = sorted(set(core) - known)
     if unknown:
         raise ValueError(f'unknown parameter(s) {", ".join(unknown)} for backend {backend!r}; '
@@ -102,11 +104,7 @@ def check_core_params(core: dict, node_keys=()) -> dict:
 
 def make_backend(params: dict) -> Backend:
     """Create and configure the backend named by ``params['backend']`` (default 'simulated')."""
-    name = params.get('backend', 'simulated')
-    if name not in BACKENDS:
-        raise ValueError(f"parameter 'backend' = {name!r} is unknown; use one of "
-                         f"{', '.join(repr(b) for b in BACKENDS)}")
-    backend = BACKENDS[name]()
+    backend = backend_class(params)()
     backend.configure(params)
     return backend
 

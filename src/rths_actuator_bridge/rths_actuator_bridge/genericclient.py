@@ -28,15 +28,15 @@ import numpy as np
 from . import openfresco as of
 from .backend import Backend
 
-#: Generic-client parameters: key -> (default, meaning with unit).
+#: Generic-client parameters: key -> (type, default, meaning with unit).
 CLIENT_PARAMS = {
-    'site': ('', 'tcp://host:port of the experimental site (rths site, OpenFresco)'),
-    'n_channels': (1, '[-] number of actuators = basic DOFs of the element'),
-    'site_timeout_s': (5.0, '[s] connect and reply timeout of the site'),
-    'data_size': (256, '[-] float64 per message (genericClient default 256)'),
-    'tls_ca': ('', 'CA certificate (PEM) that signed the site: TLS on (empty: plain TCP)'),
-    'tls_cert': ('', 'client certificate (PEM) for mutual TLS (empty: none)'),
-    'tls_key': ('', 'private key (PEM) of tls_cert'),
+    'site': (str, '', 'tcp://host:port of the experimental site (rths site, OpenFresco)'),
+    'n_channels': (int, 1, '[-] number of actuators = basic DOFs of the element'),
+    'site_timeout_s': (float, 5.0, '[s] connect and reply timeout of the site'),
+    'data_size': (int, 256, '[-] float64 per message (genericClient default 256)'),
+    'tls_ca': (str, '', 'CA certificate (PEM) that signed the site: TLS on (empty: plain TCP)'),
+    'tls_cert': (str, '', 'client certificate (PEM) for mutual TLS (empty: none)'),
+    'tls_key': (str, '', 'private key (PEM) of tls_cert'),
 }
 #: Ranges of :data:`CLIENT_PARAMS` (inclusive).
 CLIENT_RANGES = {'site_timeout_s': (0.001, 3600.0), 'data_size': (1, of.MAX_DATA_SIZE)}
@@ -68,10 +68,18 @@ def client_tls_context(ca: str, cert: str = '', key: str = ''):
 class GenericClientBackend(Backend):
     """The bridge as an OpenSees ``genericClient`` of a remote site (module docstring)."""
 
-    PARAMS = CLIENT_PARAMS
+    summary = 'a remote experimental site (rths site, OpenFresco) over the genericClient protocol'
+    params = CLIENT_PARAMS
+    ranges = CLIENT_RANGES
+
+    @classmethod
+    def make_safe(cls, params: dict) -> str:
+        """After the bridge process died: the site stops its own actuator (say so)."""
+        return ('the remote site lost its client: rths site takes its actuator to the safe '
+                'state by itself (an OpenFresco site: check its own safety)')
 
     def _configure(self, params: dict):
-        p = {key: params.get(key, default) for key, (default, _) in CLIENT_PARAMS.items()}
+        p = {key: params.get(key, default) for key, (_, default, _) in CLIENT_PARAMS.items()}
         self.host, self.port = parse_site(p['site'])
         n = p['n_channels']
         if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 64:

@@ -14,11 +14,11 @@ import numpy as np
 
 from .backend import Backend
 
-#: Ideal-backend parameters: key -> (default, meaning with unit).
+#: Ideal-backend parameters: key -> (type, default, meaning with unit).
 IDEAL_PARAMS = {
-    'n_channels': (1, '[-] number of actuators'),
-    'stiffness_n_m': ([0.0], '[N/m] spring stiffness: one value per channel (diagonal) or '
-                      'n x n values row by row'),
+    'n_channels': (int, 1, '[-] number of actuators'),
+    'stiffness_n_m': (list, [0.0], '[N/m] spring stiffness: one value per channel (diagonal) '
+                      'or n x n values row by row'),
 }
 #: Ranges of :data:`IDEAL_PARAMS` (inclusive).
 IDEAL_RANGES = {'n_channels': (1, 64)}
@@ -42,7 +42,10 @@ def stiffness_matrix(value, n: int) -> np.ndarray:
 class IdealBackend(Backend):
     """Perfect actuator, linear spring specimen (module docstring)."""
 
-    PARAMS = IDEAL_PARAMS
+    summary = 'ideal specimen: a perfect actuator on a linear spring (checks and benchmarks)'
+    params = IDEAL_PARAMS
+    ranges = IDEAL_RANGES
+    in_process = True
 
     def _configure(self, params: dict):
         n = params.get('n_channels', 1)
