@@ -74,6 +74,7 @@ def register(commands, benches):
                    help='ground-motion scale factor (seed: kobe 0.135, northridge 0.039, '
                         'el centro 0.10; default 0.135)')
     p.add_argument('--specimen', default=DEFAULT_SPECIMEN, type=_specimen_arg,
+                   choices=_RemoteOr(SPECIMENS.names()),
                    help=f'the specimen (default {DEFAULT_SPECIMEN}): an entry of '
                         'rths_numerical.specimens (docs/extending.md lists them: the Table 4 '
                         'DTMs, the bare table, a damper between the floor and the ground), or '
@@ -323,17 +324,22 @@ def _identity(fs: float) -> dict:
     return {k: v for k, v in identity_params(fs).items() if k != PROVENANCE}
 
 
+class _RemoteOr(tuple):
+    """The registry's specimen names as ``--specimen`` choices; a ``tcp://`` site is one too."""
+
+    def __contains__(self, value):
+        return str(value).startswith('tcp://') or tuple.__contains__(self, value)
+
+
 def _specimen_arg(value: str) -> str:
-    """Return ``--specimen``: a specimen of the registry or ``tcp://host:port`` (checked)."""
+    """Return ``--specimen``; a ``tcp://host:port`` is checked here (names by the choices)."""
     import argparse
-    try:
-        if str(value).startswith('tcp://'):
-            from rths_actuator_bridge.genericclient import parse_site
+    if str(value).startswith('tcp://'):
+        from rths_actuator_bridge.genericclient import parse_site
+        try:
             parse_site(value)
-        else:
-            SPECIMENS.entry(value, '--specimen')
-    except ValueError as err:
-        raise argparse.ArgumentTypeError(f'{err}, or tcp://HOST:PORT (a remote site)') from None
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
     return value
 
 
