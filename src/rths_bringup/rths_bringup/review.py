@@ -223,7 +223,7 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     dt = 1.0 / fs
     name = specimen_of(bridge)
     if bridge.get('backend') == 'genericclient':   # a remote site: no model of its specimen
-        name, bridge = 'remote site', dict(bridge, specimen='none')
+        name, bridge = 'remote', dict(bridge, specimen='none')
     specimen = SPECIMENS.entry(specimen_of(bridge), f'{bag}: bridge parameter specimen')
     uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
                     if isinstance(model, LinearModel) else None)
@@ -378,7 +378,7 @@ def review_text(s: dict) -> str:
         '',
         'Table 9 layout: RTHS vs whole-numerical reference'
         + (' (here the uncontrolled building: a remote specimen has no model here)'
-           if s['specimen'] == 'remote site' else ''),
+           if s['specimen'] == 'remote' else ''),
         f"  actuator time delay {s['delay_ms_after']:.3f} ms, relative RMS error "
         f"{s['rths_vs_reference_rel_rms_pct']:.2f} %",
         '',
