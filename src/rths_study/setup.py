@@ -19,4 +19,10 @@ setup(
     description=open('package.xml').read().split('<description>')[1].split('</description>')[0],
     license='Apache-2.0',
     tests_require=['pytest'],
+    entry_points={
+        # `rths study run` and `rths bench study`: rths_bringup's `rths` command finds this
+        # module here (it sits below this package); its entry-point name sorts after
+        # rths_bench's `rths_benchmark`, whose command it extends (rths_study.cli).
+        'rths.cli': ['study = rths_study.cli'],
+    },
 )

@@ -54,7 +54,7 @@ def connect(scheduler: str | None = None, workers: int | None = None, timeout_s:
             client.close()
         return
     cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                           processes=True, dashboard_address=None,
+                           processes=True, dashboard_address=':0',
                            silence_logs=logging.ERROR)
     try:
         client = Client(cluster)
@@ -67,7 +67,7 @@ def connect(scheduler: str | None = None, workers: int | None = None, timeout_s:
 
 
 def chunks(runs: list, size: int) -> list:
-    """``runs`` in tasks of at most ``size``, each of one record and one controller."""
+    """Split ``runs`` into tasks of at most ``size``, each of one record and one controller."""
     order = sorted(runs, key=lambda r: (str(r.record), str(r.controller), r.index))
     out, current = [], []
     for run in order:
@@ -80,8 +80,9 @@ def chunks(runs: list, size: int) -> list:
 
 
 def _task_key(study: str, chunk: list) -> str:
-    from .spec import canonical
     import hashlib
+
+    from .spec import canonical
     digest = hashlib.sha256(canonical([r.key for r in chunk]).encode()).hexdigest()[:16]
     return f'rths-study-{study}-{digest}'
 

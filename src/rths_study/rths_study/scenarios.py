@@ -53,7 +53,7 @@ _CACHE: dict = {}
 
 
 def get(kind: str) -> Scenario:
-    """The scenario ``kind`` (one instance per process)."""
+    """Return the scenario ``kind`` (one instance per process)."""
     if kind not in _CACHE:
         if kind not in REGISTRY:
             raise ValueError(f'scenario {kind!r} unknown; known: {", ".join(REGISTRY)}')

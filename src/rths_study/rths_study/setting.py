@@ -6,8 +6,8 @@ the scenario computes with, or refuses it with a message that names the field::
     Setting(float, 60.0, minimum=0.0, doc='record length [s]').value(x, 'scenario.duration_s')
 """
 
-import math
 from dataclasses import dataclass
+import math
 from typing import Any
 
 REQUIRED = object()     #: default of a setting the SPEC must give
@@ -35,6 +35,7 @@ class Setting:
                 raise ValueError(f'{where}: expected true or false, got {raw!r}')
             return raw
         if self.kind in (int, float):
+            raw = _yaml_number(raw)
             if isinstance(raw, bool) or not isinstance(raw, (int, float)):
                 raise ValueError(f'{where}: expected a number, got {raw!r}')
             if self.kind is int and raw != int(raw):
@@ -53,6 +54,16 @@ class Setting:
         if self.choices and val not in self.choices:
             raise ValueError(f'{where}: {val!r} is not one of {", ".join(map(str, self.choices))}')
         return val
+
+
+def _yaml_number(raw):
+    """``'1e6'`` -> 1e6: PyYAML reads an exponent without a dot or sign as text."""
+    if isinstance(raw, str):
+        try:
+            return float(raw)
+        except ValueError:
+            return raw
+    return raw
 
 
 def check_mapping(raw, known: dict, where: str) -> dict:

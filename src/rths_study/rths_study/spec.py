@@ -33,10 +33,10 @@ Everything is checked here, before a cluster starts: a bad field raises ValueErr
 naming the file and the field.
 """
 
+from dataclasses import dataclass, field
 import hashlib
 import itertools
 import json
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -188,7 +188,7 @@ def _check(raw) -> Spec:
 
 
 def _names(raw, where, allowed, default) -> list:
-    """A list of distinct names; ``allowed`` None: any text, () : the field is refused."""
+    """Check a list of distinct names; ``allowed`` None: any text; (): field refused."""
     if raw is None:
         return list(default)
     if allowed == ():
@@ -208,8 +208,8 @@ def _parameters(raw, known: dict):
     """``(layout, points, grid axes)`` of the ``parameters`` field."""
     if raw is None or raw == {}:
         return 'single', [{}], {}
-    if not isinstance(raw, dict) or len(raw) != 1 or next(iter(raw)) not in ('grid', 'random',
-                                                                              'list'):
+    layouts = ('grid', 'random', 'list')
+    if not isinstance(raw, dict) or len(raw) != 1 or next(iter(raw)) not in layouts:
         raise ValueError('parameters: expected exactly one of grid, random, list')
     layout, body = next(iter(raw.items()))
     where = f'parameters.{layout}'
@@ -288,8 +288,8 @@ def _random(body, known, where) -> list:
                              f'{w}.{dist}')
         if None in args.values():
             raise ValueError(f'{w}.{dist}: give {" and ".join(DISTRIBUTIONS[dist])}')
-        if (dist == 'normal' and args['std'] < 0) or (dist == 'uniform'
-                                                       and args['high'] < args['low']):
+        bad = args['std'] < 0 if dist == 'normal' else args['high'] < args['low']
+        if bad:
             raise ValueError(f'{w}.{dist}: std must be >= 0 and low <= high')
         laws[name] = (dist, args)
     return [_draw(seed, i, laws, known, where) for i in range(n)]

@@ -19,9 +19,9 @@ last one counts (:meth:`Store.table`).
 """
 
 import os
+from pathlib import Path
 import time
 import uuid
-from pathlib import Path
 
 #: Columns every study has, besides its parameters and metrics.
 RUN_COLUMNS = ('key', 'index')
@@ -32,7 +32,7 @@ CIRCUMSTANCE_COLUMNS = ('seconds', 'worker', 'finished')
 
 
 def schema_of(spec):
-    """The Arrow schema of a study's rows (parameters and metrics typed by the scenario)."""
+    """Return the Arrow schema of a study's rows (columns typed by the scenario)."""
     import pyarrow as pa
 
     from .scenarios import get

@@ -4,6 +4,10 @@
 evaluation raises, each run is evaluated alone, and a run that still raises becomes a
 row with ``status: error`` and the message, so one bad plant does not sink its chunk
 and the study goes on.  It imports only the scenario it is asked for.
+
+The BLAS runs one thread per worker (``threadpoolctl``) whatever the worker's
+environment: a least-squares fit with two threads differs in its last bits from one
+with one, and a run must give the same numbers on every worker and in a serial run.
 """
 
 import time
@@ -14,7 +18,7 @@ ERROR_CHARS = 2000
 
 
 def worker_name() -> str:
-    """The Dask worker's name (its address), ``local`` outside a worker."""
+    """Return the Dask worker's name (its address), ``local`` outside a worker."""
     try:
         from distributed import get_worker
         worker = get_worker()
@@ -43,6 +47,12 @@ def row(run: dict, metrics: dict | None, names: list, error: str | None, seconds
 
 def evaluate_chunk(kind: str, settings: dict, runs: list, metrics: list) -> list:
     """Evaluate ``runs`` (``Run.as_dict()`` forms) of scenario ``kind``; one row per run."""
+    from threadpoolctl import threadpool_limits
+    with threadpool_limits(limits=1):
+        return _evaluate(kind, settings, runs, metrics)
+
+
+def _evaluate(kind, settings, runs, metrics) -> list:
     from .scenarios import get
     scenario = get(kind)
     worker = worker_name()
