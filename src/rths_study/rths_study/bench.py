@@ -32,7 +32,7 @@ IMPERIAL_VALLEY_SCALE = 0.44
 
 
 def bench_spec(runs: int, duration_s: float, chunk: int, seed: int = 2020):
-    """The bench's study: ``runs`` benchmark runs, half per controller."""
+    """Return the bench's study: ``runs`` benchmark runs, half per controller."""
     from rths_actuator_bridge.silva2020 import SIGMA, Silva2020Params
 
     from .spec import check_spec

@@ -58,7 +58,7 @@ def register(commands, benches):
 
 
 def _study_subcommands(commands):
-    """The sub-commands of ``rths study`` (rths_numerical adds the command)."""
+    """Return the sub-commands of ``rths study`` (rths_numerical adds the command)."""
     if 'study' not in commands.choices:
         commands.add_parser('study', help='parameter studies').add_subparsers(
             dest='study', metavar='STUDY').required = True
@@ -170,7 +170,7 @@ def _benchmark(args, direct) -> int:
 
 
 def benchmark_spec(args):
-    """The study SPEC of ``rths bench rths-benchmark``'s draws (the command's own draws)."""
+    """Return the SPEC of ``rths bench rths-benchmark``'s draws (the command's own)."""
     from rths_bench import rths_benchmark as rb
 
     from .spec import check_spec
