@@ -57,7 +57,7 @@ def comparable(table) -> list:
 
 
 def _same(value):
-    """NaN equals NaN here (a failed or unstable run's metrics)."""
+    """Make NaN equal NaN (the metrics of a failed or unstable run)."""
     return 'nan' if isinstance(value, float) and math.isnan(value) else value
 
 
