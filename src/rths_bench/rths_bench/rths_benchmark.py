@@ -44,6 +44,8 @@ import numpy as np
 from scipy import signal
 from scipy.linalg import expm
 
+from rths_common import datasets
+
 #: Published J1-J9 of the example controller, El Centro x 0.4 (Silva et al. 2020, Table 3;
 #: preprint "Benchmark_Control_Problem_for_Real_time_Hybrid_Simulation_Updated_V23.pdf" in
 #: the benchmark's code package, github.com/MECHS-RCN/BENCHMARKS, "RTHS code RT V23.zip").
@@ -59,7 +61,7 @@ J_NAMES = tuple(f'J{i}' for i in range(1, 10))
 RECORDS = {'elcentro': ('ElCentroAccelNoScaling.mat', 0.4),
            'kobe': ('KobeAccelNoScaling.mat', 0.4),
            'morganhill': ('MorganAccelNoScaling.mat', 0.4)}
-DATA_ENV = 'RTHS_DATA_DIR'
+DATA_ENV = datasets.DATA_ENV
 CASES = ('1', '2', '3', '4')
 #: Example controller (paper eq. 23-24): PI gains and phase lead G_T(s).
 EXAMPLE_KP, EXAMPLE_KI = 2.0, 95.0
@@ -79,7 +81,7 @@ def _log(msg):
 def record_path(record: str, data_dir: str = None) -> str:
     """File of ``record`` (a name of :data:`RECORDS` or a path); OSError naming the fix."""
     if record in RECORDS:
-        base = data_dir or os.environ.get(DATA_ENV)
+        base = data_dir or datasets.data_dir()
         if not base:
             raise OSError(f'record {record!r}: set {DATA_ENV} (or --data-dir) to the directory '
                           f'holding {RECORDS[record][0]} (the benchmark code package, '
