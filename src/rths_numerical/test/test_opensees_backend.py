@@ -16,7 +16,7 @@ from rths_numerical.testing import require_opensees
 
 @pytest.fixture
 def needs_opensees():
-    """OpenSeesPy must import: skip without it, fail in CI (rths_numerical.testing)."""
+    """Require OpenSeesPy: skip without it, fail in CI (rths_numerical.testing)."""
     require_opensees()
 
 
