@@ -25,6 +25,9 @@ test: $(TEST_NEEDS)  ## build and run every test through colcon test (installs O
 	  if [ $$rc -ne 0 ] || [ $$rc2 -ne 0 ]; then echo "make test: FAILED"; exit 1; fi; \
 	  echo "make test: all tests passed"
 
+docs: setup  ## regenerate docs/cli.md (from the argparse definitions) and docs/performance.md (from docs/bench/*.json)
+	@source env.sh && python -m rths_bench.refdocs --write
+
 lint: setup  ## ruff and flake8 over src/ and test/ (ruff.toml, ament_lint.ini), mypy on rths_common and the step cores (mypy.ini)
 	@source env.sh && ruff check src test && flake8 --config ament_lint.ini src test && \
 	  mypy --config-file mypy.ini -p rths_common -p rths_numerical.substructure \
@@ -47,4 +50,4 @@ clean:  ## remove build products (keeps .venv)
 distclean: clean  ## remove build products and the venv
 	rm -rf .venv
 
-.PHONY: help setup setup-opensees demo test lint clean distclean
+.PHONY: help setup setup-opensees demo test docs lint clean distclean

@@ -1,0 +1,285 @@
+"""Reference documents generated from the code and the results, so that they cannot drift.
+
+- ``docs/cli.md``: every ``rths`` sub-command and option, from the argparse definitions
+  (:func:`cli_markdown`);
+- ``docs/performance.md``: the project's measured figures, each read from a JSON file under
+  ``docs/bench/`` with the machine and date that file records (:func:`performance_markdown`;
+  the figures and their sources are :data:`FIGURES`).
+
+``make docs`` (``python -m rths_bench.refdocs --write``) rewrites both;
+``test_refdocs.py`` fails when either is out of date or a figure has no source.
+"""
+
+import argparse
+import json
+from pathlib import Path
+import sys
+
+from rths_common.datasets import repo_root
+
+#: Usage and help are wrapped at this width, whatever the terminal, so the file is stable.
+WIDTH = 100
+
+
+# -- docs/cli.md ------------------------------------------------------------------------------
+
+def _leaves(parser, words):
+    """Yield ``(words, parser)`` for every command that takes options (no sub-commands)."""
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        yield words, parser
+        return
+    for name, sub in subs[0].choices.items():
+        yield from _leaves(sub, words + [name])
+
+
+def _help_of(parser, words) -> dict:
+    """Return ``{name: one-line help}`` of the sub-commands of ``words``' parent parser."""
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return {c.dest: (c.help or '') for c in subs[0]._choices_actions} if subs else {}
+
+
+def _cell(text) -> str:
+    """Return ``text`` (argparse help: ``%%`` is a percent sign) as one markdown table cell."""
+    return ' '.join(str(text).split()).replace('%%', '%').replace('|', '\\|')
+
+
+def _option_rows(parser):
+    """Yield ``(option, default, help)`` for each argument of ``parser`` but ``--help``."""
+    for action in parser._actions:
+        if isinstance(action, argparse._HelpAction):
+            continue
+        name = ', '.join(action.option_strings) or action.dest
+        if action.option_strings and action.nargs != 0:
+            choices = '{' + ','.join(map(str, action.choices)) + '}' if action.choices else ''
+            name += ' ' + (choices or action.metavar or action.dest.upper())
+        default = action.default
+        shown = '' if default in (None, argparse.SUPPRESS, False) or action.nargs == 0 \
+            else f'`{default}`'
+        help_text = action.help or ''
+        if action.help and '%(default)' in action.help:
+            help_text = help_text.replace('%(default)s', str(default))
+        yield name, shown, help_text
+
+
+def cli_markdown(parser=None) -> str:
+    """Return the text of ``docs/cli.md`` for ``parser`` (default: the full ``rths`` parser)."""
+    if parser is None:
+        from rths_bringup.cli import build_parser
+        parser = build_parser()
+    helps = {}
+    for words, _ in _leaves(parser, ['rths']):
+        node = parser
+        for i, word in enumerate(words[1:], start=1):
+            helps[' '.join(words[:i + 1])] = _help_of(node, words[:i]).get(word, '')
+            subs = [a for a in node._actions if isinstance(a, argparse._SubParsersAction)]
+            node = subs[0].choices[word]
+    leaves = list(_leaves(parser, ['rths']))
+    out = ['# The `rths` command', '',
+           'Generated from the argparse definitions by `make docs` '
+           '(`src/rths_bench/rths_bench/refdocs.py`); a test fails when this file is out of '
+           'date. `rths COMMAND --help` prints the same.', '',
+           '| command | what it does |', '|---|---|']
+    for words, _ in leaves:
+        name = ' '.join(words)
+        out.append(f'| [`{name}`](#{_anchor(name)}) | {_cell(helps.get(name, ""))} |')
+    for words, sub in leaves:
+        name = ' '.join(words)
+        sub.prog = name
+        sub.formatter_class = _fixed_width
+        out += ['', f'## {name}', '']
+        if sub.description:
+            out += [_cell(sub.description), '']
+        out += ['```', sub.format_usage().strip(), '```', '',
+                '| option | default | meaning |', '|---|---|---|']
+        out += [f'| `{_cell(o)}` | {d} | {_cell(h)} |' for o, d, h in _option_rows(sub)]
+    return '\n'.join(out) + '\n'
+
+
+def _fixed_width(prog):
+    """Argparse formatter at :data:`WIDTH` columns, whatever ``$COLUMNS`` says."""
+    return argparse.HelpFormatter(prog, width=WIDTH, max_help_position=40)
+
+
+def _anchor(title: str) -> str:
+    """Return the GitHub anchor of a markdown heading."""
+    return ''.join(c for c in title.lower().replace(' ', '-') if c.isalnum() or c in '-_')
+
+
+# -- docs/performance.md ----------------------------------------------------------------------
+
+#: The figures of docs/performance.md: (section, label, file under docs/bench, JSON path, unit,
+#: target or ''). A path is keys joined by '/'; a list index is a number.
+MAIN = 'The main job (rths run, Kobe x 0.135, valve 4, real time, 20 s)'
+SILVA = 'RTHS benchmark (Silva et al. 2020), case 1'
+FIGURES = (
+    (MAIN, 'actuator delay before compensation',
+     'run_realtime_kobe_20s_summary.json', 'delay_ms_before', 'ms', ''),
+    (MAIN, 'actuator delay after compensation',
+     'run_realtime_kobe_20s_summary.json', 'delay_ms_after', 'ms', ''),
+    (MAIN, 'tracking error after compensation',
+     'run_realtime_kobe_20s_summary.json', 'tracking_rel_rms_pct_after', '%', ''),
+    ('Real-time loop', '1024 Hz composed, deadline misses', 'loop_1024hz_60s_composed_quiet.json',
+     'deadline_miss_pct', '%', '<= 0.1 %'),
+    ('Real-time loop', '1024 Hz composed, command latency p99',
+     'loop_1024hz_60s_composed_quiet.json', 'latency_us_p99', 'us', '< 500 us'),
+    ('Real-time loop', '1024 Hz composed, late or missed ticks',
+     'loop_1024hz_60s_composed_quiet.json', 'late_or_missed_pct', '%', ''),
+    ('Real-time loop', '2048 Hz composed, deadline misses', 'loop_2048hz_30s_composed_quiet.json',
+     'deadline_miss_pct', '%', '<= 0.2 %'),
+    ('Real-time loop', '2048 Hz composed, late or missed ticks',
+     'loop_2048hz_30s_composed_quiet.json', 'late_or_missed_pct', '%', ''),
+    ('Real-time loop', 'highest rate at <= 0.1 % late or missed (--find-max)',
+     'loop_findmax_30s_composed_quiet.json', 'max_rate_hz', 'Hz', ''),
+    (SILVA, 'example controller (the published one): J1',
+     'rths_benchmark_example/summary.json', 'cases/1/J1', 'ms', 'Table 3: 4.6 ms'),
+    (SILVA, 'example controller: J2',
+     'rths_benchmark_example/summary.json', 'cases/1/J2', '%', 'Table 3, within 15 %'),
+    (SILVA, 'rths FIR: J1', 'rths_benchmark_fir/summary.json',
+     'cases/1/J1', 'ms', '<= 1 ms'),
+    (SILVA, 'rths FIR: J2', 'rths_benchmark_fir/summary.json',
+     'cases/1/J2', '%', '<= 1/3 of the example'),
+    (SILVA, 'rths FIR, 20 perturbed plants: worst J2',
+     'rths_benchmark_fir/summary.json', 'perturbed/J2_max', '%', ''),
+    (SILVA, 'rths FIR, 20 perturbed plants: unstable',
+     'rths_benchmark_fir/summary.json', 'perturbed/unstable', '', '0'),
+    ('Adaptive compensation', 'stiffness drop: fixed FIR, error after the change',
+     'adaptive/summary.json', 'scenarios/stiffness_drop/fir/rms_pct_after_change', '%', ''),
+    ('Adaptive compensation', 'stiffness drop: amb, error after the change',
+     'adaptive/summary.json', 'scenarios/stiffness_drop/amb/rms_pct_after_change', '%',
+     '<= half the FIR'),
+    ('Adaptive compensation', 'plant drift: fixed FIR, error after the change',
+     'adaptive/summary.json', 'scenarios/plant_drift/fir/rms_pct_after_change', '%', ''),
+    ('Adaptive compensation', 'plant drift: rls_fir, error after the change',
+     'adaptive/summary.json', 'scenarios/plant_drift/rls_fir/rms_pct_after_change', '%',
+     '<= half the FIR'),
+    ('Numerical substructure', 'one step of the 16-DOF building', 'numerical.json',
+     'step_us_16dof', 'us', ''),
+    ('Numerical substructure', 'one step of the 240-DOF frame', 'numerical.json',
+     'step_us_240dof', 'us', ''),
+    ('Numerical substructure', 'OpenSeesPy vs the built-in backend, largest difference',
+     'numerical_opensees.json', 'max_rel_diff_vs_builtin', 'relative', ''),
+    ('Specimens', 'DTM Table 4 reproduced: worst parameter error', 'dtm.json',
+     'details/worst_error_pct', '%', '<= 3 %'),
+    ('Specimens', 'MR damper fitted to 30 real tests: mean force error', 'mr_fit.json',
+     'fit_error_mean_pct', '%', ''),
+    ('Specimens', "MR damper, the paper's parameters at the best voltage: mean force error",
+     'mr_fit.json', 'paper_error_mean_pct', '%', ''),
+    ('Discrepancy workflow', 'hidden effects named (291 synthetic cases)', 'discrepancy.json',
+     'correct_naming_percent', '%', ''),
+    ('Discrepancy workflow', 'false names on 24 controls', 'discrepancy.json',
+     'false_effects_on_controls', '', '0'),
+    ('Discrepancy workflow', 'held-out set A named', 'discrepancy.json', 'heldout/A/named', '',
+     '>= 13 of 14'),
+    ('Discrepancy workflow', 'held-out set B named', 'discrepancy.json', 'heldout/B/named', '',
+     '>= 11 of 12'),
+    ('Discrepancy workflow', 'EMPS (real): NRMSE after naming the effect',
+     'discrepancy_real.json', 'records/0/nrmse_after', 'relative', '<= 0.05'),
+    ('Discrepancy workflow', 'cascaded tanks (real): linear baseline / published linear',
+     'discrepancy_v3.json', 'sets/0/baseline_vs_published_linear', 'x', '<= 1.2'),
+    ('OpenSees / OpenFresco site', 'round trip per analysis step, p50', 'site.json',
+     'round_trip_us_p50', 'us', '<= 200 us'),
+    ('OpenSees / OpenFresco site', 'round trip per analysis step, p99', 'site.json',
+     'round_trip_us_p99', 'us', '<= 1000 us'),
+    ('OpenSees / OpenFresco site', 'difference to the in-process loop, ideal specimen',
+     'site_ideal.json', 'max_abs_diff_vs_direct', 'relative', '<= 1e-9'),
+    ('OpenSees / OpenFresco site', 'difference to the in-process loop, simulated actuator',
+     'site.json', 'max_abs_diff_vs_direct', 'relative', '<= 1 %'),
+    ('Studies on Dask', 'speed-up of 2 workers over 1', 'study.json', 'speedup', 'x', '>= 1.7'),
+    ('Studies on Dask', 'tasks lost after a worker is killed', 'study.json',
+     'tasks_lost_after_worker_kill', '', '0'),
+    ('Studies on Dask', 'rows identical to a serial run', 'study.json', 'identical_to_serial',
+     '', 'true'),
+    ('Studies on Dask', '1000 perturbed benchmark plants x 2 controllers: wall time',
+     'study_benchmark_1000/summary.json', 'session/wall_s', 's', ''),
+)
+
+
+def lookup(doc, path: str):
+    """Return the value at ``path`` ('a/b/0/c') in a JSON document; KeyError if absent."""
+    value = doc
+    for key in path.split('/'):
+        if isinstance(value, list):
+            value = value[int(key)]
+        elif isinstance(value, dict) and key in value:
+            value = value[key]
+        else:
+            raise KeyError(f'{path}: no {key!r}')
+    return value
+
+
+def provenance(doc: dict) -> str:
+    """Return where and when a result file was measured, as far as it records it."""
+    machine = doc.get('machine') if isinstance(doc, dict) else None
+    if isinstance(machine, dict):
+        host = ', '.join(f'{k} {v}' for k, v in machine.items()
+                         if k in ('cpu', 'cpu_model', 'cores', 'nproc', 'load', 'loadavg', 'kernel'))
+    else:
+        host = str(machine) if machine else ''
+    date = (doc.get('date') or doc.get('created')) if isinstance(doc, dict) else None
+    return '; '.join([date or 'date not recorded', host or 'machine not recorded'])
+
+
+def _format(value, unit: str) -> str:
+    """Format a figure for the table."""
+    if isinstance(value, bool) or value is None:
+        return str(value).lower()
+    if isinstance(value, float):
+        text = f'{value:.4g}'
+    else:
+        text = str(value)
+    return f'{text} {unit}'.strip() if unit not in ('', 'relative', 'x') else \
+        (f'{text}x' if unit == 'x' else text)
+
+
+def performance_markdown(root: Path = None) -> str:
+    """Return the text of ``docs/performance.md``; KeyError/OSError when a figure has no source."""
+    root = Path(root) if root else repo_root()
+    bench = root / 'docs' / 'bench'
+    out = ['# Performance', '',
+           'Every figure here is read from a JSON file under `docs/bench/` that a benchmark '
+           'command wrote (the commands: [benchmarks.md](benchmarks.md)). Generated by '
+           '`make docs` (`src/rths_bench/rths_bench/refdocs.py`); a test fails when a figure '
+           'has no source or this file is out of date. Timings depend on the machine and its '
+           'load: each row says what its file records.', '']
+    section = None
+    for sect, label, name, path, unit, target in FIGURES:
+        file = bench / name
+        doc = json.loads(file.read_text())
+        value = lookup(doc, path)
+        if sect != section:
+            out += ['', f'## {sect}', '', '| figure | value | target | source | measured |',
+                    '|---|---|---|---|---|']
+            section = sect
+        out.append(f'| {label} | {_format(value, unit)} | {target} | '
+                   f'`{name}`: `{path}` | {provenance(doc)} |')
+    return '\n'.join(out) + '\n'
+
+
+# -- command line ---------------------------------------------------------------------------
+
+DOCS = {'docs/cli.md': cli_markdown, 'docs/performance.md': performance_markdown}
+
+
+def main(argv=None) -> int:
+    """Write (``--write``) or check the generated documents; exit 1 when one is out of date."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--write', action='store_true', help='rewrite the documents')
+    args = parser.parse_args(argv)
+    root = repo_root()
+    stale = []
+    for name, make in DOCS.items():
+        text = make()
+        path = root / name
+        if args.write:
+            path.write_text(text)
+            print(f'wrote {name}')
+        elif not path.exists() or path.read_text() != text:
+            stale.append(name)
+    for name in stale:
+        print(f'{name} is out of date: run make docs', file=sys.stderr)
+    return 1 if stale else 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
