@@ -1,11 +1,26 @@
 """Review of a recorded run, rebuilt from its bag alone."""
 
+import json
 from pathlib import Path
 
 import numpy as np
+from scipy import signal
+from scipy.signal import coherence
 
-from rths_common import bagio, topics
+from rths_bringup.report_html import write_report
+from rths_common import bagio, runinfo, topics
+from rths_common.params import core_params
+from rths_compensator.indicators import frf_h1, relative_rms_pct
+from rths_numerical.model import LinearModel
+from rths_numerical.reference import (
+    coupled_rths,
+    metrics,
+    relative_rms_error,
+    simulate_reference,
+    simulate_uncontrolled,
+)
 from rths_numerical.specimens import SPECIMENS, specimen_of
+from rths_numerical.substructure import make_substructure
 
 #: Loop topics that carry one message per step, and the array field to summarise.
 STEP_TOPICS = {
@@ -103,10 +118,6 @@ def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
     Weighting each Welch bin by the desired signal's power gives the delay the
     loop actually experiences and equals the plain average for a flat spectrum.
     """
-    from scipy import signal
-
-    from rths_compensator.indicators import frf_h1
-
     d = np.asarray(desired, dtype=float)
     nperseg = int(min(d.size, 4 * round(fs_hz)))
     f, h = frf_h1(d, measured, fs_hz, nperseg)
@@ -121,8 +132,6 @@ def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
 
 def _numerical_params(info: dict) -> dict:
     """Return the run's numerical core parameters (node-level keys stripped, as offline does)."""
-    from rths_common import runinfo
-    from rths_common.params import core_params
     return core_params(runinfo.section(info, 'numerical'))
 
 
@@ -138,17 +147,6 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     read, references simulated, plots drawn, report written.
     """
     stage = progress or (lambda done, total: None)
-    import json
-
-    from rths_common import runinfo
-    from rths_compensator.indicators import relative_rms_pct
-    from rths_numerical.model import LinearModel
-    from rths_numerical.reference import (
-        relative_rms_error,
-        simulate_reference,
-        simulate_uncontrolled,
-    )
-    from rths_numerical.substructure import make_substructure
 
     bag, out_dir = Path(bag), Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -266,7 +264,6 @@ def review_rths(bag, out_dir, progress=None) -> dict:
         _hysteresis_plot(out_dir / HYSTERESIS_PNG, measured, meas['force'][:n, 0], fs,
                          f'specimen {name} ({settings}), measured')
     stage(3, REVIEW_STAGES)
-    from rths_bringup.report_html import write_report
     write_report(out_dir, summary)
     stage(4, REVIEW_STAGES)
     return summary
@@ -328,8 +325,6 @@ def offline_references(numerical, bridge, dt):
     dicts with ``disp`` and ``metrics`` (the reference also its whole ``history``; None if the
     bridge ran a bare table).
     """
-    from rths_numerical.reference import coupled_rths, metrics
-    from rths_numerical.substructure import make_substructure
     free = coupled_rths(make_substructure(numerical), lambda x: np.zeros(1))
     uncontrolled = {'disp': free['output_disp'], 'metrics': metrics(free['output_disp'])}
     specimen = SPECIMENS.entry(specimen_of(bridge)).reference(dt, bridge)
@@ -356,8 +351,10 @@ def _hinge_history(bag, reference):
 def _hysteresis_plot(path, stroke, force, fs, title, labels=('stroke [mm]', 'force [N]'),
                      velocity=True):
     """Force against stroke (and against velocity, by finite differences) of a specimen."""
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(1, 2 if velocity else 1, figsize=(10 if velocity else 6, 4),
                            squeeze=False)
@@ -375,11 +372,11 @@ def _hysteresis_plot(path, stroke, force, fs, title, labels=('stroke [mm]', 'for
 
 
 def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
-
-    from rths_compensator.indicators import frf_h1
 
     t = np.arange(desired.size) / fs
     fig, ax = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
@@ -407,9 +404,6 @@ def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
     fig.tight_layout()
     fig.savefig(out_dir / 'tracking_zoom.png', dpi=110)
     plt.close(fig)
-
-    from scipy import signal
-    from scipy.signal import coherence
 
     fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
     nperseg = int(min(desired.size, 4 * round(fs)))

@@ -21,6 +21,7 @@ import numpy as np
 
 from rths_common.gaps import DISPLACEMENT_ORDER
 from rths_common.stepping import GapPolicy, StaleStep, StepResult
+from rths_compensator.filters import MultiChannelFilter
 
 from .methods import method_of
 
@@ -48,16 +49,14 @@ class CompensatorCore:
 
     def _build(self, n_channels: int):
         if self.adaptive:
+            # lazy: start-up cost: SciPy (~1 s), which this module needs only here
             from rths_compensator.adaptive import methods_from_params
             return methods_from_params(self.params, n_channels)
-        from rths_compensator.filters import MultiChannelFilter
         return MultiChannelFilter(self.params['taps'], self.params['denominator'],
                                   n_channels=n_channels)
 
     def warm_up(self):
         """Run the filter's code path once on a throwaway filter (realtime start-up)."""
-        from rths_compensator.filters import MultiChannelFilter
-
         MultiChannelFilter(self.params['taps'], self.params['denominator'],
                            n_channels=1).step(np.zeros(1))
 

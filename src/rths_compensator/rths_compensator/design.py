@@ -193,6 +193,7 @@ class _IncrementalLp:
         self.highs = None
         if lp_method == 'highs':
             try:
+                # lazy: optional: tried here, refused with a clear message when missing
                 from scipy.optimize._highspy import _core
             except ImportError:          # private SciPy module: fall back to linprog
                 _core = None

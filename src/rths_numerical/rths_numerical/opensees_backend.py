@@ -29,7 +29,9 @@ a spring between nodes i and j of ``-K_ij``, a spring to ground of the row sum.
 
 import ctypes
 import glob
+from importlib.metadata import version
 import importlib.util
+import importlib.util as iu
 import os
 
 import numpy as np
@@ -81,6 +83,7 @@ def import_opensees():
         raise OSError(f'backend opensees: OpenSeesPy is not installed; {INSTALL_HINT}')
     loaded = _preload_bundled_libraries()
     try:
+        # lazy: optional: tried here, refused with a clear message when missing
         import openseespy.opensees as ops
     except (ImportError, RuntimeError, OSError) as err:
         cause = err.__cause__ or err.__context__ or err
@@ -99,7 +102,6 @@ def opensees_available():
         import_opensees()
     except OSError as err:
         return False, str(err)
-    from importlib.metadata import version
     return True, version('openseespy')
 
 
@@ -181,7 +183,6 @@ class ScriptModel:
 
 def load_model_script(path):
     """Import the user's model script at ``path``; return its ``build`` (ValueError if none)."""
-    import importlib.util as iu
     if not os.path.isfile(path):
         raise ValueError(f'parameter model = {path!r}: model script not found')
     spec = iu.spec_from_file_location(f'rths_model_{abs(hash(path))}', path)
