@@ -67,7 +67,7 @@ def test_command_line_choices_are_the_registries():
     assert tuple(_option(emulator, '--specimen').choices) == SPECIMENS.names()
 
 
-@pytest.mark.parametrize('path', ['docs/extending.md', 'config/bridge.yaml',
+@pytest.mark.parametrize('path', ['docs/extending.md', 'docs/nodes.md', 'config/bridge.yaml',
                                   'config/compensator.yaml', 'config/numerical.yaml'])
 def test_docs_tables_and_yaml_comments_are_the_registries(path):
     stale = sync(ROOT / path)
