@@ -57,6 +57,7 @@ from dataclasses import dataclass, field
 import os
 from pathlib import Path
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -110,8 +111,6 @@ def config_param(config_dir: Path, overrides: dict, key: str, default):
         return value
     path = Path(config_dir) / 'numerical.yaml'
     try:
-        # lazy: optional: tried here, refused with a clear message when missing
-        import yaml
         data = yaml.safe_load(path.read_text()) or {}
     except (OSError, ValueError):
         return default
@@ -408,8 +407,6 @@ class Launcher:
             for s, handler in previous.items():
                 signal.signal(s, handler)
             if self._tmp is not None:
-                # lazy: optional: tried here, refused with a clear message when missing
-                import shutil
                 shutil.rmtree(self._tmp, ignore_errors=True)
         recorder = self._child('recorder')
         if recorder is not None and recorder.returncode != 0 and self.bag is not None:
@@ -464,8 +461,6 @@ class Launcher:
         if key in self.overrides.get('bridge', {}):
             return self.overrides['bridge'][key]
         try:
-            # lazy: optional: tried here, refused with a clear message when missing
-            import yaml
             data = yaml.safe_load((self.config_dir / 'bridge.yaml').read_text()) or {}
             return data['bridge']['ros__parameters'].get(key, default)
         except (OSError, ValueError, KeyError, TypeError, AttributeError):

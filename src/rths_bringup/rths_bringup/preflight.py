@@ -156,22 +156,19 @@ def check_config(config_dir) -> None:
 
 def node_schema_of(node: str) -> dict:
     """Return the parameter schema (key -> Spec) the node ``node`` declares."""
-    if node == 'bridge':
-        # lazy: start-up cost: SciPy (~1 s), which this module needs only here
-        from rths_actuator_bridge.bridge import param_schema
+    # lazy: start-up cost: the node modules load rclpy (~0.3 s), the cores SciPy (~1 s)
+    from rths_actuator_bridge import bridge
+    from rths_actuator_bridge import node as bridge_node
+    from rths_compensator import node as compensator_node
+    from rths_compensator import params as compensator_params
+    from rths_numerical import node as numerical_node
+    from rths_numerical import substructure
 
-        # lazy: start-up cost: rclpy (~0.3 s), which this module needs only here
-        from rths_actuator_bridge.node import NODE_PARAMS
-    elif node == 'compensator':
-        # lazy: start-up cost: rclpy (~0.3 s), which this module needs only here
-        from rths_compensator.node import NODE_PARAMS
-    else:
-        # lazy: start-up cost: rclpy (~0.3 s), which this module needs only here
-        from rths_numerical.node import NODE_PARAMS
-
-        # lazy: start-up cost: SciPy (~1 s), which this module needs only here
-        from rths_numerical.substructure import param_schema
-    return param_schema(NODE_PARAMS)
+    schema, params = {
+        'bridge': (bridge.param_schema, bridge_node.NODE_PARAMS),
+        'compensator': (compensator_params.param_schema, compensator_node.NODE_PARAMS),
+    }.get(node, (substructure.param_schema, numerical_node.NODE_PARAMS))
+    return schema(params)
 
 
 def check_ranges(path, node: str, params: dict) -> None:

@@ -34,6 +34,7 @@ import time
 
 import rclpy
 
+from rths_bringup.tee import TOPICS as TEED_TOPICS
 from rths_bringup.tee import read_records
 from rths_common import bagstore, topics
 from rths_common import node_support as ns
@@ -83,6 +84,7 @@ class Recorder:
         self.pipe_thread = None
         teed = ()
         if self.pipe_fd >= 0:
+            teed = TEED_TOPICS
             self.pipe_thread = threading.Thread(target=self._read_pipe, daemon=True)
             self.pipe_thread.start()
         for topic, msgtype in topics.LOOP_TOPICS.items():

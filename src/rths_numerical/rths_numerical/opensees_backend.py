@@ -31,7 +31,6 @@ import ctypes
 import glob
 from importlib.metadata import version
 import importlib.util
-import importlib.util as iu
 import os
 
 import numpy as np
@@ -185,8 +184,8 @@ def load_model_script(path):
     """Import the user's model script at ``path``; return its ``build`` (ValueError if none)."""
     if not os.path.isfile(path):
         raise ValueError(f'parameter model = {path!r}: model script not found')
-    spec = iu.spec_from_file_location(f'rths_model_{abs(hash(path))}', path)
-    module = iu.module_from_spec(spec)
+    spec = importlib.util.spec_from_file_location(f'rths_model_{abs(hash(path))}', path)
+    module = importlib.util.module_from_spec(spec)
     try:
         spec.loader.exec_module(module)
     except Exception as err:  # the user's code: report any failure as a bad model
