@@ -35,6 +35,7 @@ from rths_common.files import atomic_open
 from rths_common.params import LOOP_RATE_RANGE_HZ, node_schema
 from rths_common.timebase import format_hz, same_rate
 
+from .methods import DEFAULT as DEFAULT_METHOD
 from .methods import METHODS
 from .schemes import SCHEMES
 
@@ -49,7 +50,7 @@ FILTER_PARAMS = {
 FILTER_RANGES = {'fs_hz': LOOP_RATE_RANGE_HZ}
 #: The compensator's method key (not a filter field): key -> (default, meaning).
 METHOD_PARAMS = {
-    'method': ('fir', 'the designed filter, or an adaptive method started from it (lock-step '
+    'method': (DEFAULT_METHOD, 'the designed filter, or an adaptive method started from it (lock-step '
                       'only; needs provenance.plant; docs/adaptive.md)'),
 }
 #: Allowed values of the scheme and the method (the registries' names).
