@@ -50,8 +50,8 @@ FILTER_PARAMS = {
 FILTER_RANGES = {'fs_hz': LOOP_RATE_RANGE_HZ}
 #: The compensator's method key (not a filter field): key -> (default, meaning).
 METHOD_PARAMS = {
-    'method': (DEFAULT_METHOD, 'the designed filter, or an adaptive method started from it (lock-step '
-                      'only; needs provenance.plant; docs/adaptive.md)'),
+    'method': (DEFAULT_METHOD, 'the designed filter, or an adaptive method started from it '
+                               '(lock-step only; needs provenance.plant; docs/adaptive.md)'),
 }
 #: Allowed values of the scheme and the method (the registries' names).
 CHOICES = {'scheme': SCHEMES.names(), 'method': METHODS.names()}
