@@ -46,6 +46,7 @@ from scipy import signal
 from scipy.linalg import expm
 
 from rths_actuator_bridge.bridge import DEFAULT_BACKEND
+from rths_common import datasets
 from rths_compensator.methods import adaptive_names
 from rths_compensator.schemes import fir_schemes
 
@@ -67,7 +68,7 @@ J_NAMES = tuple(f'J{i}' for i in range(1, 10))
 RECORDS = {'elcentro': ('ElCentroAccelNoScaling.mat', 0.4),
            'kobe': ('KobeAccelNoScaling.mat', 0.4),
            'morganhill': ('MorganAccelNoScaling.mat', 0.4)}
-DATA_ENV = 'RTHS_DATA_DIR'
+DATA_ENV = datasets.DATA_ENV
 CASES = ('1', '2', '3', '4')
 #: Example controller (paper eq. 23-24): PI gains and phase lead G_T(s).
 EXAMPLE_KP, EXAMPLE_KI = 2.0, 95.0
@@ -87,7 +88,7 @@ def _log(msg):
 def record_path(record: str, data_dir: str = None) -> str:
     """File of ``record`` (a name of :data:`RECORDS` or a path); OSError naming the fix."""
     if record in RECORDS:
-        base = data_dir or os.environ.get(DATA_ENV)
+        base = data_dir or datasets.data_dir()
         if not base:
             raise OSError(f'record {record!r}: set {DATA_ENV} (or --data-dir) to the directory '
                           f'holding {RECORDS[record][0]} (the benchmark code package, '
