@@ -32,9 +32,10 @@ SHARED_WORDS = {
     # the unit millimetre
     'mm': {'rths_common/rths_common/columns.py', 'rths_bringup/rths_bringup/preflight.py'},
 }
-#: Benchmarks reproduce named published cases (the seed's comparison study, the RTHS
-#: benchmark's controllers); they are not where a name chooses behaviour.
-BENCHMARKS = ('rths_compensator/rths_compensator/bench.py', 'rths_bench/')
+#: Benchmarks and studies reproduce named published cases (the seed's comparison study,
+#: the RTHS benchmark's controllers, a study's configurations); they are not where a name
+#: chooses behaviour.
+BENCHMARKS = ('rths_compensator/rths_compensator/bench.py', 'rths_bench/', 'rths_study/')
 
 
 def _subparsers(parser):
