@@ -23,7 +23,7 @@ Simulated backend
     ``actuator_model``, ``dtm``, ``frame_mass_kg``, noise, ADC, ``seed``, friction).
 UDP backend
     see :data:`rths_actuator_bridge.udp.UDP_PARAMS` (``host``, ``port``,
-    ``timeout_s``, ``n_channels``, ``fs_hz``).
+    ``timeout_s``, ``reply_budget``, ``n_channels``, ``protocol_version``, ...).
 Safety limits (both)
     see :data:`rths_actuator_bridge.safety.SAFETY_PARAMS`.
 """
@@ -40,7 +40,16 @@ ACTIVE = 'active'
 
 
 class Backend(ABC):
-    """Abstract actuator backend: configure, activate, write, read, deactivate, limits."""
+    """Abstract actuator backend: configure, activate, write, read, deactivate, limits.
+
+    ``external`` is True where the actuator lives outside this process (a servo
+    controller): it outlives the run, so the bridge ends every run by ramping it
+    to the safe position before deactivating it.  ``fault`` is a fault the
+    backend itself reports (e.g. the controller restarted), '' if none.
+    """
+
+    external = False
+    fault = ''
 
     def __init__(self):
         """Create an unconfigured backend."""
@@ -91,11 +100,23 @@ class Backend(ABC):
         self.step += 1
         self._write(u)
 
-    def read(self):
-        """Return ``(displacement [m], force [N])`` arrays measured at the end of this step."""
+    def read(self, wait_s=None):
+        """Return ``(displacement [m], force [N])`` arrays measured at the end of this step.
+
+        ``wait_s``: the longest wait for an external actuator's reading [s] (None:
+        the backend's own timeout); a reading that is not there in time is NaN.
+        """
         if self.lifecycle != ACTIVE:
             raise RuntimeError(f'read() on a backend that is not active (state: {self.lifecycle})')
-        return self._read()
+        return self._read(wait_s)
+
+    def reply_wait_s(self, fs_hz: float) -> float:
+        """Realtime: the longest wait for a reading after a write [s] (0: it is immediate)."""
+        return 0.0
+
+    def counts(self) -> dict:
+        """Return the counts of an external actuator's replies for the reports ({} if none)."""
+        return {}
 
     def channels(self) -> dict:
         """Extra channels of the latest reading (e.g. 'rel_disp', 'table_accel'); may be empty."""
@@ -122,5 +143,5 @@ class Backend(ABC):
         """Backend-specific write of a validated command."""
 
     @abstractmethod
-    def _read(self):
-        """Backend-specific read."""
+    def _read(self, wait_s=None):
+        """Backend-specific read (``wait_s`` as in :meth:`read`)."""

@@ -561,24 +561,37 @@ class Launcher:
 
         import yaml
 
-        from rths_actuator_bridge import udp
+        from rths_actuator_bridge import protocol
 
         data = yaml.safe_load((self.config_dir / 'bridge.yaml').read_text()) or {}
         params = dict(data.get('bridge', {}).get('ros__parameters', {}))
         params.update(self.overrides.get('bridge', {}))
         host, port = str(params.get('host', '127.0.0.1')), int(params.get('port', 0))
         n_channels = int(params.get('n_channels', 1))
+        local = (str(params.get('local_host', '') or ''), int(params.get('local_port', 0) or 0))
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            try:   # from the bridge's own address if it was fixed (the bridge is gone)
+                sock.bind(local)
+            except OSError:
+                sock.bind(('', 0))
             sock.settimeout(0.2)
             for _ in range(5):
-                sock.sendto(udp.pack(udp.DEACTIVATE, 0, (), n_channels), (host, port))
+                sock.sendto(protocol.pack(protocol.DEACTIVATE, 0, (), n_channels), (host, port))
                 try:
-                    kind, *_ = udp.unpack(sock.recvfrom(65536)[0])
+                    data, addr = sock.recvfrom(65536)
+                    ack = protocol.unpack(data)
                 except (socket.timeout, ValueError):
                     continue
-                if kind == udp.ACK:
+                if ack.kind != protocol.ACK or addr != (host, port):
+                    continue
+                if ack.version == 1:
                     return (f'bridge died: servo controller {host}:{port} acknowledged '
-                            'DEACTIVATE (actuator stopped)')
+                            'DEACTIVATE (a version-1 controller does not report its state: '
+                            'its own interlock must bring the actuator to rest)')
+                state = ('inactive: actuator stopped' if not ack.active
+                         else 'STILL ACTIVE: stop the actuator at the controller')
+                return (f'bridge died: servo controller {host}:{port} acknowledged '
+                        f'DEACTIVATE ({state})')
         raise OSError(f'no ACK from {host}:{port}')
 
     def _child(self, name):

@@ -91,6 +91,49 @@ DELAY_BAND_HZ = 10.0
 ZOOM_S = 3.0
 #: ``specimen`` of the summary per bridge ``dtm`` value (every Table 4 DTM is a ``dtm``).
 SPECIMENS = {'mr': 'mr_damper', 'none': 'none'}
+#: ``specimen`` of a run through a servo controller (a backend outside the bridge process).
+EXTERNAL = 'external controller'
+#: Counts of an external controller in ``summary['controller']`` (rths_msgs/ControllerStatus).
+CONTROLLER_KEYS = ('replies_lost', 'replies_late', 'replies_malformed', 'restarts',
+                   'worst_reply_ms', 'replies', 'replies_duplicate', 'replies_out_of_order',
+                   'datagrams_foreign', 'protocol_version', 'address', 'fault')
+
+
+def specimen_of(bridge: dict) -> tuple:
+    """Return ``(specimen, label)`` of a run's bridge section.
+
+    The simulated plant's specimen: a Table 4 DTM (``dtm``, label ``DTM valve4``),
+    the MR damper or none; any other backend drives a lab's actuator through its
+    servo controller: ``external controller`` (label with its address), of
+    which the review has no model.
+    """
+    if str(bridge.get('backend', 'simulated')) != 'simulated':
+        return EXTERNAL, f"{EXTERNAL} {bridge.get('host', '?')}:{bridge.get('port', '?')}"
+    damper = str(bridge.get('dtm', 'valve4'))
+    kind = SPECIMENS.get(damper, 'dtm')
+    label = {'dtm': f'DTM {damper}', 'mr_damper': 'MR damper', 'none': 'no specimen'}[kind]
+    return kind, label
+
+
+def controller_counts(bag):
+    """Return the last ``/rths/controller`` counts of a bag as a dict, or None if none."""
+    last = None
+    for _, _, msg in bagio.read_messages(bag, [topics.CONTROLLER]):
+        last = msg
+    if last is None:
+        return None
+    out = {key: getattr(last, key) for key in CONTROLLER_KEYS}
+    out['worst_reply_ms'] = round(float(out['worst_reply_ms']), 3)
+    return {k: (int(v) if isinstance(v, (int, np.integer)) else v) for k, v in out.items()}
+
+
+def controller_text(c: dict) -> str:
+    """One line of an external controller's counts (review text and report)."""
+    text = (f"controller {c['address']} (protocol version {c['protocol_version']}): "
+            f"replies lost {c['replies_lost']}, late {c['replies_late']}, malformed "
+            f"{c['replies_malformed']}, restarts {c['restarts']}, worst reply "
+            f"{c['worst_reply_ms']:.3f} ms ({c['replies']} used)")
+    return text + (f"; fault: {c['fault']}" if c.get('fault') else '')
 
 
 def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
@@ -204,10 +247,15 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     floor2 = desired - ug
     dt = 1.0 / fs
     damper = bridge.get('dtm', 'valve4')
+    specimen, label = specimen_of(bridge)
     uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
                     if isinstance(model, LinearModel) else None)
     backend = numerical.get('backend', 'builtin')
-    if damper == 'mr' or backend != 'builtin':
+    if specimen == EXTERNAL:   # no model of the lab's specimen: no reference to compare with
+        if uncontrolled is None:
+            uncontrolled, _ = offline_references(numerical, dict(bridge, dtm='none'), dt)
+        reference = None
+    elif damper == 'mr' or backend != 'builtin':
         # nonlinear specimen or OpenSees model: the same substructure, offline, with the same
         # specimen model on a perfect actuator (and without it for the uncontrolled response)
         uncontrolled, reference = offline_references(numerical, bridge, dt)
@@ -216,33 +264,42 @@ def review_rths(bag, out_dir, progress=None) -> dict:
                                        n_dtm=sub.force_scale,
                                        integrator=numerical.get('integrator', 'cr'),
                                        uncontrolled=uncontrolled) if damper != 'none' else None
-    ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
+    if specimen == EXTERNAL:
+        ref_disp = None
+    else:
+        ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
     stage(2, REVIEW_STAGES)
     unc = uncontrolled['metrics']
     max_d, rms_d = float(np.max(np.abs(floor2))), float(np.sqrt(np.mean(floor2 ** 2)))
     bridge_steps = max(len(status.get('step', [])), 1)
     summary = {
-        'record': numerical.get('record'), 'scale': numerical.get('scale'), 'damper': damper,
-        'specimen': SPECIMENS.get(damper, 'dtm'),
+        'record': numerical.get('record'), 'scale': numerical.get('scale'),
+        'damper': label if specimen == EXTERNAL else damper,
+        'specimen': specimen, 'specimen_label': label,
         'mode': info.get('mode'), 'fs_hz': fs, 'steps': n, 'duration_s': n * dt,
         'compensator': compensator,
         'numerical_backend': numerical.get('backend', 'builtin'),
         'numerical_model': getattr(model, 'name', str(numerical.get('model'))),
         'residual_drift_m': residual_drift(floor2, fs),
-        'reference_residual_drift_m': residual_drift(ref_disp, fs),
+        'reference_residual_drift_m': _or_none(ref_disp, lambda r: residual_drift(r, fs)),
         **table5,
         'max_disp_2nd_m': max_d, 'rms_disp_2nd_m': rms_d,
         'uncontrolled_max_disp_2nd_m': unc['max_disp_m'],
         'uncontrolled_rms_disp_2nd_m': unc['rms_disp_m'],
         'reduction_max_pct': 100 * (1 - max_d / unc['max_disp_m']),
         'reduction_rms_pct': 100 * (1 - rms_d / unc['rms_disp_m']),
-        'reference_max_disp_2nd_m': float(np.max(np.abs(ref_disp))),
-        'reference_rms_disp_2nd_m': float(np.sqrt(np.mean(ref_disp ** 2))),
-        'rths_vs_reference_rel_rms_pct': relative_rms_error(floor2, ref_disp),
+        'reference_max_disp_2nd_m': _or_none(ref_disp, lambda r: float(np.max(np.abs(r)))),
+        'reference_rms_disp_2nd_m': _or_none(ref_disp,
+                                             lambda r: float(np.sqrt(np.mean(r ** 2)))),
+        'rths_vs_reference_rel_rms_pct': _or_none(ref_disp,
+                                                  lambda r: relative_rms_error(floor2, r)),
         'deadline_misses': int(status.get('misses', 0)),
         'deadline_miss_pct': 100.0 * status.get('misses', 0) / bridge_steps,
         'safety_faults': status.get('faults', []),
     }
+    counts = controller_counts(bag)
+    if counts is not None:
+        summary['controller'] = counts
     (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
     (out_dir / 'review.txt').write_text(review_text(summary))
     _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp,
@@ -265,11 +322,16 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     return summary
 
 
+def _or_none(value, f):
+    return None if value is None else f(value)
+
+
 def review_text(s: dict) -> str:
     """Return the review as text, in the layout of the seed's tables 5-9."""
+    from rths_bringup.report_html import row_label, specimen_title
     inch = 0.0254
     lines = [
-        f"RTHS review: {s['record']} x {s['scale']}, DTM {s['damper']}, {s['mode']}, "
+        f"RTHS review: {s['record']} x {s['scale']}, {specimen_title(s)}, {s['mode']}, "
         f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)",
         '',
         'Table 5 layout: actuator time delay and relative RMS tracking error',
@@ -285,17 +347,22 @@ def review_text(s: dict) -> str:
         f"{s['uncontrolled_max_disp_2nd_m'] / inch:8.4f}        -     "
         f"{s['uncontrolled_rms_disp_2nd_m']:.4e}  {s['uncontrolled_rms_disp_2nd_m'] / inch:8.4f}"
         '        -',
-        f"  RTHS ({s['damper']})".ljust(19) + f"{s['max_disp_2nd_m']:.4e}  "
+        f"  RTHS ({row_label(s)})".ljust(19) + f"{s['max_disp_2nd_m']:.4e}  "
         f"{s['max_disp_2nd_m'] / inch:8.4f}   {s['reduction_max_pct']:7.1f}   "
         f"{s['rms_disp_2nd_m']:.4e}  {s['rms_disp_2nd_m'] / inch:8.4f}   "
         f"{s['reduction_rms_pct']:7.1f}",
         '',
         'Table 9 layout: RTHS vs whole-numerical reference',
-        f"  actuator time delay {s['delay_ms_after']:.3f} ms, relative RMS error "
-        f"{s['rths_vs_reference_rel_rms_pct']:.2f} %",
+        (f"  actuator time delay {s['delay_ms_after']:.3f} ms, relative RMS error "
+         f"{s['rths_vs_reference_rel_rms_pct']:.2f} %"
+         if s['rths_vs_reference_rel_rms_pct'] is not None else
+         f"  none: the specimen is an {EXTERNAL} (the review has no model of it); actuator "
+         f"time delay {s['delay_ms_after']:.3f} ms"),
         '',
         f"deadline misses: {s['deadline_misses']} ({s['deadline_miss_pct']:.3f} %)",
     ]
+    if s.get('controller'):
+        lines.append(controller_text(s['controller']))
     if s['safety_faults']:
         lines.append('safety faults: ' + '; '.join(s['safety_faults']))
     return '\n'.join(lines) + '\n'
@@ -381,12 +448,18 @@ def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
     t = np.arange(desired.size) / fs
     fig, ax = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
     ax[0].plot(t, unc_disp * 1e3, color='0.6', lw=0.8, label='uncontrolled (numerical)')
-    ax[0].plot(t, ref_disp * 1e3, lw=1.0, label='reference: building + specimens (numerical)')
+    if ref_disp is not None:
+        ax[0].plot(t, ref_disp * 1e3, lw=1.0,
+                   label='reference: building + specimens (numerical)')
     ax[0].plot(t, floor2 * 1e3, '--', lw=1.0, label='RTHS')
     ax[0].set_ylabel('2nd-floor displacement [mm]')
     ax[0].legend(loc='upper right', fontsize=8)
-    ax[1].plot(t, (floor2 - ref_disp) * 1e3, lw=0.8)
-    ax[1].set_ylabel('RTHS - reference [mm]')
+    if ref_disp is None:   # an external controller's specimen: no model, no reference
+        ax[1].plot(t, (floor2 - unc_disp) * 1e3, lw=0.8)
+        ax[1].set_ylabel('RTHS - uncontrolled [mm]')
+    else:
+        ax[1].plot(t, (floor2 - ref_disp) * 1e3, lw=0.8)
+        ax[1].set_ylabel('RTHS - reference [mm]')
     ax[1].set_xlabel('time [s]')
     fig.tight_layout()
     fig.savefig(out_dir / 'time_history.png', dpi=110)

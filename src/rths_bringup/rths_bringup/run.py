@@ -62,11 +62,18 @@ def register(commands, benches):
     p.add_argument('--scale', type=float, default=0.135,
                    help='ground-motion scale factor (seed: kobe 0.135, northridge 0.039, '
                         'el centro 0.10; default 0.135)')
-    p.add_argument('--damper', default='valve4',
-                   help='specimen: a DTM configuration of Table 4 (valve1..valve4, novalve; '
-                        'default valve4) or mr, an MR damper between the 2nd floor and the '
-                        'ground (Bouc-Wen model of Spencer et al. 1997; the table then follows '
-                        'the relative floor displacement)')
+    p.add_argument('--damper', default=None,
+                   help='specimen of the simulated plant: a DTM configuration of Table 4 '
+                        '(valve1..valve4, novalve; default valve4) or mr, an MR damper between '
+                        'the 2nd floor and the ground (Bouc-Wen model of Spencer et al. 1997; '
+                        'the table then follows the relative floor displacement)')
+    p.add_argument('--backend', choices=('simulated', 'udp'), default='simulated',
+                   help='simulated (default): the plant model in the bridge; udp: a servo '
+                        "controller (--controller), the lab's own actuator and specimen "
+                        '(docs/controller_protocol.md)')
+    p.add_argument('--controller', default=None, metavar='HOST:PORT',
+                   help='--backend udp: the servo controller (e.g. 192.168.1.20:5005; '
+                        'rths controller-emulator prints its own)')
     p.add_argument('--mr-voltage', type=float, default=1.0,
                    help='--damper mr: constant command voltage [V] (Spencer et al. 1997 '
                         'tested 0-2.25 V; default 1.0)')
@@ -237,13 +244,18 @@ def read_safety_stop(bag):
     def channel0(table):
         return table[:, 0] if table.shape[1] else np.full(steps.size, np.nan)
 
+    from rths_bringup.review import controller_counts, specimen_of
+
     info = bagio.run_info(bag)
     fs = bagio.sampling_rate(bag)
     numerical = runinfo.section(info, 'numerical')
     bridge = runinfo.section(info, 'bridge')
+    specimen, label = specimen_of(bridge)
     summary = {
         'record': numerical.get('record'), 'scale': numerical.get('scale'),
-        'damper': bridge.get('dtm'), 'force_scale': numerical.get('force_scale'),
+        'damper': bridge.get('dtm') if specimen != 'external controller' else label,
+        'specimen': specimen, 'specimen_label': label,
+        'force_scale': numerical.get('force_scale'),
         'actuator_model': bridge.get('actuator_model'), 'mode': info.get('mode'),
         'fs_hz': fs, 'compensator': runinfo.section(info, 'compensator'),
     }
@@ -251,6 +263,9 @@ def read_safety_stop(bag):
         steps, state, faults[0], channel0(meas['applied']), channel0(meas['displacement']),
         channel0(meas['force']), fs, float(bridge.get('safe_position_m', 0.0) or 0.0)))
     summary['safety_faults'] = faults
+    counts = controller_counts(bag)
+    if counts is not None:
+        summary['controller'] = counts
     return summary
 
 
@@ -261,9 +276,12 @@ def safety_stop_text(s: dict) -> str:
     def metres(value, spec):
         return 'none' if value is None else f'{value:{spec}} m'
 
+    from rths_bringup.report_html import specimen_title
+    from rths_bringup.review import controller_text
+
     lines = [
         f"RTHS ABORTED by the bridge's safety supervisor: {s['record']} x {s['scale']}, "
-        f"DTM {s['damper']} x {s['force_scale']}, {s['mode']}, compensator {scheme}",
+        f"{specimen_title(s)} x {s['force_scale']}, {s['mode']}, compensator {scheme}",
         f"  safety stop: {s['safety_stop']}",
         f"  fault at step {s['fault_step']} ({s['fault_time_s']:.3f} s); hold, ramp to the safe "
         f"position {s['safe_position_m']:g} m; STOPPED at step {s['stop_step']} "
@@ -279,7 +297,34 @@ def safety_stop_text(s: dict) -> str:
     ]
     if len(s.get('safety_faults', [])) > 1:
         lines.append('  further faults: ' + '; '.join(s['safety_faults'][1:]))
+    if s.get('controller'):
+        lines.append('  ' + controller_text(s['controller']))
     return '\n'.join(lines) + '\n'
+
+
+def bridge_params(bridge: dict, args) -> dict:
+    """The bridge's params of a run: the simulated plant's specimen, or the servo controller.
+
+    ``--backend udp --controller HOST:PORT``: the simulated plant's keys of the
+    config are dropped (the lab's controller has its own actuator and specimen),
+    the rest (limits, loop settings) are kept.
+    """
+    from rths_actuator_bridge.safety import SAFETY_PARAMS
+    from rths_actuator_bridge.simulated import SIM_PARAMS
+
+    if args.backend == 'simulated':
+        if args.controller:
+            raise ValueError('--controller needs --backend udp')
+        return dict(bridge, backend='simulated', dtm=args.damper or 'valve4')
+    if args.damper:
+        raise ValueError(f'--damper {args.damper}: with --backend udp the specimen is the '
+                         "controller's; drop --damper")
+    host, sep, port = str(args.controller or '').rpartition(':')
+    if not args.controller or not sep or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f'--backend udp needs --controller HOST:PORT (got '
+                         f'{args.controller!r}), e.g. 127.0.0.1:5005')
+    kept = {k: v for k, v in bridge.items() if k not in SIM_PARAMS or k in SAFETY_PARAMS}
+    return dict(kept, backend='udp', host=host or '127.0.0.1', port=int(port))
 
 
 def _model_param(model: str, config: Path) -> str:
@@ -324,12 +369,12 @@ def _run(args) -> int:
     base = {node: runinfo.load_params(config / fname, node) for node, fname in NODE_FILES.items()}
     fs = float(base['numerical'].get('fs_hz', 1024.0))
     base['bridge']['fs_hz'] = fs
-    base['bridge']['dtm'] = args.damper
+    base['bridge'] = bridge_params(base['bridge'], args)
     model_param = _model_param(args.model, config)   # bad names fail before the long phases
     if args.numerical == 'opensees':
         from rths_numerical.opensees_backend import import_opensees
         import_opensees()
-    if args.damper == 'mr':
+    if args.damper == 'mr':   # (--backend simulated only)
         from rths_numerical.mr_damper import check_voltage
         base['bridge']['mr_voltage_v'] = check_voltage(args.mr_voltage)
     _say(f'results in {out}')
