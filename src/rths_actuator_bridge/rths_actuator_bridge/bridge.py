@@ -223,9 +223,9 @@ class Bridge:
                 return StepResult(step, out, valid[0], valid[1], sup.state, sup.fault, chans)
             disp, force, chans = self.last_valid or (out.copy(), np.zeros(1), {})
             return StepResult(step, out, disp, force, sup.state, sup.fault, chans, 1)
-        n = self.backend.n_channels if self.backend is not None else 1
-        nan = np.full(n, np.nan)
-        if out is None or self.backend is None or self.backend.lifecycle != 'active':
+        n = backend.n_channels if backend is not None else 1
+        if out is None or backend is None or backend.lifecycle != 'active':
+            nan = np.full(n, np.nan)
             return StepResult(step, np.zeros(0), nan, nan, sup.state, sup.fault)
         backend.write(out)
         fs = sup.limits.fs_hz
@@ -266,7 +266,7 @@ class Bridge:
         sup.finish()
         lim = sup.limits
         bound = int((lim.hold_time_s + 2 * lim.ramp_time_s + 2.0) * lim.fs_hz)
-        results = []
+        results: list = []
         due = time.monotonic()
         while sup.state in (safety.HOLD, safety.RAMP) and len(results) < bound:
             results.append(self.step(self.next_step, None, realtime=period_s > 0))

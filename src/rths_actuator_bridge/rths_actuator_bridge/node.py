@@ -541,6 +541,10 @@ class BridgeNode:
             last = results[-1]
             self.log.info(f'end of the run: ramped to the safe position in {len(results)} steps '
                           f'(command {float(last.applied[0]):.6g} m), controller deactivated')
+            if last.fault and not self.stopped:   # a fault's ramp the run's end cut short
+                self.stopped = True
+                self.log.error(f'safety stop at step {last.step}: {last.fault}; backend '
+                               'deactivated')
         if self.controller_pub is not None:
             self.publish_controller(self.step, final=True)
 

@@ -61,8 +61,8 @@ def test_the_reference_controller_passes(version):
     ({'drop_every': 300}, 'sequence', ['replies lost: 3', 'every 300th step']),
     ({'late_every': 300, 'late_s': 0.003}, 'sequence', ['replies late', 'every 300th step']),
     ({'malformed_at': 600}, 'sequence', ['malformed', 'step 600', 'bad magic']),
-    ({'silence_at': 600, 'silence_s': 0.3}, 'sequence', ['controller silent for',
-                                                        'from step 600']),
+    ({'silence_at': 600, 'silence_s': 0.3}, 'sequence',
+     ['controller silent for', 'from step 600']),
     ({'restart_at': 600, 'restart_s': 0.2}, 'restart', ['controller restarted: new session']),
 ])
 def test_each_fault_fails_the_check_naming_it(faults, check, words):

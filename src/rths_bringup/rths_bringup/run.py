@@ -303,7 +303,7 @@ def safety_stop_text(s: dict) -> str:
 
 
 def bridge_params(bridge: dict, args) -> dict:
-    """The bridge's params of a run: the simulated plant's specimen, or the servo controller.
+    """Return the bridge's params of a run: the simulated plant's specimen, or a controller.
 
     ``--backend udp --controller HOST:PORT``: the simulated plant's keys of the
     config are dropped (the lab's controller has its own actuator and specimen),
