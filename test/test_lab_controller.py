@@ -26,6 +26,7 @@ FS = 1024.0
 
 def _limits():
     import yaml
+
     from rths_system_tests import REPO
     data = yaml.safe_load((REPO / 'config' / 'bridge.yaml').read_text())
     params = data['bridge']['ros__parameters']

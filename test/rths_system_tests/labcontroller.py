@@ -7,9 +7,10 @@ not the emulator.  Versions 1 and 2; one actuator (a first-order lag, time const
 ``pressure`` (named in version 2; in version 1 the bridge ignores the value nobody named).
 
 ``versions=(1,)`` is a controller written against version 1 only (it ignores version-2
-datagrams).  Faults, as a lab's controller has them: no REPLY to every ``drop_every``-th step, the REPLY of
-every ``late_every``-th step sent ``late_s`` late, a malformed datagram instead of the REPLY
-of step ``malformed_at``, and ``silence_s`` of silence from COMMAND ``silence_at``.
+datagrams).  Faults, as a lab's controller has them: no REPLY to every ``drop_every``-th
+step, the REPLY of every ``late_every``-th step sent ``late_s`` late, a malformed datagram
+instead of the REPLY of step ``malformed_at``, and ``silence_s`` of silence from COMMAND
+``silence_at``.
 """
 
 import random

@@ -65,7 +65,7 @@ def run_emulator(args) -> int:
     emu = ControllerEmulator(params, host=args.host, port=args.port, faults=faults,
                              n_channels=args.channels, stroke_m=args.stroke_m,
                              velocity_m_s=args.velocity_m_s, wall_clock=args.wall_clock,
-                             interlock_s=args.interlock_s)
+                             interlock_s=args.interlock_s, rt_priority=args.rt_priority)
     host, port = emu.address
     active = ', '.join(f'{k} {v:g}' for k, v in faults.items()
                        if k in ('drop_every', 'late_every', 'malformed_at', 'silence_at',
@@ -97,7 +97,8 @@ def run_check(args) -> int:
     report = check_controller(host or '127.0.0.1', int(port), channels=args.channels,
                               fs_hz=args.fs_hz, steps=args.steps, version=args.version,
                               amplitude_m=args.amplitude_m, timeout_s=args.timeout_s,
-                              late_tolerance=args.late_tolerance_pct / 100, progress=_progress)
+                              late_tolerance=args.late_tolerance_pct / 100,
+                              rt_priority=args.rt_priority, progress=_progress)
     print(report_text(report), end='', flush=True)
     if args.out:
         _write_json(args.out, report)
@@ -193,6 +194,9 @@ def register(commands, benches):
                         'sample per COMMAND)')
     p.add_argument('--interlock-s', type=float, default=0.1,
                    help='--wall-clock: the interlock time [s] (default 0.1)')
+    p.add_argument('--rt-priority', type=int, default=0,
+                   help='SCHED_FIFO priority of the serving thread, as a real-time '
+                        'controller runs (default 0: normal scheduling)')
     g = p.add_argument_group('faults', 'steps count COMMANDs from ACTIVATE (step 0)')
     g.add_argument('--drop-every', type=int, default=None, metavar='N',
                    help='send no REPLY to steps k > 0 with k %% N == 0')
@@ -235,6 +239,9 @@ def register(commands, benches):
     p.add_argument('--late-tolerance-pct', type=float, default=0.1,
                    help='scattered late replies tolerated [%% of the steps] (default 0.1; a '
                         'regular pattern of late replies always fails)')
+    p.add_argument('--rt-priority', type=int, default=0,
+                   help='SCHED_FIFO priority of the checker while it runs (default 0: normal '
+                        'scheduling; on a loaded host the checker itself may be late)')
     p.add_argument('--out', metavar='F.json', help='write the report as JSON')
     p.set_defaults(func=run_check)
 

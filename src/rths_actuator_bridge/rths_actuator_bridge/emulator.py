@@ -52,12 +52,25 @@ EXTRA = ('rel_disp', 'rel_vel', 'table_accel')
 CACHE_STEPS = 64
 
 
+def realtime_thread(priority: int) -> str:
+    """SCHED_FIFO ``priority`` for the calling thread, as a real-time controller runs; describe."""
+    if priority <= 0:
+        return 'normal scheduling'
+    import os
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        return f'SCHED_FIFO {priority}'
+    except (OSError, AttributeError) as err:
+        return f'SCHED_FIFO {priority} refused ({err})'
+
+
 class ControllerEmulator:
     """The simulated plant behind the controller protocol (see the module docstring)."""
 
     def __init__(self, params: dict = None, host: str = '127.0.0.1', port: int = 0,
                  faults: dict = None, n_channels: int = 1, stroke_m: float = 0.254,
-                 velocity_m_s: float = 2.0, wall_clock: bool = False, interlock_s: float = 0.1):
+                 velocity_m_s: float = 2.0, wall_clock: bool = False, interlock_s: float = 0.1,
+                 rt_priority: int = 0):
         """Bind the socket and build one plant per channel from flat simulated ``params``."""
         unknown = set(faults or {}) - set(FAULT_KEYS)
         if unknown:
@@ -76,6 +89,7 @@ class ControllerEmulator:
         self.names = p.default_names(self.n_channels, ('displacement', 'force') + EXTRA)
         self.stroke_m, self.velocity_m_s = float(stroke_m), float(velocity_m_s)
         self.wall_clock, self.interlock_s = bool(wall_clock), float(interlock_s)
+        self.rt_priority = int(rt_priority)
         self.faults = dict(FAULT_KEYS, **(faults or {}))
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind((host, port))
@@ -298,6 +312,7 @@ class ControllerEmulator:
     # ---------------------------------------------------------------- serving
     def serve_forever(self, poll_s: float = 0.01):
         """Answer datagrams until :meth:`stop` (the interlock is checked every ``poll_s``)."""
+        realtime_thread(self.rt_priority)
         self.sock.settimeout(poll_s)
         while not self._stop.is_set():
             try:
