@@ -42,14 +42,35 @@ ACTIVE = 'active'
 class Backend(ABC):
     """Abstract actuator backend: configure, activate, write, read, deactivate, limits.
 
-    ``external`` is True where the actuator lives outside this process (a servo
-    controller): it outlives the run, so the bridge ends every run by ramping it
-    to the safe position before deactivating it.  ``fault`` is a fault the
-    backend itself reports (e.g. the controller restarted), '' if none.
+    A backend class also says what it is and which parameters it takes, for the
+    registry :data:`rths_actuator_bridge.bridge.BACKENDS` and the bridge's schema:
+    ``summary`` (one line), ``params`` (key -> (type, default, meaning [unit])),
+    ``ranges`` (key -> inclusive (low, high)) and ``choices`` (key -> allowed values);
+    ``in_process``: the plant lives in the bridge's process (it stops with it, and the
+    pre-flight check may build it); otherwise the actuator is external (a servo
+    controller): it outlives the run, so the bridge ends every run by ramping it to
+    the safe position before deactivating it.  ``fault`` is a fault the backend itself
+    reports (e.g. the controller restarted), '' if none.
     """
 
-    external = False
+    summary = ''
+    params: dict = {}
+    ranges: dict = {}
+    choices: dict = {}
+    in_process = False
     fault = ''
+
+    @classmethod
+    def make_safe(cls, params: dict) -> str:
+        """After the bridge process died: bring the actuator to rest from outside; say how.
+
+        An in-process plant stopped with the bridge; a backend driving hardware
+        overrides this (OSError when it cannot reach the controller).
+        """
+        if cls.in_process:
+            return (f'the {cls.summary.split(":")[0]} ran inside the bridge process and stopped '
+                    'with it: safe state (nothing moves)')
+        raise OSError('this backend cannot stop the actuator from outside the bridge')
 
     def __init__(self):
         """Create an unconfigured backend."""
@@ -108,7 +129,7 @@ class Backend(ABC):
         """
         if self.lifecycle != ACTIVE:
             raise RuntimeError(f'read() on a backend that is not active (state: {self.lifecycle})')
-        return self._read(wait_s)
+        return self._read() if wait_s is None else self._read(wait_s)
 
     def reply_wait_s(self, fs_hz: float) -> float:
         """Realtime: the longest wait for a reading after a write [s] (0: it is immediate)."""
@@ -144,4 +165,4 @@ class Backend(ABC):
 
     @abstractmethod
     def _read(self, wait_s=None):
-        """Backend-specific read (``wait_s`` as in :meth:`read`)."""
+        """Backend-specific read (``wait_s`` as in :meth:`read`; only given when not None)."""

@@ -11,6 +11,8 @@ import json
 import sys
 
 from rths_common.files import atomic_open
+from rths_common.params import add_renamed_option
+from rths_numerical.specimens import DEFAULT_SPECIMEN, SPECIMENS
 
 
 def _progress(text: str):
@@ -26,8 +28,9 @@ def _write_json(path, data):
 def _add_plant_options(p):
     p.add_argument('--actuator-model', default='3pole',
                    help="'3pole' | '4pole' (Table 1) or a plant.yaml (default 3pole)")
-    p.add_argument('--dtm', default='valve4',
-                   help="DTM configuration valve1..valve4 | novalve | none (default valve4)")
+    p.add_argument('--specimen', default=DEFAULT_SPECIMEN, choices=SPECIMENS.names(),
+                   help=f'the specimen on the table (default {DEFAULT_SPECIMEN})')
+    add_renamed_option(p, '--dtm', '--specimen')
     p.add_argument('--fs-hz', type=float, default=1024.0, help='sampling frequency [Hz]')
     p.add_argument('--seed', type=int, default=0, help='noise generator seed')
     p.add_argument('--displacement-noise-m', type=float, default=0.0,
@@ -43,7 +46,8 @@ def run_emulator(args) -> int:
     import time
 
     from .emulator import ControllerEmulator
-    params = {'actuator_model': args.actuator_model, 'dtm': args.dtm, 'fs_hz': args.fs_hz,
+    params = {'actuator_model': args.actuator_model, 'specimen': args.specimen,
+              'fs_hz': args.fs_hz,
               'seed': args.seed, 'displacement_noise_m': args.displacement_noise_m,
               'force_noise_n': args.force_noise_n, 'adc_bits': args.adc_bits,
               'friction_n': args.friction_n}
@@ -71,7 +75,7 @@ def run_emulator(args) -> int:
                        if k in ('drop_every', 'late_every', 'malformed_at', 'silence_at',
                                 'restart_at'))
     print(f'controller emulator listening on {host}:{port} (UDP, protocol versions 1 and 2, '
-          f'{args.channels} channel(s), plant {args.actuator_model} + DTM {args.dtm}, '
+          f'{args.channels} channel(s), plant {args.actuator_model} + specimen {args.specimen}, '
           f'{"wall clock" if args.wall_clock else "lock-step"}'
           f'{", faults: " + active if active else ""})', flush=True)
     emu.start()

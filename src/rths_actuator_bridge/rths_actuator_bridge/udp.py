@@ -101,7 +101,43 @@ def _params(params: dict) -> dict:
 class UdpBackend(Backend):
     """Backend talking to a servo controller over UDP (see the module docstring)."""
 
-    external = True
+    summary = 'a servo controller over UDP (docs/controller_protocol.md)'
+    params = UDP_PARAMS
+    ranges = UDP_RANGES
+
+    @classmethod
+    def make_safe(cls, params: dict) -> str:
+        """Send DEACTIVATE to the servo controller of ``params``; OSError without its ACK.
+
+        From the bridge's own address where it was fixed (``local_host``/``local_port``;
+        the bridge is gone).  A version-2 ACK says whether the controller is still ACTIVE.
+        """
+        host, port = str(params.get('host', '127.0.0.1')), int(params.get('port', 0))
+        n_channels = int(params.get('n_channels', 1))
+        local = (str(params.get('local_host', '') or ''), int(params.get('local_port', 0) or 0))
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            try:
+                sock.bind(local)
+            except OSError:
+                sock.bind(('', 0))
+            sock.settimeout(0.2)
+            for _ in range(5):
+                sock.sendto(p.pack(p.DEACTIVATE, 0, (), n_channels), (host, port))
+                try:
+                    data, addr = sock.recvfrom(65536)
+                    ack = p.unpack(data)
+                except (socket.timeout, ValueError):
+                    continue
+                if ack.kind != p.ACK or addr != (host, port):
+                    continue
+                if ack.version == 1:
+                    return (f'servo controller {host}:{port} acknowledged DEACTIVATE (a '
+                            'version-1 controller does not report its state: its own interlock '
+                            'must bring the actuator to rest)')
+                state = ('inactive: actuator stopped' if not ack.active
+                         else 'STILL ACTIVE: stop the actuator at the controller')
+                return f'servo controller {host}:{port} acknowledged DEACTIVATE ({state})'
+        raise OSError(f'no ACK from {host}:{port}')
 
     def _configure(self, params: dict):
         cfg = _params(params)

@@ -60,7 +60,7 @@ def test_reactivation_restarts_the_step_count_and_keeps_a_real_actuator_where_it
         backend.deactivate()
         runs.append(np.array(out))
     assert np.max(np.abs(runs[0])) > 1e-3
-    if backend.external:   # ACTIVATE does not reset the controller's actuator: it starts
+    if not backend.in_process:   # ACTIVATE does not reset the controller's actuator: it starts
         # where the first run left it (3 mm off zero), not at rest at zero
         assert abs(runs[0][-1]) > 2e-3
         assert runs[1][0] == pytest.approx(runs[0][-1], abs=1e-3)

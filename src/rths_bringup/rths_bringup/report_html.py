@@ -16,7 +16,8 @@ PLOTS = {
     'tracking_zoom.png': 'Actuator tracking around the peak: interface displacement, '
                          'compensated command and measured displacement (table 5)',
     'bode_actuator.png': 'Measured FRF of the actuator during the RTHS (table 5)',
-    'mr_hysteresis.png': 'MR-damper specimen: measured force against displacement',
+    'specimen_hysteresis.png': 'Hysteretic specimen (e.g. the MR damper): measured force '
+                               'against displacement',
 }
 
 _STYLE = ('body{font-family:sans-serif;max-width:60em;margin:1em auto;color:#222}'
@@ -28,13 +29,13 @@ _INCH = 0.0254
 
 
 def specimen_title(s: dict) -> str:
-    """Return the specimen as a review's title names it (``DTM valve4``, ``external ...``)."""
-    return s.get('specimen_label') or f"DTM {s['damper']}"
+    """Return the specimen as a review's title names it (``valve4``, ``external ... H:P``)."""
+    return s.get('specimen_label') or s['specimen']
 
 
 def row_label(s: dict) -> str:
-    """Return the specimen as a table row names it: the damper, or ``external``."""
-    return 'external' if s.get('specimen') == 'external controller' else s['damper']
+    """Return the specimen as a table row names it: its name, or ``external``."""
+    return 'external' if s.get('specimen') == 'external controller' else s['specimen']
 
 
 def _table(caption: str, header, rows) -> str:
@@ -92,8 +93,8 @@ def _figure(name: str, data: bytes, caption: str) -> str:
 def render(summary: dict, images: dict) -> str:
     """Return the whole page; ``images`` maps a plot's file name to its PNG bytes."""
     s = summary
-    title = (f"RTHS review: {s['record']} x {s['scale']}, {specimen_title(s)}, {s['mode']}, "
-             f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)")
+    title = (f"RTHS review: {s['record']} x {s['scale']}, specimen {specimen_title(s)}, "
+             f"{s['mode']}, {s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)")
     misses = f"deadline misses: {s['deadline_misses']} ({s['deadline_miss_pct']:.3f} %)"
     faults = ''.join(f'<li>{html.escape(f)}</li>' for f in s.get('safety_faults', []))
     figures = ''.join(_figure(name, data, PLOTS.get(name, name)) for name, data in images.items())

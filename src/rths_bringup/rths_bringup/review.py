@@ -5,6 +5,7 @@ from pathlib import Path
 import numpy as np
 
 from rths_common import bagio, topics
+from rths_numerical.specimens import SPECIMENS, specimen_of
 
 #: Loop topics that carry one message per step, and the array field to summarise.
 STEP_TOPICS = {
@@ -89,8 +90,8 @@ def loop_summary(bag) -> dict:
 #: Upper edge [Hz] of the band over which delays are averaged (the seed's RTHS design band).
 DELAY_BAND_HZ = 10.0
 ZOOM_S = 3.0
-#: ``specimen`` of the summary per bridge ``dtm`` value (every Table 4 DTM is a ``dtm``).
-SPECIMENS = {'mr': 'mr_damper', 'none': 'none'}
+#: The plot of a hysteretic specimen's measured force against its stroke (report_html.PLOTS).
+HYSTERESIS_PNG = 'specimen_hysteresis.png'
 #: ``specimen`` of a run through a servo controller (a backend outside the bridge process).
 EXTERNAL = 'external controller'
 #: Counts of an external controller in ``summary['controller']`` (rths_msgs/ControllerStatus).
@@ -99,20 +100,20 @@ CONTROLLER_KEYS = ('replies_lost', 'replies_late', 'replies_malformed', 'restart
                    'datagrams_foreign', 'protocol_version', 'address', 'fault')
 
 
-def specimen_of(bridge: dict) -> tuple:
-    """Return ``(specimen, label)`` of a run's bridge section.
+def external_controller(bridge: dict) -> str:
+    """Return ``'external controller HOST:PORT'`` for a run through a servo controller, else ''.
 
-    The simulated plant's specimen: a Table 4 DTM (``dtm``, label ``DTM valve4``),
-    the MR damper or none; any other backend drives a lab's actuator through its
-    servo controller: ``external controller`` (label with its address), of
-    which the review has no model.
+    Any backend whose plant does not live in the bridge's process drives a lab's actuator
+    and specimen through its controller: the review has no model of them.
     """
-    if str(bridge.get('backend', 'simulated')) != 'simulated':
-        return EXTERNAL, f"{EXTERNAL} {bridge.get('host', '?')}:{bridge.get('port', '?')}"
-    damper = str(bridge.get('dtm', 'valve4'))
-    kind = SPECIMENS.get(damper, 'dtm')
-    label = {'dtm': f'DTM {damper}', 'mr_damper': 'MR damper', 'none': 'no specimen'}[kind]
-    return kind, label
+    from rths_actuator_bridge.bridge import backend_class
+    try:
+        in_process = backend_class(bridge).in_process
+    except ValueError:       # a backend this installation does not know: not in the process
+        in_process = False
+    if in_process:
+        return ''
+    return f"{EXTERNAL} {bridge.get('host', '?')}:{bridge.get('port', '?')}"
 
 
 def controller_counts(bag):
@@ -246,25 +247,29 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     ug = sub.ug[:n] if sub.frame == 'absolute' else 0.0
     floor2 = desired - ug
     dt = 1.0 / fs
-    damper = bridge.get('dtm', 'valve4')
-    specimen, label = specimen_of(bridge)
+    name = specimen_of(bridge)
+    external = external_controller(bridge)
     uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
                     if isinstance(model, LinearModel) else None)
     backend = numerical.get('backend', 'builtin')
-    if specimen == EXTERNAL:   # no model of the lab's specimen: no reference to compare with
+    specimen = None if external else SPECIMENS.entry(name, f'{bag}: bridge parameter specimen')
+    if specimen is None:   # no model of the lab's specimen: no reference to compare with
         if uncontrolled is None:
-            uncontrolled, _ = offline_references(numerical, dict(bridge, dtm='none'), dt)
+            uncontrolled, _ = offline_references(numerical, dict(bridge, specimen='none'), dt)
         reference = None
-    elif damper == 'mr' or backend != 'builtin':
-        # nonlinear specimen or OpenSees model: the same substructure, offline, with the same
-        # specimen model on a perfect actuator (and without it for the uncontrolled response)
+    elif specimen.device is not None or backend != 'builtin':
+        # a device specimen or an OpenSees model: the same substructure, offline, with the
+        # same specimen model on a perfect actuator (and without it for the uncontrolled one)
         uncontrolled, reference = offline_references(numerical, bridge, dt)
-    else:
-        reference = simulate_reference(model, sub.ag, dt, damper=damper,
+    elif specimen.table_mass is not None:
+        reference = simulate_reference(model, sub.ag, dt, damper=specimen.table_mass,
                                        n_dtm=sub.force_scale,
+                                       frame_mass_kg=specimen.frame_mass_kg,
                                        integrator=numerical.get('integrator', 'cr'),
-                                       uncontrolled=uncontrolled) if damper != 'none' else None
-    if specimen == EXTERNAL:
+                                       uncontrolled=uncontrolled)
+    else:
+        reference = None
+    if external:
         ref_disp = None
     else:
         ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
@@ -274,8 +279,9 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     bridge_steps = max(len(status.get('step', [])), 1)
     summary = {
         'record': numerical.get('record'), 'scale': numerical.get('scale'),
-        'damper': label if specimen == EXTERNAL else damper,
-        'specimen': specimen, 'specimen_label': label,
+        # damper: the former name of the key
+        'specimen': EXTERNAL if external else name, 'damper': EXTERNAL if external else name,
+        'specimen_label': external or name,
         'mode': info.get('mode'), 'fs_hz': fs, 'steps': n, 'duration_s': n * dt,
         'compensator': compensator,
         'numerical_backend': numerical.get('backend', 'builtin'),
@@ -310,11 +316,13 @@ def review_rths(bag, out_dir, progress=None) -> dict:
                          hinge['hinge_moment'], fs, f"hinge of {summary['numerical_model']} "
                          f"({hinge['source']})", ('rotation [mrad]', 'moment [N m]'),
                          velocity=False)
-    if damper == 'mr':
-        summary['mr_voltage_v'] = float(bridge.get('mr_voltage_v', 1.0))
+    if specimen is not None and specimen.params:
+        summary.update(specimen.settings(bridge))
         (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
-        _hysteresis_plot(out_dir / 'mr_hysteresis.png', measured, meas['force'][:n, 0], fs,
-                         f"MR damper at {summary['mr_voltage_v']:g} V (measured)")
+    if specimen is not None and specimen.hysteresis:
+        settings = ', '.join(f'{k} {v:g}' for k, v in specimen.settings(bridge).items())
+        _hysteresis_plot(out_dir / HYSTERESIS_PNG, measured, meas['force'][:n, 0], fs,
+                         f'specimen {name} ({settings}), measured')
     stage(3, REVIEW_STAGES)
     from rths_bringup.report_html import write_report
     write_report(out_dir, summary)
@@ -331,7 +339,7 @@ def review_text(s: dict) -> str:
     from rths_bringup.report_html import row_label, specimen_title
     inch = 0.0254
     lines = [
-        f"RTHS review: {s['record']} x {s['scale']}, {specimen_title(s)}, {s['mode']}, "
+        f"RTHS review: {s['record']} x {s['scale']}, specimen {specimen_title(s)}, {s['mode']}, "
         f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)",
         '',
         'Table 5 layout: actuator time delay and relative RMS tracking error',
@@ -383,22 +391,18 @@ def offline_references(numerical, bridge, dt):
     """Uncontrolled and reference responses from the run's own substructure, offline.
 
     The reference couples the same substructure with the run's specimen model on
-    a perfect actuator (:class:`~rths_numerical.reference.DTMSpecimen` or
-    :class:`~rths_numerical.mr_damper.MRSpecimen`); the uncontrolled run has no
-    specimen force.  Returns ``(uncontrolled, reference)`` dicts with ``disp``
-    and ``metrics`` (the reference also its whole ``history``; None if the
+    a perfect actuator (:meth:`rths_numerical.specimens.Specimen.reference`); the
+    uncontrolled run has no specimen force.  Returns ``(uncontrolled, reference)``
+    dicts with ``disp`` and ``metrics`` (the reference also its whole ``history``; None if the
     bridge ran a bare table).
     """
-    from rths_numerical.mr_damper import MRSpecimen
-    from rths_numerical.reference import DTMSpecimen, coupled_rths, metrics
+    from rths_numerical.reference import coupled_rths, metrics
     from rths_numerical.substructure import make_substructure
-    damper = bridge.get('dtm', 'valve4')
     free = coupled_rths(make_substructure(numerical), lambda x: np.zeros(1))
     uncontrolled = {'disp': free['output_disp'], 'metrics': metrics(free['output_disp'])}
-    if damper == 'none':
+    specimen = SPECIMENS.entry(specimen_of(bridge)).reference(dt, bridge)
+    if specimen is None:
         return uncontrolled, None
-    specimen = (MRSpecimen(dt, float(bridge.get('mr_voltage_v', 1.0))) if damper == 'mr'
-                else DTMSpecimen(damper, dt))
     hist = coupled_rths(make_substructure(numerical), specimen)
     return uncontrolled, {'disp': hist['output_disp'], 'history': hist,
                           'metrics': metrics(hist['output_disp'], uncontrolled['metrics'])}
