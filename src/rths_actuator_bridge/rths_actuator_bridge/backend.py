@@ -74,6 +74,9 @@ class Backend(ABC):
 
     def __init__(self):
         """Create an unconfigured backend."""
+        import inspect
+        # a backend whose _read takes wait_s waits for an external reading at most that long
+        self._timed_reads = 'wait_s' in inspect.signature(self._read).parameters
         self.lifecycle = UNCONFIGURED
         self._limits = SafetyLimits()
         self.n_channels = 1
@@ -129,7 +132,9 @@ class Backend(ABC):
         """
         if self.lifecycle != ACTIVE:
             raise RuntimeError(f'read() on a backend that is not active (state: {self.lifecycle})')
-        return self._read() if wait_s is None else self._read(wait_s)
+        if wait_s is None or not self._timed_reads:
+            return self._read()
+        return self._read(wait_s)
 
     def reply_wait_s(self, fs_hz: float) -> float:
         """Realtime: the longest wait for a reading after a write [s] (0: it is immediate)."""
