@@ -26,18 +26,21 @@ write the command of step 0 (the position at rest).
 import numpy as np
 
 from rths_common import stepping
-from rths_common.params import node_schema
+from rths_common.params import node_schema, renamed
 from rths_common.registry import Registry
 
 from . import safety
 from .backend import Backend
+from .genericclient import GenericClientBackend
+from .ideal import IdealBackend
 from .simulated import SimulatedBackend
 from .udp import UdpBackend
 
 #: Backend name (the ``backend`` parameter) -> class (a :class:`.backend.Backend`, which
 #: carries its summary, parameters, ranges and choices).
 BACKENDS = Registry('bridge backend', 'backend',
-                    {'simulated': SimulatedBackend, 'udp': UdpBackend})
+                    {'simulated': SimulatedBackend, 'udp': UdpBackend, 'ideal': IdealBackend,
+                     'genericclient': GenericClientBackend})
 #: The backend of a params file that names none.
 DEFAULT_BACKEND = 'simulated'
 
@@ -65,6 +68,38 @@ def param_schema(node_params) -> dict:
     ranges.update(safety.SAFETY_RANGES, command_delay_steps=(0, MAX_DELAY_STEPS))
     return node_schema(node_params, {**params, **safety.SAFETY_PARAMS, **PARAMS}, ranges,
                        choices)
+
+
+#: Plausibility bounds of the limits [SI]: a larger value is almost surely in the wrong unit
+#: (inches or mm for metres, kN for N is the other way round and passes).
+PLAUSIBLE_MAX = {'stroke_m': (1.0, 'm', 'inches or mm'),
+                 'velocity_m_s': (10.0, 'm/s', 'mm/s or in/s'),
+                 'dtm_rel_disp_m': (1.0, 'm', 'inches or mm'),
+                 'safe_position_m': (1.0, 'm', 'inches or mm')}
+
+
+def check_core_params(core: dict, node_keys=()) -> dict:
+    """Validate the bridge core's flat parameters (node-level keys removed); return them.
+
+    Unknown keys (typos; ``node_keys`` are listed as known in the message), an
+    unknown backend, non-finite or out-of-unit limits raise ValueError naming
+    the field and the fix.
+    """
+    core = renamed(core, 'dtm', 'specimen', 'bridge parameters')
+    backend = core.get('backend', DEFAULT_BACKEND)
+    known = {*PARAMS, *safety.SAFETY_PARAMS, *backend_class(core).params}
+    unknown = sorted(set(core) - known)
+    if unknown:
+        raise ValueError(f'unknown parameter(s) {", ".join(unknown)} for backend {backend!r}; '
+                         f'known: {", ".join(sorted(known | set(node_keys)))}')
+    safety.SafetyLimits.from_params(core)
+    DelayLine(core.get('command_delay_steps', 0))
+    for key, (bound, unit, other) in PLAUSIBLE_MAX.items():
+        value = core.get(key)
+        if isinstance(value, (int, float)) and abs(value) > bound:
+            raise ValueError(f'parameter {key} = {value} {unit} is beyond any lab actuator '
+                             f'(> {bound:g} {unit}): it looks like {other}; give it in {unit}')
+    return core
 
 
 def make_backend(params: dict) -> Backend:

@@ -1,6 +1,7 @@
 """Sub-commands this package adds to the ``rths`` command (see rths_bringup.cli).
 
 ``rths controller-emulator``  the simulated plant behind the UDP protocol (own process)
+``rths site``                 an OpenFresco-compatible experimental site (genericClient protocol)
 ``rths characterise-dtm``     identify c_d, k_d, zeta, f_n of the DTM from shake-table tests
 ``rths bench dtm``            reproduce Table 4 from simulated tests of the five configurations
 """
@@ -132,8 +133,109 @@ def run_bench_dtm(args) -> int:
     return 0
 
 
+def run_site(args) -> int:
+    """``rths site``: serve one OpenSees/OpenFresco client session, record it, exit."""
+    import datetime
+    import os
+    from pathlib import Path
+    import signal
+
+    from .site import load_site_config
+    from .site_server import check_allow, listen, run, server_tls_context
+
+    if not 0 <= args.port <= 65535:
+        raise ValueError(f'--port {args.port} must be 0 (any free port) .. 65535')
+    root = os.environ.get('RTHS_ROOT')
+    config = load_site_config(args.config, Path(root) / 'config' if root else None)
+    site = config['site']
+    if args.allow:
+        site['allow'] = args.allow
+    site['allow'] = check_allow(site['allow'])
+    if args.mode:
+        site['mode'] = args.mode
+    tls = None
+    if args.tls_cert or args.tls_key or args.tls_ca:
+        tls = server_tls_context(args.tls_cert, args.tls_key, args.tls_ca)
+    stamp = datetime.datetime.now().strftime('%Y%m%d-%H%M%S')
+    bag = Path(args.bag) if args.bag else Path('out') / f'site-{stamp}' / 'bag'
+    listener = listen(args.host, args.port)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)   # SIGTERM stops safely too
+    if args.rt_priority:
+        realtime_priority(args.rt_priority)
+    try:
+        summary = run(config, listener, bag, tls, args.wait_s or None)
+    finally:
+        listener.close()
+    if args.summary:
+        _write_json(args.summary, summary)
+    return summary['exit_code']
+
+
+def realtime_priority(priority: int) -> bool:
+    """Run this process SCHED_FIFO at ``priority`` (1..99); say so, or why not."""
+    import gc
+    import os
+
+    from .site_server import log
+    gc.freeze()   # what exists now is never scanned again: shorter collections in the session
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
+    except (OSError, ValueError) as err:
+        log(f'SCHED_FIFO {priority} refused ({err}): normal priority (give the process '
+            'CAP_SYS_NICE or run it as root for tighter timing)')
+        return False
+    log(f'SCHED_FIFO priority {priority}')
+    return True
+
+
+def _add_site_parser(commands):
+    p = commands.add_parser(
+        'site', help='be an OpenFresco-compatible experimental site for OpenSees genericClient',
+        description='Serve one OpenSees genericClient (or OpenFresco) client over TCP: the '
+                    "client's trial displacement goes through the compensator and the actuator "
+                    "bridge (any backend, under the safety supervisor); the load cell's force "
+                    'goes back. Pseudo-dynamic (each new trial is one loop step) or realtime '
+                    "(the site's own loop at fs_hz). Every loop step is recorded to --bag "
+                    '(rths review reads it). A bad peer (truncated, wrong size, non-finite, '
+                    'unknown action, vanished, a second client) stops the actuator safely. '
+                    'Ends when the client says goodbye (docs/openfresco.md).',
+        epilog='Exit codes: 0 the client said goodbye; 3 safety stop (bad peer or a fault of '
+               'the supervisor); 2 bad input.')
+    p.add_argument('--port', type=int, required=True,
+                   help='TCP port to listen on (the genericClient -server port; 0 = any free)')
+    p.add_argument('--host', default='127.0.0.1',
+                   help='address to bind (default 127.0.0.1: this machine only; 0.0.0.0 for a '
+                        'lab network, with --allow)')
+    p.add_argument('--config', default=None,
+                   help='site config YAML: site: (mode, matrices, client_timeout_s, allow), '
+                        'bridge: and compensator: (params files or inline; default the repo '
+                        "config/'s bridge.yaml and compensator.yaml)")
+    p.add_argument('--mode', choices=('pseudodynamic', 'realtime'), default=None,
+                   help='override the config: pseudodynamic (default) or realtime')
+    p.add_argument('--bag', default=None,
+                   help='new bag directory for the run (default out/site-<time>/bag)')
+    p.add_argument('--allow', action='append', metavar='ADDR',
+                   help='client address or network allowed (repeatable; default the '
+                        "config's allow, else 127.0.0.1 and ::1)")
+    p.add_argument('--tls-cert', default='', help='site certificate (PEM): TLS on')
+    p.add_argument('--tls-key', default='', help='private key of --tls-cert (PEM)')
+    p.add_argument('--tls-ca', default='',
+                   help='CA (PEM) that must have signed the client certificate: mutual TLS')
+    p.add_argument('--rt-priority', type=int, default=0, choices=range(0, 100),
+                   metavar='0..99',
+                   help='SCHED_FIFO priority of the site process (0 = normal scheduling, the '
+                        'default); on a loaded machine it keeps the round trip short')
+    p.add_argument('--summary', default=None, metavar='FILE.json',
+                   help='write the session summary (steps, commits, messages, safety_state, '
+                        'fault, exit_code, bag) here at the end')
+    p.add_argument('--wait-s', type=float, default=0.0,
+                   help='give up if no client connects within this many seconds (0 = wait)')
+    p.set_defaults(func=run_site)
+
+
 def register(commands, benches):
     """Add this package's ``rths <command>`` and ``rths bench <name>`` parsers."""
+    _add_site_parser(commands)
     p = commands.add_parser(
         'controller-emulator', help='run the simulated plant behind the UDP servo protocol',
         description='Emulate the servo controller: answer the bridge\'s UDP COMMAND datagrams '

@@ -19,7 +19,6 @@ from std_msgs.msg import String, UInt64
 
 from rths_common import node_support as ns
 from rths_common import topics
-from rths_common.params import renamed
 from rths_common.qos import loop_qos, run_info_qos, status_qos
 from rths_common.stepping import Driver, TickClock
 from rths_common.transport import Transport
@@ -37,13 +36,6 @@ EXIT_SAFETY_STOP = 3
 #: Shortest time between two graph scans for the command source's writer gids [s].
 RESCAN_S = 0.05
 
-#: Plausibility bounds of the limits [SI]: a larger value is almost surely in the wrong unit
-#: (inches or mm for metres, kN for N is the other way round and passes).
-PLAUSIBLE_MAX = {'stroke_m': (1.0, 'm', 'inches or mm'),
-                 'velocity_m_s': (10.0, 'm/s', 'mm/s or in/s'),
-                 'dtm_rel_disp_m': (1.0, 'm', 'inches or mm'),
-                 'safe_position_m': (1.0, 'm', 'inches or mm')}
-
 
 def check_bridge_params(params: dict) -> dict:
     """Validate the bridge's flat parameters; return those of the core (backend + safety).
@@ -52,27 +44,12 @@ def check_bridge_params(params: dict) -> dict:
     naming the field and the fix.  Used by the node and by ``rths launch``'s
     pre-flight check (:mod:`rths_bringup.preflight`).
     """
-    from rths_actuator_bridge.bridge import PARAMS, DelayLine, backend_class
-    from rths_actuator_bridge.safety import SAFETY_PARAMS, SafetyLimits
+    from rths_actuator_bridge.bridge import check_core_params
 
     core = {k: v for k, v in params.items()
             if k not in NODE_PARAMS and k not in ns.ROS_BUILTIN_PARAMS
             and not k.startswith('qos_overrides')}
-    core = renamed(core, 'dtm', 'specimen', 'bridge parameters')
-    backend = core.get('backend', 'simulated')
-    known = {*PARAMS, *SAFETY_PARAMS, *backend_class(core).params}
-    unknown = sorted(set(core) - known)
-    if unknown:
-        raise ValueError(f'unknown parameter(s) {", ".join(unknown)} for backend {backend!r}; '
-                         f'known: {", ".join(sorted(known | set(NODE_PARAMS)))}')
-    SafetyLimits.from_params(core)
-    DelayLine(core.get('command_delay_steps', 0))
-    for key, (bound, unit, other) in PLAUSIBLE_MAX.items():
-        value = core.get(key)
-        if isinstance(value, (int, float)) and abs(value) > bound:
-            raise ValueError(f'parameter {key} = {value} {unit} is beyond any lab actuator '
-                             f'(> {bound:g} {unit}): it looks like {other}; give it in {unit}')
-    return core
+    return check_core_params(core, NODE_PARAMS)
 
 
 class BridgeNode:

@@ -36,7 +36,10 @@ def _table(caption: str, header, rows) -> str:
 
 
 def tables(s: dict) -> str:
-    """Tables 5-9 of a review summary (:func:`rths_bringup.review.review_rths`) as HTML."""
+    """Return tables 5-9 of a review summary (:func:`rths_bringup.review.review_rths`) as HTML.
+
+    A site review (``kind`` site) has table 5 only: its model ran in the client.
+    """
     out = _table('Table 5 layout: actuator time delay and relative RMS tracking error',
                  ('', 'before compensation', 'after compensation'),
                  (('time delay [ms]', f"{s['delay_ms_before']:.3f}", f"{s['delay_ms_after']:.3f}"),
@@ -44,6 +47,9 @@ def tables(s: dict) -> str:
                    f"{s['tracking_rel_rms_pct_after']:.2f}")))
     out += ('<p>before: plant input &rarr; output; after: interface displacement &rarr; '
             'output</p>\n')
+    if s.get('kind') == 'site':
+        return out + ('<p>Tables 6-9 need the numerical model, which ran in the client '
+                      '(OpenSees/OpenFresco): not part of a site review.</p>\n')
     out += _table(
         'Tables 6-8 layout: 2nd-floor displacement',
         ('model', 'max [m]', 'max [in]', 'red. [%]', 'RMS [m]', 'RMS [in]', 'red. [%]'),
@@ -70,7 +76,9 @@ def _figure(name: str, data: bytes, caption: str) -> str:
 def render(summary: dict, images: dict) -> str:
     """Return the whole page; ``images`` maps a plot's file name to its PNG bytes."""
     s = summary
-    title = (f"RTHS review: {s['record']} x {s['scale']}, specimen {s['specimen']}, {s['mode']}, "
+    what = (f"site review: backend {s['backend']}"
+            if s.get('kind') == 'site' else f"RTHS review: {s['record']} x {s['scale']}")
+    title = (f"{what}, specimen {s['specimen']}, {s['mode']}, "
              f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)")
     misses = f"deadline misses: {s['deadline_misses']} ({s['deadline_miss_pct']:.3f} %)"
     faults = ''.join(f'<li>{html.escape(f)}</li>' for f in s.get('safety_faults', []))

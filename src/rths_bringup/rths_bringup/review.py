@@ -126,45 +126,12 @@ def _numerical_params(info: dict) -> dict:
     return core_params(runinfo.section(info, 'numerical'))
 
 
-#: Stages of :func:`review_rths` reported to its ``progress``.
-REVIEW_STAGES = 4
+def _tracking(bag, fs):
+    """Return desired, applied (shifted by the delay line), measured up to a safety trip.
 
-
-def review_rths(bag, out_dir, progress=None) -> dict:
-    """Tables 5-9 of an RTHS bag: JSON summary, text report, PNG plots and ``report.html``.
-
-    ``report.html`` (:mod:`rths_bringup.report_html`) holds the tables and every
-    plot in one self-contained file.  ``progress(done, 4)`` follows the stages: bag
-    read, references simulated, plots drawn, report written.
+    Also the measurement arrays, the bridge's status and the step count ``n``.
+    ValueError if the bag holds under 2 s or lost messages.
     """
-    stage = progress or (lambda done, total: None)
-    import json
-
-    from rths_common import runinfo
-    from rths_compensator.indicators import relative_rms_pct
-    from rths_numerical.model import LinearModel
-    from rths_numerical.reference import (
-        relative_rms_error,
-        simulate_reference,
-        simulate_uncontrolled,
-    )
-    from rths_numerical.substructure import make_substructure
-
-    bag, out_dir = Path(bag), Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    info = bagio.run_info(bag)
-    if info.get('kind') != 'rths':
-        raise ValueError(f'{bag}: not an RTHS run bag (run information kind = '
-                         f'{info.get("kind")!r}); record it with rths run')
-    fs = bagio.sampling_rate(bag)
-    numerical = _numerical_params(info)
-    bridge = runinfo.section(info, 'bridge')
-    compensator = runinfo.section(info, 'compensator')
-    sub = make_substructure(numerical)
-    model = sub.model
-    if sub.iface != [model.output_dof]:
-        raise ValueError('the review needs the output DOF to be the interface DOF')
-
     disp = bagio.step_arrays(bag, topics.INTERFACE_DISPLACEMENT, ('displacement',))
     meas = bagio.step_arrays(bag, topics.MEASUREMENT, ('applied', 'displacement', 'force'))
     n = int(min(disp['step'].size, meas['step'].size))
@@ -190,22 +157,74 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     if not ok.all():
         n = int(np.argmin(ok))
         desired, applied, measured = desired[:n], applied[:n], measured[:n]
-    stage(1, REVIEW_STAGES)
+    return desired, applied, measured, meas, status, n
 
+
+def table5_of(desired, applied, measured, fs) -> dict:
+    """Return table 5: delay and tracking of the plant (command) and the compensated actuator."""
+    from rths_compensator.indicators import relative_rms_pct
     # Table 5: the plant (command -> measured; with D > 0 it includes the D-step delay line)
     # and the compensated actuator (desired -> measured)
-    table5 = {
+    return {
         'delay_ms_before': weighted_delay_ms(applied, measured, fs),
         'delay_ms_after': weighted_delay_ms(desired, measured, fs),
         'tracking_rel_rms_pct_before': relative_rms_pct(applied, measured),
         'tracking_rel_rms_pct_after': relative_rms_pct(desired, measured),
     }
+
+
+#: Stages of :func:`review_rths` reported to its ``progress``.
+REVIEW_STAGES = 4
+
+
+def review_rths(bag, out_dir, progress=None) -> dict:
+    """Tables 5-9 of an RTHS bag: JSON summary, text report, PNG plots and ``report.html``.
+
+    ``report.html`` (:mod:`rths_bringup.report_html`) holds the tables and every
+    plot in one self-contained file.  ``progress(done, 4)`` follows the stages: bag
+    read, references simulated, plots drawn, report written.
+    """
+    stage = progress or (lambda done, total: None)
+    import json
+
+    from rths_common import runinfo
+    from rths_numerical.model import LinearModel
+    from rths_numerical.reference import (
+        relative_rms_error,
+        simulate_reference,
+        simulate_uncontrolled,
+    )
+    from rths_numerical.substructure import make_substructure
+
+    bag, out_dir = Path(bag), Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    info = bagio.run_info(bag)
+    if info.get('kind') != 'rths':
+        raise ValueError(f'{bag}: not an RTHS run bag (run information kind = '
+                         f'{info.get("kind")!r}); record it with rths run')
+    fs = bagio.sampling_rate(bag)
+    numerical = _numerical_params(info)
+    if not numerical:   # rths site: the model ran in the client (OpenSees), table 5 only
+        return review_site(bag, out_dir, info, fs, stage)
+    bridge = runinfo.section(info, 'bridge')
+    compensator = runinfo.section(info, 'compensator')
+    sub = make_substructure(numerical)
+    model = sub.model
+    if sub.iface != [model.output_dof]:
+        raise ValueError('the review needs the output DOF to be the interface DOF')
+
+    desired, applied, measured, meas, status, n = _tracking(bag, fs)
+    stage(1, REVIEW_STAGES)
+
+    table5 = table5_of(desired, applied, measured, fs)
     # Tables 6-9: the 2nd floor relative to the ground
     ug = sub.ug[:n] if sub.frame == 'absolute' else 0.0
     floor2 = desired - ug
     dt = 1.0 / fs
     name = specimen_of(bridge)
-    specimen = SPECIMENS.entry(name, f'{bag}: bridge parameter specimen')
+    if bridge.get('backend') == 'genericclient':   # a remote site: no model of its specimen
+        name, bridge = 'remote', dict(bridge, specimen='none')
+    specimen = SPECIMENS.entry(specimen_of(bridge), f'{bag}: bridge parameter specimen')
     uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
                     if isinstance(model, LinearModel) else None)
     backend = numerical.get('backend', 'builtin')
@@ -272,8 +291,68 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     return summary
 
 
+def review_site(bag, out_dir, info, fs, stage) -> dict:
+    """Review a ``rths site`` run: table 5 and the tracking plots (the model was the client's).
+
+    Tables 6-9 need the numerical model, which ran in the client (OpenSees,
+    OpenFresco): the bag holds none, so they are left out rather than guessed.
+    """
+    import json
+
+    from rths_actuator_bridge.bridge import DEFAULT_BACKEND
+    from rths_common import runinfo
+    desired, applied, measured, meas, status, n = _tracking(bag, fs)
+    stage(1, REVIEW_STAGES)
+    bridge = runinfo.section(info, 'bridge')
+    summary = {
+        'kind': 'site', 'mode': info.get('mode'), 'fs_hz': fs, 'steps': n,
+        'duration_s': n / fs,
+        'backend': bridge.get('backend', DEFAULT_BACKEND),
+        'specimen': bridge.get('specimen', bridge.get('dtm', '-')),   # as the site's file says
+        'compensator': runinfo.section(info, 'compensator'),
+        **table5_of(desired, applied, measured, fs),
+        'deadline_misses': int(status.get('misses', 0)),
+        'deadline_miss_pct': 100.0 * status.get('misses', 0)
+        / max(len(status.get('step', [])), 1),
+        'safety_faults': status.get('faults', []),
+        'site_events': [f.split(': ', 1)[1] for f in  # drop the 'step 0: ' prefix
+                        read_loop(bag)['status'].get('site', {}).get('faults', [])],
+    }
+    stage(2, REVIEW_STAGES)
+    out_dir = Path(out_dir)
+    (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
+    (out_dir / 'review.txt').write_text(review_text(summary))
+    _tracking_plots(out_dir, fs, desired, applied, measured)
+    stage(3, REVIEW_STAGES)
+    from rths_bringup.report_html import write_report
+    write_report(out_dir, summary)
+    stage(4, REVIEW_STAGES)
+    return summary
+
+
+def _site_text(s: dict) -> str:
+    lines = [
+        f"Site review (rths site): backend {s['backend']}, "
+        f"specimen {s['specimen']}, {s['mode']}, {s['steps']} steps at {s['fs_hz']:g} Hz "
+        f"({s['duration_s']:.1f} s)", '',
+        'Table 5 layout: actuator time delay and relative RMS tracking error',
+        '                      before compensation   after compensation',
+        f"  time delay [ms]     {s['delay_ms_before']:>19.3f}   {s['delay_ms_after']:>18.3f}",
+        f"  rel. RMS error [%]  {s['tracking_rel_rms_pct_before']:>19.2f}   "
+        f"{s['tracking_rel_rms_pct_after']:>18.2f}",
+        '  (before: plant input -> output; after: trial displacement -> output)', '',
+        'Tables 6-9 need the numerical model, which ran in the client: not part of a site '
+        'review.']
+    lines += [f'site: {e}' for e in s['site_events']]
+    if s['safety_faults']:
+        lines.append('safety faults: ' + '; '.join(s['safety_faults']))
+    return '\n'.join(lines) + '\n'
+
+
 def review_text(s: dict) -> str:
     """Return the review as text, in the layout of the seed's tables 5-9."""
+    if s.get('kind') == 'site':
+        return _site_text(s)
     inch = 0.0254
     lines = [
         f"RTHS review: {s['record']} x {s['scale']}, specimen {s['specimen']}, {s['mode']}, "
@@ -297,7 +376,9 @@ def review_text(s: dict) -> str:
         f"{s['rms_disp_2nd_m']:.4e}  {s['rms_disp_2nd_m'] / inch:8.4f}   "
         f"{s['reduction_rms_pct']:7.1f}",
         '',
-        'Table 9 layout: RTHS vs whole-numerical reference',
+        'Table 9 layout: RTHS vs whole-numerical reference'
+        + (' (here the uncontrolled building: a remote specimen has no model here)'
+           if s['specimen'] == 'remote' else ''),
         f"  actuator time delay {s['delay_ms_after']:.3f} ms, relative RMS error "
         f"{s['rths_vs_reference_rel_rms_pct']:.2f} %",
         '',
@@ -379,8 +460,6 @@ def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    from rths_compensator.indicators import frf_h1
-
     t = np.arange(desired.size) / fs
     fig, ax = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
     ax[0].plot(t, unc_disp * 1e3, color='0.6', lw=0.8, label='uncontrolled (numerical)')
@@ -394,7 +473,18 @@ def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
     fig.tight_layout()
     fig.savefig(out_dir / 'time_history.png', dpi=110)
     plt.close(fig)
+    _tracking_plots(out_dir, fs, desired, applied, measured)
 
+
+def _tracking_plots(out_dir, fs, desired, applied, measured):
+    """Tracking around the peak and the measured FRF of the actuator (table 5's plots)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    from rths_compensator.indicators import frf_h1
+
+    t = np.arange(desired.size) / fs
     k = int(np.argmax(np.abs(desired)))
     lo, hi = max(0, k - int(ZOOM_S * fs / 2)), min(desired.size, k + int(ZOOM_S * fs / 2))
     fig, ax = plt.subplots(figsize=(10, 4))

@@ -73,10 +73,15 @@ def register(commands, benches):
     p.add_argument('--scale', type=float, default=0.135,
                    help='ground-motion scale factor (seed: kobe 0.135, northridge 0.039, '
                         'el centro 0.10; default 0.135)')
-    p.add_argument('--specimen', default=DEFAULT_SPECIMEN, choices=SPECIMENS.names(),
+    p.add_argument('--specimen', default=DEFAULT_SPECIMEN, type=_specimen_arg,
+                   choices=_RemoteOr(SPECIMENS.names()),
                    help=f'the specimen (default {DEFAULT_SPECIMEN}): an entry of '
                         'rths_numerical.specimens (docs/extending.md lists them: the Table 4 '
-                        'DTMs, the bare table, a damper between the floor and the ground)')
+                        'DTMs, the bare table, a damper between the floor and the ground), or '
+                        'tcp://HOST:PORT: a remote experimental site (rths site, OpenFresco; '
+                        'the bridge speaks the OpenSees genericClient protocol to it; steps 1-2 '
+                        'are skipped: the site compensates its own actuator, identity taps here; '
+                        'the review compares with the uncontrolled building)')
     add_renamed_option(p, '--damper', '--specimen')
     p.add_argument('--mr-voltage', type=float, default=None,
                    help='the MR damper: constant command voltage [V] (Spencer et al. 1997 '
@@ -299,9 +304,44 @@ def safety_stop_text(s: dict) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def remote_bridge(bridge: dict, site: str) -> dict:
+    """Return the bridge parameters for a remote site ``tcp://host:port`` as the specimen.
+
+    The node's own keys, the safety limits and the loop rate stay; the local
+    plant's keys go (the specimen is the site's); ``backend: genericclient``.
+    """
+    from rths_actuator_bridge.bridge import PARAMS
+    from rths_actuator_bridge.genericclient import parse_site
+    from rths_actuator_bridge.safety import SAFETY_PARAMS
+    from rths_common.params import NODE_KEYS
+    parse_site(site)
+    keep = {k: v for k, v in bridge.items() if k in NODE_KEYS or k in SAFETY_PARAMS
+            or k in PARAMS}
+    return dict(keep, backend='genericclient', site=site)
+
+
 def _identity(fs: float) -> dict:
     """Return the identity compensator's filter fields at ``fs`` [Hz] (no provenance)."""
     return {k: v for k, v in identity_params(fs).items() if k != PROVENANCE}
+
+
+class _RemoteOr(tuple):
+    """The registry's specimen names as ``--specimen`` choices; a ``tcp://`` site is one too."""
+
+    def __contains__(self, value):
+        return str(value).startswith('tcp://') or tuple.__contains__(self, value)
+
+
+def _specimen_arg(value: str) -> str:
+    """Return ``--specimen``; a ``tcp://host:port`` is checked here (names by the choices)."""
+    import argparse
+    if str(value).startswith('tcp://'):
+        from rths_actuator_bridge.genericclient import parse_site
+        try:
+            parse_site(value)
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+    return value
 
 
 def _model_param(model: str, config: Path) -> str:
@@ -346,10 +386,15 @@ def _run(args) -> int:
     base = {node: runinfo.load_params(config / fname, node) for node, fname in NODE_FILES.items()}
     fs = float(base['numerical'].get('fs_hz', 1024.0))
     base['bridge'] = renamed(base['bridge'], 'dtm', 'specimen', str(config / 'bridge.yaml'))
-    pairs = args.specimen_param + ([f'mr_voltage_v={args.mr_voltage}']
-                                   if args.mr_voltage is not None else [])
-    base['bridge'].update(fs_hz=fs, specimen=args.specimen,
-                          **specimen_settings(args.specimen, pairs, '--specimen-param'))
+    remote = args.specimen.startswith('tcp://')
+    if remote:   # a remote site: its own specimen, actuator and compensator
+        base['bridge'] = remote_bridge(dict(base['bridge'], fs_hz=fs), args.specimen)
+        args.no_compensation = True
+    else:
+        pairs = args.specimen_param + ([f'mr_voltage_v={args.mr_voltage}']
+                                       if args.mr_voltage is not None else [])
+        base['bridge'].update(fs_hz=fs, specimen=args.specimen,
+                              **specimen_settings(args.specimen, pairs, '--specimen-param'))
     model_param = _model_param(args.model, config)   # bad names fail before the long phases
     if args.numerical == 'opensees':
         from rths_numerical.opensees_backend import import_opensees
@@ -360,7 +405,8 @@ def _run(args) -> int:
     comp_file = out / 'compensator.yaml'
     if args.no_compensation:
         runinfo.write_params(comp_file, 'compensator', _identity(fs))
-        _say('no compensation: identity taps')
+        _say(f'remote site {args.specimen}: identity taps here (the site compensates its own '
+             'actuator)' if remote else 'no compensation: identity taps')
     else:
         plant = Path(args.plant) if args.plant else out / 'plant.yaml'
         if not args.plant:
@@ -410,7 +456,7 @@ def _run(args) -> int:
                      record=args.record, scale=float(args.scale),
                      force_scale=float(args.force_scale), backend=args.numerical,
                      # the frame the table must follow, and the specimen's mass for P_I^E
-                     **SPECIMENS[args.specimen].numerical_params())
+                     **({} if remote else SPECIMENS[args.specimen].numerical_params()))
     if args.numerical == 'opensees':
         numerical['integrator'] = 'central_difference'   # the RTHS pairing (README)
     for key in ('sdof_mass_kg', 'sdof_freq_hz', 'sdof_zeta', 'harmonic_freq_hz'):
