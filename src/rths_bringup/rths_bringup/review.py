@@ -1,11 +1,27 @@
 """Review of a recorded run, rebuilt from its bag alone."""
 
+import json
 from pathlib import Path
 
 import numpy as np
+from scipy import signal
+from scipy.signal import coherence
 
-from rths_common import bagio, topics
+from rths_actuator_bridge.bridge import DEFAULT_BACKEND, backend_class
+from rths_bringup.report_html import row_label, specimen_title, write_report
+from rths_common import bagio, runinfo, topics
+from rths_common.params import core_params
+from rths_compensator.indicators import frf_h1, relative_rms_pct
+from rths_numerical.model import LinearModel
+from rths_numerical.reference import (
+    coupled_rths,
+    metrics,
+    relative_rms_error,
+    simulate_reference,
+    simulate_uncontrolled,
+)
 from rths_numerical.specimens import SPECIMENS, specimen_of
+from rths_numerical.substructure import make_substructure
 
 #: Loop topics that carry one message per step, and the array field to summarise.
 STEP_TOPICS = {
@@ -92,6 +108,48 @@ DELAY_BAND_HZ = 10.0
 ZOOM_S = 3.0
 #: The plot of a hysteretic specimen's measured force against its stroke (report_html.PLOTS).
 HYSTERESIS_PNG = 'specimen_hysteresis.png'
+#: ``specimen`` of a run through a servo controller (a backend outside the bridge process).
+EXTERNAL = 'external controller'
+#: Counts of an external controller in ``summary['controller']`` (rths_msgs/ControllerStatus).
+CONTROLLER_KEYS = ('replies_lost', 'replies_late', 'replies_malformed', 'restarts',
+                   'worst_reply_ms', 'replies', 'replies_duplicate', 'replies_out_of_order',
+                   'datagrams_foreign', 'protocol_version', 'address', 'fault')
+
+
+def external_controller(bridge: dict) -> str:
+    """Return ``'external controller HOST:PORT'`` for a run through a servo controller, else ''.
+
+    Any backend whose plant does not live in the bridge's process drives a lab's actuator
+    and specimen through its controller: the review has no model of them.
+    """
+    try:
+        in_process = backend_class(bridge).in_process
+    except ValueError:       # a backend this installation does not know: not in the process
+        in_process = False
+    if in_process:
+        return ''
+    return f"{EXTERNAL} {bridge.get('host', '?')}:{bridge.get('port', '?')}"
+
+
+def controller_counts(bag):
+    """Return the last ``/rths/controller`` counts of a bag as a dict, or None if none."""
+    last = None
+    for _, _, msg in bagio.read_messages(bag, [topics.CONTROLLER]):
+        last = msg
+    if last is None:
+        return None
+    out = {key: getattr(last, key) for key in CONTROLLER_KEYS}
+    out['worst_reply_ms'] = round(float(out['worst_reply_ms']), 3)
+    return {k: (int(v) if isinstance(v, (int, np.integer)) else v) for k, v in out.items()}
+
+
+def controller_text(c: dict) -> str:
+    """One line of an external controller's counts (review text and report)."""
+    text = (f"controller {c['address']} (protocol version {c['protocol_version']}): "
+            f"replies lost {c['replies_lost']}, late {c['replies_late']}, malformed "
+            f"{c['replies_malformed']}, restarts {c['restarts']}, worst reply "
+            f"{c['worst_reply_ms']:.3f} ms ({c['replies']} used)")
+    return text + (f"; fault: {c['fault']}" if c.get('fault') else '')
 
 
 def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
@@ -103,10 +161,6 @@ def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
     Weighting each Welch bin by the desired signal's power gives the delay the
     loop actually experiences and equals the plain average for a flat spectrum.
     """
-    from scipy import signal
-
-    from rths_compensator.indicators import frf_h1
-
     d = np.asarray(desired, dtype=float)
     nperseg = int(min(d.size, 4 * round(fs_hz)))
     f, h = frf_h1(d, measured, fs_hz, nperseg)
@@ -121,8 +175,6 @@ def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
 
 def _numerical_params(info: dict) -> dict:
     """Return the run's numerical core parameters (node-level keys stripped, as offline does)."""
-    from rths_common import runinfo
-    from rths_common.params import core_params
     return core_params(runinfo.section(info, 'numerical'))
 
 
@@ -162,7 +214,6 @@ def _tracking(bag, fs):
 
 def table5_of(desired, applied, measured, fs) -> dict:
     """Return table 5: delay and tracking of the plant (command) and the compensated actuator."""
-    from rths_compensator.indicators import relative_rms_pct
     # Table 5: the plant (command -> measured; with D > 0 it includes the D-step delay line)
     # and the compensated actuator (desired -> measured)
     return {
@@ -185,16 +236,6 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     read, references simulated, plots drawn, report written.
     """
     stage = progress or (lambda done, total: None)
-    import json
-
-    from rths_common import runinfo
-    from rths_numerical.model import LinearModel
-    from rths_numerical.reference import (
-        relative_rms_error,
-        simulate_reference,
-        simulate_uncontrolled,
-    )
-    from rths_numerical.substructure import make_substructure
 
     bag, out_dir = Path(bag), Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -222,13 +263,20 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     floor2 = desired - ug
     dt = 1.0 / fs
     name = specimen_of(bridge)
-    if bridge.get('backend') == 'genericclient':   # a remote site: no model of its specimen
+    remote = bridge.get('backend') == 'genericclient'
+    external = '' if remote else external_controller(bridge)
+    if remote:   # a remote site: no model of its specimen (compared with the bare building)
         name, bridge = 'remote', dict(bridge, specimen='none')
-    specimen = SPECIMENS.entry(specimen_of(bridge), f'{bag}: bridge parameter specimen')
     uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
                     if isinstance(model, LinearModel) else None)
     backend = numerical.get('backend', 'builtin')
-    if specimen.device is not None or backend != 'builtin':
+    specimen = None if external else SPECIMENS.entry(specimen_of(bridge),
+                                                     f'{bag}: bridge parameter specimen')
+    if specimen is None:   # no model of the lab's specimen: no reference to compare with
+        if uncontrolled is None:
+            uncontrolled, _ = offline_references(numerical, dict(bridge, specimen='none'), dt)
+        reference = None
+    elif specimen.device is not None or backend != 'builtin':
         # a device specimen or an OpenSees model: the same substructure, offline, with the
         # same specimen model on a perfect actuator (and without it for the uncontrolled one)
         uncontrolled, reference = offline_references(numerical, bridge, dt)
@@ -240,33 +288,43 @@ def review_rths(bag, out_dir, progress=None) -> dict:
                                        uncontrolled=uncontrolled)
     else:
         reference = None
-    ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
+    if external:
+        ref_disp = None
+    else:
+        ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
     stage(2, REVIEW_STAGES)
     unc = uncontrolled['metrics']
     max_d, rms_d = float(np.max(np.abs(floor2))), float(np.sqrt(np.mean(floor2 ** 2)))
     bridge_steps = max(len(status.get('step', [])), 1)
     summary = {
         'record': numerical.get('record'), 'scale': numerical.get('scale'),
-        'specimen': name, 'damper': name,   # damper: the former name of the key
+        # damper: the former name of the key
+        'specimen': EXTERNAL if external else name, 'damper': EXTERNAL if external else name,
+        'specimen_label': external or name,
         'mode': info.get('mode'), 'fs_hz': fs, 'steps': n, 'duration_s': n * dt,
         'compensator': compensator,
         'numerical_backend': numerical.get('backend', 'builtin'),
         'numerical_model': getattr(model, 'name', str(numerical.get('model'))),
         'residual_drift_m': residual_drift(floor2, fs),
-        'reference_residual_drift_m': residual_drift(ref_disp, fs),
+        'reference_residual_drift_m': _or_none(ref_disp, lambda r: residual_drift(r, fs)),
         **table5,
         'max_disp_2nd_m': max_d, 'rms_disp_2nd_m': rms_d,
         'uncontrolled_max_disp_2nd_m': unc['max_disp_m'],
         'uncontrolled_rms_disp_2nd_m': unc['rms_disp_m'],
         'reduction_max_pct': 100 * (1 - max_d / unc['max_disp_m']),
         'reduction_rms_pct': 100 * (1 - rms_d / unc['rms_disp_m']),
-        'reference_max_disp_2nd_m': float(np.max(np.abs(ref_disp))),
-        'reference_rms_disp_2nd_m': float(np.sqrt(np.mean(ref_disp ** 2))),
-        'rths_vs_reference_rel_rms_pct': relative_rms_error(floor2, ref_disp),
+        'reference_max_disp_2nd_m': _or_none(ref_disp, lambda r: float(np.max(np.abs(r)))),
+        'reference_rms_disp_2nd_m': _or_none(ref_disp,
+                                             lambda r: float(np.sqrt(np.mean(r ** 2)))),
+        'rths_vs_reference_rel_rms_pct': _or_none(ref_disp,
+                                                  lambda r: relative_rms_error(floor2, r)),
         'deadline_misses': int(status.get('misses', 0)),
         'deadline_miss_pct': 100.0 * status.get('misses', 0) / bridge_steps,
         'safety_faults': status.get('faults', []),
     }
+    counts = controller_counts(bag)
+    if counts is not None:
+        summary['controller'] = counts
     (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
     (out_dir / 'review.txt').write_text(review_text(summary))
     _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp,
@@ -277,18 +335,21 @@ def review_rths(bag, out_dir, progress=None) -> dict:
                          hinge['hinge_moment'], fs, f"hinge of {summary['numerical_model']} "
                          f"({hinge['source']})", ('rotation [mrad]', 'moment [N m]'),
                          velocity=False)
-    if specimen.params:
+    if specimen is not None and specimen.params:
         summary.update(specimen.settings(bridge))
         (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
-    if specimen.hysteresis:
+    if specimen is not None and specimen.hysteresis:
         settings = ', '.join(f'{k} {v:g}' for k, v in specimen.settings(bridge).items())
         _hysteresis_plot(out_dir / HYSTERESIS_PNG, measured, meas['force'][:n, 0], fs,
                          f'specimen {name} ({settings}), measured')
     stage(3, REVIEW_STAGES)
-    from rths_bringup.report_html import write_report
     write_report(out_dir, summary)
     stage(4, REVIEW_STAGES)
     return summary
+
+
+def _or_none(value, f):
+    return None if value is None else f(value)
 
 
 def review_site(bag, out_dir, info, fs, stage) -> dict:
@@ -297,10 +358,6 @@ def review_site(bag, out_dir, info, fs, stage) -> dict:
     Tables 6-9 need the numerical model, which ran in the client (OpenSees,
     OpenFresco): the bag holds none, so they are left out rather than guessed.
     """
-    import json
-
-    from rths_actuator_bridge.bridge import DEFAULT_BACKEND
-    from rths_common import runinfo
     desired, applied, measured, meas, status, n = _tracking(bag, fs)
     stage(1, REVIEW_STAGES)
     bridge = runinfo.section(info, 'bridge')
@@ -318,13 +375,15 @@ def review_site(bag, out_dir, info, fs, stage) -> dict:
         'site_events': [f.split(': ', 1)[1] for f in  # drop the 'step 0: ' prefix
                         read_loop(bag)['status'].get('site', {}).get('faults', [])],
     }
+    counts = controller_counts(bag)
+    if counts is not None:    # the site's own actuator through a servo controller
+        summary['controller'] = counts
     stage(2, REVIEW_STAGES)
     out_dir = Path(out_dir)
     (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
     (out_dir / 'review.txt').write_text(review_text(summary))
     _tracking_plots(out_dir, fs, desired, applied, measured)
     stage(3, REVIEW_STAGES)
-    from rths_bringup.report_html import write_report
     write_report(out_dir, summary)
     stage(4, REVIEW_STAGES)
     return summary
@@ -355,7 +414,7 @@ def review_text(s: dict) -> str:
         return _site_text(s)
     inch = 0.0254
     lines = [
-        f"RTHS review: {s['record']} x {s['scale']}, specimen {s['specimen']}, {s['mode']}, "
+        f"RTHS review: {s['record']} x {s['scale']}, specimen {specimen_title(s)}, {s['mode']}, "
         f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)",
         '',
         'Table 5 layout: actuator time delay and relative RMS tracking error',
@@ -371,7 +430,7 @@ def review_text(s: dict) -> str:
         f"{s['uncontrolled_max_disp_2nd_m'] / inch:8.4f}        -     "
         f"{s['uncontrolled_rms_disp_2nd_m']:.4e}  {s['uncontrolled_rms_disp_2nd_m'] / inch:8.4f}"
         '        -',
-        f"  RTHS ({s['specimen']})".ljust(19) + f"{s['max_disp_2nd_m']:.4e}  "
+        f"  RTHS ({row_label(s)})".ljust(19) + f"{s['max_disp_2nd_m']:.4e}  "
         f"{s['max_disp_2nd_m'] / inch:8.4f}   {s['reduction_max_pct']:7.1f}   "
         f"{s['rms_disp_2nd_m']:.4e}  {s['rms_disp_2nd_m'] / inch:8.4f}   "
         f"{s['reduction_rms_pct']:7.1f}",
@@ -379,11 +438,16 @@ def review_text(s: dict) -> str:
         'Table 9 layout: RTHS vs whole-numerical reference'
         + (' (here the uncontrolled building: a remote specimen has no model here)'
            if s['specimen'] == 'remote' else ''),
-        f"  actuator time delay {s['delay_ms_after']:.3f} ms, relative RMS error "
-        f"{s['rths_vs_reference_rel_rms_pct']:.2f} %",
+        (f"  actuator time delay {s['delay_ms_after']:.3f} ms, relative RMS error "
+         f"{s['rths_vs_reference_rel_rms_pct']:.2f} %"
+         if s['rths_vs_reference_rel_rms_pct'] is not None else
+         f"  none: the specimen is an {EXTERNAL} (the review has no model of it); actuator "
+         f"time delay {s['delay_ms_after']:.3f} ms"),
         '',
         f"deadline misses: {s['deadline_misses']} ({s['deadline_miss_pct']:.3f} %)",
     ]
+    if s.get('controller'):
+        lines.append(controller_text(s['controller']))
     if s['safety_faults']:
         lines.append('safety faults: ' + '; '.join(s['safety_faults']))
     return '\n'.join(lines) + '\n'
@@ -409,8 +473,6 @@ def offline_references(numerical, bridge, dt):
     dicts with ``disp`` and ``metrics`` (the reference also its whole ``history``; None if the
     bridge ran a bare table).
     """
-    from rths_numerical.reference import coupled_rths, metrics
-    from rths_numerical.substructure import make_substructure
     free = coupled_rths(make_substructure(numerical), lambda x: np.zeros(1))
     uncontrolled = {'disp': free['output_disp'], 'metrics': metrics(free['output_disp'])}
     specimen = SPECIMENS.entry(specimen_of(bridge)).reference(dt, bridge)
@@ -437,8 +499,10 @@ def _hinge_history(bag, reference):
 def _hysteresis_plot(path, stroke, force, fs, title, labels=('stroke [mm]', 'force [N]'),
                      velocity=True):
     """Force against stroke (and against velocity, by finite differences) of a specimen."""
+    # lazy: start-up cost: matplotlib (~0.5 s), which only the plots need
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(1, 2 if velocity else 1, figsize=(10 if velocity else 6, 4),
                            squeeze=False)
@@ -456,19 +520,27 @@ def _hysteresis_plot(path, stroke, force, fs, title, labels=('stroke [mm]', 'for
 
 
 def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
+    # lazy: start-up cost: matplotlib (~0.5 s), which only the plots need
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
 
     t = np.arange(desired.size) / fs
     fig, ax = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
     ax[0].plot(t, unc_disp * 1e3, color='0.6', lw=0.8, label='uncontrolled (numerical)')
-    ax[0].plot(t, ref_disp * 1e3, lw=1.0, label='reference: building + specimens (numerical)')
+    if ref_disp is not None:
+        ax[0].plot(t, ref_disp * 1e3, lw=1.0,
+                   label='reference: building + specimens (numerical)')
     ax[0].plot(t, floor2 * 1e3, '--', lw=1.0, label='RTHS')
     ax[0].set_ylabel('2nd-floor displacement [mm]')
     ax[0].legend(loc='upper right', fontsize=8)
-    ax[1].plot(t, (floor2 - ref_disp) * 1e3, lw=0.8)
-    ax[1].set_ylabel('RTHS - reference [mm]')
+    if ref_disp is None:   # an external controller's specimen: no model, no reference
+        ax[1].plot(t, (floor2 - unc_disp) * 1e3, lw=0.8)
+        ax[1].set_ylabel('RTHS - uncontrolled [mm]')
+    else:
+        ax[1].plot(t, (floor2 - ref_disp) * 1e3, lw=0.8)
+        ax[1].set_ylabel('RTHS - reference [mm]')
     ax[1].set_xlabel('time [s]')
     fig.tight_layout()
     fig.savefig(out_dir / 'time_history.png', dpi=110)
@@ -478,11 +550,11 @@ def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
 
 def _tracking_plots(out_dir, fs, desired, applied, measured):
     """Tracking around the peak and the measured FRF of the actuator (table 5's plots)."""
+    # lazy: start-up cost: matplotlib (~0.5 s), which only the plots need
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
-
-    from rths_compensator.indicators import frf_h1
 
     t = np.arange(desired.size) / fs
     k = int(np.argmax(np.abs(desired)))
@@ -497,9 +569,6 @@ def _tracking_plots(out_dir, fs, desired, applied, measured):
     fig.tight_layout()
     fig.savefig(out_dir / 'tracking_zoom.png', dpi=110)
     plt.close(fig)
-
-    from scipy import signal
-    from scipy.signal import coherence
 
     fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
     nperseg = int(min(desired.size, 4 * round(fs)))

@@ -44,6 +44,9 @@ from rths_numerical.specimens import (
     specimen_settings,
 )
 
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
+
 NODE_FILES = {'numerical': 'numerical.yaml', 'compensator': 'compensator.yaml',
               'bridge': 'bridge.yaml'}
 #: Exit code of ``rths run`` when the bridge's safety supervisor stopped the RTHS run
@@ -89,6 +92,13 @@ def register(commands, benches):
     p.add_argument('--specimen-param', action='append', default=[], metavar='KEY=VALUE',
                    help="a parameter of the specimen's own (bridge.yaml keys such as "
                         'mr_voltage_v; repeatable)')
+    p.add_argument('--backend', choices=('simulated', 'udp'), default='simulated',
+                   help='simulated (default): the plant model in the bridge; udp: a servo '
+                        "controller (--controller), the lab's own actuator and specimen "
+                        '(docs/controller_protocol.md)')
+    p.add_argument('--controller', default=None, metavar='HOST:PORT',
+                   help='--backend udp: the servo controller (e.g. 192.168.1.20:5005; '
+                        'rths controller-emulator prints its own)')
     p.add_argument('--force-scale', type=float, default=5.0,
                    help='DTMs the one in the lab stands for: its measured force is multiplied '
                         'by this in the building (seed 6.2: 5, the default)')
@@ -117,8 +127,9 @@ def register(commands, benches):
                    help='skip steps 1-2 and design from this identified plant.yaml')
     p.add_argument('--adaptive', default=METHOD_DEFAULT, choices=METHODS.names(),
                    help=f'compensation method of the RTHS run (default {METHOD_DEFAULT}: the '
-                        f'designed FIR; {", ".join(adaptive_names())} adapt on line from it, '
-                        'lock-step only; docs/adaptive.md)')
+                        f'designed FIR; {", ".join(adaptive_names())} adapt on line from it; '
+                        'pi_lead: the RTHS benchmark\'s PI + lead feedback controller, the '
+                        'designed FIR its fallback; lock-step or realtime; docs/adaptive.md)')
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                    help='storage of the bags (default mcap; sqlite3 for older tools)')
     p.add_argument('--no-compensation', action='store_true',
@@ -257,13 +268,18 @@ def read_safety_stop(bag):
     def channel0(table):
         return table[:, 0] if table.shape[1] else np.full(steps.size, np.nan)
 
+    from rths_bringup.review import EXTERNAL, controller_counts, external_controller
+
     info = bagio.run_info(bag)
     fs = bagio.sampling_rate(bag)
     numerical = runinfo.section(info, 'numerical')
     bridge = runinfo.section(info, 'bridge')
+    external = external_controller(bridge)
     summary = {
         'record': numerical.get('record'), 'scale': numerical.get('scale'),
-        'specimen': specimen_of(bridge), 'force_scale': numerical.get('force_scale'),
+        'specimen': EXTERNAL if external else specimen_of(bridge),
+        'specimen_label': external or specimen_of(bridge),
+        'force_scale': numerical.get('force_scale'),
         'actuator_model': bridge.get('actuator_model'), 'mode': info.get('mode'),
         'fs_hz': fs, 'compensator': runinfo.section(info, 'compensator'),
     }
@@ -272,6 +288,9 @@ def read_safety_stop(bag):
         channel0(meas['force']), fs, float(bridge.get('safe_position_m', 0.0) or 0.0)))
     summary['safety_faults'] = faults
     summary['damper'] = summary['specimen']   # the former name of the key, kept for a while
+    counts = controller_counts(bag)
+    if counts is not None:
+        summary['controller'] = counts
     return summary
 
 
@@ -282,9 +301,12 @@ def safety_stop_text(s: dict) -> str:
     def metres(value, spec):
         return 'none' if value is None else f'{value:{spec}} m'
 
+    from rths_bringup.report_html import specimen_title
+    from rths_bringup.review import controller_text
+
     lines = [
         f"RTHS ABORTED by the bridge's safety supervisor: {s['record']} x {s['scale']}, "
-        f"specimen {s['specimen']} x {s['force_scale']}, {s['mode']}, compensator {scheme}",
+        f"specimen {specimen_title(s)} x {s['force_scale']}, {s['mode']}, compensator {scheme}",
         f"  safety stop: {s['safety_stop']}",
         f"  fault at step {s['fault_step']} ({s['fault_time_s']:.3f} s); hold, ramp to the safe "
         f"position {s['safe_position_m']:g} m; STOPPED at step {s['stop_step']} "
@@ -300,7 +322,42 @@ def safety_stop_text(s: dict) -> str:
     ]
     if len(s.get('safety_faults', [])) > 1:
         lines.append('  further faults: ' + '; '.join(s['safety_faults'][1:]))
+    if s.get('controller'):
+        lines.append('  ' + controller_text(s['controller']))
     return '\n'.join(lines) + '\n'
+
+
+def bridge_params(bridge: dict, args, config: Path) -> dict:
+    """Return the bridge's params of a run: the simulated plant's specimen, or a controller.
+
+    ``--backend udp --controller HOST:PORT``: the simulated plant's keys of the
+    config are dropped (the lab's controller has its own actuator and specimen),
+    the rest (limits, loop settings) are kept.
+    """
+    from rths_actuator_bridge.safety import SAFETY_PARAMS
+    from rths_actuator_bridge.simulated import SIM_PARAMS
+    from rths_numerical.specimens import specimen_params
+
+    bridge = renamed(bridge, 'dtm', 'specimen', str(config / 'bridge.yaml'))
+    pairs = args.specimen_param + ([f'mr_voltage_v={args.mr_voltage}']
+                                   if args.mr_voltage is not None else [])
+    if args.backend == 'simulated':
+        if args.controller:
+            raise ValueError('--controller needs --backend udp')
+        if args.specimen.startswith('tcp://'):
+            return remote_bridge(bridge, args.specimen)
+        return dict(bridge, backend='simulated', specimen=args.specimen,
+                    **specimen_settings(args.specimen, pairs, '--specimen-param'))
+    if args.specimen != DEFAULT_SPECIMEN or pairs:
+        raise ValueError('--specimen/--specimen-param/--mr-voltage: with --backend udp the '
+                         "specimen is the controller's; drop them")
+    host, sep, port = str(args.controller or '').rpartition(':')
+    if not args.controller or not sep or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f'--backend udp needs --controller HOST:PORT (got '
+                         f'{args.controller!r}), e.g. 127.0.0.1:5005')
+    simulated = {*SIM_PARAMS, *specimen_params()[0]} - set(SAFETY_PARAMS)
+    kept = {k: v for k, v in bridge.items() if k not in simulated}
+    return dict(kept, backend='udp', host=host or '127.0.0.1', port=int(port))
 
 
 def remote_bridge(bridge: dict, site: str) -> dict:
@@ -384,16 +441,10 @@ def _run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     base = {node: runinfo.load_params(config / fname, node) for node, fname in NODE_FILES.items()}
     fs = float(base['numerical'].get('fs_hz', 1024.0))
-    base['bridge'] = renamed(base['bridge'], 'dtm', 'specimen', str(config / 'bridge.yaml'))
-    remote = args.specimen.startswith('tcp://')
+    base['bridge'] = bridge_params(dict(base['bridge'], fs_hz=fs), args, config)
+    remote = base['bridge'].get('backend') == 'genericclient'
     if remote:   # a remote site: its own specimen, actuator and compensator
-        base['bridge'] = remote_bridge(dict(base['bridge'], fs_hz=fs), args.specimen)
         args.no_compensation = True
-    else:
-        pairs = args.specimen_param + ([f'mr_voltage_v={args.mr_voltage}']
-                                       if args.mr_voltage is not None else [])
-        base['bridge'].update(fs_hz=fs, specimen=args.specimen,
-                              **specimen_settings(args.specimen, pairs, '--specimen-param'))
     model_param = _model_param(args.model, config)   # bad names fail before the long phases
     if args.numerical == 'opensees':
         from rths_numerical.opensees_backend import import_opensees
@@ -441,19 +492,23 @@ def _run(args) -> int:
     comp = runinfo.load_params(comp_file, 'compensator')
     comp.update({k: base['compensator'][k] for k in ('executor',) if k in base['compensator']})
     if METHODS.entry(args.adaptive).adaptive:
-        if args.no_compensation or args.mode != 'lockstep':
-            raise ValueError(f'--adaptive {args.adaptive} needs a designed FIR and lock-step '
-                             'mode (drop --no-compensation / use --mode lockstep)')
+        if args.no_compensation:
+            raise ValueError(f'--adaptive {args.adaptive} needs a designed FIR (drop '
+                             '--no-compensation)')
         provenance = dict(comp.get('provenance') or {})
         provenance['plant'] = str(Path(str(provenance.get('plant', ''))).resolve())
         comp.update(method=args.adaptive, provenance=provenance)
+    elif args.adaptive != METHOD_DEFAULT:
+        comp.update(method=args.adaptive)
 
     # 3: the RTHS run
     numerical = dict(base['numerical'], model=model_param,
                      record=args.record, scale=float(args.scale),
                      force_scale=float(args.force_scale), backend=args.numerical,
                      # the frame the table must follow, and the specimen's mass for P_I^E
-                     **({} if remote else SPECIMENS[args.specimen].numerical_params()))
+                     # (a controller's or a remote site's specimen: the numerical config's own)
+                     **({} if remote or args.backend != 'simulated' else
+                        SPECIMENS[args.specimen].numerical_params()))
     if args.numerical == 'opensees':
         numerical['integrator'] = 'central_difference'   # the RTHS pairing (README)
     for key in ('sdof_mass_kg', 'sdof_freq_hz', 'sdof_zeta', 'harmonic_freq_hz'):
@@ -487,8 +542,6 @@ def _run(args) -> int:
 
 def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path) -> int:
     """Write and print the summary of an RTHS run the bridge stopped; return EXIT_SAFETY_STOP."""
-    import json
-
     from rths_common.params import core_params
     from rths_numerical.substructure import make_substructure
 
