@@ -25,7 +25,7 @@ test: $(TEST_NEEDS)  ## build and run every test through colcon test (installs O
 	  if [ $$rc -ne 0 ] || [ $$rc2 -ne 0 ]; then echo "make test: FAILED"; exit 1; fi; \
 	  echo "make test: all tests passed"
 
-docs: setup  ## regenerate docs/cli.md (from the argparse definitions) and docs/performance.md (from docs/bench/*.json)
+docs: setup  ## regenerate docs/cli.md and docs/benchmarks.md (from argparse), docs/performance.md (from docs/bench/*.json), the packages' module tables
 	@source env.sh && python -m rths_bench.refdocs --write
 
 lint: setup  ## ruff and flake8 over src/ and test/ (ruff.toml, ament_lint.ini), mypy on rths_common and the step cores (mypy.ini)

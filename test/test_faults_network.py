@@ -23,7 +23,7 @@ CONFIG = REPO / 'config'
 
 
 def test_link_emulator_delays_in_order_and_loses_at_the_set_rate():
-    from rths_bringup.linkemu import LinkEmulator
+    from rths_bench.linkemu import LinkEmulator
 
     link = LinkEmulator(delay_s=0.002, jitter_s=0.001, loss=0.01, seed=3)
     sent = [k for k in range(20000) if link.send(k * 0.001, k)]
@@ -43,7 +43,7 @@ def test_link_emulator_delays_in_order_and_loses_at_the_set_rate():
 @pytest.mark.parametrize('bad', [{'delay_s': -1.0}, {'loss': 1.0}, {'loss': 5.0},
                                  {'jitter_s': float('nan')}])
 def test_link_emulator_rejects_bad_settings(bad):
-    from rths_bringup.linkemu import LinkEmulator
+    from rths_bench.linkemu import LinkEmulator
 
     with pytest.raises(ValueError, match='link'):
         LinkEmulator(**bad)
@@ -61,8 +61,8 @@ def lockstep_config(directory: Path, duration_s: float) -> Path:
 
 @pytest.mark.skipif(os.geteuid() != 0, reason='network namespaces need root')
 def test_three_hosts_over_an_emulated_link_run_the_loop_exactly(tmp_path):
+    from rths_bench import netns
     from rths_bench.bench_distributed import HOSTS, run_condition
-    from rths_bringup import netns
     from rths_bringup.review import read_loop, step_check
     from rths_common import topics
 

@@ -4,9 +4,9 @@ Each condition runs the realtime graph (simulated plant, the designed
 compensator of ``config/compensator.yaml`` when its rate matches) with the
 numerical node in ROS domain A and the compensator, the bridge and the
 recorder in domain B, joined by the link relay ``rths linkemu``
-(:mod:`rths_bringup.linkemu`) with the condition's one-way delay, jitter and
+(:mod:`rths_bench.linkemu`) with the condition's one-way delay, jitter and
 loss.  With ``--netns`` (default when running as root) every node runs on its
-own "host", a network namespace (:mod:`rths_bringup.netns`), and DDS talks
+own "host", a network namespace (:mod:`rths_bench.netns`), and DDS talks
 UDP over veth links; the condition ``local`` is the reference without relay
 (one domain, one host).
 
@@ -209,7 +209,7 @@ def _env(net, host, domain):
 
 def cmd_bench_distributed(args) -> int:
     """``rths bench distributed``."""
-    from rths_bringup import netns
+    from rths_bench import netns
 
     use_netns = args.netns
     if use_netns:
@@ -366,7 +366,7 @@ def cmd_bench_absorb(args) -> int:
 
 
 def _bench_absorb(args) -> int:
-    from rths_bringup import netns
+    from rths_bench import netns
 
     use_netns = args.netns
     if use_netns and netns.available():

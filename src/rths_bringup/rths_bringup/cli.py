@@ -31,7 +31,6 @@ import sys
 #: Modules of this package and the ones below that add sub-commands, in --help order.
 CLI_MODULES = (
     'rths_bringup.commands',
-    'rths_bringup.linkemu',
     'rths_bringup.run',
     'rths_bringup.install',
     'rths_bringup.replay',

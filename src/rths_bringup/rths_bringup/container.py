@@ -20,7 +20,7 @@ params file.  The last line names the node that ended the run
 
 ``--tee-fd N`` (given by the launcher with a bag): every message the three
 nodes publish on the recorded topics is also copied into the pipe ``N``
-(:mod:`rths_bringup.tee`) for the recorder process, so the bag holds every
+(:mod:`rths_common.tee`) for the recorder process, so the bag holds every
 step and recording never shares this process's executor.  The queue in front
 of the pipe holds the whole run (``TEE_RECORDS_PER_STEP`` records a step);
 records beyond it are dropped and counted, and the run then says
@@ -42,8 +42,8 @@ from rclpy.utilities import remove_ros_args
 import yaml
 
 from rths_actuator_bridge.node import BridgeNode
-from rths_bringup.tee import Tee, TeePublisher, enlarge_pipe
 from rths_common import node_support as ns
+from rths_common.tee import Tee, TeePublisher, enlarge_pipe
 from rths_compensator.node import CompensatorNode
 from rths_numerical.node import NumericalNode
 

@@ -9,7 +9,7 @@ Two layouts (``layout``):
 * ``composed``: the three loop nodes in one process on one executor
   (:mod:`rths_bringup.container`), each with its own params file and the
   overrides in a params file of its own; with a bag, the container copies what
-  it publishes into a pipe the recorder reads (:mod:`rths_bringup.tee`), so
+  it publishes into a pipe the recorder reads (:mod:`rths_common.tee`), so
   nothing is lost.  The container's log lines are prefixed with the name of
   the node that logged them; when it ends early the launcher names the node
   that ended it (the bridge's safety stop: ``node bridge died (exit code 3:

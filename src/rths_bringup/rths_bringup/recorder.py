@@ -18,7 +18,7 @@ are pinned to those CPUs, so the SCHED_FIFO loop nodes can have the other core.
 
 Composed layout (``pipe_fd`` = N >= 0, given by the launcher): the container
 copies every message its nodes publish on the recorded topics into the pipe N
-(:mod:`rths_bringup.tee`); a reader thread feeds them to the same writer
+(:mod:`rths_common.tee`); a reader thread feeds them to the same writer
 queue, and only the topics nobody in the container publishes (the emergency
 stop) are subscribed to over DDS.  Nothing is lost however loaded the machine
 is: the pipe and the container's queue buffer what the writer has not taken
@@ -34,12 +34,12 @@ import time
 
 import rclpy
 
-from rths_bringup.tee import TOPICS as TEED_TOPICS
-from rths_bringup.tee import read_records
 from rths_common import bagstore, topics
 from rths_common import node_support as ns
 from rths_common.bagio import BagWriter
 from rths_common.qos import recorder_qos, status_qos
+from rths_common.tee import TOPICS as TEED_TOPICS
+from rths_common.tee import read_records
 
 #: Recorder parameters that are not run information (everything else is kept in the bag).
 RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s', 'storage', 'pipe_fd')

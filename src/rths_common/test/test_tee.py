@@ -1,10 +1,10 @@
-"""The composed layout's recording tee (rths_bringup.tee): framing, order, bounds, loss counts."""
+"""The composed layout's recording tee (rths_common.tee): framing, order, bounds, loss counts."""
 
 import os
 import threading
 
-from rths_bringup.tee import TOPICS, Tee, TeePublisher, read_records
 from rths_common import topics
+from rths_common.tee import TOPICS, Tee, TeePublisher, read_records
 
 
 class FakePublisher:

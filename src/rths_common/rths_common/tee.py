@@ -62,11 +62,11 @@ class Tee:
         self.fd = fd
         self.capacity = int(capacity)
         self.period_s = period_s
-        self.queue = deque()
+        self.queue: deque = deque()
         self.records = 0        # records handed to put()
         self.dropped = 0        # records refused (queue full) or lost (pipe closed)
         self.peak = 0           # largest queue length seen by the writer
-        self.error = None
+        self.error: OSError | None = None
         self.running = True
         self.wake = threading.Event()
         self.thread = threading.Thread(target=self._drain, name='rths-tee', daemon=True)
