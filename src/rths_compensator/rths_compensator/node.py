@@ -75,6 +75,9 @@ class CompensatorNode:
         self.adaptive = self.core.adaptive
         if self.adaptive:
             self._setup_adaptive()
+        self.monitor_mode = str(self.params.get('monitor') or 'off')
+        if self.monitor_mode != 'off':
+            self._setup_monitor()
         self.pub = self.node.create_publisher(Command, topics.COMMAND, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
         self.sender = ''  # this node's writer gid, in frame_id: the bridge checks the sender
@@ -121,9 +124,61 @@ class CompensatorNode:
         self.node.create_subscription(Measurement, topics.MEASUREMENT, self.on_measurement,
                                       loop_qos(self.own['mode']), raw=not self.lockstep)
 
+    def _setup_monitor(self):
+        """Online stability monitor (docs/monitor.md): /rths/stability, safe stop at a stop."""
+        from std_msgs.msg import String
+
+        from rths_compensator.monitor import settings_from_params
+        from rths_msgs.msg import Measurement
+
+        self.monitor_settings = settings_from_params(self.params)
+        self.monitor_settings.check()
+        self.monitors = []
+        self.targets = {}
+        self.monitor_stopped = False
+        self.stability_pub = self.node.create_publisher(Float64MultiArray, topics.STABILITY,
+                                                        status_qos())
+        self.estop_pub = self.node.create_publisher(String, topics.EMERGENCY_STOP, status_qos())
+        if not self.adaptive:
+            self.io_meas = Transport(Measurement, ('applied', 'displacement'),
+                                     not self.lockstep)
+            self.node.create_subscription(Measurement, topics.MEASUREMENT,
+                                          self.on_measurement, loop_qos(self.own['mode']),
+                                          raw=not self.lockstep)
+
+    def _monitor_step(self, step: int, displacement):
+        """Feed the monitor target/measured of ``step``; publish; stop the test at a stop."""
+        from rths_compensator.monitor import STOP, StabilityMonitor
+
+        target = self.targets.pop(step, None)
+        if target is None:
+            return
+        if not self.monitors:
+            fs = float(self.params['fs_hz'])
+            self.monitors = [StabilityMonitor(fs, self.monitor_settings)
+                             for _ in range(len(target))]
+        states = [m.step(t, y) for m, t, y in zip(self.monitors, target, displacement,
+                                                   strict=False)]
+        worst = max(states, key=lambda st: st.level)
+        every = max(int(self.own['coefficients_every']), 1)
+        if step % every == 0 or worst.level == STOP:
+            self.stability_pub.publish(Float64MultiArray(data=[
+                float(step), worst.delay_ms, worst.gain, worst.error_pct, worst.ti,
+                float(worst.level)]))
+        if worst.level == STOP and not self.monitor_stopped:
+            self.monitor_stopped = True
+            self.log.error(f'stability monitor: stop at step {step}: {worst.reason}')
+            if self.monitor_mode == 'stop':
+                from std_msgs.msg import String
+                self.estop_pub.publish(String(data=f'stability monitor: {worst.reason}'))
+
     def on_measurement(self, msg):
         """Keep measurement k for the command of step k + 1 (lock-step: run it if it waits)."""
         _, step, (applied, displacement) = self.io_meas.decode(msg)
+        if self.monitor_mode != 'off':
+            self._monitor_step(step, displacement)
+        if not self.adaptive:
+            return
         result = self.core.measure(step, displacement, applied)
         if result is not None:
             self.publish(result, *self.pending)
@@ -161,6 +216,9 @@ class CompensatorNode:
     def publish(self, result, t_in: int, stamp_ns: int, t0: int):
         """Publish the command of ``result`` and the step's status."""
         step = result.step
+        if self.monitor_mode != 'off':   # the target of this step, for the monitor
+            self.targets[step] = self.core.last_target
+            self.targets.pop(step - 256, None)
         if self.adaptive:
             every = max(int(self.own['coefficients_every']), 1)
             if step % every == 0:
