@@ -9,7 +9,9 @@ Asserted: the run completes with no safety stop, the bag holds every step, no gu
 the method tripped, and the measured displacement tracks the interface displacement
 (relative RMS error under 10 %; the uncompensated actuator's ~16 ms delay is ~25 % off
 on this record).  Normal scheduling and a watchdog of a whole second: the machine may
-be loaded; the bridge's misses are bounded (5 %), not zero.
+be loaded; the bridge's misses are bounded (5 %), not zero.  The online stability monitor
+(docs/monitor.md) runs in every run in ``stop`` mode: no false stop on these nominal runs,
+and a stop threshold the loop cannot meet brings the bridge to its safe stop.
 """
 
 import numpy as np
@@ -98,7 +100,7 @@ def test_the_monitor_stops_the_test_through_the_supervisor(tmp_path):
     from rths_common import bagio, topics
 
     bag = tmp_path / 'bag'
-    config = method_config(tmp_path / 'config', 'fir', duration_s=3.0,
+    config = method_config(tmp_path / 'config', 'fir', duration_s=5.0,
                            monitor_warn_error_pct=0.005, monitor_stop_error_pct=0.01)
     proc = rths('launch', '--config', config, '--bag', bag, '--timeout', 180, timeout=300,
                 check=False)

@@ -46,7 +46,7 @@ class CompensatorCore:
         self.policy = GapPolicy(DISPLACEMENT_ORDER)
         self.measured: dict = {}   # adaptive: step -> (measured displacement, applied)
         self.pending: tuple | None = None   # adaptive: (k, x) waiting for measurement k - 1
-        self.last_target = None   # the interface displacement of the last step (the monitor's)
+        self.last_target: np.ndarray | None = None   # the last step's interface displacement
 
     @property
     def next_step(self) -> int:

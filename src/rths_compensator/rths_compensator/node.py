@@ -10,6 +10,10 @@ Parameter ``method`` (fir | rls_fir | ats | amb | pi_lead, lock-step or realtime
 adaptive method started from the designed taps, or the reference PI + lead feedback
 controller; these also subscribe ``/rths/measurement`` and publish
 ``/rths/compensator_coefficients`` (docs/adaptive.md).
+
+Parameter ``monitor`` (off | warn | stop): the online stability monitor
+(:mod:`rths_compensator.monitor`) on ``/rths/stability``; ``stop`` also stops the test
+through the bridge's supervisor (``/rths/emergency_stop``) at its stop threshold.
 """
 
 import sys
@@ -128,11 +132,13 @@ class CompensatorNode:
         """Online stability monitor (docs/monitor.md): /rths/stability, safe stop at a stop."""
         from std_msgs.msg import String
 
-        from rths_compensator.monitor import settings_from_params
+        from rths_compensator.monitor import STOP, StabilityMonitor, settings_from_params
         from rths_msgs.msg import Measurement
 
         self.monitor_settings = settings_from_params(self.params)
         self.monitor_settings.check()
+        self.monitor_class, self.monitor_stop_level = StabilityMonitor, STOP
+        self.estop_message = String
         self.monitors = []
         self.targets = {}
         self.monitor_stopped = False
@@ -148,29 +154,28 @@ class CompensatorNode:
 
     def _monitor_step(self, step: int, displacement):
         """Feed the monitor target/measured of ``step``; publish; stop the test at a stop."""
-        from rths_compensator.monitor import STOP, StabilityMonitor
-
         target = self.targets.pop(step, None)
         if target is None:
             return
         if not self.monitors:
             fs = float(self.params['fs_hz'])
-            self.monitors = [StabilityMonitor(fs, self.monitor_settings)
+            self.monitors = [self.monitor_class(fs, self.monitor_settings)
                              for _ in range(len(target))]
-        states = [m.step(t, y) for m, t, y in zip(self.monitors, target, displacement,
-                                                   strict=False)]
+        pairs = zip(self.monitors, target, displacement, strict=False)
+        states = [m.step(t, y) for m, t, y in pairs]
         worst = max(states, key=lambda st: st.level)
+        stop = worst.level == self.monitor_stop_level
         every = max(int(self.own['coefficients_every']), 1)
-        if step % every == 0 or worst.level == STOP:
+        if step % every == 0 or stop:
             self.stability_pub.publish(Float64MultiArray(data=[
                 float(step), worst.delay_ms, worst.gain, worst.error_pct, worst.ti,
                 float(worst.level)]))
-        if worst.level == STOP and not self.monitor_stopped:
+        if stop and not self.monitor_stopped:
             self.monitor_stopped = True
             self.log.error(f'stability monitor: stop at step {step}: {worst.reason}')
             if self.monitor_mode == 'stop':
-                from std_msgs.msg import String
-                self.estop_pub.publish(String(data=f'stability monitor: {worst.reason}'))
+                reason = f'stability monitor: {worst.reason}'
+                self.estop_pub.publish(self.estop_message(data=reason))
 
     def on_measurement(self, msg):
         """Keep measurement k for the command of step k + 1 (lock-step: run it if it waits)."""
@@ -238,7 +243,8 @@ class CompensatorNode:
 
     def finish_run(self):
         """After spinning: flush what was published and log the count."""
-        ns.flush([self.pub, self.status_pub] + ([self.coef_pub] if self.adaptive else []))
+        ns.flush([self.pub, self.status_pub] + ([self.coef_pub] if self.adaptive else [])
+                 + ([self.stability_pub] if self.monitor_mode != 'off' else []))
         self.log.info(f'compensator: {self.expected} steps, {self.rejected} rejected')
 
 

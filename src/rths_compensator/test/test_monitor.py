@@ -9,7 +9,7 @@ FS = 4096.0
 
 
 def record(seconds, seed=0):
-    """A band-limited target [m]: three modes of a building (1.1, 2.7, 4.9 Hz), slow drift."""
+    """Return a target [m]: three modes of a building (1.1, 2.7, 4.9 Hz), random phases."""
     rng = np.random.default_rng(seed)
     t = np.arange(int(seconds * FS)) / FS
     phases = rng.uniform(0, 2 * np.pi, 3)
