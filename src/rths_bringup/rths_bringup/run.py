@@ -127,8 +127,9 @@ def register(commands, benches):
                         'updated_model.yaml of rths discrepancy --scenario actuator)')
     p.add_argument('--adaptive', default=METHOD_DEFAULT, choices=METHODS.names(),
                    help=f'compensation method of the RTHS run (default {METHOD_DEFAULT}: the '
-                        f'designed FIR; {", ".join(adaptive_names())} adapt on line from it, '
-                        'lock-step only; docs/adaptive.md)')
+                        f'designed FIR; {", ".join(adaptive_names())} adapt on line from it; '
+                        'pi_lead: the RTHS benchmark\'s PI + lead feedback controller, the '
+                        'designed FIR its fallback; lock-step or realtime; docs/adaptive.md)')
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                    help='storage of the bags (default mcap; sqlite3 for older tools)')
     p.add_argument('--no-compensation', action='store_true',
@@ -513,12 +514,14 @@ def _run(args) -> int:
     comp = runinfo.load_params(comp_file, 'compensator')
     comp.update({k: base['compensator'][k] for k in ('executor',) if k in base['compensator']})
     if METHODS.entry(args.adaptive).adaptive:
-        if args.no_compensation or args.mode != 'lockstep':
-            raise ValueError(f'--adaptive {args.adaptive} needs a designed FIR and lock-step '
-                             'mode (drop --no-compensation / use --mode lockstep)')
+        if args.no_compensation:
+            raise ValueError(f'--adaptive {args.adaptive} needs a designed FIR (drop '
+                             '--no-compensation)')
         provenance = dict(comp.get('provenance') or {})
         provenance['plant'] = str(Path(str(provenance.get('plant', ''))).resolve())
         comp.update(method=args.adaptive, provenance=provenance)
+    elif args.adaptive != METHOD_DEFAULT:
+        comp.update(method=args.adaptive)
 
     # 3: the RTHS run
     numerical = dict(base['numerical'], model=model_param,
