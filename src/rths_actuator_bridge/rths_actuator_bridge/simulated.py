@@ -528,7 +528,7 @@ class SimulatedPlant:
 
     @property
     def _nonlinear(self) -> bool:
-        """True if a force on the moving mass needs the sub-stepped integration."""
+        """Return True if a force on the moving mass needs the sub-stepped integration."""
         cfg = self.config
         return self.dtm is not None and (cfg.friction_n > 0 or cfg.specimen_backlash_m > 0
                                          or cfg.specimen_cubic_stiffness_n_m3 != 0)
