@@ -42,6 +42,8 @@ import yaml
 from rths_common.files import atomic_open
 from rths_common.timebase import sampling_rate_hz
 
+from .plant_effects import fold_effects
+
 CRITERIA = ('mse', 'fit', 'aic', 'bic')
 
 
@@ -123,7 +125,6 @@ class ArxModel:
                 raise ValueError(f'{where}: field {field} = {data[field]} does not match the '
                                  f'length of the coefficient list ({value})')
         if data.get('effects'):
-            from .plant_effects import fold_effects
             a, b, d = fold_effects(model.a, model.b, model.d, model.fs_hz, data['effects'],
                                    where)
             model = cls(a=a, b=b, d=d, fs_hz=model.fs_hz)

@@ -75,8 +75,6 @@ def run_parameters(bag, config=None) -> tuple:
 
 def has_table_mass(bridge: dict) -> bool:
     """Return True if the run's ``specimen`` is a mass on the table (a DTM, eq. 46)."""
-    from rths_numerical.specimens import SPECIMENS, specimen_of
-
     return SPECIMENS.entry(specimen_of(bridge), "the run's bridge parameter").table_mass \
         is not None
 

@@ -72,6 +72,7 @@ import numpy as np
 from scipy import optimize, signal
 from scipy.io import loadmat
 
+from rths_common import bagio, topics
 from rths_common.columns import read_columns, read_header
 from rths_discrepancy import effects as fx
 from rths_discrepancy import signals as sg
@@ -156,8 +157,6 @@ def read_bag(bag):
     ``time_s`` the step over the run's ``fs_hz``.  Steps with a non-finite value
     (not applied) are dropped.
     """
-    from rths_common import bagio, topics
-
     fs = bagio.sampling_rate(bag)
     data = bagio.step_arrays(bag, topics.MEASUREMENT, ('displacement', 'force'))
     if data['step'].size == 0:
