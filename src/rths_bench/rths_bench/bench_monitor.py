@@ -27,6 +27,10 @@ import time
 
 import numpy as np
 
+from rths_actuator_bridge.silva2020 import FS_HZ, Silva2020Params
+from rths_common.progress import Progress
+from rths_compensator.monitor import MonitorSettings, StabilityMonitor
+
 from . import rths_benchmark as rb
 
 
@@ -38,7 +42,6 @@ class MonitoredController:
     """The benchmark controller with a monitor per run, an injected delay and the safe stop."""
 
     def __init__(self, inner, batch, fs_hz, settings, changes, delay_steps, ramp_s=1.0):
-        from rths_compensator.monitor import StabilityMonitor
         self.inner = inner
         self.monitors = [StabilityMonitor(fs_hz, settings) for _ in range(batch)]
         self.changes = np.asarray(changes)            # change step per run (-1: none)
@@ -97,8 +100,6 @@ def _limits_before(u, x_m, end, fs_hz):
 def run_monitor_bench(record='gmspy:kobe', scale=None, duration_s=30.0, faulty=10, draws=20,
                       delay_ms=8.0, seed=2024, detect_s=0.5, settings=None, log=_log) -> dict:
     """Run the bench (module doc); return the JSON dict."""
-    from rths_actuator_bridge.silva2020 import FS_HZ, Silva2020Params
-    from rths_compensator.monitor import MonitorSettings
     settings = settings or MonitorSettings()
     t0 = time.perf_counter()
     t, ag = rb.ground_acceleration(record, FS_HZ, scale=scale, duration_s=duration_s)
@@ -120,7 +121,6 @@ def run_monitor_bench(record='gmspy:kobe', scale=None, duration_s=30.0, faulty=1
     inner = rb.make_controller('fir', len(runs), 1.0 / FS_HZ, log=log)
     ctrl = MonitoredController(inner, len(runs), FS_HZ, settings, changes,
                                int(round(delay_ms * 1e-3 * FS_HZ)))
-    from rths_common.progress import Progress
     with Progress(len(ag), f'bench monitor {len(runs)} loops', 'steps') as bar:
         out = rb.run_batch(runs, ag, ctrl, seed=seed, progress=bar.report)
     n = len(ag)

@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 import rclpy
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, String
 
 from rths_common import gaps, topics
 from rths_common import node_support as ns
@@ -29,6 +29,7 @@ from rths_common.qos import loop_qos, status_qos
 from rths_common.stepping import Driver
 from rths_common.transport import Transport
 from rths_compensator.core import CompensatorCore
+from rths_compensator.monitor import STOP, StabilityMonitor, settings_from_params
 from rths_compensator.params import (
     check_compensator_params,
     check_sampling_rate,
@@ -128,15 +129,8 @@ class CompensatorNode:
 
     def _setup_monitor(self):
         """Online stability monitor (docs/monitor.md): /rths/stability, safe stop at a stop."""
-        from std_msgs.msg import String
-
-        from rths_compensator.monitor import STOP, StabilityMonitor, settings_from_params
-        from rths_msgs.msg import Measurement
-
         self.monitor_settings = settings_from_params(self.params)
         self.monitor_settings.check()
-        self.monitor_class, self.monitor_stop_level = StabilityMonitor, STOP
-        self.estop_message = String
         self.monitors = []
         self.targets = {}
         self.monitor_stopped = False
@@ -157,12 +151,12 @@ class CompensatorNode:
             return
         if not self.monitors:
             fs = float(self.params['fs_hz'])
-            self.monitors = [self.monitor_class(fs, self.monitor_settings)
+            self.monitors = [StabilityMonitor(fs, self.monitor_settings)
                              for _ in range(len(target))]
         pairs = zip(self.monitors, target, displacement, strict=False)
         states = [m.step(t, y) for m, t, y in pairs]
         worst = max(states, key=lambda st: st.level)
-        stop = worst.level == self.monitor_stop_level
+        stop = worst.level == STOP
         every = max(int(self.own['coefficients_every']), 1)
         if step % every == 0 or stop:
             self.stability_pub.publish(Float64MultiArray(data=[
@@ -173,7 +167,7 @@ class CompensatorNode:
             self.log.error(f'stability monitor: stop at step {step}: {worst.reason}')
             if self.monitor_mode == 'stop':
                 reason = f'stability monitor: {worst.reason}'
-                self.estop_pub.publish(self.estop_message(data=reason))
+                self.estop_pub.publish(String(data=reason))
 
     def on_measurement(self, msg):
         """Keep measurement k for the command of step k + 1 (lock-step: run it if it waits)."""
