@@ -11,7 +11,6 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/foxglove', ['foxglove/rths_live.json']),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -25,7 +24,6 @@ setup(
             'rths = rths_bringup.cli:main',
             'recorder = rths_bringup.recorder:main',
             'container = rths_bringup.container:main',
-            'live_view = rths_bringup.live:main',
         ],
     },
 )

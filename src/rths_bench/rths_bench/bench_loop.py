@@ -116,7 +116,7 @@ def register(commands, benches):
     p.add_argument('--domain-id', type=int, default=-1, help='ROS_DOMAIN_ID of the runs '
                    '(default -1: $ROS_DOMAIN_ID if set, else a private one from the pid)')
     p.add_argument('--keep', default=None, help='keep config, bag and timing files here')
-    from rths_bringup import live
+    from rths_live import live
     live.add_arguments(p)   # --live: the misses with the live view on (issue 17)
     p.set_defaults(func=cmd_bench_loop)
 
@@ -384,7 +384,7 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log, label=None) -> dict:
         readers = 3 if bag is not None and launcher.layout == 'processes' else 2
         for name in ('numerical', 'compensator', 'bridge'):
             launcher.overrides.setdefault(name, {})['wait_for_subscribers'] = readers
-    from rths_bringup import live
+    from rths_live import live
 
     t0 = time.monotonic()
     with live.session(args, fs_hz=rate_hz):

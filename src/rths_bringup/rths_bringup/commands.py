@@ -21,7 +21,7 @@ def register(commands, benches):
                     'numerical node finishes the run, on Ctrl-C/SIGTERM, or when a node dies '
                     '(exit code 1, naming the node).')
     add_launch_args(p)
-    from rths_bringup import live
+    from rths_live import live
     live.add_arguments(p)
     p.set_defaults(func=cmd_launch)
 
@@ -137,7 +137,7 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, stora
 
 def cmd_launch(args) -> int:
     """Run ``rths launch``; then print the bag's topics and the loop summary."""
-    from rths_bringup import live
+    from rths_live import live
 
     fs = live_rate_of(args.config) if args.live else 0.0
     with live.session(args, fs_hz=fs):

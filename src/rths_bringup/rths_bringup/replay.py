@@ -27,15 +27,15 @@ def register(commands, benches):
                         '(e.g. 1 when a recorder must catch everything; default 0)')
     p.add_argument('--wait-timeout', type=float, default=30.0,
                    help='seconds to wait for subscribers (default 30)')
-    from rths_bringup import live
+    from rths_live import live
     live.add_arguments(p)
     p.set_defaults(func=cmd_replay)
 
 
 def cmd_replay(args) -> int:
     """Run ``rths replay`` (with ``--live``, inside a live-view session)."""
-    from rths_bringup import live
     from rths_common import bagio
+    from rths_live import live
 
     fs = bagio.sampling_rate(args.bag) if args.live and bagio.run_info(args.bag) else 0.0
     with live.session(args, fs_hz=fs):

@@ -138,7 +138,7 @@ def register(commands, benches):
     p.add_argument('--no-compensation', action='store_true',
                    help='skip steps 1-2 and run with identity taps (shows the uncompensated '
                         'error and, where the loop goes unstable, the safe abort)')
-    from rths_bringup import live
+    from rths_live import live
     live.add_arguments(p)
     p.epilog = ('Exit codes: 0 the run completed and was reviewed; 3 the bridge\'s safety '
                 'supervisor stopped the RTHS (OUT/summary.json then holds safety_stop, the '
@@ -440,8 +440,8 @@ def _model_param(model: str, config: Path) -> str:
 
 def cmd_run(args) -> int:
     """``rths run``."""
-    from rths_bringup import live
     from rths_bringup.commands import live_rate_of
+    from rths_live import live
 
     try:
         with live.session(args, fs_hz=live_rate_of(args.config) if args.live else 0.0):

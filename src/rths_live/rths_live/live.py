@@ -1,7 +1,7 @@
 """Live view: a Foxglove WebSocket server streaming the running loop at a display rate.
 
 ``rths run|launch|replay ... --live [--port 8765]`` starts this module as its own
-process (``python -m rths_bringup.live``, niced), so it is never in the step
+process (``python -m rths_live.live``, niced), so it is never in the step
 path: it subscribes to the loop topics like any other reader (best effort,
 depth 1), keeps only what the display needs and forwards it to the
 ``foxglove-sdk`` server on localhost:
@@ -20,7 +20,7 @@ connect too.  What it streams:
   then ``stopped`` when the run ends and the server closes).
 
 The layout ``foxglove/rths_live.json`` (installed under
-``share/rths_bringup/foxglove``) plots target vs measured displacement, force,
+``share/rths_live/foxglove``) plots target vs measured displacement, force,
 tracking error and deadline misses; :func:`layout` generates it.
 """
 
@@ -269,7 +269,7 @@ def layout_path() -> Path:
     try:
         # lazy: optional: tried here, refused with a clear message when missing
         from ament_index_python.packages import get_package_share_directory
-        path = Path(get_package_share_directory('rths_bringup')) / 'foxglove' / 'rths_live.json'
+        path = Path(get_package_share_directory('rths_live')) / 'foxglove' / 'rths_live.json'
         if path.is_file():
             return path
     except Exception:  # noqa: BLE001 - not installed: the source tree's copy
@@ -295,7 +295,7 @@ def add_arguments(p, replay: bool = False):
     p.add_argument('--live', action='store_true',
                    help='start a Foxglove WebSocket server streaming the loop topics and the '
                         'run status at the display rate (open ws://HOST:PORT in Foxglove with '
-                        'the layout share/rths_bringup/foxglove/rths_live.json)')
+                        'the layout share/rths_live/foxglove/rths_live.json)')
     p.add_argument('--port', type=int, default=DEFAULT_PORT,
                    help=f'port of the live view (default {DEFAULT_PORT})')
     p.add_argument('--host', default='127.0.0.1',
@@ -314,7 +314,7 @@ def session(args, fs_hz: float = 0.0, timeout_s: float = 30.0):
     if not 0 < args.port < 65536:
         raise ValueError(f'--port {args.port}: give a TCP port 1-65535')
     Decimator(args.live_rate)   # validates the rate before anything starts
-    cmd = [sys.executable, '-m', 'rths_bringup.live', '--port', str(args.port), '--host',
+    cmd = [sys.executable, '-m', 'rths_live.live', '--port', str(args.port), '--host',
            args.host, '--rate', str(args.live_rate), '--fs', str(fs_hz or 0.0)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
     try:
@@ -434,7 +434,7 @@ class LiveView:
 
 
 def main(argv=None) -> int:
-    """Entry point of the live-view process (``python -m rths_bringup.live``)."""
+    """Entry point of the live-view process (``python -m rths_live.live``)."""
     p = argparse.ArgumentParser(prog='rths live view', description=__doc__.split('\n')[0])
     p.add_argument('--host', default='127.0.0.1')
     p.add_argument('--port', type=int, default=DEFAULT_PORT)

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from rths_bringup import live
 from rths_common import cdr
+from rths_live import live
 
 
 def test_decimator_passes_one_message_per_key_and_period():
@@ -65,7 +65,7 @@ def test_handshake_rename_only_for_clients_offering_the_old_name_alone():
 def test_shipped_layout_is_the_generated_one_and_plots_the_four_quantities():
     shipped = Path(__file__).resolve().parents[1] / 'foxglove' / 'rths_live.json'
     layout = json.loads(shipped.read_text())
-    assert layout == live.layout()      # regenerate: python -c 'from rths_bringup import live...'
+    assert layout == live.layout()      # regenerate: python -c 'from rths_live import live...'
     text = json.dumps(layout)
     for field in ('target_m', 'measured_m', 'force_n', 'tracking_error_m', 'deadline_misses',
                   'stability_delay_ms', 'stability_error_pct', 'stability_level'):
