@@ -15,7 +15,9 @@ import time
 
 
 def _say(text):
-    print(text, file=sys.stderr, flush=True)
+    from rths_common.progress import mode
+    if mode(sys.stderr) != 'off':
+        print(text, file=sys.stderr, flush=True)
 
 
 def bench_cmd(args) -> int:

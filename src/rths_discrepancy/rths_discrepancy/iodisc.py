@@ -39,6 +39,7 @@ from scipy import signal
 
 from rths_discrepancy import effects as fx
 from rths_discrepancy import linear
+from rths_discrepancy import signals as sg
 
 TRAIN_FRACTION = 0.6
 MIN_REL_GAIN = 0.05
@@ -403,7 +404,7 @@ def restoring_term(base, train, name, p):
     cols, tg = [], []
     for r in train:
         x = (r['yj'] - base.y0) / ysc
-        st = linear.spectral_states(x, fs, fc)
+        st = sg.spectral_states(x, fs, fc)
         g = {'cubic_stiffness': st['x'] ** 3, 'hysteresis': fx.bouc_wen(st['x'], p or 1.0),
              'backlash': fx.deadzone(st['x'], p or 0.0),
              'coulomb_friction': np.tanh(st['v'] / (p or 1.0) / fs)}[name]

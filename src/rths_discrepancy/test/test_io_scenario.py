@@ -11,6 +11,7 @@ import pytest
 from scipy import signal
 
 from rths_discrepancy import devsets, iodisc, linear
+from rths_discrepancy import signals as sg
 
 
 def _second_order(fn_hz, zeta, fs):
@@ -32,8 +33,8 @@ def test_spectral_derivative_is_exact_inside_the_band_of_a_non_periodic_record()
     fs, n = 610.0, 6000
     t = np.arange(n) / fs
     x = 1e-3 * np.sin(2 * np.pi * 97.3 * t + 0.4)      # near fs / 6: central differences lose 9 %
-    v = linear.spectral_derivative(x, fs, 1, fc=150.0)
-    a = linear.spectral_derivative(x, fs, 2, fc=150.0)
+    v = sg.spectral_derivative(x, fs, 1, fc=150.0)
+    a = sg.spectral_derivative(x, fs, 2, fc=150.0)
     mid = slice(n // 10, -n // 10)
     w = 2 * np.pi * 97.3
     assert np.max(np.abs(v[mid] - w * 1e-3 * np.cos(w * t[mid] + 0.4))) < 0.02 * w * 1e-3
@@ -44,8 +45,8 @@ def test_spectral_derivative_is_exact_inside_the_band_of_a_non_periodic_record()
 
 def test_period_found_only_in_a_repeating_record():
     u = np.tile(_noise(500, 1, 100.0, 20.0), 4)
-    assert linear.period(u) == 500
-    assert linear.period(_noise(2000, 2, 100.0, 20.0)) is None
+    assert sg.period(u) == 500
+    assert sg.period(_noise(2000, 2, 100.0, 20.0)) is None
 
 
 def test_linear_baseline_recovers_an_oversampled_resonance_in_any_units():
@@ -140,3 +141,18 @@ def test_io_rate_from_a_time_column():
     with pytest.raises(ValueError, match='disagrees'):
         iodisc.records_from_columns(cols, 'u', ['y'], fs=400.0, time_col='time_s',
                                     source='a.csv')
+
+
+def test_quiet_silences_the_io_scenario_progress(tmp_path, monkeypatch, capsys):
+    from rths_bringup.cli import main
+    fs = 100.0
+    u = _noise(3000, 11, fs, 10.0)
+    y = signal.lfilter([0.1], [1, -0.9], u)
+    path = tmp_path / 'r.csv'
+    np.savetxt(path, np.column_stack([u, y]), delimiter=',', header='volt,level', comments='')
+    args = ['discrepancy', '--scenario', 'io', '--measured', str(path), '--input', 'volt',
+            '--output', 'level', '--fs', '100', '--out', str(tmp_path / 'o')]
+    monkeypatch.setenv('RTHS_PROGRESS', 'log')          # restored after the test
+    assert main(args + ['--quiet']) == 0
+    out = capsys.readouterr()
+    assert out.err == '' and 'effect:' in out.out
