@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from rths_common.columns import read_columns
 from rths_compensator import cli
 from rths_compensator.identification import load_plant
-from rths_compensator.io import read_csv_columns
 from rths_compensator.params import load_compensator_params
 
 FS = 256.0
@@ -62,7 +62,7 @@ def test_identify_design_compensate_chain(tmp_path, run_csv, capsys):
     out_path = tmp_path / 'out.csv'
     assert _run(['compensate', '--params', str(comp_path), '--csv', str(csv_path),
                  '--out', str(out_path)]) == 0
-    cols = read_csv_columns(out_path, ('time', 'command', 'compensated'))
+    cols = read_columns(out_path, ('time', 'command', 'compensated'))
     ref = signal.lfilter(params['taps'], params['denominator'], cols['command'])
     np.testing.assert_allclose(cols['compensated'], ref, rtol=1e-8,
                                atol=1e-9 * np.max(np.abs(ref)))
