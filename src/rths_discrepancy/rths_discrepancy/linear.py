@@ -177,3 +177,60 @@ def arx_reference(records, fs):
     arx = _grid(tr, va, fs, REF_MAX, REF_MAX, D_MAX)
     arx = idf.fit_arx(cen, arx.na, arx.nb, arx.d, fs, ridge=RIDGE)
     return LinearModel(arx, 1, fs, u0, y0, 'arx-reference')
+
+
+def least_squares(mat, target):
+    """Least-squares solution of ``mat theta = target`` on unit-scaled columns (``lstsq``)."""
+    mat = np.asarray(mat, float)
+    scale = np.std(mat, axis=0)
+    scale[scale == 0] = 1.0
+    return np.linalg.lstsq(mat / scale, target, rcond=None)[0] / scale
+
+
+def _masked_fit(records, keep, na, nb, d, fs, a_filter):
+    """ARX of orders (na, nb, d) on the rows whose output and lagged outputs ``keep`` marks."""
+    phis, tgs = [], []
+    for (u, y), k in zip(records, keep, strict=True):
+        phi, tg = idf._regression(signal.lfilter([1.0], a_filter, u),
+                                  signal.lfilter([1.0], a_filter, y), na, nb, d)
+        rows = np.arange(y.size - tg.size, y.size)
+        ok = np.lib.stride_tricks.sliding_window_view(k, na + 1)[rows - na].all(axis=1)
+        phis.append(phi[ok][:, list(range(na)) + list(range(na + d, na + d + nb))])
+        tgs.append(tg[ok])
+    theta = least_squares(np.vstack(phis), np.concatenate(tgs))
+    return idf.ArxModel(a=np.r_[1.0, theta[:na]], b=theta[na:], d=d, fs_hz=fs)
+
+
+def refit_where(base, records, keep, iterations=4):
+    """Refit ``base``'s orders on the samples ``keep`` marks (e.g. off a saturation plateau).
+
+    ``records`` [(u, y), ...] at the base's rate and ``keep`` one boolean array per
+    record.  An output on a plateau says nothing about the linear dynamics: a row of
+    the regression is used only if the output it predicts and its lagged outputs are
+    kept.  Equation error first, then Steiglitz-McBride iterations; the iterate
+    simulating the kept samples best is returned as a :class:`LinearModel`.
+    """
+    q, arx = base.q, base.arx
+    dec = [(_down(u - base.u0, q), _down(y - base.y0, q)) for u, y in records]
+    kd = [_down(np.asarray(k, float), q) > 0.99 for k in keep]
+
+    def err(m):
+        lm = LinearModel(m, q, base.fs, base.u0, base.y0, 'off-plateau')
+        e = [(y - lm.simulate(u))[k] for (u, y), k in zip(records, keep, strict=True)]
+        return float(np.mean(np.concatenate(e) ** 2))
+
+    best, best_err, a = None, np.inf, np.array([1.0])
+    for _ in range(iterations + 1):
+        try:
+            m = _masked_fit(dec, kd, arx.na, arx.nb, arx.d, base.fs / q, a)
+        except (ValueError, np.linalg.LinAlgError):
+            break
+        if not m.is_stable():
+            break
+        e = err(m)
+        if e < best_err:
+            best, best_err = m, e
+        a = m.a
+    if best is None:
+        return base
+    return LinearModel(best, q, base.fs, base.u0, base.y0, 'off-plateau')

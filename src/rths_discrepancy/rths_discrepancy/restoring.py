@@ -34,7 +34,10 @@ parameter each (a grid and a bounded search, relative to the data's own scales):
     stribeck               + (F_c + (F_s - F_c) exp(-(v / v_s)^2)) tanh(v / v_eps)
     force_offset           + F_0 (load-cell bias)
     cubic_stiffness        + k3 x^3
-    backlash               + k_b dz(x, b) (a spring engaging after a clearance b)
+    backlash               + k_b dz(x, b) + F_b tanh(z' / v_eps), a clearance (play)
+                             of half-width b: a spring engaging beyond it, friction
+                             through it (z = play(x, b), its far side: no force while
+                             the clearance is crossed after each reversal)
     hysteresis             + alpha z, Bouc-Wen with beta = gamma = 1/2, n = 1:
                              dz = dx / x_y (1 - |z| (1 + sign(dx z)) / 2)   (x_y searched)
     time_delay             the model's force lags its states by tau (|tau| beyond
@@ -82,6 +85,7 @@ import numpy as np
 from scipy import optimize, signal
 
 from rths_discrepancy import effects as fx
+from rths_discrepancy import reversals
 from rths_discrepancy import signals as sg
 
 COLUMNS = ('time_s', 'displacement_m', 'force_N')
@@ -95,7 +99,7 @@ PARAMS = {
     'stribeck': (('F_c', 'N'), ('F_s_minus_F_c', 'N'), ('v_s', 'm/s')),
     'force_offset': (('F_0', 'N'),),
     'cubic_stiffness': (('k3', 'N/m^3'),),
-    'backlash': (('k_b', 'N/m'), ('b', 'm')),
+    'backlash': (('k_b', 'N/m'), ('F_b', 'N'), ('b', 'm')),
     'hysteresis': (('alpha', 'N'), ('x_y', 'm')),
     'time_delay': (('tau', 's'),),
 }
@@ -299,7 +303,10 @@ class Fit:
             return [xc ** 3]
         if name == 'backlash':
             xc = x - np.mean(x)
-            return [np.sign(xc) * np.maximum(np.abs(xc) - p, 0.0)]
+            z = fx.play(x, p)           # the far side of the clearance
+            vz = np.gradient(z, 1.0 / self.fs)
+            return [np.sign(xc) * np.maximum(np.abs(xc) - p, 0.0),
+                    np.tanh(vz / (1e-2 * self.scales['v']))]
         if name == 'hysteresis':
             key = (round(p, 15), id(st))
             if key not in self._bw:
@@ -482,6 +489,7 @@ def select(fit, progress=None, count=None):
         choice = best2
     choice, equivalence = _prefer_decomposition(fit, cands, choice, PAIR_REL_GAIN * (m0 - floor))
     ics = {k: ic(c) for k, c in cands.items()}
+    choice, play = _play_or_loop(fit, cands, choice, ics, ic_none)
     mc = cands[choice]['mse_test']
     if ics[choice] >= ic_none or m0 - mc < MIN_REL_GAIN * m0:
         decision = 'none'
@@ -490,7 +498,37 @@ def select(fit, progress=None, count=None):
     else:
         decision = choice
     return {'decision': decision, 'choice': choice, 'nominal': nominal, 'cands': cands,
-            'ic': ics, 'ic_none': ic_none, 'equivalence': equivalence}
+            'ic': ics, 'ic_none': ic_none, 'equivalence': equivalence, 'play_or_loop': play}
+
+
+def play_evidence(fit, cand):
+    """Play-versus-loop evidence (:mod:`.reversals`) on the force ``cand``'s m, c, k leave."""
+    th = {par: v for (g, par), v in zip(cand['labels'], cand['theta'], strict=True)
+          if g == 'nominal'}
+    st = fit.st
+    r = fit.f - (th['m'] * st['a'] + th['c'] * st['v'] + th['k'] * st['x'])
+    return reversals.evidence(st['x'], r)
+
+
+def _play_or_loop(fit, cands, choice, ics, ic_none):
+    """Name backlash, not hysteresis, where the record shows play after its reversals.
+
+    Read on the choice's own m, c, k when it holds hysteresis or backlash; a choice
+    holding hysteresis on a record that shows play is replaced by the same effects
+    with backlash in its place (if that candidate beats the nominal).  Returns
+    (choice, evidence or None).
+    """
+    names = cands[choice]['names']
+    if not {'hysteresis', 'backlash'} & set(names):
+        return choice, None
+    ev = play_evidence(fit, cands[choice])
+    ev['read_on'] = choice
+    if 'hysteresis' in names and ev['play']:
+        alt = label([n for n in names if n != 'hysteresis'] + ['backlash'])
+        if alt in cands and ics[alt] < ic_none:
+            ev['replaced'] = {choice: alt}
+            return alt, ev
+    return choice, ev
 
 
 def label(names):
@@ -608,6 +646,7 @@ def run(data, out_dir=None, progress=None, plots=True, source=None, count=None):
         'information_criterion_none': sel['ic_none'],
         'held_out_evidence': _defence(fit, sel),
         'equivalence': sel['equivalence'],
+        'play_or_loop': sel['play_or_loop'],
         'equivalent_reading': other_reading(_params(win)) if named else {},
         'smoothing_differentiator': {
             'method': fit.st['method'], 'period_samples': fit.period,
@@ -700,6 +739,18 @@ def markdown(result, files):
                      f"samples): held-out mean square error difference "
                      f"{eq['heldout_mse_difference']:.4g} against the margin {eq['margin']:.4g}; "
                      f'the record {verdict}')
+    pl = result.get('play_or_loop')
+    if pl and pl.get('plateau_fraction') is not None:
+        growth = 'n/a' if pl['growth'] is None else f"{pl['growth']:.2f}"
+        frac = 100 * pl['plateau_fraction']
+        swap = ''
+        if pl.get('replaced'):
+            (was, now), = pl['replaced'].items()
+            swap = f'; `{now}` named in place of `{was}`'
+        lines.append(f"- after each reversal ({pl['half_cycles']} half-cycles, read on "
+                     f"`{pl['read_on']}`): {pl['reading']} (median {frac:.0f} % of the "
+                     f"transition near zero force; width growth with amplitude {growth})"
+                     + swap)
     mp = result['model_parameters']
     lines += [f"- model: m = {mp['m']:.5g} kg, c = {mp['c']:.5g} N s/m, k = {mp['k']:.5g} N/m",
               '', f"Alignment (nuisance, not an effect): {result['alignment_samples']:+.2f} "

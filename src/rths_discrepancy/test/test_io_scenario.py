@@ -110,27 +110,48 @@ def test_io_refuses_a_record_without_rate_or_column():
         iodisc.records_from_columns(cols, 'u', ['z'], fs=10.0, source='a.csv')
 
 
-def _data_dir():
+def _data_dir(name='cascaded_tanks'):
     for d in (os.environ.get('RTHS_DATA_DIR'),
               os.path.join(os.path.dirname(__file__), '..', '..', '..', '..', 'shared', 'data')):
-        if d and os.path.isfile(os.path.join(d, 'cascaded_tanks', 'dataBenchmark.csv')):
+        if d and os.path.isdir(os.path.join(d, name)):
             return d
     if os.environ.get('CI') == 'true':
-        pytest.fail('the shared data directory (cascaded_tanks/) is missing: set RTHS_DATA_DIR')
-    pytest.skip('shared data directory not found (set RTHS_DATA_DIR)')
+        pytest.fail(f'the shared data directory ({name}/) is missing: set RTHS_DATA_DIR')
+    pytest.skip(f'shared data directory with {name}/ not found (set RTHS_DATA_DIR)')
 
 
 def test_cascaded_tanks_against_the_published_errors():
     # Cascaded tanks benchmark (Schoukens, Mattsson, Wigren, Noel 2016; data via
-    # forgi86/dynonet, MIT repository): test-record RMSE of the simulated level.
-    # Published: BLA 0.75 V (Relan et al. 2017); Volterra 0.54 V (Birpoutsoukis et al. 2018).
+    # forgi86/dynonet, MIT repository): test-record RMSE [V] of the simulated level.
+    # Published (Math. Probl. Eng. 2021, 6613425, Table 2, validation column): BLA 0.7574,
+    # Volterra 3rd degree with transient removal 0.5400, PNLSS-I 0.4498.  The benchmark
+    # document names a hard (overflow) saturation with weakly nonlinear outflows.
     train, test = devsets.cascaded_tanks(_data_dir())
     res = iodisc.run(train, test, plots=False)
     row = devsets.compare('cascaded_tanks', res)
-    assert row['baseline_rmse'] <= 1.2 * 0.75
-    assert row['named_effect_matches_paper']
-    assert row['after_rmse'] <= 1.5 * 0.54
+    assert row['baseline_rmse'] <= 1.2 * 0.7574
+    assert 'saturation' in res['effect'].split('+') and row['named_effect_matches_paper']
+    assert row['after_rmse'] <= 1.5 * 0.4498
     assert row['after_rmse'] < row['baseline_rmse']
+
+
+def test_bouc_wen_benchmark_names_hysteresis_and_beats_the_published_errors():
+    # Bouc-Wen benchmark (Noel, Schoukens 2016; simulated by its authors; data via
+    # forgi86/dynonet, MIT repository): RMSE [m] of the simulated displacement on the
+    # multisine test period.  Published (dynoNet, Forgione and Piga, arXiv:2006.02250,
+    # section 5.2): dynoNet 4.52e-5, PNLSS (Esfahani et al. 2017) 1.87e-5, NFIR (Belz et
+    # al. 2017) 16.3e-5.  The law of the benchmark (its section 2): m = 2 kg, c = 10 N s/m,
+    # k = 5e4 N/m, alpha = 5e4 N/m, beta = 1e3 1/m, gamma = 0.8, delta = -1.1, nu = 1.
+    train, test = devsets.bouc_wen(_data_dir('bouc_wen'))
+    res = iodisc.run(train, test, plots=False)
+    row = devsets.compare('bouc_wen', res)
+    assert res['effect'] == 'hysteresis' and row['named_effect_matches_paper']
+    assert row['after_rmse'] <= 1.5 * 1.87e-5
+    p = res['per_output']['displacement']['parameters']
+    assert p['m'] == pytest.approx(2.0, rel=0.05) and p['k'] == pytest.approx(5e4, rel=0.05)
+    assert p['theta'] == pytest.approx(5e4, rel=0.05)
+    # the direction terms are beta delta and beta gamma of z = alpha w
+    assert p['a1'] == pytest.approx(-1.1e3, rel=0.1) and p['a2'] == pytest.approx(800, rel=0.1)
 
 
 def test_io_rate_from_a_time_column():
