@@ -466,6 +466,9 @@ def select(fit, progress=None, count=None):
         if count:
             count(len(cands), len(todo))
     say(f'fitted {len(cands)} candidates')
+    unseen = [k for k, c in cands.items() if 'backlash' in c['names'] and not clearance_seen(fit, c)]
+    for k in unseen:
+        del cands[k]
     n_te = int(fit.test.sum())
 
     def ic(c):
@@ -498,7 +501,22 @@ def select(fit, progress=None, count=None):
     else:
         decision = choice
     return {'decision': decision, 'choice': choice, 'nominal': nominal, 'cands': cands,
-            'ic': ics, 'ic_none': ic_none, 'equivalence': equivalence, 'play_or_loop': play}
+            'ic': ics, 'ic_none': ic_none, 'equivalence': equivalence, 'play_or_loop': play,
+            'clearance_not_seen': unseen}
+
+
+def clearance_seen(fit, cand):
+    """Tell whether the clearance ``cand`` fits shows in the record (see :mod:`.reversals`).
+
+    A clearance of half-width ``b`` crossed after each reversal leaves a near-zero-force
+    stretch at least ``b`` wide that does not grow with the amplitude.  Where the record
+    shows none, a small ``b`` is only another reading of Coulomb friction (and of an
+    offset, through the spring's centre): the candidate is not offered.
+    """
+    ev = play_evidence(fit, cand)
+    width, growth = ev.get('plateau_width_median'), ev.get('growth')
+    return bool(width is not None and width >= cand['shapes']['backlash']
+                and (growth is None or growth < reversals.MAX_GROWTH))
 
 
 def play_evidence(fit, cand):
@@ -647,6 +665,7 @@ def run(data, out_dir=None, progress=None, plots=True, source=None, count=None):
         'held_out_evidence': _defence(fit, sel),
         'equivalence': sel['equivalence'],
         'play_or_loop': sel['play_or_loop'],
+        'clearance_not_seen': sel['clearance_not_seen'],
         'equivalent_reading': other_reading(_params(win)) if named else {},
         'smoothing_differentiator': {
             'method': fit.st['method'], 'period_samples': fit.period,

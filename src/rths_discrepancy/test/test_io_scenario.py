@@ -4,12 +4,11 @@ Synthetic systems with a known answer, and the cascaded-tanks benchmark against 
 published errors (real data, not in the repository).
 """
 
-import os
-
 import numpy as np
 import pytest
 from scipy import signal
 
+from rths_common.testing import require_data
 from rths_discrepancy import devsets, iodisc, linear
 from rths_discrepancy import signals as sg
 
@@ -110,14 +109,9 @@ def test_io_refuses_a_record_without_rate_or_column():
         iodisc.records_from_columns(cols, 'u', ['z'], fs=10.0, source='a.csv')
 
 
-def _data_dir(name='cascaded_tanks'):
-    for d in (os.environ.get('RTHS_DATA_DIR'),
-              os.path.join(os.path.dirname(__file__), '..', '..', '..', '..', 'shared', 'data')):
-        if d and os.path.isdir(os.path.join(d, name)):
-            return d
-    if os.environ.get('CI') == 'true':
-        pytest.fail(f'the shared data directory ({name}/) is missing: set RTHS_DATA_DIR')
-    pytest.skip(f'shared data directory with {name}/ not found (set RTHS_DATA_DIR)')
+def _data_dir(name):
+    """Data directory holding ``name`` (skip without it; fail in CI: require_data)."""
+    return str(require_data(name).parent)
 
 
 def test_cascaded_tanks_against_the_published_errors():
@@ -126,7 +120,7 @@ def test_cascaded_tanks_against_the_published_errors():
     # Published (Math. Probl. Eng. 2021, 6613425, Table 2, validation column): BLA 0.7574,
     # Volterra 3rd degree with transient removal 0.5400, PNLSS-I 0.4498.  The benchmark
     # document names a hard (overflow) saturation with weakly nonlinear outflows.
-    train, test = devsets.cascaded_tanks(_data_dir())
+    train, test = devsets.cascaded_tanks(_data_dir('cascaded_tanks'))
     res = iodisc.run(train, test, plots=False)
     row = devsets.compare('cascaded_tanks', res)
     assert row['baseline_rmse'] <= 1.2 * 0.7574
