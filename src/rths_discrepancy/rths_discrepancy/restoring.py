@@ -466,7 +466,8 @@ def select(fit, progress=None, count=None):
         if count:
             count(len(cands), len(todo))
     say(f'fitted {len(cands)} candidates')
-    unseen = [k for k, c in cands.items() if 'backlash' in c['names'] and not clearance_seen(fit, c)]
+    unseen = [k for k, c in cands.items()
+              if 'backlash' in c['names'] and not clearance_seen(fit, c)]
     for k in unseen:
         del cands[k]
     n_te = int(fit.test.sum())

@@ -110,7 +110,7 @@ def test_io_refuses_a_record_without_rate_or_column():
 
 
 def _data_dir(name):
-    """Data directory holding ``name`` (skip without it; fail in CI: require_data)."""
+    """Return the data directory holding ``name`` (skip without it; fail in CI)."""
     return str(require_data(name).parent)
 
 
