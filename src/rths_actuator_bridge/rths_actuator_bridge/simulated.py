@@ -80,14 +80,17 @@ import math
 
 import numpy as np
 from scipy.linalg import expm
+from scipy.signal import lfilter, tf2ss
 
 from rths_common.params import LOOP_RATE_RANGE_HZ, renamed
 from rths_common.timebase import same_rate
+from rths_compensator.plants import actuator_poles
 from rths_numerical.dtm import DTMParameters
 from rths_numerical.specimens import DEFAULT_SPECIMEN, SPECIMENS, specimen_params
 
 from .backend import Backend
 from .channels import CHANNELS, zoh
+from .silva2020 import BRIDGE_PARAMS, channel_model
 from .stroke_specimen import StrokeTableSpecimen
 
 
@@ -215,9 +218,6 @@ RETUNE_KEYS = ('actuator_gain', 'actuator_bandwidth', 'actuator_mode_frequency',
 
 def _actuator_ss(kind: str, scales: dict = None):
     """Return the controllable state space (A, B, C) of a Table 1 actuator model, retuned."""
-    from scipy.signal import tf2ss
-
-    from rths_compensator.plants import actuator_poles
     try:
         poles = actuator_poles(kind)
     except ValueError as err:
@@ -319,7 +319,6 @@ class SimulatedPlant:
 
     def _build_silva2020(self):
         """Build the benchmark plant of :mod:`.silva2020` (it carries its own SDOF specimen)."""
-        from .silva2020 import channel_model
         self.dtm, self.frame_mass = None, 0.0
         self._set_linear(*channel_model(self.silva2020_params))
 
@@ -369,6 +368,7 @@ class SimulatedPlant:
 
     def _build_arx(self, path: str):
         try:
+            # lazy: optional: tried here, refused with a clear message when missing
             from rths_compensator.identification import load_plant
         except ImportError:
             raise ValueError(f"parameter 'actuator_model' = {path!r}: loading an ARX plant.yaml "
@@ -535,7 +535,6 @@ class SimulatedPlant:
         With ``Ad = V diag(lam) V^-1`` and ``z = V^-1 x``, each mode obeys
         ``z_{k+1} = lam z_k + g u_k``, one complex ``lfilter`` call per mode.
         """
-        from scipy.signal import lfilter
         if len(u) == 0:
             return {key: np.zeros(0) for key in CHANNELS}
         lam, vec = np.linalg.eig(self._ad)
@@ -559,8 +558,6 @@ def silva2020_plant(params=None, **config) -> SimulatedPlant:
     ``params`` is a :class:`.silva2020.Silva2020Params` (None: nominal); ``config``
     overrides :data:`.silva2020.BRIDGE_PARAMS` (e.g. ``seed``, or zero noise).
     """
-    from .silva2020 import BRIDGE_PARAMS
-
     class Silva2020Plant(SimulatedPlant):
         silva2020_params = params
 

@@ -15,6 +15,9 @@ import os
 import sys
 import time
 
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
+
 
 def _say(text):
     from rths_common.progress import mode

@@ -1,7 +1,11 @@
 """The orchestration sub-commands of ``rths``: launch and bag."""
 
 import json
+import os
 from pathlib import Path
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 
 def register(commands, benches):
@@ -63,7 +67,6 @@ def add_launch_args(p):
 
 def default_config_dir() -> Path:
     """Return the repo's config/ (RTHS_ROOT is set by env.sh), else ./config."""
-    import os
     root = os.environ.get('RTHS_ROOT')
     return Path(root) / 'config' if root else Path('config')
 

@@ -44,6 +44,9 @@ from rths_numerical.specimens import (
     specimen_settings,
 )
 
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
+
 NODE_FILES = {'numerical': 'numerical.yaml', 'compensator': 'compensator.yaml',
               'bridge': 'bridge.yaml'}
 #: Exit code of ``rths run`` when the bridge's safety supervisor stopped the RTHS run
@@ -539,8 +542,6 @@ def _run(args) -> int:
 
 def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path) -> int:
     """Write and print the summary of an RTHS run the bridge stopped; return EXIT_SAFETY_STOP."""
-    import json
-
     from rths_common.params import core_params
     from rths_numerical.substructure import make_substructure
 

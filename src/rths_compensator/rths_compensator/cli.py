@@ -7,11 +7,15 @@
 * ``rths bench compensators``  the seed's numerical study (section 4.3.3) -> JSON (+ plots)
 """
 
+import os
 import sys
 
 from rths_common.columns import read_columns
 
 from .schemes import SCHEMES, designed
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 #: What a design reports beside its options, kept in the provenance.
 DESIGN_RESULTS = ('a_tilde', 'model', 'q', 'solver', 'auto_score', 'bandwidth_hz')
@@ -173,8 +177,6 @@ def cmd_identify(args) -> int:
 
 def cmd_design(args) -> int:
     """``rths design``."""
-    import os
-
     import numpy as np
 
     from . import design as dsg
@@ -344,7 +346,6 @@ def cmd_bench_compensators(args) -> int:
     print(f'identified plant: ARX na={model.na} nb={model.nb} d={model.d}')
     print(f'wrote {args.out}')
     if args.plots:
-        import os
 
         from .identification import save_plant
         for path in bench.make_plots(result, args.plots):

@@ -35,10 +35,12 @@ import math
 import time
 
 import numpy as np
-from scipy import signal
+from scipy import optimize, signal
 
+from rths_common.timebase import same_rate, sampling_rate_hz
+from rths_compensator.identification import ArxModel, _regression
 from rths_discrepancy import effects as fx
-from rths_discrepancy import linear
+from rths_discrepancy import ioreport, linear
 from rths_discrepancy import signals as sg
 
 TRAIN_FRACTION = 0.6
@@ -88,7 +90,6 @@ def records_from_columns(columns, input_col, output_cols, fs=None, time_col=None
         raise ValueError(f'{source}: only {n} rows; the io scenario needs at least '
                          f'{MIN_SAMPLES} (training, validation and held-out parts)')
     if time_col:
-        from rths_common.timebase import same_rate, sampling_rate_hz
         fs_t = sampling_rate_hz(columns[time_col], where=f'{source} column {time_col}')
         if fs is not None and not same_rate(fs_t, fs):
             raise ValueError(f'{source}: --fs {fs:g} disagrees with column {time_col} '
@@ -186,7 +187,6 @@ def static_output(base, train, limits=None):
     z = (lin - c) / s
     coef = np.polyfit(z[keep], y[keep], 3)
     if limits is not None:
-        from scipy import optimize
         coef = optimize.least_squares(lambda k: np.clip(np.polyval(k, z), lo, hi) - y,
                                       coef).x
 
@@ -203,7 +203,6 @@ def static_output(base, train, limits=None):
 # ---- amplitude dependence across records
 
 def _lpv_design(u, y, na, nb, d, s):
-    from rths_compensator.identification import _regression
     phi, target = _regression(u, y, na, nb, d)
     phi = phi[:, list(range(na)) + list(range(na + d, na + d + nb))]
     return np.hstack([phi, phi * s]), target
@@ -229,7 +228,6 @@ def amplitude_dependent(base, train):
     k = na + nb
 
     def model_at(lev):
-        from rths_compensator.identification import ArxModel
         th = theta[:k] + (lev / ref - 1.0) * theta[k:]
         return ArxModel(a=np.r_[1.0, th[:na]], b=th[na:], d=d, fs_hz=arx.fs_hz)
 
@@ -344,6 +342,7 @@ def _sim_loop():
         return out
 
     try:
+        # lazy: optional: numba compiles the loop; plain Python without it
         import numba
         run = numba.njit(cache=True)(run)
     except ImportError:  # pragma: no cover - plain Python
@@ -402,6 +401,7 @@ def _ode_loop():
         return out
 
     try:
+        # lazy: optional: numba compiles the loop; plain Python without it
         import numba
         run = numba.njit(cache=True)(run)
     except ImportError:  # pragma: no cover - plain Python
@@ -487,6 +487,7 @@ def _bouc_wen_loop():
         return out
 
     try:
+        # lazy: optional: numba compiles the loop; plain Python without it
         import numba
         run = numba.njit(cache=True)(run)
     except ImportError:  # pragma: no cover - plain Python
@@ -507,7 +508,6 @@ def hysteresis_output_error(base, train):
     spring, not a loop: the block is offered only where ``a2`` lowers the information
     criterion of the training fit.
     """
-    from scipy import optimize
     m0, c0, k0 = _linear_restoring(base, train)
     ysc = float(np.std(np.concatenate([r['yj'] for r in train])))
     us = [np.ascontiguousarray(r['u'] - base.u0) for r in train]
@@ -795,6 +795,5 @@ def run(train, test=None, out_dir=None, progress=None, plots=True):
     say(f"effect: {result['effect']}; held-out NRMSE {result['nrmse_before']:.4f} -> "
         f"{result['nrmse_after']:.4f} (ARX reference {result['nrmse_reference']:.4f})")
     if out_dir is not None:
-        from rths_discrepancy import ioreport
         ioreport.write(out_dir, result, per, plots)
     return result
