@@ -88,6 +88,7 @@ import numpy as np
 from scipy import optimize, signal
 from scipy.io import loadmat
 
+from rths_common import bagio, topics
 from rths_common.columns import read_columns, read_header
 from rths_discrepancy import effects as fx
 from rths_discrepancy import reversals
@@ -163,6 +164,23 @@ def load_csv(path):
     cols = read_columns(path, COLUMNS + tuple(c for c in OPTIONAL if c in present),
                         keep_nan=True, min_rows=0)
     return validate(cols, source=str(path))
+
+
+def read_bag(bag):
+    """Restoring-force columns of an rths run bag (channel 0; not yet validated).
+
+    ``displacement_m`` is the measured actuator displacement and ``force_N`` the
+    measured force the specimen returns to the structure (``/rths/measurement``),
+    ``time_s`` the step over the run's ``fs_hz``.  Steps with a non-finite value
+    (not applied) are dropped.
+    """
+    fs = bagio.sampling_rate(bag)
+    data = bagio.step_arrays(bag, topics.MEASUREMENT, ('displacement', 'force'))
+    if data['step'].size == 0:
+        raise ValueError(f'{bag}: no {topics.MEASUREMENT} messages; is this an rths run bag?')
+    x, f = data['displacement'][:, 0], data['force'][:, 0]
+    ok = np.isfinite(x) & np.isfinite(f)
+    return {'time_s': data['step'][ok] / fs, 'displacement_m': x[ok], 'force_N': f[ok]}
 
 
 def write_csv(path, data):
