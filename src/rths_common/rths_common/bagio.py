@@ -149,9 +149,28 @@ RUN_INFO_FILE = 'rths_run.yaml'
 
 
 def bag_dir(bag) -> Path:
-    """Return the bag directory of ``bag`` (itself, or the one holding its .mcap/.db3 file)."""
+    """Return the bag directory of ``bag`` (itself, or the one holding its .mcap/.db3 file).
+
+    A results directory of ``rths run`` given instead of its bag (a directory holding
+    no bag files but bags below it) is refused with a ValueError naming those bags.
+    """
     bag = Path(bag)
-    return bag.parent if bag.is_file() and bag.suffix in ('.mcap', '.db3') else bag
+    if bag.is_file() and bag.suffix in ('.mcap', '.db3'):
+        return bag.parent
+    if bag.is_dir() and not _holds_bag_files(bag):
+        inner = sorted(p.parent for pattern in ('*/metadata.yaml', '*/*/metadata.yaml')
+                       for p in bag.glob(pattern))
+        if inner:
+            raise ValueError(f'{bag} is a results directory, not a bag; pass one of its bags: '
+                             + ', '.join(str(p) for p in inner)
+                             + (f' (the RTHS run: {bag / "rths" / "bag"})'
+                                if bag / 'rths' / 'bag' in inner else ''))
+    return bag
+
+
+def _holds_bag_files(path: Path) -> bool:
+    return (path / 'metadata.yaml').exists() or any(
+        p.suffix in ('.mcap', '.db3') for p in path.iterdir())
 
 
 def run_info(bag) -> dict:

@@ -62,7 +62,10 @@ def register(commands, benches):
                     'constraint-violating designs. With --auto --bandwidth HZ it searches '
                     'scheme, n and fc and explains its choice. Schemes: '
                     + '; '.join(f'{n}: {s.summary}' for n, s in SCHEMES.items() if s.designer))
-    p.add_argument('--plant', required=True, help='plant file from rths identify')
+    p.add_argument('--plant', required=True,
+                   help='plant file from rths identify, or the updated_model.yaml of rths '
+                        'discrepancy --scenario actuator (its time_delay and linear loop '
+                        'loads folded into the ARX; other effects refused)')
     p.add_argument('--scheme', choices=designed(), help='compensator scheme')
     p.add_argument('--taps', type=int, default=100, help='FIR length n of H (100)')
     p.add_argument('--fc', type=float, default=64.0, help='FIR passband edge fc [Hz] (64)')

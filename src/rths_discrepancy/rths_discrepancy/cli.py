@@ -45,16 +45,16 @@ def _restoring_cmd(args) -> int:
     if args.model:
         raise ValueError('--model does not apply to the restoring-force scenario: its nominal '
                          'model m a + c v + k x is fitted from the record')
-    if _is_bag(args.measured):
-        raise ValueError('the restoring-force scenario reads a CSV with the columns '
-                         f'{", ".join(restoring.COLUMNS)} (optional velocity_m_s), not a bag')
     if not os.path.exists(args.measured):
         raise OSError(f'--measured {args.measured}: no such file')
-    data = restoring.load_csv(args.measured)
+    if _is_bag(args.measured):
+        data = restoring.validate(restoring.read_bag(args.measured), source=args.measured)
+    else:
+        data = restoring.load_csv(args.measured)
     from rths_common.progress import Progress
 
     with Progress(0, 'candidate models') as bar:
-        res = restoring.run(data, out_dir=args.out, progress=lambda text: bar.write(text),
+        res = restoring.run(data, out_dir=args.out, progress=bar.note,
                             source=os.path.basename(args.measured), count=bar.report)
     print(f"effect: {res['effect']}")
     for name, par in res['parameters'].items():
@@ -95,7 +95,7 @@ def bench_real_cmd(args) -> int:
 
     with Progress(len(restoring.REAL), 'real records') as bar:
         summary = restoring.run_real(data_dir, out_dir=args.reports,
-                                     progress=lambda text: bar.write(text), count=bar.report)
+                                     progress=bar.note, count=bar.report)
     tmp = f'{args.out}.tmp'
     with open(tmp, 'w') as fh:
         json.dump(summary, fh, indent=1)
@@ -145,7 +145,7 @@ def _io_cmd(args) -> int:
     from rths_common.progress import Progress
 
     with Progress(0, 'io discrepancy') as bar:
-        res = iodisc.run(train, test, out_dir=args.out, progress=lambda text: bar.write(text))
+        res = iodisc.run(train, test, out_dir=args.out, progress=bar.note)
     print(f"effect: {res['effect']}")
     for name, p in res['per_output'].items():
         print(f"  {name}: held-out NRMSE linear {p['nrmse_baseline']:.4f} (ARX reference "
@@ -170,17 +170,30 @@ def run_discrepancy_cmd(args) -> int:
 
     from rths_discrepancy import models
     from rths_discrepancy.workflow import run_discrepancy
-    data = _read_measured(args.measured, args.scenario)
-    model = models.load_model(args.scenario, args.model) if args.model else None
     run = None  # (numerical, bridge) parameters of an RTHS bag, for the reference re-run
     if args.scenario == 'specimen' and _is_bag(args.measured) and os.path.isdir(args.measured):
+        from rths_common import bagio, runinfo
         from rths_discrepancy import rerun
+        bridge = runinfo.section(bagio.run_info(args.measured), 'bridge')
+        if bridge and not rerun.has_table_mass(bridge):
+            from rths_numerical.specimens import specimen_of
+
+            if args.model:
+                raise ValueError(f"--model: the run's specimen {specimen_of(bridge)} is no mass "
+                                 'on the table (eq. 46); drop --model, its force is analysed '
+                                 'by the restoring-force scenario')
+            _say(f"the run's specimen {specimen_of(bridge)} is no mass on the table (eq. 46): "
+                 'its measured force is analysed by the restoring-force scenario')
+            return _restoring_cmd(args)
         try:
             run = rerun.run_parameters(args.measured, args.config)
         except ValueError as err:
             _say(f'note: {err}; the nominal model is the default valve #4 and the reference '
                  'is not re-run')
-        if run is not None and model is None:
+    data = _read_measured(args.measured, args.scenario)
+    model = models.load_model(args.scenario, args.model) if args.model else None
+    if run is not None:
+        if model is None:
             from rths_numerical.specimens import specimen_of
 
             model = rerun.run_damper_model(run[1])
@@ -191,7 +204,7 @@ def run_discrepancy_cmd(args) -> int:
 
     with Progress(0, 'candidate models') as bar:
         res = run_discrepancy(args.scenario, data, model=model, out_dir=args.out,
-                              progress=lambda text: bar.write(text), count=bar.report)
+                              progress=bar.note, count=bar.report)
     for line in res['localization']['summary']:
         print(f'where: {line}')
     print(f"effect: {res['effect']}")

@@ -73,6 +73,12 @@ def run_parameters(bag, config=None) -> tuple:
     return core_params(numerical), core_params(bridge)
 
 
+def has_table_mass(bridge: dict) -> bool:
+    """Return True if the run's ``specimen`` is a mass on the table (a DTM, eq. 46)."""
+    return SPECIMENS.entry(specimen_of(bridge), "the run's bridge parameter").table_mass \
+        is not None
+
+
 def run_damper_model(bridge: dict) -> models.SpecimenModel:
     """Nominal specimen model of a run: the mass on the table of the bridge's ``specimen``."""
     name = specimen_of(bridge)
