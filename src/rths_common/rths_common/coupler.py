@@ -54,7 +54,7 @@ class Coupler:
 
     @property
     def n(self) -> int:
-        """Number of actuators."""
+        """Return the number of actuators."""
         return len(self.d)
 
     @staticmethod
