@@ -96,6 +96,11 @@ class FixedFir:
 
     name = 'fir'
 
+    @classmethod
+    def options_from_params(cls, params: dict) -> dict:
+        """Return the constructor options read from compensator parameters (none)."""
+        return {}
+
     def __init__(self, taps, denominator=(1.0,)):
         self._filter = MultiChannelFilter(taps, denominator, n_channels=1)
         self._x = np.zeros(1)
@@ -127,6 +132,11 @@ class AdaptiveMethod:
     """Shared guard logic; subclasses implement ``_command``, ``_adapt`` and ``coefficients``."""
 
     name = ''
+
+    @classmethod
+    def options_from_params(cls, params: dict) -> dict:
+        """Return the constructor options the method reads from compensator parameters."""
+        return {}
 
     @classmethod
     def from_design(cls, design: Design, plant=None, guards: Guards = None, **options):
@@ -655,9 +665,5 @@ def methods_from_params(params: dict, n_channels: int) -> ChannelMethods:
             raise ValueError(f'parameter method = {name}: parameter provenance.plant (the '
                              'plant.yaml the FIR was designed on) is missing')
         plant = load_plant(path)
-    options = {}
-    if entry.feedback:
-        # lazy: .feedback imports this module (its methods subclass AdaptiveMethod)
-        from .feedback import options_from_params
-        options = options_from_params(params)
+    options = entry.method_class().options_from_params(params)
     return ChannelMethods(name, design, plant, n_channels, **options)

@@ -32,17 +32,18 @@ KP, KI = 2.0, 95.0
 LEAD = ((50.8316, 8570.40), (1.0, 8570.40))
 
 
-def options_from_params(params: dict) -> dict:
-    """Return the PiLead options of compensator parameters (``pi_lead_*``, paper defaults)."""
-    return {'kp': float(params.get('pi_lead_kp', KP)), 'ki': float(params.get('pi_lead_ki', KI)),
-            'lead_num': tuple(params.get('pi_lead_num', LEAD[0])),
-            'lead_den': tuple(params.get('pi_lead_den', LEAD[1]))}
-
-
 class PiLead(AdaptiveMethod):
     """``u = G_C (G_T target - measured)`` (see module doc), Tustin at the design's rate."""
 
     name = 'pi_lead'
+
+    @classmethod
+    def options_from_params(cls, params: dict) -> dict:
+        """Return the options of compensator parameters (``pi_lead_*``, paper defaults)."""
+        return {'kp': float(params.get('pi_lead_kp', KP)),
+                'ki': float(params.get('pi_lead_ki', KI)),
+                'lead_num': tuple(params.get('pi_lead_num', LEAD[0])),
+                'lead_den': tuple(params.get('pi_lead_den', LEAD[1]))}
 
     def __init__(self, design: Design, guards=None, kp=KP, ki=KI, lead_num=LEAD[0],
                  lead_den=LEAD[1]):
