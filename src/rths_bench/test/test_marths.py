@@ -91,19 +91,23 @@ def _record(tmp_path, seconds=2.0):
     return str(path)
 
 
-def test_uncompensated_run_lags_and_mimo_tracks_better(tmp_path):
+def test_uncompensated_run_lags_and_mimo_and_ats_track_better(tmp_path):
     rec = _record(tmp_path)
     none = mr.run_benchmark('none', rec, n_draws=1, seed=5, log=lambda m: None)
     mimo = mr.run_benchmark('mimo', rec, n_draws=1, seed=5, log=lambda m: None,
                             options={'record_s': 6.0})
-    for s in (none, mimo):
+    ats = mr.run_benchmark('ats', rec, n_draws=1, seed=5, log=lambda m: None,
+                           options={'record_s': 6.0})
+    for s in (none, mimo, ats):
         assert set(s['nominal']) == set(mr.J_NAMES)
         assert len(s['nominal']['J8']) == 4 and len(s['uncertain_mean']['J2']) == 2
         assert s['realizable'] is True and s['unstable'] == 0
     # the plant's slow pole (2.65 Hz) makes the uncompensated actuators lag by >10 ms
     assert min(none['nominal']['J1']) > 10
-    assert all(m < n for m, n in zip(mimo['nominal']['J2'], none['nominal']['J2'],
-                                     strict=True))
+    for s in (mimo, ats):
+        assert all(m < n for m, n in zip(s['nominal']['J2'], none['nominal']['J2'],
+                                         strict=True))
+    assert ats['settings']['controller']['status_nominal'] == ['adapting', 'adapting']
     cross = mimo['settings']['controller']['cross_coupling']
     assert 0.05 < min(cross) and max(cross) < 0.3      # nominal: 0.131/0.864, 0.140/0.926
     files = mr.write_outputs(mimo, str(tmp_path / 'out'), plots=False)
