@@ -619,11 +619,12 @@ def make_controller(name: str, cfg: dict, batch: int, options: dict = None, log=
 
 
 # ----------------------------------------------------------------------------- the loop
-def run_batch(cfg: dict, ag, plant_list: list, controller, seed: int = 0) -> dict:
+def run_batch(cfg: dict, ag, plant_list: list, controller, seed: int = 0,
+              progress=None) -> dict:
     """Run the loop for every plant of ``plant_list`` under ``ag`` [m/s^2] at fs.
 
     Returns the time histories (sample, run[, channel]) the criteria need and the
-    reference's (sample[, channel]).
+    reference's (sample[, channel]); ``progress(done, total)`` is called every 1024 steps.
     """
     fs = cfg['fs_hz']['value']
     dt = 1.0 / fs
@@ -671,6 +672,8 @@ def run_batch(cfg: dict, ag, plant_list: list, controller, seed: int = 0) -> dic
         r['x'][k], r['theta'][k] = 1000.0 * u_ref[dofs['x']], -u_ref[dofs['theta']]
         r['x2'][k], r['th2'][k] = u_ref[dofs['x_2nd']], u_ref[dofs['theta_2nd']]
         r['x3'][k], r['th3'][k] = u_ref[dofs['x_3rd']], u_ref[dofs['theta_3rd']]
+        if progress and (k + 1) % 1024 == 0:
+            progress(k + 1, n)
     out['reference'] = r
     return out
 
@@ -755,8 +758,10 @@ def run_benchmark(controller: str = 'none', record: str = 'elcentro', n_draws: i
     ctrl = make_controller(controller, cfg, len(plants), options, log=log)
     log(f'maRTHS: {controller}, {record}, {len(ag)} samples at {fs:g} Hz, nominal + '
         f'{n_draws} uncertain plants')
+    from rths_common.progress import Progress
     t_loop = time.perf_counter()
-    h = run_batch(cfg, ag, plants, ctrl, seed=seed + 1)
+    with Progress(len(ag), f'maRTHS {controller} ({len(plants)} plants)', 'steps') as bar:
+        h = run_batch(cfg, ag, plants, ctrl, seed=seed + 1, progress=bar.report)
     loop_s = time.perf_counter() - t_loop
     rows = [criteria(h, i, fs) for i in range(len(plants))]
     coupler = Coupler.from_offsets(cfg['coupler']['offsets_m'])
