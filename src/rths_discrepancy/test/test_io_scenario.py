@@ -117,8 +117,9 @@ def _data_dir(name):
 def test_cascaded_tanks_against_the_published_errors():
     # Cascaded tanks benchmark (Schoukens, Mattsson, Wigren, Noel 2016; data via
     # forgi86/dynonet, MIT repository): test-record RMSE [V] of the simulated level.
-    # Published (Math. Probl. Eng. 2021, 6613425, Table 2, validation column): BLA 0.7574,
-    # Volterra 3rd degree with transient removal 0.5400, PNLSS-I 0.4498.  The benchmark
+    # Published (Math. Probl. Eng. 2021, 6613425, Table 2, column "MSE (validation)", read
+    # as the benchmark's e_RMS): BLA 0.7574, Volterra 3rd degree with transient removal
+    # 0.5400, PNLSS-I 0.4498.  The benchmark
     # document names a hard (overflow) saturation with weakly nonlinear outflows.
     train, test = devsets.cascaded_tanks(_data_dir('cascaded_tanks'))
     res = iodisc.run(train, test, plots=False)
