@@ -9,7 +9,7 @@ import pytest
 from scipy import signal
 
 from rths_common.testing import require_data
-from rths_discrepancy import devsets, iodisc, linear
+from rths_discrepancy import devsets, iodisc, ioreport, linear
 from rths_discrepancy import signals as sg
 
 
@@ -172,3 +172,12 @@ def test_quiet_silences_the_io_scenario_progress(tmp_path, monkeypatch, capsys):
     assert main(args + ['--quiet']) == 0
     out = capsys.readouterr()
     assert out.err == '' and 'effect:' in out.out
+
+
+def test_report_names_a_diverged_candidate_instead_of_printing_its_error():
+    # A candidate whose free run is unstable (the tanks' backlash block reached 4e144)
+    # reads as diverged, not as an error size; an unfitted one as '-'.
+    assert ioreport.nrmse_cell(4.1e144) == 'diverged (free run unstable)'
+    assert ioreport.nrmse_cell(float('nan')) == 'diverged (free run unstable)'
+    assert ioreport.nrmse_cell(None) == '-'
+    assert ioreport.nrmse_cell(0.21634) == '0.2163'
