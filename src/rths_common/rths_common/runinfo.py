@@ -9,6 +9,7 @@ Values are strings in the bag; :func:`section` parses them back with YAML.
 
 import datetime
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -21,10 +22,8 @@ def load_params(path, node: str) -> dict:
     path = Path(path)
     if not path.is_file():
         raise OSError(f'params file {path} not found')
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as err:
-        raise ValueError(f'{path}: not valid YAML ({err})') from None
+    from rths_common import yamlfile
+    doc: Any = yamlfile.load(path)
     try:
         params = doc[node]['ros__parameters']
     except (TypeError, KeyError):

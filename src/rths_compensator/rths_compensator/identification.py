@@ -137,12 +137,8 @@ def load_plant(path) -> ArxModel:
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise OSError(f"{path}: plant file not found; create it with 'rths identify'")
-    with open(path, encoding='utf-8') as handle:
-        try:
-            data = yaml.safe_load(handle)
-        except yaml.YAMLError as err:
-            raise ValueError(f'{path}: not valid YAML ({err})') from None
-    return ArxModel.from_dict(data, where=path)
+    from rths_common import yamlfile
+    return ArxModel.from_dict(yamlfile.load(path), where=path)
 
 
 def _plain(value):

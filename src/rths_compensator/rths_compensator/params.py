@@ -31,6 +31,7 @@ import textwrap
 import numpy as np
 import yaml
 
+from rths_common import yamlfile
 from rths_common.files import atomic_open
 from rths_common.params import LOOP_RATE_RANGE_HZ
 from rths_common.timebase import format_hz, same_rate
@@ -167,11 +168,7 @@ def load_compensator_params(path) -> dict:
     if not os.path.isfile(path):
         raise OSError(f'{path}: compensator parameters file not found; create it with '
                       "'rths design' or use identity_params()")
-    with open(path, encoding='utf-8') as handle:
-        try:
-            doc = yaml.safe_load(handle)
-        except yaml.YAMLError as err:
-            raise ValueError(f'{path}: not valid YAML ({err})') from None
+    doc = yamlfile.load(path)
     if not isinstance(doc, dict) or 'compensator' not in doc:
         raise ValueError(f"{path}: top-level key 'compensator' missing; the file must start "
                          "with 'compensator:' then 'ros__parameters:'")

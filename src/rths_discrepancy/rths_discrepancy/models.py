@@ -276,13 +276,8 @@ def model_from_dict(scenario: str, spec: dict, where: str = 'model'):
 
 def load_model(scenario: str, path):
     """Load a model YAML file (ValueError names the file and the problem)."""
-    import yaml
-    with open(path) as fh:
-        try:
-            spec = yaml.safe_load(fh)
-        except yaml.YAMLError as err:
-            raise ValueError(f'{path}: not valid YAML ({err})') from None
-    return model_from_dict(scenario, spec, where=str(path))
+    from rths_common import yamlfile
+    return model_from_dict(scenario, yamlfile.load(path), where=str(path))
 
 
 def with_effects(model, effects: dict):

@@ -351,7 +351,5 @@ def model_from_dict(data, source='model'):
 
 def load_model_yaml(path):
     """Read a model YAML file (see the module docstring)."""
-    import yaml
-    with open(path) as fh:
-        data = yaml.safe_load(fh)
-    return model_from_dict(data, source=str(path))
+    from rths_common import yamlfile
+    return model_from_dict(yamlfile.load(path), source=str(path))
