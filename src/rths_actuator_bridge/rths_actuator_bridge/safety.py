@@ -94,7 +94,7 @@ SAFETY_PARAMS = {
     'safe_position_m': (0.0, '[m] position the actuator ramps to after a fault'),
     'ramp_time_s': (2.0, '[s] nominal duration of the ramp to the safe position'),
     'hold_time_s': (0.25, '[s] time the position is held before ramping'),
-    'launcher_loss_stop_s': (0.4, '[s] hold + ramp of the safe stop when the launcher '
+    'launcher_loss_stop_s': (0.3, '[s] hold + ramp of the safe stop when the launcher '
                              'supervising the run dies (its processes must be gone within 1 s)'),
     'watchdog_steps': (10, '[steps] missing commands in a row that trip the watchdog'),
     'stall_limit_s': (0.5, '[s] longest stall of the loop itself (its clock) that resumes; a '
@@ -145,7 +145,7 @@ class SafetyLimits:
     safe_position_m: float = 0.0
     ramp_time_s: float = 2.0
     hold_time_s: float = 0.25
-    launcher_loss_stop_s: float = 0.4
+    launcher_loss_stop_s: float = 0.3
     watchdog_steps: int = 10
     stall_limit_s: float = 0.5
     max_invalid_measurements: int = 3

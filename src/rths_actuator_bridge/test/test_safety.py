@@ -204,7 +204,7 @@ def test_emergency_stop():
 
 @pytest.mark.parametrize('within_s', [None, 0.4])
 def test_a_stop_within_a_time_budget_still_ends_at_the_safe_position_within_limits(within_s):
-    # the launcher died: hold and ramp shortened to launcher_loss_stop_s (0.4 s), against
+    # the launcher died: hold and ramp shortened to launcher_loss_stop_s (0.4 s here), against
     # the configured 0.25 s hold and 2 s ramp of an ordinary stop
     lim = SafetyLimits(fs_hz=FS, velocity_m_s=1.0, acceleration_m_s2=400.0, hold_time_s=0.25,
                        ramp_time_s=2.0)
