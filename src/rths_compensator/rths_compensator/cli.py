@@ -9,6 +9,17 @@
 
 import sys
 
+from rths_common.columns import read_columns
+
+from .schemes import SCHEMES, designed
+
+#: What a design reports beside its options, kept in the provenance.
+DESIGN_RESULTS = ('a_tilde', 'model', 'q', 'solver', 'auto_score', 'bandwidth_hz')
+#: Design option -> the ``rths design`` argument that gives it (``--option KEY=VALUE`` gives
+#: any other option a scheme names).
+OPTION_ARGS = {'n_taps': 'taps', 'fc_hz': 'fc', 'epsilon': 'epsilon', 'zero_tol': 'zero_tol',
+               'alpha': 'alpha', 'poles': 'mff_model', 'delay_ms': 'delay_ms', 'band_hz': 'band'}
+
 
 def _log(msg):
     print(msg, file=sys.stderr, flush=True)
@@ -41,16 +52,14 @@ def register(commands, benches):
 
     p = commands.add_parser(
         'design', help='design a delay compensator from plant.yaml -> ROS 2 parameters file',
-        description='Design the FIR compensator (ls, wls, mm; eq. 28-36) or a comparison '
-                    'compensator (inverse eq. 2, mff eq. 4, npz eq. 8, zpetc eq. 12, zmetc '
-                    'eq. 14) for the plant and write the compensator node parameters (taps, '
-                    'denominator, provenance, predicted delay and gain error). Refuses (exit 2, '
-                    'nothing written) unstable, non-finite or constraint-violating designs. '
-                    'With --auto --bandwidth HZ it searches scheme, n and fc and explains its '
-                    'choice.')
+        description='Design a compensator scheme for the plant and write the compensator node '
+                    'parameters (taps, denominator, provenance, predicted delay and gain '
+                    'error). Refuses (exit 2, nothing written) unstable, non-finite or '
+                    'constraint-violating designs. With --auto --bandwidth HZ it searches '
+                    'scheme, n and fc and explains its choice. Schemes: '
+                    + '; '.join(f'{n}: {s.summary}' for n, s in SCHEMES.items() if s.designer))
     p.add_argument('--plant', required=True, help='plant file from rths identify')
-    p.add_argument('--scheme', choices=('ls', 'wls', 'mm', 'inverse', 'mff', 'npz', 'zpetc',
-                                        'zmetc'), help='compensator scheme')
+    p.add_argument('--scheme', choices=designed(), help='compensator scheme')
     p.add_argument('--taps', type=int, default=100, help='FIR length n of H (100)')
     p.add_argument('--fc', type=float, default=64.0, help='FIR passband edge fc [Hz] (64)')
     p.add_argument('--epsilon', type=float, default=None,
@@ -67,6 +76,8 @@ def register(commands, benches):
                    help='inverse: actuator delay [ms] (default: from the plant over --band)')
     p.add_argument('--band', type=float, default=20.0,
                    help='band [Hz] for the predicted indicators of non-FIR schemes (20)')
+    p.add_argument('--option', action='append', default=[], metavar='KEY=VALUE',
+                   help='a design option of the scheme that has no flag of its own (repeatable)')
     p.add_argument('--auto', action='store_true', help='search scheme, n, fc (needs --bandwidth)')
     p.add_argument('--bandwidth', type=float, help='operating bandwidth [Hz] for --auto')
     p.add_argument('--out', required=True, help='parameters file to write (YAML)')
@@ -112,8 +123,7 @@ def register(commands, benches):
 def _read_run(args, path):
     from rths_common.timebase import infer_rate
 
-    from .io import read_csv_columns
-    cols = read_csv_columns(path, ('time', 'command', 'measured'))
+    cols = read_columns(path, ('time', 'command', 'measured'))
     rate = infer_rate(cols['time'], path)
     _log(f'{path}: sampling rate {rate}')
     return cols['time'], cols['command'], cols['measured'], rate.fs_hz
@@ -183,9 +193,9 @@ def cmd_design(args) -> int:
     if not 0 < zero_tol <= 1:
         raise ValueError(f'--zero-tol must lie in (0, 1], got {zero_tol}')
     if (args.zero_tol is not None and not args.auto and args.scheme
-            and args.scheme not in dsg.FIR_SCHEMES):
-        raise ValueError(f'--zero-tol applies to the FIR schemes (ls, wls, mm) and --auto, '
-                         f'not to --scheme {args.scheme}; drop it')
+            and not SCHEMES.entry(args.scheme).fir):
+        raise ValueError(f'--zero-tol applies to the FIR schemes ({", ".join(dsg.FIR_SCHEMES)}) '
+                         f'and --auto, not to --scheme {args.scheme}; drop it')
     if args.auto:
         if not args.bandwidth:
             raise ValueError('--auto needs --bandwidth HZ (the operating bandwidth)')
@@ -211,21 +221,15 @@ def cmd_design(args) -> int:
               f"{top['gain_error_db']:.3f} dB")
     else:
         if not args.scheme:
-            raise ValueError('give --scheme (ls, wls, mm, inverse, mff, npz, zpetc, zmetc) '
-                             'or --auto --bandwidth HZ')
-        opts = {}
-        if args.scheme in dsg.FIR_SCHEMES:
+            raise ValueError(f'give --scheme ({", ".join(designed())}) or --auto --bandwidth HZ')
+        scheme = SCHEMES.entry(args.scheme, '--scheme')
+        if scheme.fir:
             from .params import check_filter_cost
             check_filter_cost(args.taps, plant.fs_hz, f'--taps {args.taps}')
-            opts = {'n_taps': args.taps, 'fc_hz': args.fc, 'epsilon': eps,
-                    'zero_tol': zero_tol}
-            band = args.fc
-        else:
-            band = args.band
-            if args.scheme == 'inverse':
-                opts = {'delay_ms': args.delay_ms, 'band_hz': args.band}
-            elif args.scheme == 'mff':
-                opts = {'alpha': args.alpha, 'poles': args.mff_model}
+        given = dict(vars(args), epsilon=eps, zero_tol=zero_tol)
+        opts = {key: given[OPTION_ARGS[key]] for key in scheme.options if key in OPTION_ARGS}
+        opts.update(_options(args.option, scheme.options))
+        band = args.fc if scheme.fir else args.band
         comp = dsg.design(plant, args.scheme, **opts)
     pred = dsg.predict(plant, comp, band)
     if not all(np.isfinite(v) for v in pred.values()):
@@ -235,8 +239,7 @@ def cmd_design(args) -> int:
             'predicted_delay_ms': pred['delay_ms'],
             'predicted_gain_error_db': pred['gain_error_db'],
             'predicted_highpass_gain_db': pred['highpass_gain_db']}
-    for key in ('n_taps', 'fc_hz', 'epsilon', 'zero_tol', 'alpha', 'delay_ms', 'a_tilde',
-                'model', 'q', 'solver', 'auto_score', 'bandwidth_hz'):
+    for key in SCHEMES.entry(comp.scheme).options + DESIGN_RESULTS:
         if key in comp.info:
             prov[key] = comp.info[key]
     write_compensator_params(args.out, comp.taps, comp.denominator, comp.fs_hz, comp.scheme,
@@ -247,6 +250,21 @@ def cmd_design(args) -> int:
           f'high-pass gain above {pred["highpass_gain_db"]:.1f} dB')
     print(f'wrote {args.out}')
     return 0
+
+
+def _options(pairs, allowed) -> dict:
+    """``--option KEY=VALUE`` pairs as a dict (numbers as floats); refuse keys not ``allowed``."""
+    out = {}
+    for pair in pairs:
+        key, sep, value = pair.partition('=')
+        if not sep or key not in allowed:
+            raise ValueError(f'--option {pair}: give KEY=VALUE with KEY one of '
+                             f'{", ".join(allowed) or "(none: this scheme takes no options)"}')
+        try:
+            out[key] = float(value)
+        except ValueError:
+            out[key] = value
+    return out
 
 
 def _snap_plant_rate(plant, where) -> None:
@@ -264,10 +282,10 @@ def cmd_compensate(args) -> int:
     from rths_common.timebase import format_hz, same_rate, sampling_rate_hz
 
     from .filters import CausalFilter
-    from .io import read_csv_columns, write_csv_columns
+    from .io import write_csv_columns
     from .params import load_compensator_params
     params = load_compensator_params(args.params)
-    cols = read_csv_columns(args.csv, ('time', 'command'))
+    cols = read_columns(args.csv, ('time', 'command'))
     fs = sampling_rate_hz(cols['time'], args.csv)
     if not same_rate(fs, params['fs_hz']):
         raise ValueError(f'{args.csv}: sampling rate {format_hz(fs)} Hz differs from fs_hz '

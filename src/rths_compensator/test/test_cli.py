@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from rths_common.columns import read_columns
 from rths_compensator import cli
 from rths_compensator.identification import load_plant
-from rths_compensator.io import read_csv_columns
 from rths_compensator.params import load_compensator_params
 
 FS = 256.0
@@ -63,7 +63,7 @@ def test_identify_design_compensate_chain(tmp_path, run_csv, capsys):
     out_path = tmp_path / 'out.csv'
     assert _run(['compensate', '--params', str(comp_path), '--csv', str(csv_path),
                  '--out', str(out_path)]) == 0
-    cols = read_csv_columns(out_path, ('time', 'command', 'compensated'))
+    cols = read_columns(out_path, ('time', 'command', 'compensated'))
     ref = signal.lfilter(params['taps'], params['denominator'], cols['command'])
     np.testing.assert_allclose(cols['compensated'], ref, rtol=1e-8,
                                atol=1e-9 * np.max(np.abs(ref)))
@@ -221,7 +221,7 @@ def test_design_and_launch_take_a_rate_to_its_printed_digits(tmp_path, run_csv):
 def test_identify_refuses_command_and_measured_swapped(tmp_path, run_csv):
     # the swapped record fit as well and gave the inverse plant without a word
     from rths_compensator.causality import response_lag_s
-    cols = read_csv_columns(run_csv[0], ('time', 'command', 'measured'))
+    cols = read_columns(run_csv[0], ('time', 'command', 'measured'))
     assert response_lag_s(cols['command'], cols['measured'], FS) > 0
     swapped = tmp_path / 'swapped.csv'
     np.savetxt(swapped, np.column_stack([cols['time'], cols['measured'], cols['command']]),
