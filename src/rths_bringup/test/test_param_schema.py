@@ -248,8 +248,7 @@ def test_preflight_refuses_a_value_outside_its_range(tmp_path):
     ('numerical:\n  ros__parameters:\n    fs_hz: 1024.0\n    mode: realtime\n'
      '    fs_hz: 512.0\n', "key 'fs_hz' is given twice (lines 3 and 5)"),
 ])
-def test_rths_launch_refuses_a_broken_or_doubled_numerical_yaml_in_one_line(tmp_path, text,
-                                                                           words):
+def test_rths_launch_refuses_a_broken_or_doubled_numerical_yaml(tmp_path, text, words):
     # 'rths launch' read numerical.yaml for the timing mode before the pre-flight check and
     # ended in a YAMLError traceback; a key given twice silently took the last value
     from rths_bringup.commands import launch
