@@ -36,7 +36,7 @@ def _sections():
 
 @pytest.fixture(scope='module')
 def loop():
-    """Per-step arrays of the offline loop (4 s, under a second to compute)."""
+    """Return the offline closed loop, per step (4 s of the record, under a second)."""
     from rths_bringup.offline import offline_rths
 
     s = _sections()
