@@ -77,11 +77,12 @@ def test_sigkill_of_the_supervisor_mid_run_stops_everything_safely(tmp_path, lay
     bag = out / 'rths' / 'bag'
     assert list(bagio.read_messages(bag, [topics.STATUS]))   # closed: it opens and reads
     if layout == 'processes':
-        # the recorder reads the loop over DDS at nice 10; on a loaded machine it lags the
-        # loop by seconds and the bag may end before the safe stop: closed and readable, and
-        # the review reviews it or says it is too short
+        # the recorder reads the loop over DDS at nice 10 and best-effort; on a loaded machine
+        # it lags the loop by seconds or loses steps, and the bag may end before the safe
+        # stop: closed and readable, reviewed or refused in one line (never a traceback)
         review = rths('review', bag, '--out', tmp_path / 'review', timeout=300, check=False)
-        assert review.returncode == 0 or 'the review needs at least 2 s' in review.stderr
+        assert review.returncode == 0 or (review.returncode == 2 and review.stderr.startswith(
+            'rths review: error: ') and review.stderr.count('\n') == 1), review.stderr
         return
     status = [(int(m.step), int(m.safety_state), m.fault)
               for _, _, m in bagio.read_messages(bag, [topics.STATUS]) if m.node == 'bridge']
