@@ -19,7 +19,6 @@ from std_msgs.msg import String, UInt64
 
 from rths_common import lifeline, topics
 from rths_common import node_support as ns
-from rths_common.params import renamed
 from rths_common.qos import loop_qos, run_info_qos, status_qos
 from rths_common.stepping import Driver, TickClock
 from rths_common.transport import Transport

@@ -132,7 +132,6 @@ def _longest_run(index) -> int:
     return int(np.max(np.diff(bounds)))
 
 
-
 def _pct(values, q):
     values = [v for v in values if v >= 0]
     return round(float(np.percentile(values, q)), 1) if values else None
