@@ -13,6 +13,9 @@ import os
 import sys
 import time
 
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
+
 
 def _say(text):
     print(text, file=sys.stderr, flush=True)

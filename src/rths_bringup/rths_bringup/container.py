@@ -35,12 +35,18 @@ collector frozen after start-up (:func:`rths_common.node_support.tune_process`).
 
 import argparse
 import ctypes
+import os
 import sys
 
 import rclpy
+from rclpy.utilities import remove_ros_args
 
+from rths_actuator_bridge.node import BridgeNode
+from rths_bringup.tee import Tee, TeePublisher, enlarge_pipe
 from rths_common import lifeline, yamlfile
 from rths_common import node_support as ns
+from rths_compensator.node import CompensatorNode
+from rths_numerical.node import NumericalNode
 
 EXIT_FAILED = 1
 EXIT_BAD_PARAMS = 2
@@ -57,8 +63,6 @@ NODE_NAMES = ('numerical', 'bridge', 'compensator')
 
 def parse_args(argv) -> argparse.Namespace:
     """Parse the container's own options (everything outside ``--ros-args``)."""
-    from rclpy.utilities import remove_ros_args
-
     p = argparse.ArgumentParser(prog='container', description=__doc__.split('\n')[0])
     p.add_argument('--tee-fd', type=int, default=-1,
                    help='pipe to copy every recorded message into (the recorder reads it)')
@@ -105,14 +109,11 @@ def lock_memory() -> str:
     libc = ctypes.CDLL(None, use_errno=True)
     if libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) == 0:
         return 'memory locked'
-    import os
     return f'memory not locked (mlockall refused: {os.strerror(ctypes.get_errno())})'
 
 
 def tee_publishers(shells, fd: int, n_steps: int):
     """Wrap every recorded publisher of ``shells`` in a tee to ``fd``; return the Tee."""
-    from rths_bringup.tee import Tee, TeePublisher, enlarge_pipe
-
     enlarge_pipe(fd)
     tee = Tee(fd, capacity=TEE_RECORDS_PER_STEP * n_steps + TEE_SLACK_RECORDS)
     for shell in shells:
@@ -127,9 +128,6 @@ class Container:
     """The three loop nodes of a run, constructed in this process."""
 
     def __init__(self, argv):
-        from rths_actuator_bridge.node import BridgeNode
-        from rths_compensator.node import CompensatorNode
-        from rths_numerical.node import NumericalNode
 
         check_sections(argv)
         self.shells = {}

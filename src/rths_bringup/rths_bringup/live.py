@@ -36,7 +36,7 @@ import sys
 import threading
 import time
 
-from rths_common import topics
+from rths_common import bagio, cdr, topics
 
 #: Default WebSocket port of the live view (Foxglove's default).
 DEFAULT_PORT = 8765
@@ -228,6 +228,7 @@ class SubprotocolBridge:
 
 def layout() -> dict:
     """Return the Foxglove layout of the live view (plots of the ``/rths/live`` channel)."""
+    # lazy: optional dependency (foxglove)
     from foxglove import layouts as fl
 
     def plot(title, *series):
@@ -250,6 +251,7 @@ def layout() -> dict:
 def layout_path() -> Path:
     """Return the installed layout file (the source tree's when not installed)."""
     try:
+        # lazy: optional: tried here, refused with a clear message when missing
         from ament_index_python.packages import get_package_share_directory
         path = Path(get_package_share_directory('rths_bringup')) / 'foxglove' / 'rths_live.json'
         if path.is_file():
@@ -261,8 +263,6 @@ def layout_path() -> Path:
 
 def _status_fields(data: bytes) -> tuple:
     """Return ``(node, deadline_misses, safety_state, fault)`` of a LoopStatus's CDR."""
-    from rths_common import cdr
-
     r = cdr._Reader(data)
     r.unpack(cdr._TIME)
     r.string()                                   # header.frame_id
@@ -337,11 +337,14 @@ class LiveView:
     """The server and the subscriptions of the live-view process."""
 
     def __init__(self, host: str, port: int, rate_hz: float, fs_hz: float):
+        # lazy: optional dependency (foxglove)
         import foxglove
+
+        # lazy: start-up cost: rclpy (~0.3 s), which this module needs only here
         import rclpy
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-        from rths_common import bagio
+        # lazy: start-up cost: rclpy (~0.3 s), which this module needs only here
         from rths_common.node_support import message_class
 
         # the SDK server on a private port; the bridge on the user's also takes the old name
@@ -370,7 +373,6 @@ class LiveView:
         self.node.create_timer(1.0 / rate_hz, self._publish_live)
 
     def _callback(self, topic):
-        from rths_common import cdr
 
         channel, due, state = self.channels[topic], self.decimator.due, self.state
 
@@ -397,6 +399,7 @@ class LiveView:
 
     def spin(self, parent: int):
         """Serve until SIGINT, SIGTERM or the death of process ``parent``; then close the server."""
+        # lazy: start-up cost: rclpy (~0.3 s), which this module needs only here
         from rths_common import node_support as ns
 
         # a SIGKILLed rths process must not leave the server behind

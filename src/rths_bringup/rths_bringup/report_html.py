@@ -9,6 +9,8 @@ import base64
 import html
 from pathlib import Path
 
+from rths_bringup.realtime import realtime_text
+
 #: The review's plots, in page order, with their captions.
 PLOTS = {
     'time_history.png': '2nd-floor displacement: RTHS, whole-numerical reference and '
@@ -107,8 +109,6 @@ def realtime_table(s: dict) -> str:
 
 def notes(s: dict) -> list:
     """Return the lines after the tables: real time, a cut-short run, faults, repairs."""
-    from rths_bringup.realtime import realtime_text
-
     lines = []
     if 'realtime_ok' in s:
         lines.append(realtime_text(s))

@@ -8,18 +8,24 @@ validates every key and reports bad ones by name.
 """
 
 import gc
+import importlib
 import os
 import signal
+import sys
 import threading
 import time
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from rths_common import lifeline
+from rths_common.params import check_spec
 from rths_msgs.msg import LoopStatus
 
 #: Parameters every rclpy node has; they are not passed to the plain-Python cores.
@@ -55,8 +61,6 @@ def _describe(node: Node, key: str, spec) -> None:
 
     An integer given for a float parameter (``fs_hz: 1024``) becomes a float.
     """
-    from rths_common.params import check_spec
-
     value = node.get_parameter(key)
     check_spec(key, value.value, spec)
     type_, alternative = value.type_, None
@@ -236,7 +240,6 @@ def status_msg(node_name: str, step: int, *, period_us=0.0, compute_us=0.0, late
 def make_executor(kind: str = 'events'):
     """Return an executor: 'events' (rclpy.experimental.EventsExecutor) or 'single'."""
     if kind == 'events':
-        from rclpy.experimental import EventsExecutor
         return EventsExecutor()
     if kind == 'single':
         return SingleThreadedExecutor()
@@ -388,8 +391,6 @@ class TickThread:
 
 def message_class(msgtype: str):
     """Python class of a message type given as ``pkg/msg/Name``."""
-    import importlib
-
     package, kind, name = msgtype.split('/')
     return getattr(importlib.import_module(f'{package}.{kind}'), name)
 
@@ -403,9 +404,6 @@ def flush(publishers, timeout_s: float = 2.0) -> bool:
     wait is at most ``lifeline.LOST_FLUSH_S``: the readers that died with it
     never answer, and the run's processes must be gone within a second.
     """
-    from rclpy.duration import Duration
-
-    from rths_common import lifeline
     if lifeline.lost():
         timeout_s = min(timeout_s, lifeline.LOST_FLUSH_S)
 
@@ -429,8 +427,6 @@ def wait_for_readers(node, publisher, wanted: int, timeout_s: float = 60.0) -> N
     """
     if wanted <= 0:
         return
-    from rths_common import lifeline
-
     t_end = time.monotonic() + timeout_s
     while publisher.get_subscription_count() < wanted:
         if lifeline.lost():
@@ -463,8 +459,6 @@ def own_writer_gid(node, topic: str) -> str:
 
 def params_file_of(argv) -> str:
     """``'PATH: '`` for the ``--params-file PATH`` of a node's argv ('' if none), for errors."""
-    import sys
-
     args = list(sys.argv if argv is None else argv)
     files = [args[i + 1] for i, a in enumerate(args[:-1]) if a == '--params-file']
     return f'params file {files[-1]}: ' if files else ''

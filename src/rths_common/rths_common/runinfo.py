@@ -13,6 +13,8 @@ from typing import Any
 
 import yaml
 
+from rths_common import yamlfile
+
 #: Parameters that are not worth keeping in run information (long arrays, node plumbing).
 SKIP = {'taps', 'denominator', 'history_out', 'executor', 'wait_for_subscribers'}
 
@@ -22,7 +24,6 @@ def load_params(path, node: str) -> dict:
     path = Path(path)
     if not path.is_file():
         raise OSError(f'params file {path} not found')
-    from rths_common import yamlfile
     doc: Any = yamlfile.load(path)
     try:
         params = doc[node]['ros__parameters']

@@ -26,6 +26,7 @@ import numpy as np
 
 from rths_common.gaps import DISPLACEMENT_ORDER
 from rths_common.stepping import GapPolicy, StaleStep, StepResult
+from rths_compensator.filters import MultiChannelFilter
 
 from .methods import method_of, uses_measurement
 
@@ -54,9 +55,9 @@ class CompensatorCore:
 
     def _build(self, n_channels: int):
         if self.adaptive:
+            # lazy: start-up cost: SciPy (~1 s), which this module needs only here
             from rths_compensator.adaptive import methods_from_params
             return methods_from_params(self.params, n_channels)
-        from rths_compensator.filters import MultiChannelFilter
         return MultiChannelFilter(self.params['taps'], self.params['denominator'],
                                   n_channels=n_channels)
 
@@ -66,8 +67,6 @@ class CompensatorCore:
         A method on the measurement is built here (imports, the plant) and stepped on
         throwaway copies; the run's own one starts fresh.
         """
-        from rths_compensator.filters import MultiChannelFilter
-
         MultiChannelFilter(self.params['taps'], self.params['denominator'],
                            n_channels=1).step(np.zeros(1))
         if self.adaptive:

@@ -24,7 +24,14 @@ from rths_common import node_support as ns
 from rths_common.qos import loop_qos, status_qos
 from rths_common.stepping import Driver
 from rths_common.transport import Transport
-from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus
+from rths_compensator.core import CompensatorCore
+from rths_compensator.params import (
+    check_compensator_params,
+    check_sampling_rate,
+    param_schema,
+    validate_filter,
+)
+from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus, Measurement
 
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
                'loop_fs_hz': 1024.0,
@@ -42,13 +49,6 @@ class CompensatorNode:
     """
 
     def __init__(self):
-        from rths_compensator.core import CompensatorCore
-        from rths_compensator.params import (
-            check_compensator_params,
-            check_sampling_rate,
-            param_schema,
-            validate_filter,
-        )
 
         self.node = ns.make_node('compensator', param_schema(NODE_PARAMS), NODE_PARAMS)
         params = ns.parameters(self.node)
@@ -107,10 +107,8 @@ class CompensatorNode:
 
     def _setup_adaptive(self):
         """Adaptive method (rths_compensator.adaptive): measurements in, coefficients out."""
-        from std_msgs.msg import Float64MultiArray
-
+        # lazy: start-up cost: SciPy (~1 s), which this module needs only here
         from rths_compensator.adaptive import methods_from_params
-        from rths_msgs.msg import Measurement
 
         methods_from_params(self.params, 1)          # check the method and its plant now
         self.pending = None                          # the displacement message waiting

@@ -36,6 +36,7 @@ from rths_common.files import atomic_open
 from rths_common.params import LOOP_RATE_RANGE_HZ, node_schema
 from rths_common.timebase import format_hz, same_rate
 
+from .methods import DEFAULT as DEFAULT_METHOD
 from .methods import METHODS
 from .schemes import SCHEMES
 
@@ -50,8 +51,8 @@ FILTER_PARAMS = {
 FILTER_RANGES = {'fs_hz': LOOP_RATE_RANGE_HZ}
 #: The compensator's method key (not a filter field): key -> (default, meaning).
 METHOD_PARAMS = {
-    'method': ('fir', 'the designed filter, an adaptive method started from it (needs '
-                      'provenance.plant) or pi_lead (docs/adaptive.md)'),
+    'method': (DEFAULT_METHOD, 'the designed filter, an adaptive method started from it '
+                               '(needs provenance.plant) or pi_lead (docs/adaptive.md)'),
     'pi_lead_kp': (2.0, '[-] pi_lead: proportional gain (Silva et al. 2020: 2)'),
     'pi_lead_ki': (95.0, '[1/s] pi_lead: integral gain (Silva et al. 2020: 95)'),
     'pi_lead_num': ([50.8316, 8570.4], '[s, -] pi_lead: lead numerator b1, b0 of '

@@ -28,7 +28,9 @@ import os
 import time
 
 import numpy as np
+from scipy.io import loadmat
 
+from rths_common import datasets
 from rths_common.columns import read_columns
 from rths_discrepancy import iodisc
 
@@ -71,7 +73,6 @@ def data_dir(explicit=None):
 
     That is ``$RTHS_DATA_DIR``, else ``../shared/data`` beside the repository.
     """
-    from rths_common import datasets
     d = explicit or datasets.data_dir()
     if d and os.path.isdir(d):
         return str(d)
@@ -99,8 +100,8 @@ def _read_csv(path):
 
 def bouc_wen(root):
     """Training multisine (train.h5) and the multisine test period of the Bouc-Wen benchmark."""
+    # lazy: optional dependency (h5py)
     import h5py
-    from scipy.io import loadmat
     d = os.path.join(root, 'bouc_wen')
     with h5py.File(os.path.join(d, 'train.h5'), 'r') as h:
         u, y = h['multisine/u'][:, 0], h['multisine/y'][:, 0]

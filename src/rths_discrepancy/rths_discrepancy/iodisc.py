@@ -37,8 +37,10 @@ import time
 import numpy as np
 from scipy import signal
 
+from rths_common.timebase import same_rate, sampling_rate_hz
+from rths_compensator.identification import ArxModel, _regression
 from rths_discrepancy import effects as fx
-from rths_discrepancy import linear
+from rths_discrepancy import ioreport, linear
 
 TRAIN_FRACTION = 0.6
 MIN_REL_GAIN = 0.05
@@ -87,7 +89,6 @@ def records_from_columns(columns, input_col, output_cols, fs=None, time_col=None
         raise ValueError(f'{source}: only {n} rows; the io scenario needs at least '
                          f'{MIN_SAMPLES} (training, validation and held-out parts)')
     if time_col:
-        from rths_common.timebase import same_rate, sampling_rate_hz
         fs_t = sampling_rate_hz(columns[time_col], where=f'{source} column {time_col}')
         if fs is not None and not same_rate(fs_t, fs):
             raise ValueError(f'{source}: --fs {fs:g} disagrees with column {time_col} '
@@ -185,7 +186,6 @@ def static_output(base, train, limits=None):
 # ---- amplitude dependence across records
 
 def _lpv_design(u, y, na, nb, d, s):
-    from rths_compensator.identification import _regression
     phi, target = _regression(u, y, na, nb, d)
     phi = phi[:, list(range(na)) + list(range(na + d, na + d + nb))]
     return np.hstack([phi, phi * s]), target
@@ -214,7 +214,6 @@ def amplitude_dependent(base, train):
     k = na + nb
 
     def model_at(lev):
-        from rths_compensator.identification import ArxModel
         th = theta[:k] + (lev / ref - 1.0) * theta[k:]
         return ArxModel(a=np.r_[1.0, th[:na]], b=th[na:], d=d, fs_hz=arx.fs_hz)
 
@@ -329,6 +328,7 @@ def _sim_loop():
         return out
 
     try:
+        # lazy: optional: tried here, refused with a clear message when missing
         import numba
         run = numba.njit(cache=True)(run)
     except ImportError:  # pragma: no cover - plain Python
@@ -380,6 +380,7 @@ def _ode_loop():
         return out
 
     try:
+        # lazy: optional: tried here, refused with a clear message when missing
         import numba
         run = numba.njit(cache=True)(run)
     except ImportError:  # pragma: no cover - plain Python
@@ -662,6 +663,5 @@ def run(train, test=None, out_dir=None, progress=None, plots=True):
     say(f"effect: {result['effect']}; held-out NRMSE {result['nrmse_before']:.4f} -> "
         f"{result['nrmse_after']:.4f} (ARX reference {result['nrmse_reference']:.4f})")
     if out_dir is not None:
-        from rths_discrepancy import ioreport
         ioreport.write(out_dir, result, per, plots)
     return result

@@ -63,13 +63,21 @@ imply) beside it.
 """
 
 import itertools
+import json
 import math
+import os
+import time
 
 import numpy as np
 from scipy import optimize, signal
+from scipy.io import loadmat
 
+from rths_common import bagio, topics
+from rths_common.columns import read_columns, read_header
 from rths_discrepancy import effects as fx
 from rths_discrepancy import signals as sg
+from rths_discrepancy.io import write_csv as write_columns
+from rths_discrepancy.report import _atomic_write
 
 COLUMNS = ('time_s', 'displacement_m', 'force_N')
 OPTIONAL = ('velocity_m_s',)
@@ -135,18 +143,31 @@ def validate(data, source='data'):
 
 def load_csv(path):
     """Read a restoring-force CSV (header row; extra columns ignored)."""
-    from rths_common.columns import read_columns, read_header
-
     present = read_header(path)
     cols = read_columns(path, COLUMNS + tuple(c for c in OPTIONAL if c in present),
                         keep_nan=True, min_rows=0)
     return validate(cols, source=str(path))
 
 
+def read_bag(bag):
+    """Restoring-force columns of an rths run bag (channel 0; not yet validated).
+
+    ``displacement_m`` is the measured actuator displacement and ``force_N`` the
+    measured force the specimen returns to the structure (``/rths/measurement``),
+    ``time_s`` the step over the run's ``fs_hz``.  Steps with a non-finite value
+    (not applied) are dropped.
+    """
+    fs = bagio.sampling_rate(bag)
+    data = bagio.step_arrays(bag, topics.MEASUREMENT, ('displacement', 'force'))
+    if data['step'].size == 0:
+        raise ValueError(f'{bag}: no {topics.MEASUREMENT} messages; is this an rths run bag?')
+    x, f = data['displacement'][:, 0], data['force'][:, 0]
+    ok = np.isfinite(x) & np.isfinite(f)
+    return {'time_s': data['step'][ok] / fs, 'displacement_m': x[ok], 'force_N': f[ok]}
+
+
 def write_csv(path, data):
     """Write the restoring-force columns of ``data`` (atomic)."""
-    from rths_discrepancy.io import write_csv as write_columns
-
     write_columns(path, data, COLUMNS + tuple(c for c in OPTIONAL if c in data))
 
 
@@ -159,7 +180,6 @@ def convert(kind, src):
     t [s], x [mm], v [mm/s], F [N]).
     """
     if kind == 'emps':
-        from scipy.io import loadmat
         m = loadmat(src)
         for key in ('t', 'qm', 'vir', 'gtau'):
             if key not in m:
@@ -571,20 +591,18 @@ def run(data, out_dir=None, progress=None, plots=True, source=None, count=None):
 
 
 def _write(out_dir, result, fit, pred0, pred1, plots):
-    import json
-    import os
     os.makedirs(out_dir, exist_ok=True)
     files = _plots(out_dir, fit, pred0, pred1) if plots else {}
-    from rths_discrepancy.report import _atomic_write
     _atomic_write(os.path.join(out_dir, 'report.md'), markdown(result, files))
     _atomic_write(os.path.join(out_dir, 'result.json'), json.dumps(result, indent=2))
 
 
 def _plots(out_dir, fit, pred0, pred1):
-    import os
 
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
     te = fit.test
     x, v = fit.st['x'][te], fit.st['v'][te]
@@ -686,7 +704,6 @@ REAL = [('EMPS', 'emps', 'DATA_EMPS.mat', 0.05),
 
 def find_file(data_dir, name):
     """Path of ``name`` anywhere under ``data_dir`` (None if absent)."""
-    import os
     for root, _, files in os.walk(data_dir):
         if name in files:
             return os.path.join(root, name)
@@ -728,8 +745,6 @@ def run_real(data_dir, out_dir=None, progress=None, count=None):
 
     ``progress(text)`` gets the steps, ``count(done, total)`` the records done.
     """
-    import os
-    import time
     say = progress or (lambda msg: None)
     rows = []
     for label, kind, name, target in REAL:

@@ -30,6 +30,8 @@ import math
 import numpy as np
 import scipy.linalg as sla
 
+from rths_common import yamlfile
+
 
 @dataclass
 class LinearModel:
@@ -351,5 +353,4 @@ def model_from_dict(data, source='model'):
 
 def load_model_yaml(path):
     """Read a model YAML file (see the module docstring)."""
-    from rths_common import yamlfile
     return model_from_dict(yamlfile.load(path), source=str(path))
