@@ -350,34 +350,14 @@ def review_rths(bag, out_dir, progress=None, limits=None) -> dict:
     external = '' if remote else external_controller(bridge)
     if remote:   # a remote site: no model of its specimen (compared with the bare building)
         name, bridge = 'remote', dict(bridge, specimen='none')
-    uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
-                    if isinstance(model, LinearModel) else None)
-    backend = numerical.get('backend', 'builtin')
-    specimen = None if external else SPECIMENS.entry(specimen_of(bridge),
-                                                     f'{bag}: bridge parameter specimen')
-    if specimen is None:   # no model of the lab's specimen: no reference to compare with
-        if uncontrolled is None:
-            uncontrolled, _ = offline_references(numerical, dict(bridge, specimen='none'), dt)
-        reference = None
-    elif specimen.device is not None or backend != 'builtin':
-        # a device specimen or an OpenSees model: the same substructure, offline, with the
-        # same specimen model on a perfect actuator (and without it for the uncontrolled one)
-        uncontrolled, reference = offline_references(numerical, bridge, dt)
-    elif specimen.table_mass is not None:
-        reference = simulate_reference(model, sub.ag, dt, damper=specimen.table_mass,
-                                       n_dtm=sub.force_scale,
-                                       frame_mass_kg=specimen.frame_mass_kg,
-                                       integrator=numerical.get('integrator', 'cr'),
-                                       uncontrolled=uncontrolled)
-    else:
-        reference = None
+    uncontrolled, reference, specimen = references(numerical, bridge, sub, dt,
+                                                   specimen_known=not external,
+                                                   where=f'{bag}: bridge parameter specimen')
     if external:
         ref_disp = None
     else:
         ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
     stage(2, REVIEW_STAGES)
-    unc = uncontrolled['metrics']
-    max_d, rms_d = float(np.max(np.abs(floor2))), float(np.sqrt(np.mean(floor2 ** 2)))
     bridge_steps = max(len(status.get('step', [])), 1)
     summary = {
         'record': numerical.get('record'), 'scale': numerical.get('scale'),
@@ -388,19 +368,8 @@ def review_rths(bag, out_dir, progress=None, limits=None) -> dict:
         'compensator': compensator,
         'numerical_backend': numerical.get('backend', 'builtin'),
         'numerical_model': getattr(model, 'name', str(numerical.get('model'))),
-        'residual_drift_m': residual_drift(floor2, fs),
-        'reference_residual_drift_m': _or_none(ref_disp, lambda r: residual_drift(r, fs)),
         **table5,
-        'max_disp_2nd_m': max_d, 'rms_disp_2nd_m': rms_d,
-        'uncontrolled_max_disp_2nd_m': unc['max_disp_m'],
-        'uncontrolled_rms_disp_2nd_m': unc['rms_disp_m'],
-        'reduction_max_pct': 100 * (1 - max_d / unc['max_disp_m']),
-        'reduction_rms_pct': 100 * (1 - rms_d / unc['rms_disp_m']),
-        'reference_max_disp_2nd_m': _or_none(ref_disp, lambda r: float(np.max(np.abs(r)))),
-        'reference_rms_disp_2nd_m': _or_none(ref_disp,
-                                             lambda r: float(np.sqrt(np.mean(r ** 2)))),
-        'rths_vs_reference_rel_rms_pct': _or_none(ref_disp,
-                                                  lambda r: relative_rms_error(floor2, r)),
+        **response_metrics(floor2, ref_disp, uncontrolled['metrics'], fs),
         'deadline_misses': int(status.get('misses', 0)),
         'deadline_miss_pct': 100.0 * status.get('misses', 0) / bridge_steps,
         'safety_faults': status.get('faults', []),
@@ -457,6 +426,62 @@ def bridge_realtime(status: dict, n_steps: int, fs_hz: float, limits=None) -> di
 #: The real-time keys of a realtime run's summary.json.
 REALTIME_KEYS = ('late_or_missed_pct', 'missed_ticks', 'clock_overruns', 'stalled_ticks',
                  'worst_period_ms', 'behind_s', 'realtime_ok', 'realtime_limits')
+
+
+def references(numerical, bridge, sub, dt, specimen_known=True, where='bridge specimen'):
+    """``(uncontrolled, reference, specimen)`` responses of a run's substructure ``sub``.
+
+    ``uncontrolled``: the building without the specimen; ``reference``: the whole-numerical
+    RTHS (the same substructure with the specimen model on a perfect actuator), None where
+    there is no model of the specimen (``specimen_known`` False: a lab's own controller; a
+    bare table).  Both are dicts with ``disp`` and ``metrics``.
+    """
+    model = sub.model
+    uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
+                    if isinstance(model, LinearModel) else None)
+    backend = numerical.get('backend', 'builtin')
+    specimen = SPECIMENS.entry(specimen_of(bridge), where) if specimen_known else None
+    if specimen is None:   # no model of the lab's specimen: no reference to compare with
+        if uncontrolled is None:
+            uncontrolled, _ = offline_references(numerical, dict(bridge, specimen='none'), dt)
+        reference = None
+    elif specimen.device is not None or backend != 'builtin':
+        # a device specimen or an OpenSees model: the same substructure, offline, with the
+        # same specimen model on a perfect actuator (and without it for the uncontrolled one)
+        uncontrolled, reference = offline_references(numerical, bridge, dt)
+    elif specimen.table_mass is not None:
+        reference = simulate_reference(model, sub.ag, dt, damper=specimen.table_mass,
+                                       n_dtm=sub.force_scale,
+                                       frame_mass_kg=specimen.frame_mass_kg,
+                                       integrator=numerical.get('integrator', 'cr'),
+                                       uncontrolled=uncontrolled)
+    else:
+        reference = None
+    return uncontrolled, reference, specimen
+
+
+def response_metrics(floor2, ref_disp, uncontrolled: dict, fs) -> dict:
+    """Tables 6-9: the 2nd floor's response, its reductions and its error to the reference.
+
+    ``floor2``: the RTHS 2nd-floor displacement relative to the ground [m];
+    ``ref_disp``: the reference's (None: no reference); ``uncontrolled``: the
+    uncontrolled building's ``metrics`` (``max_disp_m``, ``rms_disp_m``).
+    """
+    max_d, rms_d = float(np.max(np.abs(floor2))), float(np.sqrt(np.mean(floor2 ** 2)))
+    return {
+        'residual_drift_m': residual_drift(floor2, fs),
+        'reference_residual_drift_m': _or_none(ref_disp, lambda r: residual_drift(r, fs)),
+        'max_disp_2nd_m': max_d, 'rms_disp_2nd_m': rms_d,
+        'uncontrolled_max_disp_2nd_m': uncontrolled['max_disp_m'],
+        'uncontrolled_rms_disp_2nd_m': uncontrolled['rms_disp_m'],
+        'reduction_max_pct': 100 * (1 - max_d / uncontrolled['max_disp_m']),
+        'reduction_rms_pct': 100 * (1 - rms_d / uncontrolled['rms_disp_m']),
+        'reference_max_disp_2nd_m': _or_none(ref_disp, lambda r: float(np.max(np.abs(r)))),
+        'reference_rms_disp_2nd_m': _or_none(ref_disp,
+                                             lambda r: float(np.sqrt(np.mean(r ** 2)))),
+        'rths_vs_reference_rel_rms_pct': _or_none(ref_disp,
+                                                  lambda r: relative_rms_error(floor2, r)),
+    }
 
 
 def _or_none(value, f):
