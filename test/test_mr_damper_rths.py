@@ -1,4 +1,4 @@
-"""RTHS of the building with the simulated MR-damper specimen (rths run --damper mr), offline.
+"""RTHS of the building with the simulated MR-damper specimen (rths run --specimen mr), offline.
 
 The same cores as the lock-step graph (rths_bringup.offline): the repo's designed compensator,
 the 3-pole actuator carrying an MR damper (Spencer et al. 1997 model, 1 V) between the 2nd

@@ -42,7 +42,7 @@ CONFIG = REPO / 'config'
 DURATION_S = 18.0
 FS = 1024.0
 #: The unstable configuration: rths run options beside --no-compensation / --plant.
-UNSTABLE = ('--damper', 'novalve', '--force-scale', '60', '--duration', str(DURATION_S))
+UNSTABLE = ('--specimen', 'novalve', '--force-scale', '60', '--duration', str(DURATION_S))
 ACTIVE, HOLD, RAMP, STOPPED = 0, 1, 2, 3
 FAULT = re.compile(r'instability: RMS force oscillation ([\d.]+) N > ([\d.]+) N over (\d+) steps')
 

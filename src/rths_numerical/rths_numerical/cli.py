@@ -10,6 +10,7 @@ import os
 import time
 
 from rths_common.files import atomic_open, save_figure
+from rths_common.params import add_renamed_option
 
 from .dtm import SEED_CONFIGURATION, STUDY_CONFIGURATIONS, TABLE4, dtm_configuration
 
@@ -76,8 +77,8 @@ def cmd_simulate(args):
           f'(peak {peak_g(ag):.4f} g, {ag.size / fs:.1f} s at {fs:g} Hz)', flush=True)
     unc = simulate_uncontrolled(model, ag, 1 / fs, args.integrator)
     rows = {'uncontrolled': unc}
-    dampers = list(STUDY_CONFIGURATIONS) if args.damper == 'all' else (
-        [] if args.damper == 'none' else [args.damper])
+    dampers = list(STUDY_CONFIGURATIONS) if args.specimen == 'all' else (
+        [] if args.specimen == 'none' else [args.specimen])
     for d in dampers:
         rows[d] = simulate_reference(model, ag, 1 / fs, d, args.n_dtm, integrator=args.integrator,
                                      uncontrolled=unc)
@@ -520,8 +521,9 @@ def register(commands, benches):
                     '(tables 6-8 layout); write OUT/simulate.json and OUT/simulate.png.')
     sim.add_argument('--building', default='building2story',
                      help='building2story (16 DOF), building2story-240 or a model YAML path')
-    sim.add_argument('--damper', default='all', choices=['all', 'none'] + list(TABLE4),
-                     help='Table 4 DTM configuration; all = valve4 and novalve')
+    sim.add_argument('--specimen', default='all', choices=['all', 'none'] + list(TABLE4),
+                     help='the DTM specimen: a Table 4 configuration; all = valve4 and novalve')
+    add_renamed_option(sim, '--damper', '--specimen')
     sim.add_argument('--record', default='kobe',
                      help='kobe, northridge, imperial_valley, blwn or a PEER .AT2 path')
     sim.add_argument('--scale', type=float, default=0.135, help='record scale factor')

@@ -28,9 +28,11 @@ def test_register_and_dtm_tuning_tiny(tmp_path, capsys):
 
 def test_simulate_parses():
     """``rths simulate`` options."""
-    args = _parser().parse_args(['simulate', '--damper', 'valve4', '--record', 'kobe',
+    args = _parser().parse_args(['simulate', '--specimen', 'valve4', '--record', 'kobe',
                                  '--scale', '0.135'])
-    assert args.damper == 'valve4' and args.scale == 0.135
+    assert args.specimen == 'valve4' and args.scale == 0.135
+    old = _parser().parse_args(['simulate', '--damper', 'novalve'])   # the former name
+    assert old.specimen == 'novalve'
     args = _parser().parse_args(['bench', 'numerical', '--out', 'x.json'])
     assert args.out == 'x.json'
 
