@@ -31,7 +31,7 @@ NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'autostart': True,
                'watchdog_timeout_s': 5.0, 'clock': 'loop', 'spin_margin_us': 0.0,
                'timing_out': '', 'publish_specimen': 'auto',
                'command_source': 'compensator',
-               **ns.TUNING_PARAMS}
+               **ns.TUNING_PARAMS, **ns.RUN_PARAMS}
 CLOCKS = ('loop', 'thread', 'timer')
 EXIT_SAFETY_STOP = 3
 #: Shortest time between two graph scans for the command source's writer gids [s].
@@ -110,8 +110,9 @@ class BridgeNode:
             self.specimen_pub = self.node.create_publisher(Specimen, topics.SPECIMEN, status_qos())
         ns.wait_for_readers(self.node, self.pub, self.own['wait_for_subscribers'])
         raw = not self.lockstep   # lean messages: CDR bytes in and out (rths_common.cdr)
-        self.io_in = Transport(Command, ('command',), raw)
-        self.io_out = Transport(Measurement, ('applied', 'displacement', 'force'), raw)
+        run_id = self.own['run_id']
+        self.io_in = Transport(Command, ('command',), raw, run_id)
+        self.io_out = Transport(Measurement, ('applied', 'displacement', 'force'), raw, run_id)
         self.node.create_subscription(Command, topics.COMMAND, self.on_command, qos, raw=raw)
         self.node.create_subscription(String, topics.EMERGENCY_STOP, self.on_estop_topic, 10)
         self.node.create_service(EmergencyStop, topics.EMERGENCY_STOP_SERVICE, self.on_estop_srv)
@@ -282,6 +283,9 @@ class BridgeNode:
         t_in = ns.now_ns()
         if self.stopped:
             return
+        if not self.io_in.ours(msg):    # another run's command never reaches the actuator
+            ns.log_foreign(self.log, self.io_in, topics.COMMAND)
+            return
         stamp_ns, step, (command,) = self.io_in.decode(msg)
         if not self.command_from_source(self.io_in.sender(msg), step):
             return
@@ -414,6 +418,7 @@ class BridgeNode:
             spec = Specimen(step=step, table_accel=[float(ch.get('table_accel', np.nan))],
                             rel_disp=[float(ch.get('rel_disp', np.nan))],
                             rel_vel=[float(ch.get('rel_vel', np.nan))])
+            spec.header.frame_id = self.io_out.status_frame
             ns.stamp(spec.header, ns.now_ns())
             self.specimen_pub.publish(spec)
         if fault and not self.fault_logged:
@@ -502,6 +507,7 @@ class BridgeNode:
         ns.flush([self.pub, self.status_pub])
         self.log.info(f'bridge: {self.step + 1} steps applied, {self.rejected} rejected, '
                       f'{self.foreign_rejected} foreign, '
+                      f'{self.io_in.foreign} of another run, '
                       f'{self.clock.misses} deadline miss(es), '
                       f'{self.bridge.supervisor.rejoins} rejoin(s) after misses, '
                       f'final state {self.bridge.state}')

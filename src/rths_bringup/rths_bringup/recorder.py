@@ -11,6 +11,10 @@ queue) and commits at least every 0.25 s (checked after each batch), so a
 crash of any process loses at most that much plus one batch.  This node never
 sits in the 1 kHz path of the loop.
 
+Run identity (``run_id``, from the launcher): a stamped loop message of another
+run (its ``header.frame_id``, :mod:`rths_common.transport`) is not recorded; the
+recorder counts them and says so at the end.
+
 Realtime mode: the recorder must not take the loop's CPU.  Its threads stay
 at normal (SCHED_OTHER) scheduling with a positive nice value (``nice``,
 default 10 in realtime, 0 in lock-step) and, if ``cpus`` is set (e.g. ``'0'``),
@@ -37,10 +41,15 @@ import rclpy
 from rths_common import bagstore, topics
 from rths_common import node_support as ns
 from rths_common.bagio import BagWriter
+from rths_common.cdr import sender_of
 from rths_common.qos import recorder_qos, status_qos
+from rths_common.transport import split_frame
 
 #: Recorder parameters that are not run information (everything else is kept in the bag).
 RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s', 'storage', 'pipe_fd')
+#: Recorded topics whose messages carry a header (and so the run identity).
+STAMPED = (topics.INTERFACE_DISPLACEMENT, topics.COMMAND, topics.MEASUREMENT, topics.STATUS,
+           topics.SPECIMEN)
 #: Longest time between two commits of the bag [s] (what a crash can lose).
 COMMIT_PERIOD_S = 0.25
 
@@ -69,6 +78,8 @@ class Recorder:
         self.wake = threading.Event()
         self.running = True
         self.count = 0
+        self.run_id = str(params.get('run_id', '') or '')
+        self.foreign = 0
         # sqlite objects must stay in the thread that made them: the writer thread opens the bag.
         opened = threading.Event()
         self.open_error = None
@@ -116,11 +127,19 @@ class Recorder:
 
     def _callback(self, topic):
         queue, now_ns = self.queue, ns.now_ns
+        if topic not in STAMPED:
+            def on_message(raw: bytes):
+                # only a deque append (thread-safe): the writer thread drains in batches
+                queue.append((topic, now_ns(), raw))
+            return on_message
+        run_id = self.run_id
 
-        def on_message(raw: bytes):
-            # only a deque append (thread-safe): the writer thread drains in batches
+        def on_stamped(raw: bytes):
+            if split_frame(sender_of(raw))[0] != run_id:
+                self.foreign += 1      # another run's message: not this run's record
+                return
             queue.append((topic, now_ns(), raw))
-        return on_message
+        return on_stamped
 
     def _read_pipe(self):
         """Composed layout: the container's records, from the pipe until it ends."""
@@ -193,8 +212,9 @@ def main(argv=None):
               'BAG INCOMPLETE', flush=True)
     count = rec.close()
     piped = f' ({rec.piped} from the container)' if rec.pipe_fd >= 0 else ''
-    print(f'recorder: {count} messages written{piped} in {time.monotonic() - t0:.1f} s',
-          flush=True)
+    foreign = f'; {rec.foreign} of another run not recorded' if rec.foreign else ''
+    print(f'recorder: {count} messages written{piped} in {time.monotonic() - t0:.1f} s'
+          f'{foreign}', flush=True)
     rclpy.shutdown()
     return 0
 

@@ -30,6 +30,7 @@ import json
 from pathlib import Path
 import sys
 
+from rths_bringup import isolation
 from rths_bringup.commands import default_config_dir, launch
 from rths_common import runinfo
 from rths_common.params import add_renamed_option, renamed
@@ -321,8 +322,12 @@ def cmd_run(args) -> int:
     from rths_bringup import live
     from rths_bringup.commands import live_rate_of
 
+    if not args.out:
+        args.out = str(Path('out') / ('run-' + datetime.datetime.now().strftime('%Y%m%d-%H%M%S')))
     try:
-        with live.session(args, fs_hz=live_rate_of(args.config) if args.live else 0.0):
+        # the run's ROS domain is held from the first phase to the last (the live view joins it)
+        with isolation.reserved(f'rths run --out {Path(args.out).resolve()}'), \
+                live.session(args, fs_hz=live_rate_of(args.config) if args.live else 0.0):
             return _run(args)
     except RuntimeError as err:
         print(f'rths run: error: {err}', file=sys.stderr)
@@ -337,8 +342,7 @@ def _run(args) -> int:
         raise ValueError(f'--force-scale must be > 0 (DTMs the one in the lab stands for), '
                          f'got {args.force_scale}')
     config = Path(args.config) if args.config else default_config_dir()
-    out = Path(args.out) if args.out else Path('out') / (
-        'run-' + datetime.datetime.now().strftime('%Y%m%d-%H%M%S'))
+    out = Path(args.out)
     if out.exists() and any(out.iterdir()):
         raise OSError(f'results directory {out} exists and is not empty; choose a new --out')
     out.mkdir(parents=True, exist_ok=True)

@@ -44,6 +44,8 @@ NODE_KEYS = {
     'gc': 'auto | default | freeze | disable: the Python garbage collector (auto: freeze '
           'in realtime mode)',
     'coefficients_every': '[steps] adaptive compensator: publish its coefficients every N steps',
+    'run_id': "the run's identity (the launcher gives one per run): messages of another "
+              'run are ignored',
     'loop_fs_hz': '[Hz] the loop rate (fs_hz of numerical.yaml and bridge.yaml; rths launch '
                   'passes it): the taps must be designed for it',
 }

@@ -28,7 +28,7 @@ from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
                'loop_fs_hz': 1024.0,
                'status_every': 1, 'coefficients_every': 64,
-               **ns.TUNING_PARAMS}
+               **ns.TUNING_PARAMS, **ns.RUN_PARAMS}
 
 
 class CompensatorNode:
@@ -69,8 +69,9 @@ class CompensatorNode:
         self.log = self.node.get_logger()
         qos = loop_qos(self.own['mode'])
         raw = not self.lockstep   # lean messages: CDR bytes in and out (rths_common.cdr)
-        self.io_in = Transport(InterfaceDisplacement, ('displacement',), raw)
-        self.io_out = Transport(Command, ('command',), raw)
+        run_id = self.own['run_id']
+        self.io_in = Transport(InterfaceDisplacement, ('displacement',), raw, run_id)
+        self.io_out = Transport(Command, ('command',), raw, run_id)
         self.adaptive = self.core.adaptive
         if self.adaptive:
             self._setup_adaptive()
@@ -115,6 +116,8 @@ class CompensatorNode:
             raise ValueError(f"parameter method = {self.params['method']}: the adaptive "
                              'methods run in lock-step mode only (mode: lockstep)')
         methods_from_params(self.params, 1)          # check the method and its plant now
+        self.io_meas = Transport(Measurement, ('applied', 'displacement', 'force'), False,
+                                 self.own['run_id'])
         self.pending = None                          # the displacement message waiting
         self.coef_pub = self.node.create_publisher(Float64MultiArray,
                                                    topics.COMPENSATOR_COEFFICIENTS,
@@ -124,6 +127,9 @@ class CompensatorNode:
 
     def on_measurement(self, msg):
         """Keep measurement k for the command of step k + 1 (and run it if it waits)."""
+        if not self.io_meas.ours(msg):
+            ns.log_foreign(self.log, self.io_meas, topics.MEASUREMENT)
+            return
         result = self.core.measure(msg.step, list(msg.displacement), list(msg.applied))
         if result is not None:
             self.publish(result, *self.pending)
@@ -149,6 +155,9 @@ class CompensatorNode:
     def on_displacement(self, msg):
         """Filter the interface displacement of step k (lost ones filled); publish command k."""
         t_in = ns.now_ns()
+        if not self.io_in.ours(msg):
+            ns.log_foreign(self.log, self.io_in, topics.INTERFACE_DISPLACEMENT)
+            return
         stamp_ns, step, (x,) = self.io_in.decode(msg)
         t0 = time.perf_counter_ns()
         result = self.driver.feed(step, x)

@@ -24,7 +24,8 @@ from rths_msgs.msg import InterfaceDisplacement, LoopStatus, Measurement
 #: Parameters of the node itself; every other parameter goes to make_substructure().
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
                'remote_graph': False,
-               'history_out': '', 'timing_out': '', 'status_every': 1, **ns.TUNING_PARAMS}
+               'history_out': '', 'timing_out': '', 'status_every': 1, **ns.TUNING_PARAMS,
+               **ns.RUN_PARAMS}
 
 
 class NumericalNode:
@@ -56,8 +57,9 @@ class NumericalNode:
         self.log = self.node.get_logger()
         qos = loop_qos(own['mode'])
         raw = not self.lockstep   # lean messages: CDR bytes in and out (rths_common.cdr)
-        self.io_in = Transport(Measurement, ('applied', 'displacement', 'force'), raw)
-        self.io_out = Transport(InterfaceDisplacement, ('displacement',), raw)
+        run_id = own['run_id']
+        self.io_in = Transport(Measurement, ('applied', 'displacement', 'force'), raw, run_id)
+        self.io_out = Transport(InterfaceDisplacement, ('displacement',), raw, run_id)
         self.pub = self.node.create_publisher(InterfaceDisplacement,
                                               topics.INTERFACE_DISPLACEMENT, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
@@ -158,6 +160,9 @@ class NumericalNode:
         t_in = ns.now_ns()
         if self.finished or not self.started:
             return  # before step 0 is out, a measurement cannot be of this run
+        if not self.io_in.ours(msg):
+            ns.log_foreign(self.log, self.io_in, topics.MEASUREMENT)
+            return
         stamp_ns, step, (_, _, force) = self.io_in.decode(msg)
         expected = self.core.policy.next_step
         if step >= expected:
