@@ -283,11 +283,11 @@ class BridgeNode:
         t_in = ns.now_ns()
         if self.stopped:
             return
-        if not self.io_in.ours(msg):    # another run's command never reaches the actuator
-            ns.log_foreign(self.log, self.io_in, topics.COMMAND)
-            return
         stamp_ns, step, (command,) = self.io_in.decode(msg)
         if not self.command_from_source(self.io_in.sender(msg), step):
+            return
+        if not self.io_in.ours(msg):    # another run's command never reaches the actuator
+            ns.log_foreign(self.log, self.io_in, topics.COMMAND)
             return
         timing = self.timing
         timing['recv_step'].append(step)

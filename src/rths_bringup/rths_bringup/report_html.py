@@ -45,7 +45,7 @@ def tables(s: dict) -> str:
     out += ('<p>before: plant input &rarr; output; after: interface displacement &rarr; '
             'output</p>\n')
     out += _table(
-        'Tables 6-8 layout: 2nd-floor displacement',
+        f"Tables 6-8 layout: displacement of {s.get('dof', 'the output DOF')} (relative)",
         ('model', 'max [m]', 'max [in]', 'red. [%]', 'RMS [m]', 'RMS [in]', 'red. [%]'),
         (('uncontrolled', f"{s['uncontrolled_max_disp_2nd_m']:.4e}",
           f"{s['uncontrolled_max_disp_2nd_m'] / _INCH:.4f}", '-',
@@ -58,7 +58,23 @@ def tables(s: dict) -> str:
     out += _table('Table 9 layout: RTHS vs whole-numerical reference',
                   ('actuator time delay [ms]', 'relative RMS error [%]'),
                   ((f"{s['delay_ms_after']:.3f}", f"{s['rths_vs_reference_rel_rms_pct']:.2f}"),))
+    if s.get('every_dof'):
+        out += _table('Every DOF: relative displacement in the RTHS (response.csv)',
+                      ('DOF', 'column', 'max [m]', 'RMS [m]'),
+                      [(r['dof'], r['column'], f"{r['max_m']:.4e}", f"{r['rms_m']:.4e}")
+                       for r in s['every_dof']])
     return out
+
+
+def settings(s: dict) -> str:
+    """Return what shaped the run (scale, force scale, frame, specimen, processing) as HTML."""
+    rows = [('record', f"{s['record']} x {s['scale']}"), ('specimen', s['specimen']),
+            ('model', f"{s.get('numerical_model', '?')}"),
+            ('force scale', f"{s.get('force_scale', '?')}"),
+            ('interface frame', f"{s.get('interface_frame', '?')} at "
+                                f"{', '.join(s.get('interface_dofs', []))}"),
+            ('input processing', '; '.join(s.get('input_processing') or []) or 'none')]
+    return _table('What shaped the run', ('', ''), rows)
 
 
 def _figure(name: str, data: bytes, caption: str) -> str:
@@ -80,7 +96,7 @@ def render(summary: dict, images: dict) -> str:
     return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
             f'<title>{html.escape(title)}</title><style>{_STYLE}</style></head>\n<body>\n'
             f'<h1>{html.escape(title)}</h1>\n<p>compensator: {html.escape(scheme) or "-"}</p>\n'
-            + tables(s) + f'<p>{html.escape(misses)}</p>\n'
+            + settings(s) + tables(s) + f'<p>{html.escape(misses)}</p>\n'
             + (f'<p>safety faults:</p><ul>{faults}</ul>\n' if faults else '')
             + figures + '</body></html>\n')
 

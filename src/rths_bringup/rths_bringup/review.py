@@ -130,12 +130,49 @@ def _numerical_params(info: dict) -> dict:
 REVIEW_STAGES = 4
 
 
-def review_rths(bag, out_dir, progress=None) -> dict:
+def run_inputs(bag, numerical: dict):
+    """Return the run's substructure, from the bag's own copy of its model and record.
+
+    Bags recorded before the copy existed rebuild it from the files the parameters name.
+    """
+    from rths_numerical.inputs import parse_inputs
+    from rths_numerical.substructure import make_substructure
+
+    recorded = bagio.read_topic(bag, topics.RUN_INPUTS)
+    if not recorded:
+        return make_substructure(numerical)
+    model, motion, _ = parse_inputs(recorded[-1][1].data)
+    return make_substructure(numerical, model, motion)
+
+
+def response_of(bag):
+    """Return ``(columns, table)`` of the bag's /rths/response (None, None if absent)."""
+    from rths_numerical.inputs import table_from_chunks
+
+    return table_from_chunks((m.layout.data_offset, m.data, m.layout.dim[1].label)
+                             for _, m in bagio.read_topic(bag, topics.RESPONSE))
+
+
+def dof_index(model, dof, where: str = '--dof') -> int:
+    """Return the index of DOF ``dof`` (a name of the model, or a number from 1)."""
+    names = list(getattr(model, 'dof_names', []) or [])
+    text = str(dof).strip()
+    if text in names:
+        return names.index(text)
+    if text.isdigit() and 1 <= int(text) <= model.n:
+        return int(text) - 1
+    raise ValueError(f'{where} {dof}: the model {getattr(model, "name", "")} has no such DOF; '
+                     f'give one of {", ".join(names)} or a number 1..{model.n}')
+
+
+def review_rths(bag, out_dir, progress=None, dof=None) -> dict:
     """Tables 5-9 of an RTHS bag: JSON summary, text report, PNG plots and ``report.html``.
 
     ``report.html`` (:mod:`rths_bringup.report_html`) holds the tables and every
     plot in one self-contained file.  ``progress(done, 4)`` follows the stages: bag
-    read, references simulated, plots drawn, report written.
+    read, references simulated, plots drawn, report written.  ``dof``: the DOF
+    the tables report (a name of the model or a number from 1; default the model's
+    output DOF).  The model and the record come from the bag (:func:`run_inputs`).
     """
     stage = progress or (lambda done, total: None)
     import json
@@ -148,8 +185,6 @@ def review_rths(bag, out_dir, progress=None) -> dict:
         simulate_reference,
         simulate_uncontrolled,
     )
-    from rths_numerical.substructure import make_substructure
-
     bag, out_dir = Path(bag), Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     info = bagio.run_info(bag)
@@ -160,10 +195,14 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     numerical = _numerical_params(info)
     bridge = runinfo.section(info, 'bridge')
     compensator = runinfo.section(info, 'compensator')
-    sub = make_substructure(numerical)
+    sub = run_inputs(bag, numerical)
     model = sub.model
-    if sub.iface != [model.output_dof]:
-        raise ValueError('the review needs the output DOF to be the interface DOF')
+    if dof is not None:
+        model.output_dof = dof_index(model, dof)
+    columns, response = response_of(bag)
+    if sub.iface != [model.output_dof] and response is None:
+        raise ValueError(f'{bag}: the bag has no /rths/response (recorded before it existed), '
+                         'so only the interface DOF can be reviewed; drop --dof')
 
     disp = bagio.step_arrays(bag, topics.INTERFACE_DISPLACEMENT, ('displacement',))
     meas = bagio.step_arrays(bag, topics.MEASUREMENT, ('applied', 'displacement', 'force'))
@@ -202,7 +241,8 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     }
     # Tables 6-9: the 2nd floor relative to the ground
     ug = sub.ug[:n] if sub.frame == 'absolute' else 0.0
-    floor2 = desired - ug
+    floor2 = (desired - ug if sub.iface == [model.output_dof]
+              else response[:n, 2 + model.output_dof])
     dt = 1.0 / fs
     name = specimen_of(bridge)
     specimen = SPECIMENS.entry(name, f'{bag}: bridge parameter specimen')
@@ -212,7 +252,11 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     if specimen.device is not None or backend != 'builtin':
         # a device specimen or an OpenSees model: the same substructure, offline, with the
         # same specimen model on a perfect actuator (and without it for the uncontrolled one)
-        uncontrolled, reference = offline_references(numerical, bridge, dt)
+        def build():
+            own = run_inputs(bag, numerical)
+            own.model.output_dof = model.output_dof     # the DOF the review reports
+            return own
+        uncontrolled, reference = offline_references(numerical, bridge, dt, build)
     elif specimen.table_mass is not None:
         reference = simulate_reference(model, sub.ag, dt, damper=specimen.table_mass,
                                        n_dtm=sub.force_scale,
@@ -233,6 +277,12 @@ def review_rths(bag, out_dir, progress=None) -> dict:
         'compensator': compensator,
         'numerical_backend': numerical.get('backend', 'builtin'),
         'numerical_model': getattr(model, 'name', str(numerical.get('model'))),
+        'force_scale': float(sub.force_scale), 'interface_frame': sub.frame,
+        'input_processing': list(sub.motion.processing) if sub.motion is not None else [],
+        'record_summary': sub.motion.summary() if sub.motion is not None else None,
+        'dof': _dof_name(model, model.output_dof),
+        'interface_dofs': [_dof_name(model, i) for i in sub.iface],
+        'every_dof': _every_dof(model, columns, response, n),
         'residual_drift_m': residual_drift(floor2, fs),
         'reference_residual_drift_m': residual_drift(ref_disp, fs),
         **table5,
@@ -272,12 +322,32 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     return summary
 
 
+def _dof_name(model, i: int) -> str:
+    names = list(getattr(model, 'dof_names', []) or [])
+    return names[i] if i < len(names) else f'dof{i + 1}'
+
+
+def _every_dof(model, columns, response, n) -> list:
+    """Return max and RMS of every DOF's relative displacement in the RTHS [m]."""
+    if response is None:
+        return []
+    rows = []
+    for j in range(2, len(columns)):
+        d = response[:n, j]
+        rows.append({'dof': _dof_name(model, j - 2), 'column': columns[j],
+                     'max_m': float(np.max(np.abs(d))), 'rms_m': float(np.sqrt(np.mean(d ** 2)))})
+    return rows
+
+
 def review_text(s: dict) -> str:
     """Return the review as text, in the layout of the seed's tables 5-9."""
     inch = 0.0254
     lines = [
         f"RTHS review: {s['record']} x {s['scale']}, specimen {s['specimen']}, {s['mode']}, "
         f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)",
+        f"  model {s['numerical_model']}, force scale {s.get('force_scale', '?')}, interface "
+        f"frame {s.get('interface_frame', '?')} at {', '.join(s.get('interface_dofs', []))}",
+        '  input processing: ' + ('; '.join(s.get('input_processing') or []) or 'none'),
         '',
         'Table 5 layout: actuator time delay and relative RMS tracking error',
         '                      before compensation   after compensation',
@@ -286,7 +356,7 @@ def review_text(s: dict) -> str:
         f"{s['tracking_rel_rms_pct_after']:>18.2f}",
         '  (before: plant input -> output; after: interface displacement -> output)',
         '',
-        'Tables 6-8 layout: 2nd-floor displacement',
+        f"Tables 6-8 layout: displacement of {s.get('dof', 'the output DOF')} (relative)",
         '  model            max [m]      max [in]   red. [%]   RMS [m]      RMS [in]   red. [%]',
         f"  uncontrolled     {s['uncontrolled_max_disp_2nd_m']:.4e}  "
         f"{s['uncontrolled_max_disp_2nd_m'] / inch:8.4f}        -     "
@@ -305,6 +375,11 @@ def review_text(s: dict) -> str:
     ]
     if s['safety_faults']:
         lines.append('safety faults: ' + '; '.join(s['safety_faults']))
+    if s.get('every_dof'):
+        lines += ['', 'Every DOF (relative displacement, RTHS; response.csv, /rths/response)',
+                  '  DOF                  column       max [m]      RMS [m]']
+        lines += [f"  {r['dof'][:20]:<20} {r['column']:<10} {r['max_m']:.4e}  {r['rms_m']:.4e}"
+                  for r in s['every_dof']]
     return '\n'.join(lines) + '\n'
 
 
@@ -319,7 +394,7 @@ def residual_drift(disp, fs, seconds=1.0):
     return float(np.mean(disp[-max(1, int(seconds * fs)):])) if disp.size else float('nan')
 
 
-def offline_references(numerical, bridge, dt):
+def offline_references(numerical, bridge, dt, build=None):
     """Uncontrolled and reference responses from the run's own substructure, offline.
 
     The reference couples the same substructure with the run's specimen model on
@@ -330,12 +405,13 @@ def offline_references(numerical, bridge, dt):
     """
     from rths_numerical.reference import coupled_rths, metrics
     from rths_numerical.substructure import make_substructure
-    free = coupled_rths(make_substructure(numerical), lambda x: np.zeros(1))
+    build = build or (lambda: make_substructure(numerical))
+    free = coupled_rths(build(), lambda x: np.zeros(1))
     uncontrolled = {'disp': free['output_disp'], 'metrics': metrics(free['output_disp'])}
     specimen = SPECIMENS.entry(specimen_of(bridge)).reference(dt, bridge)
     if specimen is None:
         return uncontrolled, None
-    hist = coupled_rths(make_substructure(numerical), specimen)
+    hist = coupled_rths(build(), specimen)
     return uncontrolled, {'disp': hist['output_disp'], 'history': hist,
                           'metrics': metrics(hist['output_disp'], uncontrolled['metrics'])}
 

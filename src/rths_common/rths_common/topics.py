@@ -23,6 +23,13 @@ SPECIMEN = '/rths/specimen'
 #: compensator node -> recorder: adaptive coefficients, decimated (std_msgs/msg/Float64MultiArray)
 COMPENSATOR_COEFFICIENTS = '/rths/compensator_coefficients'
 
+#: numerical node -> recorder, once at the start: the model and the ground motion as used
+#: (std_msgs/msg/String, JSON; rths_numerical.inputs), so a bag needs no other file
+RUN_INPUTS = '/rths/run_inputs'
+#: numerical node -> recorder, at the end: time, ground acceleration and every DOF per step
+#: (std_msgs/msg/Float64MultiArray in chunks; rths_numerical.inputs)
+RESPONSE = '/rths/response'
+
 LOOP_TOPICS = {
     INTERFACE_DISPLACEMENT: 'rths_msgs/msg/InterfaceDisplacement',
     COMMAND: 'rths_msgs/msg/Command',
@@ -31,4 +38,6 @@ LOOP_TOPICS = {
     SPECIMEN: 'rths_msgs/msg/Specimen',
     EMERGENCY_STOP: 'std_msgs/msg/String',
     COMPENSATOR_COEFFICIENTS: 'std_msgs/msg/Float64MultiArray',
+    RUN_INPUTS: 'std_msgs/msg/String',
+    RESPONSE: 'std_msgs/msg/Float64MultiArray',
 }

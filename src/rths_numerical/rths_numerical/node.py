@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 import rclpy
-from std_msgs.msg import UInt64
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String, UInt64
 
 from rths_common import gaps, topics
 from rths_common import node_support as ns
@@ -63,6 +63,9 @@ class NumericalNode:
         self.pub = self.node.create_publisher(InterfaceDisplacement,
                                               topics.INTERFACE_DISPLACEMENT, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
+        self.inputs_pub = self.node.create_publisher(String, topics.RUN_INPUTS, status_qos())
+        self.response_pub = self.node.create_publisher(Float64MultiArray, topics.RESPONSE,
+                                                       status_qos())
         self.node.create_subscription(Measurement, topics.MEASUREMENT, self.on_measurement, qos,
                                       raw=raw)
         self.clock = ns.StepClock()
@@ -127,6 +130,9 @@ class NumericalNode:
             self.start_timer.cancel()
         self.t_start = time.monotonic()
         self.log.info('graph connected: publishing step 0')
+        if getattr(self.sub, 'motion', None) is not None:
+            from rths_numerical.inputs import inputs_text
+            self.inputs_pub.publish(String(data=inputs_text(self.sub, self.own['run_id'])))
         self.first = self.core.first_displacement()
         self.last_publish = time.monotonic()
         self.publish(0, self.first)
@@ -233,13 +239,30 @@ class NumericalNode:
         1 if the run failed (a bad measured force), 130 if a signal stopped it
         before the last step (``done`` False), else 0.
         """
-        ns.flush([self.pub, self.status_pub])
+        self.publish_response()
+        ns.flush([self.pub, self.status_pub, self.inputs_pub, self.response_pub])
         self.log.info(self.summary())
         self.save_history()
         self.save_timing()
         if self.failed:
             return 1
         return 0 if done else 130
+
+    def publish_response(self):
+        """Publish the whole structure's response of the finished steps (/rths/response)."""
+        from rths_numerical.inputs import response_chunks, response_table
+
+        if not hasattr(self.sub, 'history') or getattr(self.sub, 'motion', None) is None:
+            return
+        columns, table = response_table(self.sub)
+        for first, data, shape, run_id, names in response_chunks(columns, table,
+                                                                 self.own['run_id']):
+            msg = Float64MultiArray(data=data)
+            msg.layout.dim = [MultiArrayDimension(label=run_id, size=shape[0],
+                                                  stride=shape[0] * shape[1]),
+                              MultiArrayDimension(label=names, size=shape[1], stride=shape[1])]
+            msg.layout.data_offset = first
+            self.response_pub.publish(msg)
 
     def save_history(self):
         """Write the response history (``history_out``), if asked."""
