@@ -257,10 +257,10 @@ def review_rths(bag, out_dir, progress=None, dof=None) -> dict:
             own.model.output_dof = model.output_dof     # the DOF the review reports
             return own
         uncontrolled, reference = offline_references(numerical, bridge, dt, build)
-    elif specimen.table_mass is not None:
-        reference = simulate_reference(model, sub.ag, dt, damper=specimen.table_mass,
+    elif specimen.mass_on_table(bridge) is not None:
+        reference = simulate_reference(model, sub.ag, dt, damper=specimen.mass_on_table(bridge),
                                        n_dtm=sub.force_scale,
-                                       frame_mass_kg=specimen.frame_mass_kg,
+                                       frame_mass_kg=specimen.frame_mass(bridge),
                                        integrator=numerical.get('integrator', 'cr'),
                                        uncontrolled=uncontrolled)
     else:

@@ -114,6 +114,9 @@ def register(commands, benches):
                    help='numerical model: building2story (default), a model YAML, or with '
                         '--numerical opensees an OpenSeesPy script (.py, or a name in '
                         'config/models/, e.g. frame-steel01)')
+    p.add_argument('--output-dof', default=None,
+                   help="the DOF the review's tables report: a name of the model's DOFs or a "
+                        "number from 1 (default: the model's output_dof); checked before the run")
     p.add_argument('--mode', choices=('lockstep', 'realtime'), default='lockstep',
                    help='timing mode (default lockstep: deterministic, as fast as possible)')
     p.add_argument('--layout', choices=('composed', 'processes'), default=None,
@@ -380,8 +383,8 @@ def _run(args) -> int:
         from rths_numerical.opensees_backend import import_opensees
         import_opensees()
     _say(f'results in {out}')
-    numerical = _numerical_params(args, base['numerical'], model_param)
-    settings = _check_inputs(numerical, out)   # record, model and specimen, before anything
+    numerical = _numerical_params(args, base['numerical'], model_param, base['bridge'])
+    settings = _check_inputs(numerical, out, base['bridge'], args.output_dof)   # before all
 
     # 1-2: identification and design
     comp_file = out / 'compensator.yaml'
@@ -450,7 +453,7 @@ def _run(args) -> int:
 
     # 4: review
     _say('step 4: review')
-    summary = _review(rths_dir / 'bag', out)
+    summary = _review(rths_dir / 'bag', out, args.output_dof)
     summary['adaptive'] = args.adaptive
     summary.setdefault('run_settings', {k: v for k, v in settings.items()
                                         if k != 'record_summary'})
@@ -462,7 +465,7 @@ def _run(args) -> int:
     return 0
 
 
-def _numerical_params(args, base: dict, model_param: str) -> dict:
+def _numerical_params(args, base: dict, model_param: str, specimen: dict) -> dict:
     """Return the RTHS run's numerical parameters: the config's, then every option given.
 
     No demo value reaches a lab's data: the scale is 1 for a record file (the
@@ -480,7 +483,7 @@ def _numerical_params(args, base: dict, model_param: str) -> dict:
                      record_remove_mean=not args.no_mean_removal,
                      record_baseline=not args.no_baseline,
                      # the frame the table must follow, and the specimen's mass for P_I^E
-                     **SPECIMENS[args.specimen].numerical_params())
+                     **SPECIMENS[args.specimen].numerical_params(specimen))
     if args.numerical == 'opensees':
         numerical['integrator'] = 'central_difference'   # the RTHS pairing (README)
     for key in ('sdof_mass_kg', 'sdof_freq_hz', 'sdof_zeta', 'harmonic_freq_hz'):
@@ -489,7 +492,7 @@ def _numerical_params(args, base: dict, model_param: str) -> dict:
     return numerical
 
 
-def _check_inputs(numerical: dict, out: Path):
+def _check_inputs(numerical: dict, out: Path, bridge: dict, output_dof=None):
     """Build the numerical substructure once (every input checked) and report the record.
 
     Prints the record as read (first and last samples, duration, rate, peak) and as
@@ -501,7 +504,15 @@ def _check_inputs(numerical: dict, out: Path):
     from rths_numerical.substructure import make_substructure
 
     sub = make_substructure(core_params(numerical))
+    specimen = specimen_of(bridge)
+    SPECIMENS.entry(specimen).check(bridge, sub.n_interface,
+                                    f'model {getattr(sub.model, "name", "")}')
     settings = run_settings(numerical, sub)
+    if output_dof is not None:
+        from rths_bringup.review import dof_index
+        dof_index(sub.model, output_dof, '--output-dof')
+    settings['specimen'] = specimen
+    settings['specimen_settings'] = SPECIMENS.entry(specimen).settings(bridge)
     lines = ['inputs of the RTHS run:']
     if sub.motion is not None and sub.motion.fmt != 'synthetic':
         raw = read_record(numerical['record'], numerical.get('record_format', ''),
@@ -511,6 +522,7 @@ def _check_inputs(numerical: dict, out: Path):
         del settings['record_as_read']['processing']
     if sub.motion is not None:
         lines.append('  as used:  ' + sub.motion.describe().replace('\n', '\n  '))
+    lines.append(f"  specimen {specimen} {settings['specimen_settings'] or ''}".rstrip())
     lines.append(f"  scale {settings['scale']:g}, force scale {settings['force_scale']:g}, "
                  f"interface frame {settings['interface_frame']}, model "
                  f"{settings['model_name']} ({len(settings['dof_names'])} DOFs: "
