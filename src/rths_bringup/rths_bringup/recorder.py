@@ -49,7 +49,7 @@ from rths_common.transport import split_frame
 RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s', 'storage', 'pipe_fd')
 #: Recorded topics whose messages carry a header (and so the run identity).
 STAMPED = (topics.INTERFACE_DISPLACEMENT, topics.COMMAND, topics.MEASUREMENT, topics.STATUS,
-           topics.SPECIMEN)
+           topics.SPECIMEN, topics.CONTROLLER)
 #: Longest time between two commits of the bag [s] (what a crash can lose).
 COMMIT_PERIOD_S = 0.25
 
@@ -99,8 +99,9 @@ class Recorder:
         for topic, msgtype in topics.LOOP_TOPICS.items():
             if topic in teed and topic != topics.EMERGENCY_STOP:
                 continue   # the container's tee brings every one of these
-            qos = (status_qos() if topic in (topics.STATUS, topics.SPECIMEN, topics.RUN_INPUTS,
-                                             topics.RESPONSE) else recorder_qos(mode))
+            qos = (status_qos() if topic in (topics.STATUS, topics.SPECIMEN, topics.CONTROLLER,
+                                             topics.RUN_INPUTS, topics.RESPONSE)
+                   else recorder_qos(mode))
             self.node.create_subscription(ns.message_class(msgtype), topic,
                                           self._callback(topic), qos, raw=True)
         tuning = self.tune()

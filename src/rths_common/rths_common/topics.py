@@ -29,6 +29,9 @@ RUN_INPUTS = '/rths/run_inputs'
 #: numerical node -> recorder, at the end: time, ground acceleration and every DOF per step
 #: (std_msgs/msg/Float64MultiArray in chunks; rths_numerical.inputs)
 RESPONSE = '/rths/response'
+#: actuator bridge -> recorder: counts of an external servo controller's replies
+#: (rths_msgs/msg/ControllerStatus)
+CONTROLLER = '/rths/controller'
 
 LOOP_TOPICS = {
     INTERFACE_DISPLACEMENT: 'rths_msgs/msg/InterfaceDisplacement',
@@ -38,6 +41,7 @@ LOOP_TOPICS = {
     SPECIMEN: 'rths_msgs/msg/Specimen',
     EMERGENCY_STOP: 'std_msgs/msg/String',
     COMPENSATOR_COEFFICIENTS: 'std_msgs/msg/Float64MultiArray',
+    CONTROLLER: 'rths_msgs/msg/ControllerStatus',
     RUN_INPUTS: 'std_msgs/msg/String',
     RESPONSE: 'std_msgs/msg/Float64MultiArray',
 }
