@@ -87,6 +87,8 @@ class NumericalNode:
             gaps.warm_up(gaps.FORCE_ORDER, n_channels=self.sub.n_interface)
             tuning = ns.tune_process(*ns.tuning(own, 'numerical'))
             self.log.info(f'{own["mode"]}: {tuning}')
+        if self.sub.motion is not None:    # what the run will apply, before it starts
+            self.log.info(self.sub.motion.describe().replace('\n', ';'))
         self.start_timer = self.node.create_timer(0.05, self.try_start)
         self.log.info(f'numerical substructure ready: {self.sub.n_steps} steps at '
                       f'{1.0 / self.sub.dt:g} Hz, {self.sub.n_interface} interface DOF(s); '
