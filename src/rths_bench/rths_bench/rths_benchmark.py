@@ -49,6 +49,9 @@ from rths_common import datasets
 from rths_compensator.methods import adaptive_names
 from rths_compensator.schemes import fir_schemes
 
+#: The FIR design scheme of the benchmark's ``fir`` controller (least squares, eq. 28).
+BENCHMARK_SCHEME = 'ls'
+
 #: Published J1-J9 of the example controller, El Centro x 0.4 (Silva et al. 2020, Table 3;
 #: preprint "Benchmark_Control_Problem_for_Real_time_Hybrid_Simulation_Updated_V23.pdf" in
 #: the benchmark's code package, github.com/MECHS-RCN/BENCHMARKS, "RTHS code RT V23.zip").
@@ -282,7 +285,7 @@ def target_lowpass(order: int, cutoff_hz: float, fs_hz: float):
 
 def _identify_once(seed: int = 7, record_s: float = 20.0, band_hz: float = 50.0,
                    peak_m: float = 10e-3, prefilter_hz: float = 100.0, n_taps: int = 200,
-                   fc_hz: float = 30.0, scheme: str = 'ls', epsilon: float = 0.002,
+                   fc_hz: float = 30.0, scheme: str = BENCHMARK_SCHEME, epsilon: float = 0.002,
                    lowpass_order: int = 4, lowpass_hz: float = 400.0,
                    na_min: int = 4, na_max: int = 8, nb_max: int = 1, d_min: int = 0,
                    d_max: int = 4,
@@ -992,7 +995,7 @@ def register(commands, benches):
     p.add_argument('--duration', type=float, default=0.0, help='shorten the record [s]; 0 = all')
     p.add_argument('--taps', type=int, default=200, help='fir: number of taps n')
     p.add_argument('--fc', type=float, default=30.0, help='fir: passband edge [Hz]')
-    p.add_argument('--scheme', default='ls', choices=fir_schemes(), help='fir: scheme')
+    p.add_argument('--scheme', default=BENCHMARK_SCHEME, choices=fir_schemes(), help='fir: scheme')
     p.add_argument('--lowpass', type=float, default=400.0,
                    help='fir: cut-off [Hz] of the target low-pass (order 4) that bounds |G|')
     p.add_argument('--epsilon', type=float, default=0.002, help='fir: passband tolerance')

@@ -27,7 +27,9 @@ import math
 
 import numpy as np
 
+from rths_bench.rths_benchmark import BENCHMARK_SCHEME
 from rths_compensator.methods import adaptive_names
+from rths_compensator.schemes import fir_schemes
 
 from .scenarios import Scenario
 from .setting import Setting
@@ -38,7 +40,8 @@ PLANT_PARAMETERS = ('gain', 'a1b0', 'a2', 'b1', 'b2', 'a3', 'm_e', 'k_e', 'zeta_
 DESIGN = {'taps': Setting(int, 200, minimum=2, maximum=4096, doc='FIR taps n'),
           'fc_hz': Setting(float, 30.0, minimum=0.1, maximum=2000.0,
                            doc='passband edge of the FIR design [Hz]'),
-          'scheme': Setting(str, 'ls', choices=('ls', 'wls', 'mm'), doc='FIR design scheme'),
+          'scheme': Setting(str, BENCHMARK_SCHEME, choices=fir_schemes(),
+                            doc='FIR design scheme'),
           'epsilon': Setting(float, 0.002, minimum=0.0, doc='passband tolerance'),
           'lowpass_hz': Setting(float, 400.0, minimum=1.0, maximum=2000.0,
                                 doc='cut-off of the order-4 target low-pass [Hz]')}
