@@ -97,7 +97,10 @@ def tables(s: dict) -> str:
 
 def settings(s: dict) -> str:
     """Return what shaped the run (scale, force scale, frame, specimen, processing) as HTML."""
-    rows = [('record', f"{s['record']} x {s['scale']}"), ('specimen', s['specimen']),
+    if s.get('kind') == 'site':      # the record and the model ran in the client
+        return ''
+    rows = [('record', f"{s.get('record', '?')} x {s.get('scale', '?')}"),
+            ('specimen', s.get('specimen', '?')),
             ('model', f"{s.get('numerical_model', '?')}"),
             ('force scale', f"{s.get('force_scale', '?')}"),
             ('interface frame', f"{s.get('interface_frame', '?')} at "
