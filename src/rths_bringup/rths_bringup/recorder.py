@@ -13,7 +13,8 @@ sits in the 1 kHz path of the loop.
 
 Run identity (``run_id``, from the launcher): a stamped loop message of another
 run (its ``header.frame_id``, :mod:`rths_common.transport`) is not recorded; the
-recorder counts them and says so at the end.
+recorder counts them and says so at the end.  A recorder started without one (by
+hand, beside ``rths replay``) records every run's messages.
 
 Realtime mode: the recorder must not take the loop's CPU.  Its threads stay
 at normal (SCHED_OTHER) scheduling with a positive nice value (``nice``,
@@ -129,7 +130,7 @@ class Recorder:
 
     def _callback(self, topic):
         queue, now_ns = self.queue, ns.now_ns
-        if topic not in STAMPED:
+        if topic not in STAMPED or not self.run_id:
             def on_message(raw: bytes):
                 # only a deque append (thread-safe): the writer thread drains in batches
                 queue.append((topic, now_ns(), raw))
