@@ -53,7 +53,10 @@ class Rogue:
     """Nodes named compensator, numerical and bridge flooding the loop topics.
 
     The rogue 'compensator' sends its own writer gid as the sender, as a second
-    run's compensator would; commands of 0.2 m for every step.
+    run's compensator would; commands of 0.2 m for every step.  About 200 messages a
+    second per topic: a flood that fills a lock-step reader's history (10000 samples)
+    while its node is still starting would stall the loop (never move the actuator),
+    which on a loaded machine would only time the test out.
     """
 
     def __init__(self, domain_id: int):
@@ -98,7 +101,7 @@ class Rogue:
                     pub.publish(msg)
                     self.sent += 1
             step += 1
-            time.sleep(0.002)
+            time.sleep(0.01)
 
     def close(self):
         self.running = False
