@@ -28,6 +28,7 @@ setup(
             'bench_adaptive = rths_bench.bench_adaptive',
             'rths_benchmark = rths_bench.rths_benchmark',
             'bench_site = rths_bench.bench_site',
+            'bench_monitor = rths_bench.bench_monitor',
             'bench_discrepancy_v3 = rths_bench.bench_discrepancy_v3',
         ],
     },

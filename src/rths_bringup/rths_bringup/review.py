@@ -1,11 +1,28 @@
 """Review of a recorded run, rebuilt from its bag alone."""
 
+import json
 from pathlib import Path
 
 import numpy as np
+from scipy import signal
+from scipy.signal import coherence
 
-from rths_common import bagio, topics
+from rths_actuator_bridge.bridge import DEFAULT_BACKEND, backend_class
+from rths_bringup.report_html import row_label, specimen_title, write_report
+from rths_common import bagio, runinfo, topics
+from rths_common.params import core_params
+from rths_compensator.indicators import frf_h1, relative_rms_pct
+from rths_numerical.inputs import parse_inputs, table_from_chunks
+from rths_numerical.model import LinearModel
+from rths_numerical.reference import (
+    coupled_rths,
+    metrics,
+    relative_rms_error,
+    simulate_reference,
+    simulate_uncontrolled,
+)
 from rths_numerical.specimens import SPECIMENS, specimen_of
+from rths_numerical.substructure import make_substructure
 
 #: Loop topics that carry one message per step, and the array field to summarise.
 STEP_TOPICS = {
@@ -106,7 +123,6 @@ def external_controller(bridge: dict) -> str:
     Any backend whose plant does not live in the bridge's process drives a lab's actuator
     and specimen through its controller: the review has no model of them.
     """
-    from rths_actuator_bridge.bridge import backend_class
     try:
         in_process = backend_class(bridge).in_process
     except ValueError:       # a backend this installation does not know: not in the process
@@ -146,10 +162,6 @@ def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
     Weighting each Welch bin by the desired signal's power gives the delay the
     loop actually experiences and equals the plain average for a flat spectrum.
     """
-    from scipy import signal
-
-    from rths_compensator.indicators import frf_h1
-
     d = np.asarray(desired, dtype=float)
     nperseg = int(min(d.size, 4 * round(fs_hz)))
     f, h = frf_h1(d, measured, fs_hz, nperseg)
@@ -164,8 +176,6 @@ def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
 
 def _numerical_params(info: dict) -> dict:
     """Return the run's numerical core parameters (node-level keys stripped, as offline does)."""
-    from rths_common import runinfo
-    from rths_common.params import core_params
     return core_params(runinfo.section(info, 'numerical'))
 
 
@@ -205,7 +215,6 @@ def _tracking(bag, fs):
 
 def table5_of(desired, applied, measured, fs) -> dict:
     """Return table 5: delay and tracking of the plant (command) and the compensated actuator."""
-    from rths_compensator.indicators import relative_rms_pct
     # Table 5: the plant (command -> measured; with D > 0 it includes the D-step delay line)
     # and the compensated actuator (desired -> measured)
     return {
@@ -225,9 +234,6 @@ def run_inputs(bag, numerical: dict):
 
     Bags recorded before the copy existed rebuild it from the files the parameters name.
     """
-    from rths_numerical.inputs import parse_inputs
-    from rths_numerical.substructure import make_substructure
-
     recorded = bagio.read_topic(bag, topics.RUN_INPUTS)
     if not recorded:
         return make_substructure(numerical)
@@ -237,8 +243,6 @@ def run_inputs(bag, numerical: dict):
 
 def response_of(bag):
     """Return ``(columns, table)`` of the bag's /rths/response (None, None if absent)."""
-    from rths_numerical.inputs import table_from_chunks
-
     return table_from_chunks((m.layout.data_offset, m.data, m.layout.dim[1].label)
                              for _, m in bagio.read_topic(bag, topics.RESPONSE))
 
@@ -265,15 +269,7 @@ def review_rths(bag, out_dir, progress=None, dof=None) -> dict:
     output DOF).  The model and the record come from the bag (:func:`run_inputs`).
     """
     stage = progress or (lambda done, total: None)
-    import json
 
-    from rths_common import runinfo
-    from rths_numerical.model import LinearModel
-    from rths_numerical.reference import (
-        relative_rms_error,
-        simulate_reference,
-        simulate_uncontrolled,
-    )
     bag, out_dir = Path(bag), Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     info = bagio.run_info(bag)
@@ -397,7 +393,6 @@ def review_rths(bag, out_dir, progress=None, dof=None) -> dict:
         _hysteresis_plot(out_dir / HYSTERESIS_PNG, measured, meas['force'][:n, 0], fs,
                          f'specimen {name} ({settings}), measured')
     stage(3, REVIEW_STAGES)
-    from rths_bringup.report_html import write_report
     write_report(out_dir, summary)
     stage(4, REVIEW_STAGES)
     return summary
@@ -413,10 +408,6 @@ def review_site(bag, out_dir, info, fs, stage) -> dict:
     Tables 6-9 need the numerical model, which ran in the client (OpenSees,
     OpenFresco): the bag holds none, so they are left out rather than guessed.
     """
-    import json
-
-    from rths_actuator_bridge.bridge import DEFAULT_BACKEND
-    from rths_common import runinfo
     desired, applied, measured, meas, status, n = _tracking(bag, fs)
     stage(1, REVIEW_STAGES)
     bridge = runinfo.section(info, 'bridge')
@@ -443,7 +434,6 @@ def review_site(bag, out_dir, info, fs, stage) -> dict:
     (out_dir / 'review.txt').write_text(review_text(summary))
     _tracking_plots(out_dir, fs, desired, applied, measured)
     stage(3, REVIEW_STAGES)
-    from rths_bringup.report_html import write_report
     write_report(out_dir, summary)
     stage(4, REVIEW_STAGES)
     return summary
@@ -487,7 +477,6 @@ def _every_dof(model, columns, response, n) -> list:
 
 def review_text(s: dict) -> str:
     """Return the review as text, in the layout of the seed's tables 5-9."""
-    from rths_bringup.report_html import row_label, specimen_title
     if s.get('kind') == 'site':
         return _site_text(s)
     inch = 0.0254
@@ -559,8 +548,6 @@ def offline_references(numerical, bridge, dt, build=None):
     dicts with ``disp`` and ``metrics`` (the reference also its whole ``history``; None if the
     bridge ran a bare table).
     """
-    from rths_numerical.reference import coupled_rths, metrics
-    from rths_numerical.substructure import make_substructure
     build = build or (lambda: make_substructure(numerical))
     free = coupled_rths(build(), lambda x: np.zeros(1))
     uncontrolled = {'disp': free['output_disp'], 'metrics': metrics(free['output_disp'])}
@@ -588,8 +575,10 @@ def _hinge_history(bag, reference):
 def _hysteresis_plot(path, stroke, force, fs, title, labels=('stroke [mm]', 'force [N]'),
                      velocity=True):
     """Force against stroke (and against velocity, by finite differences) of a specimen."""
+    # lazy: start-up cost: matplotlib (~0.5 s), which only the plots need
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(1, 2 if velocity else 1, figsize=(10 if velocity else 6, 4),
                            squeeze=False)
@@ -607,8 +596,10 @@ def _hysteresis_plot(path, stroke, force, fs, title, labels=('stroke [mm]', 'for
 
 
 def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
+    # lazy: start-up cost: matplotlib (~0.5 s), which only the plots need
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
 
     t = np.arange(desired.size) / fs
@@ -635,11 +626,11 @@ def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
 
 def _tracking_plots(out_dir, fs, desired, applied, measured):
     """Tracking around the peak and the measured FRF of the actuator (table 5's plots)."""
+    # lazy: start-up cost: matplotlib (~0.5 s), which only the plots need
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
-
-    from rths_compensator.indicators import frf_h1
 
     t = np.arange(desired.size) / fs
     k = int(np.argmax(np.abs(desired)))
@@ -654,9 +645,6 @@ def _tracking_plots(out_dir, fs, desired, applied, measured):
     fig.tight_layout()
     fig.savefig(out_dir / 'tracking_zoom.png', dpi=110)
     plt.close(fig)
-
-    from scipy import signal
-    from scipy.signal import coherence
 
     fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
     nperseg = int(min(desired.size, 4 * round(fs)))

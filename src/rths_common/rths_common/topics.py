@@ -22,6 +22,9 @@ SPECIMEN = '/rths/specimen'
 
 #: compensator node -> recorder: adaptive coefficients, decimated (std_msgs/msg/Float64MultiArray)
 COMPENSATOR_COEFFICIENTS = '/rths/compensator_coefficients'
+#: The stability monitor's estimates [step, delay_ms, gain, error_pct, ti, level]
+#: (rths_compensator.monitor; level 0 ok, 1 warn, 2 stop).
+STABILITY = '/rths/stability'
 
 #: numerical node -> recorder, once at the start: the model and the ground motion as used
 #: (std_msgs/msg/String, JSON; rths_numerical.inputs), so a bag needs no other file
@@ -41,6 +44,7 @@ LOOP_TOPICS = {
     SPECIMEN: 'rths_msgs/msg/Specimen',
     EMERGENCY_STOP: 'std_msgs/msg/String',
     COMPENSATOR_COEFFICIENTS: 'std_msgs/msg/Float64MultiArray',
+    STABILITY: 'std_msgs/msg/Float64MultiArray',
     CONTROLLER: 'rths_msgs/msg/ControllerStatus',
     RUN_INPUTS: 'std_msgs/msg/String',
     RESPONSE: 'std_msgs/msg/Float64MultiArray',

@@ -20,6 +20,8 @@ from rths_common.qos import loop_qos, run_info_qos, status_qos
 from rths_common.stepping import Driver
 from rths_common.transport import Transport
 from rths_msgs.msg import InterfaceDisplacement, LoopStatus, Measurement
+from rths_numerical.inputs import inputs_text, response_chunks, response_table
+from rths_numerical.stepping import NumericalCore
 
 #: Parameters of the node itself; every other parameter goes to make_substructure().
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
@@ -39,7 +41,7 @@ class NumericalNode:
     """
 
     def __init__(self):
-        from rths_numerical.stepping import NumericalCore
+        # lazy: start-up cost: SciPy (~1 s), which this module needs only here
         from rths_numerical.substructure import make_substructure, param_schema
 
         self.node = ns.make_node('numerical', param_schema(NODE_PARAMS), NODE_PARAMS)
@@ -133,7 +135,6 @@ class NumericalNode:
         self.t_start = time.monotonic()
         self.log.info('graph connected: publishing step 0')
         if getattr(self.sub, 'motion', None) is not None:
-            from rths_numerical.inputs import inputs_text
             self.inputs_pub.publish(String(data=inputs_text(self.sub, self.own['run_id'])))
         self.first = self.core.first_displacement()
         self.last_publish = time.monotonic()
@@ -252,8 +253,6 @@ class NumericalNode:
 
     def publish_response(self):
         """Publish the whole structure's response of the finished steps (/rths/response)."""
-        from rths_numerical.inputs import response_chunks, response_table
-
         if not hasattr(self.sub, 'history') or getattr(self.sub, 'motion', None) is None:
             return
         columns, table = response_table(self.sub)

@@ -14,12 +14,12 @@ sub-step with the inputs linear in time (first-order hold, scipy expm).
 """
 
 import numpy as np
+from scipy.linalg import expm
+import yaml
 
 
 def load_state_space(path) -> dict:
     """Return ``{'A', 'B', 'C', 'D'}`` of a state-space specimen file (ValueError naming it)."""
-    import yaml
-
     try:
         with open(path) as fh:
             data = yaml.safe_load(fh)
@@ -70,8 +70,6 @@ class StateSpaceSpecimen:
 
     def _matrices(self, h: float):
         """Return the first-order-hold step matrices for inputs linear over ``h`` seconds."""
-        from scipy.linalg import expm
-
         n = self.a.shape[0]
         big = np.zeros((n + 4, n + 4))
         big[:n, :n] = self.a * h

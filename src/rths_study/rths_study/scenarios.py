@@ -13,6 +13,9 @@ The scenarios live in their own modules and are imported only when a SPEC names 
 """
 
 import importlib
+import time
+
+import numpy as np
 
 from .setting import Setting
 
@@ -84,9 +87,6 @@ class ClusterCheckScenario(Scenario):
 
     def evaluate(self, settings, runs):
         """Draw and summarise; raise for ``x > fail_above``."""
-        import time
-
-        import numpy as np
         out = []
         for run in runs:
             p = run['params']
