@@ -16,14 +16,14 @@ from rths_system_tests import REPO, graph_env, rths, rths_executable, wait_for
 DURATION_S = 1.0
 
 
-def lockstep_config(directory, scale):
-    """Write a 1 s lock-step run (building, Kobe x ``scale``, valve4); return its sections."""
+def lockstep_config(directory, scale, duration_s=DURATION_S):
+    """Write a lock-step run (building, Kobe x ``scale``, valve4); return its sections."""
     from rths_common import runinfo
 
     config = REPO / 'config'
     numerical = dict(runinfo.load_params(config / 'numerical.yaml', 'numerical'),
                      model='building2story', record='kobe', scale=scale,
-                     duration_s=DURATION_S, force_scale=5.0)
+                     duration_s=duration_s, force_scale=5.0)
     for key in ('sdof_mass_kg', 'sdof_freq_hz', 'sdof_zeta'):
         numerical.pop(key)
     sections = {'numerical': numerical,
@@ -127,34 +127,38 @@ def test_a_rogue_with_the_loop_node_names_never_moves_the_actuator(tmp_path):
 def test_two_runs_at_once_each_its_own_and_a_third_in_a_held_domain_refused(tmp_path):
     """A in ROS_DOMAIN_ID D, B with the default environment (no domain): both run, exact.
 
-    C, started in D while A runs, refuses before anything starts, naming A.
+    C, started in D while A runs, refuses before anything starts, naming A.  A runs
+    4 s of the record, so that on a loaded machine C and B start while it runs.
     """
     runs = {}
-    for name, scale in (('a', 0.135), ('b', 0.0675)):
+    for name, scale, duration in (('a', 0.135, 4.0), ('b', 0.0675, DURATION_S)):
         (tmp_path / name).mkdir()
-        runs[name] = lockstep_config(tmp_path / name, scale)
+        runs[name] = lockstep_config(tmp_path / name, scale, duration)
     env = graph_env()
     unset = {k: v for k, v in env.items() if k != 'ROS_DOMAIN_ID'}
     argv = [rths_executable(), 'launch', '--config']
     a = subprocess.Popen([*argv, tmp_path / 'a', '--bag', tmp_path / 'a' / 'bag'], env=env,
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    b = None
     try:
         seen = wait_for(a, 'run identity', timeout=120)
+        c = subprocess.run([*argv, tmp_path / 'b', '--bag', tmp_path / 'c'], env=env,
+                           capture_output=True, text=True, timeout=120)
         b = subprocess.Popen([*argv, tmp_path / 'b', '--bag', tmp_path / 'b' / 'bag'],
                              env=unset, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                              text=True)
-        c = subprocess.run([*argv, tmp_path / 'b', '--bag', tmp_path / 'c'], env=env,
-                           capture_output=True, text=True, timeout=120)
+        overlapping = a.poll() is None      # B starts while A runs
         out_a = seen + a.communicate(timeout=300)[0]
         out_b = b.communicate(timeout=300)[0]
     finally:
         for proc in (a, b):
-            if proc.poll() is None:
+            if proc is not None and proc.poll() is None:
                 proc.kill()
     domain = env['ROS_DOMAIN_ID']
     assert f'ROS domain {domain} (ROS_DOMAIN_ID)' in out_a
     assert 'a free domain taken for this run' in out_b
     assert a.returncode == 0 and b.returncode == 0, out_a[-2000:] + out_b[-2000:]
+    assert overlapping
     assert c.returncode == 2 and not (tmp_path / 'c').exists()
     assert (f'ROS domain {domain} (ROS_DOMAIN_ID) is in use by another rths run: rths launch '
             f'--config {tmp_path / "a"}') in c.stderr

@@ -254,6 +254,22 @@ class BridgeNode:
                              f'ignored; {self.foreign_rejected} foreign command(s) so far')
         return False
 
+    def command_accepted(self, msg, step: int) -> bool:
+        """Return True if the command ``msg`` may reach the actuator (else it is logged).
+
+        A command of another run (its run identity, rths_common.transport) never
+        does.  In a run with an identity, a command carrying it is the run's own,
+        whichever writer the graph shows (a node of another run with the source's
+        name cannot make the run's first command wait for a graph scan); without one
+        (a bridge started by hand) the sender must be the command source's writer.
+        """
+        sender = self.io_in.sender(msg)
+        if not self.io_in.ours(msg):    # another run's command never reaches the actuator
+            if self.command_from_source(sender, step):   # else logged there as foreign
+                ns.log_foreign(self.log, self.io_in, topics.COMMAND)
+            return False
+        return bool(self.io_in.run_id) or self.command_from_source(sender, step)
+
     @property
     def rejected(self) -> int:
         """Return (lock-step) the count of commands of another step than the expected one."""
@@ -270,10 +286,7 @@ class BridgeNode:
         if self.stopped:
             return
         stamp_ns, step, (command,) = self.io_in.decode(msg)
-        if not self.command_from_source(self.io_in.sender(msg), step):
-            return
-        if not self.io_in.ours(msg):    # another run's command never reaches the actuator
-            ns.log_foreign(self.log, self.io_in, topics.COMMAND)
+        if not self.command_accepted(msg, step):
             return
         timing = self.timing
         timing['recv_step'].append(step)
