@@ -29,6 +29,10 @@ stop) are subscribed to over DDS.  Nothing is lost however loaded the machine
 is: the pipe and the container's queue buffer what the writer has not taken
 yet.  On SIGINT the recorder keeps reading until the pipe ends (the container
 has exited) before it closes the bag.
+
+When the launcher dies (:mod:`rths_common.lifeline`) the recorder keeps
+recording until the bridge reports STOPPED (its safe stop is over; composed: the
+pipe ended), then closes the bag.
 """
 
 from collections import deque
@@ -41,10 +45,9 @@ import rclpy
 
 from rths_bringup.tee import TOPICS as TEED_TOPICS
 from rths_bringup.tee import read_records
-from rths_common import bagstore, topics
+from rths_common import bagstore, cdr, lifeline, topics
 from rths_common import node_support as ns
 from rths_common.bagio import BagWriter
-from rths_common.cdr import sender_of
 from rths_common.qos import recorder_qos, status_qos
 from rths_common.transport import split_frame
 
@@ -55,6 +58,12 @@ STAMPED = (topics.INTERFACE_DISPLACEMENT, topics.COMMAND, topics.MEASUREMENT, to
            topics.SPECIMEN, topics.CONTROLLER)
 #: Longest time between two commits of the bag [s] (what a crash can lose).
 COMMIT_PERIOD_S = 0.25
+#: After the stop request the recorder keeps taking messages this long [s] ...
+TAIL_S = 0.2
+#: ... and after its launcher died, until the bridge reports STOPPED (its safe stop is
+#: over), at most LOST_TAIL_S [s] (the run's processes are gone within 1 s).
+LOST_TAIL_S = 0.75
+_STOPPED = 3                     # rths_msgs/LoopStatus SAFETY_STOPPED
 
 
 class Recorder:
@@ -78,6 +87,7 @@ class Recorder:
         # Everything else given to the recorder (fs_hz, ...) is run information kept in the bag.
         self.run_info = {k: v for k, v in params.items() if k not in RECORDER_PARAMS}
         self.queue = deque()
+        self.bridge_stopped = False    # (after the launcher died) the bridge reported STOPPED
         self.wake = threading.Event()
         self.running = True
         self.count = 0
@@ -130,21 +140,53 @@ class Recorder:
             parts.append(ns.tune_process(0, self.cpus, 'default').replace(', gc default', ''))
         return ', '.join(parts)
 
+    def hurry(self):
+        """Launcher dead: back to nice 0 (where allowed), the bag must close within a second."""
+        for tid in (int(t) for t in os.listdir('/proc/self/task')):
+            try:
+                os.setpriority(os.PRIO_PROCESS, tid, 0)
+            except OSError:
+                return
+
     def _callback(self, topic):
         queue, now_ns = self.queue, ns.now_ns
-        if topic not in STAMPED or not self.run_id:
-            def on_message(raw: bytes):
-                # only a deque append (thread-safe): the writer thread drains in batches
-                queue.append((topic, now_ns(), raw))
-            return on_message
-        run_id = self.run_id
+        # a stamped topic carries the run identity; a recorder without one takes every run's
+        run_id = self.run_id if topic in STAMPED else ''
 
-        def on_stamped(raw: bytes):
-            if split_frame(sender_of(raw))[0] != run_id:
+        def ours(raw: bytes) -> bool:
+            if run_id and split_frame(cdr.sender_of(raw))[0] != run_id:
                 self.foreign += 1      # another run's message: not this run's record
+                return False
+            return True
+
+        def on_message(raw: bytes):
+            # only a deque append (thread-safe): the writer thread drains in batches
+            if ours(raw):
+                queue.append((topic, now_ns(), raw))
+
+        def on_status(raw: bytes):
+            if not ours(raw):
                 return
             queue.append((topic, now_ns(), raw))
-        return on_stamped
+            if lifeline.lost() and cdr.status_state(raw) == ('bridge', _STOPPED):
+                self.bridge_stopped = True
+        return on_status if topic == topics.STATUS else on_message
+
+    def collect_tail(self, lost: bool):
+        """Take the messages still in flight after the stop request (module constants).
+
+        After the launcher died (processes layout) that is until the bridge's
+        STOPPED status arrived; composed, the statuses come through the pipe.
+        """
+        start = time.monotonic()
+        executor = ns.make_executor('events')
+        executor.add_node(self.node)
+        wait_stop = lost and self.pipe_fd < 0
+        while time.monotonic() - start < (LOST_TAIL_S if wait_stop else TAIL_S):
+            if wait_stop and self.bridge_stopped:
+                break
+            executor.spin_once(timeout_sec=0.02)
+        executor.remove_node(self.node)
 
     def _read_pipe(self):
         """Composed layout: the container's records, from the pipe until it ends."""
@@ -193,6 +235,7 @@ class Recorder:
 
 def main(argv=None):
     """Entry point of ``ros2 run rths_bringup recorder``."""
+    lifeline.bind()       # its launcher's death: record the safe stop, close
     rclpy.init(args=argv if argv is not None else sys.argv)
     try:
         rec = Recorder()
@@ -203,13 +246,10 @@ def main(argv=None):
     t0 = time.monotonic()
     # The events executor has the least per-message overhead: the recorder takes every
     # message of every node and must keep up with the loop.
-    ns.spin_until_done(rec.node, ns.make_executor('events'))
-    # Collect what is still in flight after the stop request.
-    end = time.monotonic() + 0.2
-    executor = ns.make_executor('events')
-    executor.add_node(rec.node)
-    while time.monotonic() < end:
-        executor.spin_once(timeout_sec=0.02)
+    ns.spin_until_done(rec.node, ns.make_executor('events'), lifeline.lost)
+    if lifeline.lost():
+        rec.hurry()
+    rec.collect_tail(lifeline.lost())
     if not rec.wait_for_pipe():
         print('recorder: the container did not close the recording pipe within 60 s; '
               'BAG INCOMPLETE', flush=True)
@@ -219,6 +259,7 @@ def main(argv=None):
     print(f'recorder: {count} messages written{piped} in {time.monotonic() - t0:.1f} s'
           f'{foreign}', flush=True)
     rclpy.shutdown()
+    lifeline.end_if_lost(0)
     return 0
 
 
