@@ -392,6 +392,28 @@ def _most_violated(excess, tol, local_max=True):
     return mask
 
 
+KEEP = None
+
+
+def _gain_stopband(a_ls, rhs, pb, sb, a_star, b_plus, c, n_taps, freqs, fs, weight):
+    """Replace the stopband rows of the LS problem by ``weight |G(f)|^2`` (target 0).
+
+    ``G(f) = A*(f)/B+*(f) . H(f)`` with ``h = g / c``: a linear function of g, so the
+    compensator's own gain above the passband is minimised (its noise and step
+    amplification), where the seed's objective drives ``T_com`` to 1 there and so ``G``
+    to the plant's inverse, whose gain grows without bound towards Nyquist.
+    """
+    n_grid = freqs.size
+    _, ab = signal.freqz(a_star, b_plus, worN=freqs, fs=fs)
+    gm = (ab / c)[:, None] * np.exp(-1j * np.outer(2 * np.pi * freqs / fs, np.arange(n_taps)))
+    ws = np.sqrt(weight)
+    keep = np.r_[pb, pb] if KEEP is None else np.r_[pb | KEEP, pb | KEEP]
+    a_new = np.vstack([a_ls[keep], ws * np.real(gm[sb]), ws * np.imag(gm[sb])])
+    rhs_new = np.r_[rhs[keep], np.zeros(2 * int(sb.sum()))]
+    del n_grid
+    return a_new, rhs_new
+
+
 def min_passband_error(plant, n_taps: int, fc_hz: float, fs_hz: float = None,
                        n_grid: int = 513, n_sides: int = 16) -> float:
     """Smallest achievable ``max |T_com - 1|`` over the passband with unit DC gain (an LP).
@@ -419,7 +441,9 @@ def min_passband_error(plant, n_taps: int, fc_hz: float, fs_hz: float = None,
 def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls',
                epsilon: float = DEFAULT_EPSILON, fs_hz: float = None, n_grid: int = None,
                passband_weight: float = 1000.0, n_sides: int = 16,
-               zero_tol: float = 1.0, lp_method: str = 'highs') -> Design:
+               zero_tol: float = 1.0, lp_method: str = 'highs',
+               stopband_gain_weight: float = 0.0, transition: float = 1.0,
+               rolloff: float = None) -> Design:
     """Design the FIR compensator ``G = A*/B+* . H`` (eq. 28) by LS, WLS or MM (eq. 32-36).
 
     ``plant`` is an :class:`ArxModel` or ``(b, a)`` in z^-1 (with ``fs_hz``).  ``n_taps`` is
@@ -471,9 +495,14 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
         w = np.ones(n_grid)
         if scheme == 'wls':
             w[pb] = passband_weight
+            if rolloff is not None:
+                w[~pb] = np.maximum(1.0, passband_weight * (fc_hz / freqs[~pb]) ** rolloff)
         sw = np.sqrt(w)[:, None]
         a_ls = np.vstack([sw * np.real(m), sw * np.imag(m)])
         rhs = np.r_[np.sqrt(w), np.zeros(n_grid)]
+        if stopband_gain_weight > 0:
+            a_ls, rhs = _gain_stopband(a_ls, rhs, pb, freqs >= transition * fc_hz, a_star,
+                                       b_plus, c, n_taps, freqs, fs, stopband_gain_weight)
         g0, z = _null_space_of_ones(n_taps)
         az = a_ls @ z
         r0 = rhs - a_ls @ g0
