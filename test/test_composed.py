@@ -71,7 +71,7 @@ def test_lockstep_composed_equals_processes_bit_for_bit(tmp_path):
 
 
 def realtime_config(directory, duration_s=DURATION_S):
-    from rths_bringup.bench_loop import write_config
+    from rths_bench.bench_loop import write_config
 
     # normal scheduling (CI may not allow SCHED_FIFO); a watchdog of a whole second: a loaded
     # machine can stall the process for tens of ms
@@ -80,7 +80,7 @@ def realtime_config(directory, duration_s=DURATION_S):
 
 
 def test_realtime_composed_bag_holds_every_step_and_the_miss_accounting(tmp_path):
-    from rths_bringup.bench_loop import bag_check
+    from rths_bench.bench_loop import bag_check
     from rths_bringup.review import read_loop
 
     bag = tmp_path / 'bag'

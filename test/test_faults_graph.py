@@ -214,7 +214,7 @@ def test_foreign_publisher_and_duplicate_steps_are_logged_and_ignored(tmp_path):
 
 def realtime_config(directory, duration_s=3.0):
     """Return a 256 Hz realtime graph (simulated plant, 50-tap unit FIR)."""
-    from rths_bringup.bench_loop import write_config
+    from rths_bench.bench_loop import write_config
 
     return write_config(directory, rate_hz=256.0, duration_s=duration_s, taps=50,
                         model='sdof', priority=0, watchdog_steps=40)

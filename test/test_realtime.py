@@ -35,7 +35,7 @@ DISPLACEMENT_DROP_EVERY = 40   # >= 4: three received steps before each gap (cub
 @pytest.fixture(scope='module')
 def realtime_run(tmp_path_factory):
     """One realtime run (simulated plant, 50-tap FIR, injected drops), recorded to a bag."""
-    from rths_bringup.bench_loop import write_config
+    from rths_bench.bench_loop import write_config
 
     base = tmp_path_factory.mktemp('realtime')
     # The watchdog is set to a whole second: this test checks the miss accounting, and a loaded
@@ -127,7 +127,7 @@ def designed_filter():
 @pytest.fixture(scope='module')
 def lost_displacement_run(tmp_path_factory):
     """Return a realtime run (designed compensator) losing every N-th interface displacement."""
-    from rths_bringup.bench_loop import write_config
+    from rths_bench.bench_loop import write_config
 
     base = tmp_path_factory.mktemp('realtime_lost_displacement')
     config = write_config(base / 'config', rate_hz=RATE_HZ, duration_s=DURATION_S,

@@ -13,7 +13,7 @@ from rths_system_tests import graph_env
 
 
 def test_benchmark_case_through_the_graph_equals_the_cores(tmp_path, monkeypatch):
-    from rths_bringup import rths_benchmark as rb
+    from rths_bench import rths_benchmark as rb
     from rths_compensator.design import design_inverse
 
     for key, value in graph_env().items():

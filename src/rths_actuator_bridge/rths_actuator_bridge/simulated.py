@@ -77,6 +77,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from rths_common.params import LOOP_RATE_RANGE_HZ
+from rths_common.timebase import same_rate
 
 from .backend import Backend
 from .channels import CHANNELS, zoh
@@ -364,7 +365,7 @@ class SimulatedPlant:
                              'needs rths_compensator.identification, which is not available; '
                              "use '3pole' or '4pole'") from None
         model = load_plant(path)
-        if abs(float(model.fs_hz) - self.config.fs_hz) > 1e-9 * self.config.fs_hz:
+        if not same_rate(model.fs_hz, self.config.fs_hz):
             raise ValueError(f'ARX plant {path}: fs_hz {model.fs_hz} differs from the loop '
                              f"fs_hz {self.config.fs_hz}; set 'fs_hz' to {model.fs_hz}")
         self.arx = model

@@ -1,10 +1,13 @@
 """The ``rths`` command: one entry point for every user-facing tool of the project.
 
-Each package contributes its own sub-commands through a ``cli`` module with a
+Each package contributes its own sub-commands through a module with a
 ``register(commands, benches)`` function: ``commands`` is the argparse
 sub-parser collection of ``rths <command>`` and ``benches`` the one of
 ``rths bench <name>``.  Every sub-parser sets ``func`` (``func(args) -> int``,
-the exit code) with ``set_defaults``.
+the exit code) with ``set_defaults``.  This package and the ones below it are
+listed in :data:`CLI_MODULES`; packages above it (the benchmarks, ``rths_bench``)
+declare theirs as ``rths.cli`` entry points in their setup.py, so that nothing
+here imports upward.
 
 Commands that can run longer than a few seconds (:data:`PROGRESS_COMMANDS` and
 every benchmark) show their progress on stderr through
@@ -21,13 +24,10 @@ import importlib
 import os
 import sys
 
-#: Packages whose ``<package>.cli`` module adds sub-commands, in --help order.
+#: Modules of this package and the ones below that add sub-commands, in --help order.
 CLI_MODULES = (
     'rths_bringup.commands',
-    'rths_bringup.bench_loop',
-    'rths_bringup.bench_distributed',
-    'rths_bringup.bench_adaptive',
-    'rths_bringup.rths_benchmark',
+    'rths_bringup.linkemu',
     'rths_bringup.run',
     'rths_bringup.install',
     'rths_bringup.replay',
@@ -40,6 +40,17 @@ CLI_MODULES = (
 #: Commands that report progress (rths_common.progress) and so take --quiet; every bench does.
 PROGRESS_COMMANDS = ('run', 'launch', 'review', 'replay', 'reference', 'identify', 'design',
                      'simulate', 'study', 'fit-mr', 'characterise-dtm', 'discrepancy')
+
+#: Entry-point group through which packages above this one add sub-commands.
+ENTRY_POINT_GROUP = 'rths.cli'
+
+
+def cli_modules() -> list:
+    """Return the names of every module that adds sub-commands: ours, then the entry points'."""
+    from importlib.metadata import entry_points
+
+    plugins = sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda ep: ep.name)
+    return list(dict.fromkeys(list(CLI_MODULES) + [ep.value for ep in plugins]))
 
 
 def _add_quiet(commands, benches):
@@ -73,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
         description='Benchmarks: each prints its results and writes them to --out as JSON.')
     benches = bench.add_subparsers(dest='bench', metavar='NAME')
     benches.required = True
-    for name in CLI_MODULES:
+    for name in cli_modules():
         module = importlib.import_module(name)
         module.register(commands, benches)
     _add_quiet(commands, benches)

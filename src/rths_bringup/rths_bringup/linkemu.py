@@ -259,10 +259,10 @@ def run_relay(args) -> int:
     return 0
 
 
-def add_commands(sub):
-    """Register ``rths linkemu``."""
-    p = sub.add_parser('linkemu', help='relay the loop topics between two ROS domains with '
-                       'emulated delay, jitter and loss')
+def register(commands, benches):
+    """Add ``rths linkemu``."""
+    p = commands.add_parser('linkemu', help='relay the loop topics between two ROS domains '
+                            'with emulated delay, jitter and loss')
     p.add_argument('--domain-a', type=int, required=True,
                    help='ROS domain of the numerical node')
     p.add_argument('--domain-b', type=int, required=True,

@@ -110,18 +110,22 @@ def register(commands, benches):
 
 
 def _read_run(args, path):
-    from .io import read_csv_columns, sampling_rate_hz
+    from rths_common.timebase import infer_rate
+
+    from .io import read_csv_columns
     cols = read_csv_columns(path, ('time', 'command', 'measured'))
-    return cols['time'], cols['command'], cols['measured'], sampling_rate_hz(cols['time'], path)
+    rate = infer_rate(cols['time'], path)
+    _log(f'{path}: sampling rate {rate}')
+    return cols['time'], cols['command'], cols['measured'], rate.fs_hz
 
 
 def cmd_identify(args) -> int:
     """``rths identify``."""
     from rths_common.bagio import read_identification
+    from rths_common.timebase import format_hz, same_rate, sampling_rate_hz
 
     from ._blas import limit_blas_threads
     from .identification import identify, save_plant, split_records
-    from .io import sampling_rate_hz
     limit_blas_threads(1)
     if args.bag:
         t, u, y = read_identification(args.bag)
@@ -131,14 +135,15 @@ def cmd_identify(args) -> int:
     records = split_records(t, u, y, args.record_s)
     if args.val_csv:
         tv, uv, yv, fsv = _read_run(args, args.val_csv)
-        if abs(fsv - fs) > 1e-6 * fs:
-            raise ValueError(f'{args.val_csv}: sampling rate {fsv:.6g} Hz differs from '
-                             f'{fs:.6g} Hz of the identification run')
+        if not same_rate(fsv, fs):
+            raise ValueError(f'{args.val_csv}: sampling rate {format_hz(fsv)} Hz differs '
+                             f'from {format_hz(fs)} Hz of the identification run; record '
+                             'both at one rate')
         train, val = records, split_records(tv, uv, yv, args.record_s)
     else:
         k = max(1, len(records) // 3)
         train, val = records[:k], records[k:]
-    _log(f'identify: fs = {fs:.6g} Hz, {len(train)} training and {len(val)} validation '
+    _log(f'identify: fs = {format_hz(fs)} Hz, {len(train)} training and {len(val)} validation '
          f'records of {args.record_s} s; grid {args.na_max} x {args.nb_max} x {args.d_max + 1}')
     from rths_common.progress import Progress
 
@@ -168,6 +173,7 @@ def cmd_design(args) -> int:
     from .params import write_compensator_params
     limit_blas_threads(1)
     plant = load_plant(args.plant)
+    _snap_plant_rate(plant, args.plant)
     eps = dsg.DEFAULT_EPSILON if args.epsilon is None else args.epsilon
     zero_tol = 1.0 if args.zero_tol is None else args.zero_tol
     if not 0 < zero_tol <= 1:
@@ -237,17 +243,30 @@ def cmd_design(args) -> int:
     return 0
 
 
+def _snap_plant_rate(plant, where) -> None:
+    """Design for the shortest rate the plant's fs_hz stands for (1024.000524 -> 1024)."""
+    from rths_common.timebase import format_hz, nominal_rate
+    fs = nominal_rate(plant.fs_hz)
+    if fs != plant.fs_hz:
+        _log(f'design: {where}: fs_hz {format_hz(plant.fs_hz)} Hz is {format_hz(fs)} Hz to '
+             'the six digits rates are compared with; designing for it')
+        plant.fs_hz = fs
+
+
 def cmd_compensate(args) -> int:
     """``rths compensate``."""
+    from rths_common.timebase import format_hz, same_rate, sampling_rate_hz
+
     from .filters import CausalFilter
-    from .io import read_csv_columns, sampling_rate_hz, write_csv_columns
+    from .io import read_csv_columns, write_csv_columns
     from .params import load_compensator_params
     params = load_compensator_params(args.params)
     cols = read_csv_columns(args.csv, ('time', 'command'))
     fs = sampling_rate_hz(cols['time'], args.csv)
-    if abs(fs - params['fs_hz']) > 1e-3 * params['fs_hz']:
-        raise ValueError(f'{args.csv}: sampling rate {fs:.6g} Hz differs from fs_hz '
-                         f'{params["fs_hz"]:.6g} of {args.params}; resample or redesign')
+    if not same_rate(fs, params['fs_hz']):
+        raise ValueError(f'{args.csv}: sampling rate {format_hz(fs)} Hz differs from fs_hz '
+                         f'{format_hz(params["fs_hz"])} of {args.params}; resample or '
+                         'redesign')
     filt = CausalFilter(params['taps'], params['denominator'])
     out = filt.apply(cols['command'])
     write_csv_columns(args.out, {'time': cols['time'], 'command': cols['command'],

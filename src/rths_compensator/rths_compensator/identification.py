@@ -40,6 +40,7 @@ from scipy import linalg, signal
 import yaml
 
 from rths_common.files import atomic_open
+from rths_common.timebase import sampling_rate_hz
 
 CRITERIA = ('mse', 'fit', 'aic', 'bic')
 
@@ -365,7 +366,7 @@ def selection_summary(grid: dict, criterion: str = 'bic', top: int = 5) -> dict:
 def split_records(time, command, measured, record_s: float = 10.0):
     """Cut one long (command, measured) run into consecutive records of ``record_s``."""
     t = np.asarray(time, dtype=float)
-    n = int(round(record_s / np.median(np.diff(t))))
+    n = int(round(record_s * sampling_rate_hz(t)))
     k = len(t) // n
     if k < 2:
         raise ValueError(f'run of {t[-1] - t[0]:.1f} s gives fewer than 2 records of '

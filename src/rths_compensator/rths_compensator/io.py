@@ -36,18 +36,6 @@ def read_csv_columns(path, columns):
     return out
 
 
-def sampling_rate_hz(time, where: str = 'time') -> float:
-    """Return the sampling rate [Hz] from a uniformly sampled ``time`` column [s] (checked)."""
-    dt = np.diff(np.asarray(time, dtype=float))
-    step = float(np.median(dt))
-    if not step > 0:
-        raise ValueError(f'{where}: column time is not increasing')
-    if np.max(np.abs(dt - step)) > 0.01 * step:
-        raise ValueError(f'{where}: column time is not uniformly sampled (steps between '
-                         f'{dt.min():.6g} and {dt.max():.6g} s); resample the record')
-    return 1.0 / step
-
-
 def write_csv_columns(path, columns: dict) -> str:
     """Atomically write equal-length ``columns`` (name -> array) as CSV with a header."""
     path = os.fspath(path)

@@ -33,6 +33,7 @@ import yaml
 
 from rths_common.files import atomic_open
 from rths_common.params import LOOP_RATE_RANGE_HZ
+from rths_common.timebase import format_hz, same_rate
 
 SCHEMES = ('ls', 'wls', 'mm', 'inverse', 'mff', 'npz', 'zpetc', 'zmetc', 'identity')
 
@@ -86,14 +87,15 @@ def check_sampling_rate(params: dict, loop_fs_hz: float, where: str, loop_where:
     if params.get('scheme') == 'identity':
         return
     fs, loop_fs_hz = float(params.get('fs_hz', FILTER_PARAMS['fs_hz'][0])), float(loop_fs_hz)
-    if abs(fs - loop_fs_hz) > 1e-9 * loop_fs_hz:
-        raise ValueError(f'{where}: field fs_hz = {fs:g} Hz: the taps were designed for '
-                         f'{fs:g} Hz but the loop runs at {loop_fs_hz:g} Hz '
-                         f'({loop_where}); design them for {loop_fs_hz:g} Hz (a plant '
-                         f"identified at {loop_fs_hz:g} Hz, then 'rths design --plant PLANT "
+    if not same_rate(fs, loop_fs_hz):
+        fs_s, loop_s = format_hz(fs), format_hz(loop_fs_hz)
+        raise ValueError(f'{where}: field fs_hz = {fs_s} Hz: the taps were designed for '
+                         f'{fs_s} Hz but the loop runs at {loop_s} Hz '
+                         f'({loop_where}); design them for {loop_s} Hz (a plant '
+                         f"identified at {loop_s} Hz, then 'rths design --plant PLANT "
                          f"--out compensator.yaml'; 'rths run' does both) or give the "
-                         f'compensator a params file designed for {loop_fs_hz:g} Hz, or run '
-                         f'the loop at {fs:g} Hz (fs_hz of numerical.yaml and bridge.yaml)')
+                         f'compensator a params file designed for {loop_s} Hz, or run '
+                         f'the loop at {fs_s} Hz (fs_hz of numerical.yaml and bridge.yaml)')
 
 
 def _check(where, taps, denominator, fs_hz, scheme):

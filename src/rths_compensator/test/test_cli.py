@@ -174,3 +174,44 @@ def test_design_refuses_bad_zero_tol(tmp_path, damped_zero_plant, extra, match):
     with pytest.raises(ValueError, match=match):
         _run(['design', '--plant', str(damped_zero_plant[0]), '--out', str(out)] + extra)
     assert not out.exists()
+
+
+@pytest.mark.parametrize('digits', [6, 10])
+def test_identified_rate_is_exact_and_the_taps_launch(tmp_path, digits):
+    # a 1024 Hz run written with `digits` significant digits used to give fs_hz 1023.54 or
+    # 1024.000524 Hz, and the loop's preflight then refused the designed taps
+    from rths_compensator.params import check_sampling_rate
+    rng = np.random.default_rng(1)
+    n = 20 * 1024
+    u = rng.standard_normal(n) * 1e-3
+    y = signal.lfilter([0.05, 0.1], [1.0, -1.2, 0.35], u)
+    csv_path = tmp_path / 'ident.csv'
+    np.savetxt(csv_path, np.column_stack([np.arange(n) / 1024.0, u, y]), delimiter=',',
+               header='time,command,measured', comments='', fmt=f'%.{digits}g')
+    plant_path, comp_path = tmp_path / 'plant.yaml', tmp_path / 'compensator.yaml'
+    assert _run(['identify', '--csv', str(csv_path), '--out', str(plant_path),
+                 '--na-max', '2', '--nb-max', '2', '--record-s', '5']) == 0
+    assert load_plant(plant_path).fs_hz == 1024.0
+    assert _run(['design', '--plant', str(plant_path), '--scheme', 'ls', '--taps', '10',
+                 '--fc', '20', '--out', str(comp_path)]) == 0
+    params = load_compensator_params(comp_path)
+    assert params['fs_hz'] == 1024.0
+    check_sampling_rate(params, 1024.0, str(comp_path), 'fs_hz of numerical.yaml')
+
+
+def test_design_and_launch_take_a_rate_to_its_printed_digits(tmp_path, run_csv):
+    from rths_compensator.identification import save_plant
+    from rths_compensator.params import check_sampling_rate
+    plant_path = tmp_path / 'plant.yaml'
+    _run(['identify', '--csv', str(run_csv[0]), '--out', str(plant_path),
+          '--na-max', '2', '--nb-max', '2'])
+    plant = load_plant(plant_path)
+    plant.fs_hz = FS * (1 + 2e-9)                     # a plant.yaml of an older identify
+    save_plant(plant_path, plant, {})
+    out = tmp_path / 'c.yaml'
+    assert _run(['design', '--plant', str(plant_path), '--scheme', 'ls', '--taps', '10',
+                 '--fc', '20', '--out', str(out)]) == 0
+    assert load_compensator_params(out)['fs_hz'] == FS
+    check_sampling_rate({'fs_hz': 1024.000524}, 1024.0, 'c.yaml', 'loop')
+    with pytest.raises(ValueError, match='designed for 1024.01 Hz but the loop runs at 1024 Hz'):
+        check_sampling_rate({'fs_hz': 1024.01}, 1024.0, 'c.yaml', 'loop')

@@ -120,10 +120,57 @@ def bench_real_cmd(args) -> int:
     return 0
 
 
+def _io_records(paths, args, what):
+    import os
+
+    from rths_discrepancy import iodisc
+    from rths_discrepancy.io import read_csv_columns
+    recs = []
+    for path in paths:
+        if not os.path.exists(path):
+            raise OSError(f'{what} {path}: no such file')
+        cols = read_csv_columns(path, [args.input] + list(args.output))
+        recs.append(iodisc.records_from_columns(cols, args.input, args.output, fs=args.fs,
+                                                time_col=args.time,
+                                                source=os.path.basename(path)))
+    return recs
+
+
+def _io_cmd(args) -> int:
+    """``rths discrepancy --scenario io``: what the identified linear model misses."""
+    from rths_discrepancy import iodisc
+    if not args.input or not args.output:
+        raise ValueError('the io scenario needs --input COL and at least one --output COL')
+    if args.model:
+        raise ValueError('--model does not apply to the io scenario: its nominal model is '
+                         'the linear model identified from the records')
+    train = _io_records(args.measured, args, '--measured')
+    test = _io_records(args.heldout, args, '--heldout') if args.heldout else None
+    from rths_common.progress import Progress
+
+    with Progress(0, 'io discrepancy') as bar:
+        res = iodisc.run(train, test, out_dir=args.out, progress=lambda text: bar.write(text))
+    print(f"effect: {res['effect']}")
+    for name, p in res['per_output'].items():
+        print(f"  {name}: held-out NRMSE linear {p['nrmse_baseline']:.4f} (ARX reference "
+              f"{p['nrmse_reference']:.4f}) -> after {p['nrmse_after']:.4f}; named "
+              f"{'+'.join(p['effects']) or 'none'}")
+    print(f"wrote {args.out}/result.json, report.md and PNG plots ({res['seconds']:.1f} s)")
+    return 0
+
+
 def run_discrepancy_cmd(args) -> int:
     """``rths discrepancy``: run the workflow and write DIR/result.json, report.md, plots."""
     import os
 
+    if args.scenario == 'io':
+        return _io_cmd(args)
+    if len(args.measured) != 1:
+        raise ValueError(f'--measured: the {args.scenario} scenario reads one record; several '
+                         'records go together only in the io scenario')
+    if args.heldout or args.input or args.output:
+        raise ValueError('--input/--output/--heldout belong to the io scenario')
+    args.measured = args.measured[0]
     if args.scenario == 'restoring-force':
         return _restoring_cmd(args)
 
@@ -290,14 +337,31 @@ def register(commands, benches):
                     'DIR/result.json, DIR/updated_model.yaml (loadable with --model), '
                     'DIR/report.md and PNG plots.')
     p.add_argument('--scenario', required=True,
-                   choices=('specimen', 'actuator', 'restoring-force'),
+                   choices=('specimen', 'actuator', 'restoring-force', 'io'),
                    help='specimen: CSV columns time, base_accel, rel_disp, force (DTM, eq. 46); '
                         'actuator: CSV columns time, command, measured; restoring-force: a '
                         'measured specimen, CSV columns time_s, displacement_m, force_N '
-                        '[, velocity_m_s], nominal m a + c v + k x fitted, later part held out')
-    p.add_argument('--measured', required=True, metavar='CSV|BAG',
-                   help='measured record: CSV with a header row (SI units, uniform sampling) '
-                        'or a bag recorded by rths')
+                        '[, velocity_m_s], nominal m a + c v + k x fitted, later part held out; '
+                        'io: any input-output record (--input, --output), any rate and units, '
+                        'nominal = the identified linear model, effects named from what it '
+                        'misses (saturation, static_output_nonlinearity, '
+                        'amplitude_dependent_stiffness/damping across levels, cubic_stiffness, '
+                        'hysteresis, backlash, coulomb_friction)')
+    p.add_argument('--measured', required=True, nargs='+', metavar='CSV|BAG',
+                   help='measured record: CSV with a header row (uniform sampling) or a bag '
+                        'recorded by rths; the io scenario takes several records of one '
+                        'system (e.g. excitation levels: level dependence is the signature '
+                        'of most joint nonlinearities)')
+    p.add_argument('--input', metavar='COL', help='io: the input column (e.g. a force, a '
+                                                  'voltage)')
+    p.add_argument('--output', action='append', metavar='COL',
+                   help='io: an output column (repeat for several outputs)')
+    p.add_argument('--time', metavar='COL', help='io: the time column [s] (or give --fs)')
+    p.add_argument('--fs', type=float, metavar='HZ',
+                   help='io: sample rate when the records have no time column')
+    p.add_argument('--heldout', nargs='+', metavar='CSV',
+                   help='io: records kept out of every fit and choice, on which the gap '
+                        'before/after is measured (default: the later 40 %% of each record)')
     p.add_argument('--model', metavar='MODEL.yaml',
                    help='nominal model YAML (default: Table 4 valve #4 DTM / Table 1 3-pole '
                         'actuator); layouts in rths_discrepancy.models')

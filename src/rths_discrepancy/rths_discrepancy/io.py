@@ -14,6 +14,8 @@ naming the file/column and the fix.
 
 import numpy as np
 
+from rths_common.timebase import infer_rate, sampling_rate_hz
+
 #: Required columns per scenario: (input, output channels...).
 COLUMNS = {
     'specimen': ('time', 'base_accel', 'rel_disp', 'force'),
@@ -53,17 +55,7 @@ def validate(scenario: str, data: dict, source: str = 'data') -> dict:
     t = out['time']
     if n < 3:
         raise ValueError(f'{source}: only {n} rows; need at least {MIN_SAMPLES}')
-    dt = np.diff(t)
-    if np.any(dt <= 0):
-        i = int(np.argmax(dt <= 0))
-        raise ValueError(f'{source}: column time is not increasing at row {i + 1} '
-                         f'({t[i]:g} -> {t[i + 1]:g} s)')
-    step = np.median(dt)
-    dev = np.max(np.abs(dt - step))
-    if dev > 1e-3 * step:
-        i = int(np.argmax(np.abs(dt - step)))
-        raise ValueError(f'{source}: column time is not uniformly sampled (step {dt[i]:g} s at '
-                         f'row {i + 1}, median {step:g} s); resample to a uniform rate first')
+    infer_rate(t, source)                   # increasing and uniform, within the printing
     if n < MIN_SAMPLES or t[-1] - t[0] < MIN_DURATION_S:
         raise ValueError(f'{source}: record too short to split into training and held-out parts '
                          f'({n} samples, {t[-1] - t[0]:.3g} s); need >= {MIN_SAMPLES} samples and '
@@ -72,9 +64,8 @@ def validate(scenario: str, data: dict, source: str = 'data') -> dict:
 
 
 def sample_rate(data: dict) -> float:
-    """Return the sampling rate [Hz] of validated ``data``."""
-    t = data['time']
-    return float((t.size - 1) / (t[-1] - t[0]))
+    """Return the sampling rate [Hz] of validated ``data`` (:mod:`rths_common.timebase`)."""
+    return sampling_rate_hz(data['time'])
 
 
 def read_csv_columns(path, expected, keep=None) -> dict:

@@ -35,6 +35,7 @@ import math
 import numpy as np
 from scipy import signal
 
+from rths_common.timebase import same_rate
 from rths_discrepancy import effects as fx
 
 
@@ -126,7 +127,7 @@ class ActuatorModel:
     def linear_filter(self, fs: float):
         """Discrete (b, a) from command to measurement under the timing convention."""
         if self.kind == 'arx':
-            if abs(float(self.fs_hz) - fs) > 1e-6 * fs:
+            if not same_rate(self.fs_hz, fs):
                 raise ValueError(f'ARX model is for fs_hz={self.fs_hz} but the data are sampled '
                                  f'at {fs:g} Hz; identify the model at the data rate')
             return np.concatenate([np.zeros(self.d), self.b]), np.asarray(self.a, float)

@@ -6,7 +6,7 @@ import os
 import numpy as np
 import pytest
 
-from rths_bringup import rths_benchmark as rb
+from rths_bench import rths_benchmark as rb
 from rths_bringup.cli import main
 
 

@@ -485,7 +485,7 @@ def run_cores(params: dict) -> dict:
     numerical substructure used: the project's band-limited resampling and baseline
     correction of the record).
     """
-    from .offline import offline_rths
+    from rths_bringup.offline import offline_rths
     out = offline_rths(params['numerical'], params['compensator'], params['bridge'])
     hist = out['history']
     return {'x_m': out['displacement'][:, 0], 'y_n': hist['displacements'],
@@ -501,11 +501,11 @@ def launch_graph(params: dict, out_dir: str, log=_log) -> dict:
     """
     from pathlib import Path
 
+    from rths_bringup.commands import default_config_dir, launch
+    from rths_bringup.run import NODE_FILES
     from rths_common import bagio, runinfo, topics
 
     from .bench_loop import domain_id
-    from .commands import default_config_dir, launch
-    from .run import NODE_FILES
     os.environ['ROS_DOMAIN_ID'] = str(domain_id(-1))   # a private DDS domain for the nodes
     out = Path(out_dir)
     base = default_config_dir()

@@ -2,7 +2,7 @@
 
 
 def test_delay_steps_for_the_link_fits_the_round_trip():
-    from rths_bringup.bench_distributed import ROUND_TRIP_OVERHEAD_MS, delay_steps_for
+    from rths_bench.bench_distributed import ROUND_TRIP_OVERHEAD_MS, delay_steps_for
 
     for one_way_ms, rate in ((1.0, 512.0), (1.0, 1024.0), (0.0, 1024.0), (2.0, 256.0)):
         d = delay_steps_for(one_way_ms, rate)

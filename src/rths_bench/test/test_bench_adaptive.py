@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 
-from rths_bringup.bench_adaptive import SCENARIOS, SILVA, recovery_s, run_bench
+from rths_bench.bench_adaptive import SCENARIOS, SILVA, recovery_s, run_bench
 
 FIELDS = {'rms_pct_before_change', 'rms_pct_after_change', 'delay_ms_after_change',
           'recovery_s', 'stable', 'step_us_p50'}
@@ -64,7 +64,7 @@ def test_silva2020_perturbed_tiny_configuration(tmp_path):
 
 def test_rths_benchmark_runs_an_adaptive_controller(tmp_path):
     # rths bench rths-benchmark --controller amb: its summary carries the adaptive method
-    from rths_bringup import rths_benchmark as rb
+    from rths_bench import rths_benchmark as rb
     t = np.arange(0, 2.0, 0.02)
     record = tmp_path / 'burst.txt'
     np.savetxt(record, np.column_stack([t, np.sin(2 * np.pi * 3.5 * t)]))

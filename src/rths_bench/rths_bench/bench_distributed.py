@@ -64,7 +64,7 @@ def rths_executable() -> str:
 
 def write_run_config(directory, rate_hz, duration_s, priority, taps_from=None) -> Path:
     """Realtime config (bench_loop.write_config) with the designed taps if the rate matches."""
-    from rths_bringup.bench_loop import write_config
+    from rths_bench.bench_loop import write_config
 
     config = write_config(directory, rate_hz=rate_hz, duration_s=duration_s, taps=400,
                           model='sdof', priority=priority, watchdog_steps=WATCHDOG_STEPS)
@@ -408,10 +408,7 @@ def _bench_absorb(args) -> int:
 
 
 def register(commands, benches):
-    """Add ``rths linkemu``, ``rths bench distributed`` and ``rths bench absorb-delay``."""
-    from rths_bringup import linkemu
-
-    linkemu.add_commands(commands)
+    """Add ``rths bench distributed`` and ``rths bench absorb-delay``."""
     import os
     p = benches.add_parser('distributed', help='realtime loop across an emulated lab network '
                            '(netns hosts, link delay/jitter/loss): misses and tracking error')

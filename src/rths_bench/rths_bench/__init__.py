@@ -1,0 +1,1 @@
+"""rths benchmarks: the commands under ``rths bench`` that measure the project's targets."""

@@ -1,0 +1,667 @@
+"""Input-output scenario: what the identified linear model of a system misses, named.
+
+For a shaker force to accelerations, a voltage to a displacement, a pump voltage to
+a water level: any uniform rate, any units.  The nominal model of each output is
+the linear baseline of :mod:`.linear` (orders from the data, output-error refined);
+the effects are named from what it misses and added as a nonlinear block:
+
+=============================  ====================================================
+effect                         block (fitted on training data, scored held out)
+=============================  ====================================================
+saturation                     hard limit of the simulated output at the level where
+                               the measured output plateaus (overflow, end stop)
+static_output_nonlinearity     ``y = p(y_lin)``, a cubic polynomial (Wiener)
+amplitude_dependent_stiffness  the linear model's coefficients depend on the record's
+amplitude_dependent_damping    excitation level (several records): named stiffness
+                               when the dominant resonance moves with the level,
+                               damping when its damping ratio does (joint friction)
+cubic_stiffness                restoring-force term in the state:
+hysteresis                     ``A(q) y = B(q) u + C(q) g(y)`` with ``g`` = ``yc^3``,
+backlash                       the Bouc-Wen variable of ``y``, the dead zone of ``y``,
+coulomb_friction               ``tanh(dy / v_eps)``; ``A`` of the baseline kept, ``B``
+                               and ``C`` by least squares, the shape parameter
+                               searched relative to the output's own spread
+=============================  ====================================================
+
+Every block is scored by *free-run simulation* (no measured output is fed back) over
+the training records (the baseline's orders were chosen on their last
+``linear.VALIDATION``); the winner minimises ``N ln(mse) + p ln N`` and must remove
+``MIN_REL_GAIN`` of the baseline's error, else the answer is ``none``.  The gap before/after is
+then measured on the held-out records (given, or the later ``1 - TRAIN_FRACTION`` of
+each record), never seen while fitting or choosing.
+"""
+
+import math
+import time
+
+import numpy as np
+from scipy import signal
+
+from rths_discrepancy import effects as fx
+from rths_discrepancy import linear
+
+TRAIN_FRACTION = 0.6
+MIN_REL_GAIN = 0.05
+MIN_SAMPLES = 200
+#: Distinct excitation levels (relative rms spread) needed to test amplitude dependence.
+LEVEL_SPREAD = 0.2
+#: Relative change of the dominant resonance over the levels that names a stiffness / damping.
+FREQ_SHIFT = 0.005
+DAMPING_SHIFT = 0.10
+#: Loss of overall fit a hard limit may cost when it fits the plateau samples better.
+HARD_LIMIT_MARGIN = 0.1
+#: Lags of the restoring-force term ``C(q)``.
+NC = 3
+SHAPES = {'hysteresis': (0.05, 0.1, 0.2, 0.4, 0.8, 1.6),
+          'backlash': (0.02, 0.05, 0.1, 0.2, 0.4),
+          'coulomb_friction': (0.01, 0.03, 0.1, 0.3)}
+STATE_EFFECTS = ('cubic_stiffness', 'hysteresis', 'backlash', 'coulomb_friction')
+EFFECTS = ('saturation', 'static_output_nonlinearity', 'amplitude_dependent_stiffness',
+           'amplitude_dependent_damping') + STATE_EFFECTS
+
+
+# ---------------------------------------------------------------- input
+
+def records_from_columns(columns, input_col, output_cols, fs=None, time_col=None,
+                         source='data'):
+    """One record ``{'u', 'y' (n x k), 'fs', 'source'}`` from CSV columns.
+
+    The rate comes from ``time_col`` (uniform steps) or ``fs``; each problem is a
+    ValueError naming the file, the column and the fix.
+    """
+    for c in [input_col] + list(output_cols) + ([time_col] if time_col else []):
+        if c not in columns:
+            raise ValueError(f'{source}: no column {c!r}; columns are '
+                             f'{", ".join(columns)}')
+    u = np.asarray(columns[input_col], float)
+    cols = [np.asarray(columns[c], float) for c in output_cols]
+    n = u.size
+    for c, v in zip([input_col] + list(output_cols), [u] + cols, strict=True):
+        if v.size != n:
+            raise ValueError(f'{source}: column {c} has {v.size} values, {input_col} has {n}')
+        bad = ~np.isfinite(v)
+        if bad.any():
+            raise ValueError(f'{source}: column {c} has NaN/inf or empty cells, first at row '
+                             f'{int(np.argmax(bad)) + 2}; trim the record or interpolate them')
+    if n < MIN_SAMPLES:
+        raise ValueError(f'{source}: only {n} rows; the io scenario needs at least '
+                         f'{MIN_SAMPLES} (training, validation and held-out parts)')
+    if time_col:
+        from rths_common.timebase import same_rate, sampling_rate_hz
+        fs_t = sampling_rate_hz(columns[time_col], where=f'{source} column {time_col}')
+        if fs is not None and not same_rate(fs_t, fs):
+            raise ValueError(f'{source}: --fs {fs:g} disagrees with column {time_col} '
+                             f'({fs_t:g} Hz); give one of them')
+        fs = fs_t
+    if fs is None or not fs > 0:
+        raise ValueError(f'{source}: no sample rate: give --time COL (a time column) or '
+                         '--fs HZ')
+    for c, v in zip([input_col] + list(output_cols), [u] + cols, strict=True):
+        if np.std(v) == 0:
+            raise ValueError(f'{source}: column {c} is constant; nothing to identify')
+    return {'u': u, 'y': np.column_stack(cols), 'fs': float(fs), 'source': source,
+            'outputs': list(output_cols), 'input': input_col}
+
+
+def split(records, fraction=TRAIN_FRACTION):
+    """Training and held-out records: the first ``fraction`` of each record trains."""
+    train, test = [], []
+    for r in records:
+        k = int(fraction * r['u'].size)
+        train.append(dict(r, u=r['u'][:k], y=r['y'][:k]))
+        test.append(dict(r, u=r['u'][k:], y=r['y'][k:], source=f"{r['source']} (later part)"))
+    return train, test
+
+
+def level(rec):
+    """Excitation level of a record: the rms of its input about its mean."""
+    return float(np.std(rec['u']))
+
+
+# ---------------------------------------------------------------- candidate blocks
+
+class Candidate:
+    """A fitted block: ``predict(u, level)`` simulates one output; ``params`` names it."""
+
+    def __init__(self, name, predict, n_params, params):
+        self.name = name
+        self.predict = predict
+        self.n_params = n_params
+        self.params = params
+
+
+def _plateau(y, top):
+    """Level at which ``y`` plateaus at its top (``top``) or bottom, or None."""
+    span = float(np.max(y) - np.min(y))
+    edge = float(np.max(y)) if top else float(np.min(y))
+    near = np.abs(y - edge) <= 0.005 * span
+    if near.mean() < 0.005:
+        return None
+    # a plateau: the derivative vanishes while the output sits at the edge
+    dy = np.abs(np.gradient(y))
+    if np.median(dy[near]) > 0.2 * np.median(dy):
+        return None
+    return edge
+
+
+def saturation(base, train_y):
+    """Hard limit at the plateau(s) of the measured training output (None if none)."""
+    y = np.concatenate(train_y)
+    hi, lo = _plateau(y, True), _plateau(y, False)
+    if hi is None and lo is None:
+        return None
+    lim_lo = -np.inf if lo is None else lo
+    lim_hi = np.inf if hi is None else hi
+    return Candidate('saturation', lambda u, s: np.clip(base.simulate(u), lim_lo, lim_hi),
+                     int(hi is not None) + int(lo is not None),
+                     {'upper_limit': hi, 'lower_limit': lo})
+
+
+def static_output(base, train, limits=None):
+    """Cubic polynomial of the linear model's output (Wiener), least squares on training.
+
+    With ``limits`` (a saturation candidate) the polynomial is fitted where the
+    measured output is off its plateaus and the result is clipped: the soft and the
+    hard nonlinearity together.
+    """
+    lin = np.concatenate([base.simulate(r['u']) for r in train])
+    y = np.concatenate([r['yj'] for r in train])
+    lo, hi = (-np.inf, np.inf) if limits is None else limits
+    span = float(np.ptp(y))
+    keep = (y < hi - 0.005 * span) & (y > lo + 0.005 * span)
+    c, s = float(np.mean(lin)), float(np.std(lin)) or 1.0
+    coef = np.polyfit((lin[keep] - c) / s, y[keep], 3)
+
+    def predict(u, lev):
+        return np.clip(np.polyval(coef, (base.simulate(u) - c) / s), lo, hi)
+    name = 'static_output_nonlinearity' + ('' if limits is None else '+saturation')
+    params = {'polynomial_in_normalised_linear_output': [float(v) for v in coef]}
+    if limits is not None:
+        params.update(upper_limit=None if hi == np.inf else hi,
+                      lower_limit=None if lo == -np.inf else lo)
+    return Candidate(name, predict, 4 + int(hi < np.inf) + int(lo > -np.inf), params)
+
+
+# ---- amplitude dependence across records
+
+def _lpv_design(u, y, na, nb, d, s):
+    from rths_compensator.identification import _regression
+    phi, target = _regression(u, y, na, nb, d)
+    phi = phi[:, list(range(na)) + list(range(na + d, na + d + nb))]
+    return np.hstack([phi, phi * s]), target
+
+
+def amplitude_dependent(base, train):
+    """Linear model whose coefficients move affinely with the record's level (>= 2 levels)."""
+    levels = np.array([r['level'] for r in train])
+    ref = float(np.mean(levels))
+    if levels.size < 2 or (levels.max() - levels.min()) < LEVEL_SPREAD * ref:
+        return None
+    arx, q = base.arx, base.q
+    na, nb, d = arx.na, arx.nb, arx.d
+    rows, tg = [], []
+    for r in train:
+        u = linear._down(r['u'] - base.u0, q)
+        y = linear._down(r['yj'] - base.y0, q)
+        a, b = signal.lfilter([1.0], arx.a, u), signal.lfilter([1.0], arx.a, y)
+        ph, t = _lpv_design(a, b, na, nb, d, r['level'] / ref - 1.0)
+        rows.append(ph)
+        tg.append(t)
+    mat = np.vstack(rows)
+    scale = np.std(mat, axis=0)
+    scale[scale == 0] = 1.0
+    theta = np.linalg.lstsq(mat / scale, np.concatenate(tg), rcond=None)[0] / scale
+    k = na + nb
+
+    def model_at(lev):
+        from rths_compensator.identification import ArxModel
+        th = theta[:k] + (lev / ref - 1.0) * theta[k:]
+        return ArxModel(a=np.r_[1.0, th[:na]], b=th[na:], d=d, fs_hz=arx.fs_hz)
+
+    def predict(u, lev):
+        m = model_at(lev)
+        if not m.is_stable():
+            return np.full(np.asarray(u).size, np.nan)
+        return linear.LinearModel(m, q, base.fs, base.u0, base.y0, 'lpv').simulate(u)
+    shift = _resonance_shift(model_at(levels.min()), model_at(levels.max()))
+    return Candidate('amplitude_dependent', predict, k, {
+        'levels': [float(v) for v in levels], 'reference_level': ref, **shift})
+
+
+def _dominant_mode(model):
+    """Natural frequency [Hz] and damping ratio of the pole pair under the highest FRF peak."""
+    fs = model.fs_hz
+    w, h = signal.freqz(np.r_[np.zeros(model.d), model.b], model.a, worN=4096, fs=fs)
+    f_peak = float(w[np.argmax(np.abs(h[1:])) + 1])
+    poles = np.roots(model.a)
+    poles = poles[(np.imag(poles) > 0) & (np.abs(poles) > 0)]
+    if poles.size == 0:
+        return None
+    s = np.log(poles) * fs
+    fn = np.abs(s) / (2 * np.pi)
+    k = int(np.argmin(np.abs(fn - f_peak)))
+    return float(fn[k]), float(-np.real(s[k]) / np.abs(s[k]))
+
+
+def _resonance_shift(low, high):
+    a, b = _dominant_mode(low), _dominant_mode(high)
+    if a is None or b is None:
+        return {'resonance_hz': None}
+    return {'resonance_hz_at_lowest_level': a[0], 'resonance_hz_at_highest_level': b[0],
+            'damping_ratio_at_lowest_level': a[1], 'damping_ratio_at_highest_level': b[1],
+            'relative_frequency_shift': (b[0] - a[0]) / a[0],
+            'relative_damping_shift': (b[1] - a[1]) / a[1] if a[1] > 0 else None}
+
+
+def amplitude_names(params):
+    """Effect names an amplitude-dependent model earns from its resonance shift."""
+    names = []
+    fshift = params.get('relative_frequency_shift')
+    dshift = params.get('relative_damping_shift')
+    if fshift is not None and abs(fshift) >= FREQ_SHIFT:
+        names.append('amplitude_dependent_stiffness')
+    if dshift is not None and abs(dshift) >= DAMPING_SHIFT:
+        names.append('amplitude_dependent_damping')
+    return names
+
+
+# ---- restoring-force term in the state
+
+def _basis(name, yc, p, fs_model):
+    if name == 'cubic_stiffness':
+        return yc ** 3
+    if name == 'hysteresis':
+        return fx.bouc_wen(yc, p)
+    if name == 'backlash':
+        return fx.deadzone(yc, p)
+    if name == 'coulomb_friction':
+        return np.tanh(np.r_[0.0, np.diff(yc)] * fs_model / p)
+    raise ValueError(name)
+
+
+_SIM = {}
+
+
+def _sim_loop():
+    """Free-run ``A y = B u + C g(y)`` (numba-compiled when available)."""
+    if 'f' in _SIM:
+        return _SIM['f']
+
+    def run(a, b, c, d, u, kind, p, ymean, dt, out, gout):
+        na, nb, nc = a.size - 1, b.size, c.size
+        z = 0.0
+        for t in range(u.size):
+            acc = 0.0
+            for i in range(1, na + 1):
+                if t - i >= 0:
+                    acc -= a[i] * out[t - i]
+            for j in range(nb):
+                k = t - d - j
+                if k >= 0:
+                    acc += b[j] * u[k]
+            for i in range(1, nc + 1):
+                if t - i >= 0:
+                    acc += c[i - 1] * gout[t - i]
+            if not (abs(acc) < 1e300):
+                acc = np.nan
+            out[t] = acc
+            yc = acc - ymean
+            if kind == 0:
+                g = yc * yc * yc
+            elif kind == 1:
+                dx = yc - (out[t - 1] - ymean if t > 0 else 0.0)
+                if dx != 0.0:
+                    s = 1.0 if dx > 0 else -1.0
+                    step = abs(dx) / p
+                    if z * s < 0.0:
+                        lin = min(step, abs(z))
+                        z += s * lin
+                        step -= lin
+                    if step > 0.0:
+                        z = s - (s - z) * math.exp(-step)
+                g = z
+            elif kind == 2:
+                g = (yc - p) if yc > p else ((yc + p) if yc < -p else 0.0)
+            else:
+                prev = out[t - 1] if t > 0 else acc
+                g = math.tanh((acc - prev) / dt / p)
+            gout[t] = g
+        return out
+
+    try:
+        import numba
+        run = numba.njit(cache=True)(run)
+    except ImportError:  # pragma: no cover - plain Python
+        pass
+    _SIM['f'] = run
+    return run
+
+
+_KIND = {'cubic_stiffness': 0, 'hysteresis': 1, 'backlash': 2, 'coulomb_friction': 3}
+
+
+def _ode_loop():
+    """Free-run ``m x'' + c x' + k x + theta g = u`` (semi-implicit Euler, 8 sub-steps)."""
+    if 'ode' in _SIM:
+        return _SIM['ode']
+
+    def run(m, c, k, theta, kind, p, u, dt, out):
+        x = 0.0
+        v = 0.0
+        z = 0.0
+        sub = 8
+        h = dt / sub
+        for t in range(u.size):
+            for _ in range(sub):
+                if kind == 0:
+                    g = x * x * x
+                elif kind == 1:
+                    g = z
+                elif kind == 2:
+                    g = (x - p) if x > p else ((x + p) if x < -p else 0.0)
+                else:
+                    g = math.tanh(v / p)
+                acc = (u[t] - c * v - k * x - theta * g) / m
+                v += h * acc
+                dx = h * v
+                x += dx
+                if kind == 1 and dx != 0.0:
+                    s = 1.0 if dx > 0 else -1.0
+                    step = abs(dx) / p
+                    if z * s < 0.0:
+                        lin = min(step, abs(z))
+                        z += s * lin
+                        step -= lin
+                    if step > 0.0:
+                        z = s - (s - z) * math.exp(-step)
+                if not (abs(x) < 1e300):
+                    x = np.nan
+            out[t] = x
+        return out
+
+    try:
+        import numba
+        run = numba.njit(cache=True)(run)
+    except ImportError:  # pragma: no cover - plain Python
+        pass
+    _SIM['ode'] = run
+    return run
+
+
+def restoring_term(base, train, name, p):
+    """Restoring-force law in the state of ``m y'' + c y' + k y + theta g = u``.
+
+    The output is read as the displacement of one degree of freedom driven by the
+    input: its velocity and acceleration come by spectral differentiation (band of
+    the record), ``m, c, k, theta`` by least squares on the input (equation error),
+    and the law is simulated free-run.  Where the output is not such a displacement
+    the simulation misses and the information criterion rejects the block.
+    """
+    fs = base.fs
+    ysc = float(np.std(np.concatenate([r['yj'] for r in train])))
+    fc = min(0.4 * fs, 1.25 * linear.band_edge(np.concatenate([r['u'] for r in train]), fs))
+    cols, tg = [], []
+    for r in train:
+        x = (r['yj'] - base.y0) / ysc
+        st = linear.spectral_states(x, fs, fc)
+        g = {'cubic_stiffness': st['x'] ** 3, 'hysteresis': fx.bouc_wen(st['x'], p or 1.0),
+             'backlash': fx.deadzone(st['x'], p or 0.0),
+             'coulomb_friction': np.tanh(st['v'] / (p or 1.0) / fs)}[name]
+        n = x.size
+        keep = slice(int(0.02 * n), n - int(0.02 * n))
+        cols.append(np.column_stack([st['a'], st['v'], st['x'], g])[keep])
+        tg.append((r['u'] - base.u0)[keep])
+    mat = np.vstack(cols)
+    scale = np.std(mat, axis=0)
+    scale[scale == 0] = 1.0
+    m, c, k, theta = np.linalg.lstsq(mat / scale, np.concatenate(tg), rcond=None)[0] / scale
+    if not (m > 0 and k > 0):
+        raise ValueError('the output does not read as a displacement (m or k not positive)')
+    run = _ode_loop()
+    pp = float(p or 1.0) * (fs if name == 'coulomb_friction' else 1.0)
+
+    def predict(u, lev):
+        ud = np.ascontiguousarray(np.asarray(u, float) - base.u0)
+        out = run(m, c, k, theta, _KIND[name], pp, ud, 1.0 / fs, np.empty_like(ud))
+        return base.y0 + ysc * out
+    shape = {'hysteresis': 'x_y', 'backlash': 'b', 'coulomb_friction': 'v_eps'}.get(name)
+    params = {'law': 'm y\'\' + c y\' + k y + theta g = u', 'm': m / ysc, 'c': c / ysc,
+              'k': k / ysc, 'theta': float(theta)}
+    if shape:
+        params[shape] = float((p or 1.0) * ysc)
+    cand = Candidate(name, predict, 4 + (1 if shape else 0), params)
+    cand.shape = p
+    cand.block = 'restoring force in the state'
+    return cand
+
+
+def state_term(base, train, name, p):
+    """Fit ``A y = B u + C g(y)`` with ``A`` of the baseline, ``B, C`` by least squares."""
+    arx, q = base.arx, base.q
+    fsm = base.fs / q
+    nb, d = arx.nb, arx.d
+    cols, tg = [], []
+    ysc = float(np.std(np.concatenate([r['yj'] for r in train])))
+    for r in train:
+        u = linear._down(r['u'] - base.u0, q)
+        y = linear._down(r['yj'] - base.y0, q)
+        g = _basis(name, y / ysc, p, fsm)
+        reg = [signal.lfilter(np.r_[np.zeros(d + j), 1.0], arx.a, u) for j in range(nb)]
+        reg += [signal.lfilter(np.r_[np.zeros(i), 1.0], arx.a, g) for i in range(1, NC + 1)]
+        cols.append(np.column_stack(reg))
+        tg.append(y)
+    mat = np.vstack(cols)
+    scale = np.std(mat, axis=0)
+    scale[scale == 0] = 1.0
+    theta = np.linalg.lstsq(mat / scale, np.concatenate(tg), rcond=None)[0] / scale
+    b, c = theta[:nb], theta[nb:]
+    run = _sim_loop()
+
+    # the loop runs on y / ysc (B scaled to match)
+    def predict_scaled(u, lev):
+        ud = np.ascontiguousarray(linear._down(np.asarray(u, float) - base.u0, q))
+        out = np.empty_like(ud)
+        run(np.ascontiguousarray(arx.a), np.ascontiguousarray(b / ysc), np.ascontiguousarray(c),
+            d, ud, _KIND[name], float(p or 1.0), 0.0, 1.0 / fsm, out, np.empty_like(ud))
+        return base.y0 + ysc * linear._up(out, q, np.asarray(u).size)
+    shape = {'hysteresis': 'x_y', 'backlash': 'b', 'coulomb_friction': 'v_eps'}.get(name)
+    params = {'C': [float(v) for v in c]}
+    if shape:
+        params[shape] = float(p * ysc)
+        params['unit'] = "output units" + (' per second' if name == 'coulomb_friction' else '')
+    cand = Candidate(name, predict_scaled, nb + NC + (1 if shape else 0), params)
+    cand.shape = p
+    return cand
+
+
+# ---------------------------------------------------------------- decision
+
+def simulate(model, rec):
+    """Response of a candidate or linear model to record ``rec``.
+
+    A record marked ``periodic`` (one or more whole periods in steady state) is
+    simulated twice over and the second pass kept: its steady-state response.
+    """
+    u = rec['u']
+    if rec.get('periodic'):
+        u = np.r_[u, u]
+    pred = (model.predict(u, rec['level']) if isinstance(model, Candidate)
+            else model.simulate(u))
+    return pred[-rec['u'].size:]
+
+
+def _mse(cand_or_model, recs):
+    e = [r['yj'] - simulate(cand_or_model, r) for r in recs]
+    e = np.concatenate(e)
+    if not np.all(np.isfinite(e)):
+        return math.inf
+    with np.errstate(over='ignore'):
+        return float(np.mean(e ** 2))
+
+
+def candidates(base, fit, progress=None):
+    """Every block of the library fitted on ``fit`` records (one output)."""
+    say = progress or (lambda text: None)
+    out, failed = [], {}
+    c = saturation(base, [r['yj'] for r in fit])
+    if c is not None:
+        out.append(c)
+        lim = (c.params['lower_limit'], c.params['upper_limit'])
+        out.append(static_output(base, fit, (-np.inf if lim[0] is None else lim[0],
+                                             np.inf if lim[1] is None else lim[1])))
+    out.append(static_output(base, fit))
+    c = amplitude_dependent(base, fit)
+    if c is not None:
+        out.append(c)
+    for name in STATE_EFFECTS:
+        for p in SHAPES.get(name, (None,)):
+            for make in (state_term, restoring_term):
+                try:
+                    out.append(make(base, fit, name, p))
+                except (ValueError, np.linalg.LinAlgError) as err:
+                    failed.setdefault(f'{name} ({make.__name__})', str(err))
+    for key, err in failed.items():
+        say(f'{key}: not fitted ({err})')
+    return out
+
+
+def _hard_limit(scores, best, train):
+    """Prefer the clipped variant of ``best`` where the plateau samples say so.
+
+    A cubic can bend into a plateau; a hard limit is the reading the plateau itself
+    supports.  The variant with ``+saturation`` replaces ``best`` when it fits the
+    samples at the plateau better and the whole record within ``HARD_LIMIT_MARGIN``.
+    """
+    alt = f'{best}+saturation' if best == 'static_output_nonlinearity' else None
+    if alt not in scores or not math.isfinite(scores[alt]['mse']):
+        return best
+    lim = scores[alt]['cand'].params
+    y = np.concatenate([r['yj'] for r in train])
+    span = float(np.ptp(y))
+    at = np.zeros(y.size, bool)
+    if lim['upper_limit'] is not None:
+        at |= y >= lim['upper_limit'] - 0.005 * span
+    if lim['lower_limit'] is not None:
+        at |= y <= lim['lower_limit'] + 0.005 * span
+
+    def err(key):
+        pred = np.concatenate([simulate(scores[key]['cand'], r) for r in train])
+        return float(np.mean((y[at] - pred[at]) ** 2))
+    if err(alt) < err(best) and scores[alt]['mse'] <= (1 + HARD_LIMIT_MARGIN) * scores[best]['mse']:
+        return alt
+    return best
+
+
+def _nrmse(y, pred):
+    return float(np.sqrt(np.mean((y - pred) ** 2)) / np.std(y))
+
+
+def run_output(train, test, j, progress=None):
+    """Baseline, candidates and choice for output ``j``; return its result dict."""
+    say = progress or (lambda text: None)
+    for r in train + test:
+        r['yj'] = r['y'][:, j]
+        r['level'] = level(r)
+    fs = train[0]['fs']
+    base = linear.fit([(r['u'], r['yj']) for r in train], fs, progress=say)
+    ref = linear.arx_reference([(r['u'], r['yj']) for r in train], fs)
+    cands = candidates(base, train, progress=say)
+    n_tr = sum(r['u'].size for r in train)
+    var_tr = float(np.var(np.concatenate([r['yj'] for r in train])))
+    mse0 = _mse(base, train)
+    scores = {}
+    for c in cands:
+        mse = _mse(c, train)
+        key = c.name if c.name not in SHAPES else f'{c.name}@{c.shape:g}'
+        key += '/restoring' if getattr(c, 'block', '') else ''
+        scores[key] = {'mse': mse, 'cand': c,
+                       'ic': n_tr * math.log(mse) + c.n_params * math.log(n_tr)
+                       if math.isfinite(mse) and mse > 0 else math.inf}
+    ic0 = n_tr * math.log(mse0)
+    best = min(scores, key=lambda k: scores[k]['ic']) if scores else None
+    best = _hard_limit(scores, best, train)
+    after = None
+    if best is not None and scores[best]['ic'] < ic0 \
+            and scores[best]['mse'] <= (1 - MIN_REL_GAIN) * mse0:
+        after = scores[best]['cand']
+    yt = np.concatenate([r['yj'] for r in test])
+    pb = np.concatenate([simulate(base, r) for r in test])
+    pr = np.concatenate([simulate(ref, r) for r in test])
+    pa = np.concatenate([simulate(after, r) for r in test]) if after else pb
+    names = after.name.split('+') if after is not None else []
+    if after is not None and after.name == 'amplitude_dependent':
+        names = amplitude_names(after.params) or ['amplitude_dependent_stiffness']
+    by_name = {}
+    for k, s in scores.items():
+        nm = s['cand'].name
+        if nm not in by_name or s['ic'] < by_name[nm]['information_criterion']:
+            by_name[nm] = {'training_nrmse': math.sqrt(s['mse'] / var_tr)
+                           if math.isfinite(s['mse']) else None,
+                           'information_criterion': s['ic'], 'variant': k,
+                           'parameters': _plain(s['cand'].params)}
+    return {
+        'effects': names,
+        'baseline': base.describe(), 'reference': ref.describe(),
+        'nrmse_baseline': _nrmse(yt, pb), 'nrmse_reference': _nrmse(yt, pr),
+        'rmse_baseline': float(np.sqrt(np.mean((yt - pb) ** 2))),
+        'nrmse_after': _nrmse(yt, pa), 'rmse_after': float(np.sqrt(np.mean((yt - pa) ** 2))),
+        'rmse_reference': float(np.sqrt(np.mean((yt - pr) ** 2))),
+        'training_nrmse_baseline': math.sqrt(mse0 / var_tr),
+        'information_criterion_none': ic0,
+        'candidates': by_name,
+        'parameters': _plain(after.params) if after else {},
+        '_plot': {'t_test': yt, 'before': pb, 'after': pa, 'test': test, 'base': base},
+    }
+
+
+def _plain(v):
+    if isinstance(v, dict):
+        return {k: _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    return v
+
+
+def combine(names_per_output):
+    """One answer for the system: the effects named on any output, in library order."""
+    found = {n for names in names_per_output for n in names}
+    return '+'.join(n for n in EFFECTS if n in found) or 'none'
+
+
+def run(train, test=None, out_dir=None, progress=None, plots=True):
+    """Run the io scenario on training records (held out: ``test`` or later parts)."""
+    say = progress or (lambda text: None)
+    t0 = time.perf_counter()
+    if test is None:
+        train, test = split(train)
+    fs = train[0]['fs']
+    if any(abs(r['fs'] - fs) > 1e-6 * fs for r in train + test):
+        raise ValueError('the records have different sample rates; resample them to one rate')
+    outputs = train[0]['outputs']
+    say(f"io: {len(train)} training record(s), {len(test)} held out, {len(outputs)} output(s) "
+        f"at {fs:g} Hz")
+    per = {}
+    for j, name in enumerate(outputs):
+        say(f'output {name}: linear baseline and candidate blocks')
+        per[name] = run_output([dict(r) for r in train], [dict(r) for r in test], j, say)
+    result = {
+        'scenario': 'io', 'effect': combine([p['effects'] for p in per.values()]),
+        'input': train[0]['input'], 'outputs': outputs, 'sample_rate_hz': fs,
+        'training_records': [r['source'] for r in train],
+        'heldout_records': [r['source'] for r in test],
+        'levels': {r['source']: level(r) for r in train + test},
+        'per_output': {k: {kk: vv for kk, vv in v.items() if kk != '_plot'}
+                       for k, v in per.items()},
+        'nrmse_before': float(np.mean([p['nrmse_baseline'] for p in per.values()])),
+        'nrmse_after': float(np.mean([p['nrmse_after'] for p in per.values()])),
+        'nrmse_reference': float(np.mean([p['nrmse_reference'] for p in per.values()])),
+        'seconds': time.perf_counter() - t0,
+    }
+    say(f"effect: {result['effect']}; held-out NRMSE {result['nrmse_before']:.4f} -> "
+        f"{result['nrmse_after']:.4f} (ARX reference {result['nrmse_reference']:.4f})")
+    if out_dir is not None:
+        from rths_discrepancy import ioreport
+        ioreport.write(out_dir, result, per, plots)
+    return result
