@@ -69,7 +69,7 @@ class SyntheticActuator:
         return np.array([float(np.real(np.prod(-self.poles)))]), den
 
     def model(self) -> ArxModel:
-        """The exact discrete plant (ZOH, fractional delay) as an :class:`ArxModel`."""
+        """Return the exact discrete plant (ZOH, fractional delay) as an :class:`ArxModel`."""
         dt = 1.0 / self.fs_hz
         num, den = self.continuous()
         ss = signal.tf2ss(num, den)
@@ -93,8 +93,10 @@ class SyntheticActuator:
         return ArxModel(a=a, b=b, d=m, fs_hz=self.fs_hz)
 
     def simulate(self, command, noise_pct: float = 0.0, rng=None) -> np.ndarray:
-        """Measured displacement for ``command`` (from rest), with white noise of
-        ``noise_pct`` percent of the noise-free output's RMS."""
+        """Return the measured displacement for ``command`` (from rest).
+
+        White noise of ``noise_pct`` percent of the noise-free output's RMS is added.
+        """
         y = self.model().simulate(command)
         if noise_pct > 0:
             rng = np.random.default_rng(rng)
@@ -123,7 +125,7 @@ def _numerator(phi, gamma, c_c, a):
 
 
 def random_actuator(rng, fs_hz: float, delay_s: float, n_poles: int) -> SyntheticActuator:
-    """A plausible servo-hydraulic actuator: 2-4 poles, bandwidth 12-30 Hz, damping 0.3-0.7.
+    """Draw a plausible servo-hydraulic actuator: 2-4 poles, 14-30 Hz, damping 0.3-0.7.
 
     Two poles: one damped pair; three: the pair and a real pole; four: two pairs (the
     second 1.5-3x faster), as the seed's Table 1 models.
@@ -131,7 +133,7 @@ def random_actuator(rng, fs_hz: float, delay_s: float, n_poles: int) -> Syntheti
     rng = np.random.default_rng(rng)
     if n_poles not in (2, 3, 4):
         raise ValueError(f'n_poles must be 2, 3 or 4, got {n_poles}')
-    wn = 2 * np.pi * rng.uniform(12.0, 30.0)
+    wn = 2 * np.pi * rng.uniform(14.0, 30.0)
     zeta = rng.uniform(0.3, 0.7)
     pair = wn * (-zeta + 1j * np.sqrt(1 - zeta ** 2))
     poles = [pair, np.conj(pair)]
@@ -154,3 +156,35 @@ def identification_record(actuator: SyntheticActuator, duration_s: float = 60.0,
     y = actuator.simulate(u, noise_pct, rng)
     t = np.arange(u.size) / actuator.fs_hz
     return t, u, y
+
+
+def tracking_signals(fs_hz: float, duration_s: float = 20.0, peak: float = 0.005,
+                     seed: int = 5) -> dict:
+    """The two desired displacements of the tracking checks, ``name -> array``.
+
+    ``sine``: 1 Hz + 5 Hz, equal amplitudes, faded in over 1 s (a causal compensator cannot
+    follow a sine that starts with a jump in velocity); ``noise``: band-limited white noise
+    0-10 Hz (:func:`rths_numerical.signals.blwn`, 0.5 s tapers).  Both peak at ``peak``.
+    """
+    from rths_numerical.signals import blwn
+    t = np.arange(int(round(duration_s * fs_hz))) / fs_hz
+    fade = 0.5 * (1 - np.cos(np.pi * np.minimum(1.0, t)))
+    sine = (np.sin(2 * np.pi * t) + np.sin(2 * np.pi * 5 * t)) * fade
+    return {'sine': sine * (peak / np.max(np.abs(sine))),
+            'noise': blwn(duration_s, fs_hz, 10.0, peak, seed, 0.5)}
+
+
+def tracking(actuator: SyntheticActuator, taps, denominator, desired) -> dict:
+    """Track ``desired`` through the TRUE actuator with the compensator ``taps/denominator``.
+
+    Returns ``tracking_pct`` (eq. 43, noise-free response) and ``command_ratio`` (command
+    peak over desired peak), and the command's peak velocity and acceleration.
+    """
+    command = signal.lfilter(taps, denominator, desired)
+    y = actuator.model().simulate(command)
+    fs = actuator.fs_hz
+    return {'tracking_pct': float(100 * np.linalg.norm(y - desired) / np.linalg.norm(desired)),
+            'command_ratio': float(np.max(np.abs(command)) / np.max(np.abs(desired))),
+            'command_peak_m': float(np.max(np.abs(command))),
+            'command_velocity_m_s': float(np.max(np.abs(np.diff(command))) * fs),
+            'command_acceleration_m_s2': float(np.max(np.abs(np.diff(command, 2))) * fs ** 2)}

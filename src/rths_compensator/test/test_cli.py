@@ -139,7 +139,8 @@ def test_design_zero_tol_reproduces_design_fir_and_is_recorded(tmp_path, damped_
     assert p_tol['provenance']['zero_tol'] == BENCH_ZERO_TOL
     assert _max_pole(p_plain['denominator']) == pytest.approx(0.995, abs=1e-6)
     assert _max_pole(p_tol['denominator']) < BENCH_ZERO_TOL
-    ref = dsg.design_fir(model, 50, 32.0, 'wls', 0.01, zero_tol=BENCH_ZERO_TOL)
+    ref = dsg.design_default(model, scheme='wls', n_taps=50, fc_hz=32.0, epsilon=0.01,
+                             zero_tol=BENCH_ZERO_TOL)
     np.testing.assert_allclose(p_tol['taps'], ref.taps, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(p_tol['denominator'], ref.denominator, rtol=1e-9)
 
