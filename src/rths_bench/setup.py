@@ -28,6 +28,7 @@ setup(
             'bench_adaptive = rths_bench.bench_adaptive',
             'rths_benchmark = rths_bench.rths_benchmark',
             'bench_discrepancy_v3 = rths_bench.bench_discrepancy_v3',
+            'bench_identification = rths_bench.bench_identification',
         ],
     },
 )

@@ -171,3 +171,17 @@ def check_limits(pred: dict, limits: DesignLimits, reference_text: str) -> list:
                        f'{pred[key]:.4g} {unit}, above {name} = {limit:g} {unit} '
                        f'({limits.source or "limits"})')
     return out
+
+
+def assess(plant, comp, band_hz: float, record=None, limits: DesignLimits = None):
+    """Predict a design and check it against the limits: ``(pred, violations, reference_text)``.
+
+    ``record`` is the identification record ``(command, measured, split)`` or None; the
+    predictions on the record use its held-out part ``[split:]``.
+    """
+    measured = record[1] if record is not None else None
+    reference, text = reference_signal(comp.fs_hz, band_hz, measured, limits)
+    validation = (record[0][record[2]:], record[1][record[2]:]) if record is not None else None
+    pred = predict_all(plant, comp, band_hz, reference, validation)
+    violations = check_limits(pred, limits, text) if limits is not None else []
+    return pred, violations, text

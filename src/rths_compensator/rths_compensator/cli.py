@@ -405,17 +405,15 @@ def _assess_and_write(args, plant, comp, band) -> int:
 
     import numpy as np
 
-    from .assessment import check_limits, predict_all, reference_signal
+    from .assessment import assess
     from .params import write_compensator_params
     limits = _limits(args)
     u, y, split, note = _plant_record(args.plant)
-    validation = (u[split:], y[split:]) if u is not None else None
-    reference, ref_text = reference_signal(comp.fs_hz, band, y, limits)
-    pred = predict_all(plant, comp, band, reference, validation)
+    record = (u, y, split) if u is not None else None
+    pred, violations, ref_text = assess(plant, comp, band, record, limits)
     if not all(np.isfinite(v) for v in pred.values() if isinstance(v, float)):
         raise ValueError(f'{comp.scheme} design has non-finite predicted indicators; refused')
     print(design_text(comp, band, pred, ref_text, note))
-    violations = check_limits(pred, limits, ref_text) if limits else []
     if limits is None:
         print('limits: no bridge params file (--limits); the command was not checked')
     if violations and u is None and not args.force:
@@ -441,7 +439,7 @@ def _assess_and_write(args, plant, comp, band) -> int:
             'reference_command_ratio': pred['reference_command_ratio'],
             'record_tracking_pct': pred.get('record_tracking_pct'),
             'limits': limits.source if limits else None,
-            'limits_exceeded': violations}
+            'limits_exceeded': '; '.join(violations)}
     for key in ('n_taps', 'fc_hz', 'epsilon', 'zero_tol', 'gain_weight', 'alpha', 'delay_ms',
                 'a_tilde', 'model', 'q', 'solver', 'auto_score', 'bandwidth_hz'):
         if key in comp.info:

@@ -216,3 +216,62 @@ def test_design_and_launch_take_a_rate_to_its_printed_digits(tmp_path, run_csv):
     check_sampling_rate({'fs_hz': 1024.000524}, 1024.0, 'c.yaml', 'loop')
     with pytest.raises(ValueError, match='designed for 1024.01 Hz but the loop runs at 1024 Hz'):
         check_sampling_rate({'fs_hz': 1024.01}, 1024.0, 'c.yaml', 'loop')
+
+
+@pytest.fixture(scope='module')
+def lab_csv(tmp_path_factory):
+    """A DAQ-like run: 2000 Hz, 9 ms actuator delay, 0.5 % sensor noise (synthetic)."""
+    from rths_compensator._blas import limit_blas_threads
+    from rths_compensator.plants import actuator_poles
+    from rths_compensator.synthetic import SyntheticActuator, identification_record
+    limit_blas_threads(1)
+    act = SyntheticActuator(actuator_poles('3pole'), 9e-3, 2000.0)
+    t, u, y = identification_record(act, 30.0, 40.0, 0.005, 0.5, np.random.default_rng(8))
+    path = tmp_path_factory.mktemp('lab') / 'lab.csv'
+    np.savetxt(path, np.column_stack([t, u, y]), delimiter=',',
+               header='time,command,measured', comments='', fmt='%.10g')
+    plant = path.parent / 'plant.yaml'
+    assert _run(['identify', '--csv', str(path), '--out', str(plant)]) == 0
+    return path, plant, act
+
+
+def test_identify_defaults_print_save_and_plot_the_fit(lab_csv, capsys):
+    import yaml
+    _, plant, act = lab_csv
+    doc = yaml.safe_load(plant.read_text())
+    val = doc['selection']['validation']
+    assert 0.4 < val['nrmse_pct'] < 0.7
+    assert doc['selection']['record']['kind'] == 'csv'
+    assert (plant.parent / 'plant_fit.png').stat().st_size > 10000
+    assert abs(doc['d'] - act.model().d) <= 4
+
+
+def test_design_defaults_predict_and_stay_within_limits(lab_csv, tmp_path, capsys):
+    from rths_compensator.synthetic import tracking, tracking_signals
+    _, plant, act = lab_csv
+    out = tmp_path / 'c.yaml'
+    assert _run(['design', '--plant', str(plant), '--out', str(out)]) == 0
+    text = capsys.readouterr().out
+    assert 'compensator alone: gain peak' in text and 'loop on the record' in text
+    params = load_compensator_params(out)
+    prov = params['provenance']
+    assert params['scheme'] == 'wls' and prov['n_taps'] == 400 and prov['fc_hz'] == 10.0
+    assert prov['limits_exceeded'] == ''
+    true_pct = tracking(act, params['taps'], params['denominator'],
+                        tracking_signals(2000.0)['noise'])['tracking_pct']
+    assert true_pct < 0.5
+    # predicted from the record alone, without the model: same order as the truth
+    assert prov['record_tracking_pct'] < 3 * max(true_pct, 0.1)
+
+
+def test_design_beyond_the_limits_is_refused_unless_forced(lab_csv, tmp_path):
+    _, plant, _ = lab_csv
+    out = tmp_path / 'c.yaml'
+    # fc beyond the record's 40 Hz excitation, the seed's objective: a 127 dB compensator
+    argv = ['design', '--plant', str(plant), '--scheme', 'wls', '--fc', '60', '--taps',
+            '400', '--epsilon', '0.05', '--gain-weight', '0', '--out', str(out)]
+    with pytest.raises(ValueError, match='design refused: the command for the reference'):
+        _run(argv)
+    assert not out.exists()
+    assert _run(argv + ['--force']) == 0
+    assert load_compensator_params(out)['provenance']['limits_exceeded']
