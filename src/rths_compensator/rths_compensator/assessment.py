@@ -130,15 +130,17 @@ def loop_figures_model(plant, comp, band_hz: float, n_points: int = 512) -> dict
             'loop_gain_above_band_db': float(np.max(20 * np.log10(np.abs(h_out))))}
 
 
-def loop_figures_record(comp, u_val, y_val, reference, memory_s: float = 0.5) -> dict:
+def loop_figures_record(comp, record, reference, memory_s: float = 0.5) -> dict:
     """Predicted tracking [%] of the compensated loop on the record's held-out part.
 
-    The plant is the record's own impulse response (:func:`impulse_response`, ``memory_s``
-    long, from the held-out part only), not the parametric model: the reference's command
-    passes through it and the error is compared with the reference (eq. 43).
+    ``record`` is ``(command, measured, split)``.  The plant is the record's own impulse
+    response (:func:`.estimation.impulse_response`, ``memory_s`` long, fitted on
+    ``[split:]`` only), not the parametric model: the reference's command passes through it
+    and the error is compared with the reference (eq. 43).
     """
-    n_lags = int(min(round(memory_s * comp.fs_hz), max(8, len(u_val) // 10)))
-    h = impulse_response(u_val, y_val, n_lags)
+    u, y, split = record
+    n_lags = int(min(round(memory_s * comp.fs_hz), max(8, (len(u) - split) // 10)))
+    h = impulse_response(u, y, n_lags, split)
     command = _response(comp.taps, comp.denominator, reference)
     y_pred = signal.lfilter(h, [1.0], command)
     return {'record_tracking_pct': float(100 * np.linalg.norm(y_pred - reference)
@@ -146,15 +148,15 @@ def loop_figures_record(comp, u_val, y_val, reference, memory_s: float = 0.5) ->
             'record_memory_s': n_lags / comp.fs_hz}
 
 
-def predict_all(plant, comp, band_hz: float, reference, validation=None) -> dict:
+def predict_all(plant, comp, band_hz: float, reference, record=None) -> dict:
     """Every prediction of the module docstring in one flat dict.
 
-    ``validation`` is the record's held-out ``(command, measured)``, or None.
+    ``record`` is the identification record ``(command, measured, split)``, or None.
     """
     out = compensator_figures(comp, band_hz, reference)
     out.update(loop_figures_model(plant, comp, band_hz))
-    if validation is not None:
-        out.update(loop_figures_record(comp, validation[0], validation[1], reference))
+    if record is not None:
+        out.update(loop_figures_record(comp, record, reference))
     return out
 
 
@@ -181,7 +183,6 @@ def assess(plant, comp, band_hz: float, record=None, limits: DesignLimits = None
     """
     measured = record[1] if record is not None else None
     reference, text = reference_signal(comp.fs_hz, band_hz, measured, limits)
-    validation = (record[0][record[2]:], record[1][record[2]:]) if record is not None else None
-    pred = predict_all(plant, comp, band_hz, reference, validation)
+    pred = predict_all(plant, comp, band_hz, reference, record)
     violations = check_limits(pred, limits, text) if limits is not None else []
     return pred, violations, text

@@ -348,40 +348,65 @@ def poor_fit_text(validation: dict) -> str:
             'columns and units, record longer or with more excitation, or widen the grid')
 
 
-def impulse_response(u, y, n_lags: int, ridge: float = 1e-6) -> np.ndarray:
+def impulse_response(u, y, n_lags: int, start: int = 0, ridge: float = 1e-6) -> np.ndarray:
     """FIR estimate of the plant ``u -> y`` (``n_lags`` taps) from a record, model-free.
 
-    Least squares on the lagged commands only (Wiener-Hopf equations from the record's
-    correlations, solved by Levinson recursion), so measurement noise does not bias it;
-    ``ridge`` (relative, on the zero-lag autocorrelation) keeps a band-limited command's
-    Toeplitz system solvable.
+    Least squares of ``y(t)``, ``t >= max(start, n_lags - 1)``, on the lagged commands
+    ``u(t), ..., u(t - n_lags + 1)`` only, so measurement noise does not bias it; the rows
+    are exactly those of the record (the covariance method: commands before ``start``
+    enter as lags, nothing is zero-padded), so a part cut from the middle of a record has
+    no edge error.  ``ridge`` (relative, on the diagonal) keeps a band-limited command's
+    normal equations solvable.
     """
     u = np.asarray(u, dtype=float) - np.mean(u)
     y = np.asarray(y, dtype=float) - np.mean(y)
-    nfft = int(2 ** np.ceil(np.log2(2 * u.size)))
-    uf, yf = np.fft.rfft(u, nfft), np.fft.rfft(y, nfft)
-    ruu = np.fft.irfft(np.abs(uf) ** 2, nfft)[:n_lags]
-    ruy = np.fft.irfft(np.conj(uf) * yf, nfft)[:n_lags]
-    ruu[0] *= 1.0 + ridge
-    return linalg.solve_toeplitz(ruu, ruy)
+    n = u.size
+    t0 = max(int(start), n_lags - 1)
+    if n - t0 < 2 * n_lags:
+        raise ValueError(f'{n - t0} samples are too few for a {n_lags}-tap impulse response')
+    seg = u[t0 - n_lags + 1:]                      # every command the rows t0..n-1 use
+    nfft = int(2 ** np.ceil(np.log2(2 * seg.size)))
+    sf = np.fft.rfft(seg, nfft)
+    # first row of the Gram matrix and the right-hand side, by correlation over the rows
+    head = np.zeros(seg.size)
+    head[n_lags - 1:] = u[t0:]
+    g0 = np.fft.irfft(np.fft.rfft(head, nfft) * np.conj(sf), nfft)[:n_lags]
+    yh = np.zeros(seg.size)
+    yh[n_lags - 1:] = y[t0:]
+    rhs = np.fft.irfft(np.fft.rfft(yh, nfft) * np.conj(sf), nfft)[:n_lags]
+    # G[i + 1, j + 1] = G[i, j] + u(t0-1-i) u(t0-1-j) - u(n-1-i) u(n-1-j), along each diagonal
+    gram = np.empty((n_lags, n_lags))
+    first = u[t0 - 1::-1][:n_lags] if t0 > 0 else np.zeros(n_lags)
+    last = u[n - 1::-1][:n_lags]
+    for k in range(n_lags):
+        m = n_lags - k
+        step = first[:m - 1] * u[t0 - 1 - k::-1][:m - 1] - last[:m - 1] * u[n - 1 - k::-1][:m - 1]
+        diag = g0[k] + np.r_[0.0, np.cumsum(step)]
+        gram[np.arange(m), np.arange(k, n_lags)] = diag
+        gram[np.arange(k, n_lags), np.arange(m)] = diag
+    gram[np.diag_indices(n_lags)] *= 1.0 + ridge
+    return linalg.solve(gram, rhs, assume_a='sym')
 
 
-def empirical_frf(u, y, fs_hz: float, memory_s: float = 0.5, df_hz: float = 0.25) -> dict:
+def empirical_frf(u, y, fs_hz: float, memory_s: float = 0.5, df_hz: float = 0.25,
+                  start: int = 0) -> dict:
     """Return the record's frequency response without a model, and its standard deviation.
 
     ``H`` is the transform of the record's impulse response (:func:`impulse_response`,
     ``memory_s`` long): unlike a Welch H1 estimate it has no leakage error from the plant's
     memory across segment edges (1-6 % in 0-10 Hz on a 2 s segment of a 20 ms actuator).
     Its variance is ``(L / N) Phi_e(f) / Phi_u(f)`` (L taps, N samples, e the residual;
-    Ljung, System Identification, eq. 9.62).  ``coherence`` is the Welch estimate.
+    Ljung, System Identification, eq. 9.62).  ``coherence`` is the Welch estimate.  Only
+    ``[start:]`` of the record is fitted (the held-out part).
     """
     u = np.asarray(u, dtype=float) - np.mean(u)
     y = np.asarray(y, dtype=float) - np.mean(y)
-    n_lags = int(min(round(memory_s * fs_hz), max(8, u.size // 10)))
-    h = impulse_response(u, y, n_lags)
+    n_lags = int(min(round(memory_s * fs_hz), max(8, (u.size - start) // 10)))
+    h = impulse_response(u, y, n_lags, start)
+    u, y = u[start:], y[start:]
     f = np.arange(0.0, fs_hz / 2 + df_hz / 2, df_hz)
     _, hf = signal.freqz(h, [1.0], worN=f, fs=fs_hz)
-    e = y - signal.lfilter(h, [1.0], u)
+    e = y - signal.lfilter(h, [1.0], u)     # (its first n_lags samples start from rest)
     nper = int(min(u.size // 4, max(256, round(2 * fs_hz))))
     fw, puu = signal.welch(u, fs=fs_hz, nperseg=nper)
     _, pee = signal.welch(e, fs=fs_hz, nperseg=nper)
@@ -407,7 +432,7 @@ def validate(model: ArxModel, u, y, fs_hz: float, split: int, band_hz: float) ->
     cutoff = min(1.25 * band_hz, 0.45 * fs_hz)
     yb, sb = prefilter(y, fs_hz, cutoff)[split:], prefilter(sim, fs_hz, cutoff)[split:]
     nrmse_band = 100.0 * float(np.sqrt(np.mean((yb - sb) ** 2)) / np.std(yb))
-    frf = empirical_frf(u[split:], y[split:], fs_hz)
+    frf = empirical_frf(u, y, fs_hz, start=split)
     _, hm = signal.freqz(model.num, model.a, worN=frf['f_hz'], fs=fs_hz)
     frf['h_model'] = hm
     sel = (frf['f_hz'] > 0) & (frf['f_hz'] <= band_hz) & (frf['coherence'] > 0.9)

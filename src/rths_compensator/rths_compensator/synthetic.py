@@ -160,7 +160,7 @@ def identification_record(actuator: SyntheticActuator, duration_s: float = 60.0,
 
 def tracking_signals(fs_hz: float, duration_s: float = 20.0, peak: float = 0.005,
                      seed: int = 5) -> dict:
-    """The two desired displacements of the tracking checks, ``name -> array``.
+    """Return the two desired displacements of the tracking checks, ``name -> array``.
 
     ``sine``: 1 Hz + 5 Hz, equal amplitudes, faded in over 1 s (a causal compensator cannot
     follow a sine that starts with a jump in velocity); ``noise``: band-limited white noise
