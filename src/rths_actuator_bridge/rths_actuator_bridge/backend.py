@@ -40,7 +40,33 @@ ACTIVE = 'active'
 
 
 class Backend(ABC):
-    """Abstract actuator backend: configure, activate, write, read, deactivate, limits."""
+    """Abstract actuator backend: configure, activate, write, read, deactivate, limits.
+
+    A backend class also says what it is and which parameters it takes, for the
+    registry :data:`rths_actuator_bridge.bridge.BACKENDS` and the bridge's schema:
+    ``summary`` (one line), ``params`` (key -> (type, default, meaning [unit])),
+    ``ranges`` (key -> inclusive (low, high)) and ``choices`` (key -> allowed values);
+    ``in_process``: the plant lives in the bridge's process (it stops with it, and the
+    pre-flight check may build it).
+    """
+
+    summary = ''
+    params: dict = {}
+    ranges: dict = {}
+    choices: dict = {}
+    in_process = False
+
+    @classmethod
+    def make_safe(cls, params: dict) -> str:
+        """After the bridge process died: bring the actuator to rest from outside; say how.
+
+        An in-process plant stopped with the bridge; a backend driving hardware
+        overrides this (OSError when it cannot reach the controller).
+        """
+        if cls.in_process:
+            return (f'the {cls.summary.split(":")[0]} ran inside the bridge process and stopped '
+                    'with it: safe state (nothing moves)')
+        raise OSError('this backend cannot stop the actuator from outside the bridge')
 
     def __init__(self):
         """Create an unconfigured backend."""

@@ -26,42 +26,50 @@ write the command of step 0 (the position at rest).
 import numpy as np
 
 from rths_common import stepping
+from rths_common.params import node_schema
+from rths_common.registry import Registry
 
 from . import safety
 from .backend import Backend
 from .simulated import SimulatedBackend
 from .udp import UdpBackend
 
-#: Backend name (the ``backend`` parameter) -> class; 'simulated' is the default.
-BACKENDS = {'simulated': SimulatedBackend, 'udp': UdpBackend}
+#: Backend name (the ``backend`` parameter) -> class (a :class:`.backend.Backend`, which
+#: carries its summary, parameters, ranges and choices).
+BACKENDS = Registry('bridge backend', 'backend',
+                    {'simulated': SimulatedBackend, 'udp': UdpBackend})
+#: The backend of a params file that names none.
+DEFAULT_BACKEND = 'simulated'
 
-#: The bridge's own parameters: key -> (default, meaning [unit]).  The backends' are
-#: ``simulated.SIM_PARAMS`` and ``udp.UDP_PARAMS``, the limits ``safety.SAFETY_PARAMS``.
+#: The bridge's own parameters: key -> (default, meaning [unit]).  The backends' are their
+#: classes' ``params`` (``simulated.SIM_PARAMS``, ``udp.UDP_PARAMS``), the limits
+#: ``safety.SAFETY_PARAMS``.
 PARAMS = {
-    'backend': ('simulated', "'simulated' (the plant model) or 'udp' (a servo controller)"),
+    'backend': (DEFAULT_BACKEND, 'what the bridge drives (rths_actuator_bridge.bridge.BACKENDS)'),
     'command_delay_steps': (0, '[steps] the command of step k is written at tick k + D'),
 }
 
 
+def backend_class(params: dict, where: str = "parameter 'backend'"):
+    """Return the class of the backend ``params`` name (ValueError listing the backends)."""
+    return BACKENDS.entry(params.get('backend', DEFAULT_BACKEND), where)
+
+
 def param_schema(node_params) -> dict:
     """Return the bridge node's parameter schema: its ``node_params``, the core's, the backends'."""
-    from rths_common.params import node_schema
-
-    from .simulated import SIM_PARAMS, SIM_RANGES
-    from .udp import UDP_PARAMS, UDP_RANGES
-    ranges = {**UDP_RANGES, **SIM_RANGES, **safety.SAFETY_RANGES,
-              'command_delay_steps': (0, MAX_DELAY_STEPS)}
-    return node_schema(node_params, {**UDP_PARAMS, **SIM_PARAMS, **safety.SAFETY_PARAMS,
-                                     **PARAMS}, ranges)
+    params, ranges, choices = {}, {}, {'backend': BACKENDS.names()}
+    for cls in reversed(list(BACKENDS.values())):
+        params.update(cls.params)
+        ranges.update(cls.ranges)
+        choices.update(cls.choices)
+    ranges.update(safety.SAFETY_RANGES, command_delay_steps=(0, MAX_DELAY_STEPS))
+    return node_schema(node_params, {**params, **safety.SAFETY_PARAMS, **PARAMS}, ranges,
+                       choices)
 
 
 def make_backend(params: dict) -> Backend:
     """Create and configure the backend named by ``params['backend']`` (default 'simulated')."""
-    name = params.get('backend', 'simulated')
-    if name not in BACKENDS:
-        raise ValueError(f"parameter 'backend' = {name!r} is unknown; use one of "
-                         f"{', '.join(repr(b) for b in BACKENDS)}")
-    backend = BACKENDS[name]()
+    backend = backend_class(params)()
     backend.configure(params)
     return backend
 

@@ -1,7 +1,7 @@
 """The simulated plant's output channels and its ZOH discretisation.
 
 Shared by :mod:`.simulated` (the plant) and the specimens it can carry
-(:mod:`.mr_specimen`), which import them from here, not from each other.
+(:mod:`.stroke_specimen`), which import them from here, not from each other.
 """
 
 import numpy as np

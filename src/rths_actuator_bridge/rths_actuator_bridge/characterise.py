@@ -33,6 +33,9 @@ import math
 
 import numpy as np
 
+from rths_common.columns import read_columns
+from rths_common.timebase import sampling_rate_hz
+
 #: Moving mass of the DTM: 569.5 lbm (seed section 5.1) in kg.
 MOVING_MASS_KG = 569.5 * 0.45359237
 
@@ -261,39 +264,10 @@ def plot_fit(records, fit: DTMFit, path, title: str = '', f_max_hz: float = 10.0
 # --------------------------------------------------------------------- data input
 def read_csv(path, name: str = None) -> DTMRecord:
     """Read a CSV: columns ``time`` [s], ``base_accel`` [m/s^2], ``rel_disp`` [m], opt. force."""
-    import csv
-    with open(path, newline='') as fh:
-        reader = csv.reader(fh)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise ValueError(f'{path}: empty file; expected a header row time,base_accel,'
-                             'rel_disp') from None
-        rows = [row for row in reader if row and any(c.strip() for c in row)]
-    need = ('time', 'base_accel', 'rel_disp')
-    missing = [c for c in need if c not in header]
-    if missing:
-        raise ValueError(f'{path}: missing column(s) {", ".join(missing)}; the header must name '
-                         'time [s], base_accel [m/s^2], rel_disp [m] (optional force [N])')
-    try:
-        data = np.array(rows, dtype=float)
-    except ValueError:
-        raise ValueError(f'{path}: a row holds a non-numeric value; every cell must be a '
-                         'number') from None
-    if data.ndim != 2 or data.shape[0] < 64 or data.shape[1] != len(header):
-        raise ValueError(f'{path}: need >= 64 complete rows of {len(header)} columns')
-    col = {h: data[:, i] for i, h in enumerate(header)}
-    t = col['time']
-    dt = np.diff(t)
-    if not np.all(dt > 0):
-        raise ValueError(f'{path}: column time must increase strictly')
-    if np.max(np.abs(dt - dt.mean())) > 0.01 * dt.mean():
-        raise ValueError(f'{path}: column time is not uniformly sampled (jitter > 1 %); '
-                         'resample the record first')
-    for c in need[1:]:
-        if not np.all(np.isfinite(col[c])):
-            raise ValueError(f'{path}: column {c} holds non-finite values')
-    return DTMRecord(col['base_accel'], col['rel_disp'], 1.0 / dt.mean(), name or str(path))
+    col = read_columns(path, ('time', 'base_accel', 'rel_disp'), min_rows=64,
+                       contract='time [s], base_accel [m/s^2], rel_disp [m] (optional force [N])')
+    fs = sampling_rate_hz(col['time'], f'{path}: column time')
+    return DTMRecord(col['base_accel'], col['rel_disp'], fs, name or str(path))
 
 
 def write_csv(path, record: DTMRecord, force=None):
@@ -370,7 +344,7 @@ def simulated_test(dtm: str, kind: str, band_hz: float, peak_in: float, seed: in
         u = sine_displacement(duration_s, fs_hz, band_hz, peak)
     else:
         raise ValueError(f'unknown test kind {kind!r}; use blwn, chirp or sine')
-    params = {'dtm': dtm, 'fs_hz': fs_hz, 'seed': seed,
+    params = {'specimen': dtm, 'fs_hz': fs_hz, 'seed': seed,
               'rel_disp_noise_m': 2e-5, 'accel_noise_m_s2': 5e-3, 'force_noise_n': 1.0,
               'displacement_noise_m': 1e-5}
     params.update(noise or {})

@@ -10,6 +10,8 @@ import json
 import sys
 
 from rths_common.files import atomic_open
+from rths_common.params import add_renamed_option
+from rths_numerical.specimens import DEFAULT_SPECIMEN, SPECIMENS
 
 
 def _progress(text: str):
@@ -25,8 +27,9 @@ def _write_json(path, data):
 def _add_plant_options(p):
     p.add_argument('--actuator-model', default='3pole',
                    help="'3pole' | '4pole' (Table 1) or a plant.yaml (default 3pole)")
-    p.add_argument('--dtm', default='valve4',
-                   help="DTM configuration valve1..valve4 | novalve | none (default valve4)")
+    p.add_argument('--specimen', default=DEFAULT_SPECIMEN, choices=SPECIMENS.names(),
+                   help=f'the specimen on the table (default {DEFAULT_SPECIMEN})')
+    add_renamed_option(p, '--dtm', '--specimen')
     p.add_argument('--fs-hz', type=float, default=1024.0, help='sampling frequency [Hz]')
     p.add_argument('--seed', type=int, default=0, help='noise generator seed')
     p.add_argument('--displacement-noise-m', type=float, default=0.0,
@@ -42,7 +45,8 @@ def run_emulator(args) -> int:
     import time
 
     from .emulator import ControllerEmulator
-    params = {'actuator_model': args.actuator_model, 'dtm': args.dtm, 'fs_hz': args.fs_hz,
+    params = {'actuator_model': args.actuator_model, 'specimen': args.specimen,
+              'fs_hz': args.fs_hz,
               'seed': args.seed, 'displacement_noise_m': args.displacement_noise_m,
               'force_noise_n': args.force_noise_n, 'adc_bits': args.adc_bits,
               'friction_n': args.friction_n}
@@ -51,7 +55,7 @@ def run_emulator(args) -> int:
     emu = ControllerEmulator(params, host=args.host, port=args.port)
     host, port = emu.address
     print(f'controller emulator listening on {host}:{port} (UDP, plant {args.actuator_model} '
-          f'+ DTM {args.dtm})', flush=True)
+          f'+ specimen {args.specimen})', flush=True)
     emu.start()
     try:
         t_end = time.monotonic() + args.duration_s if args.duration_s > 0 else float('inf')

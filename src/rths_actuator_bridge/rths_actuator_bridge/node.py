@@ -19,6 +19,7 @@ from std_msgs.msg import String, UInt64
 
 from rths_common import node_support as ns
 from rths_common import topics
+from rths_common.params import renamed
 from rths_common.qos import loop_qos, run_info_qos, status_qos
 from rths_common.stepping import Driver, TickClock
 from rths_common.transport import Transport
@@ -51,20 +52,15 @@ def check_bridge_params(params: dict) -> dict:
     naming the field and the fix.  Used by the node and by ``rths launch``'s
     pre-flight check (:mod:`rths_bringup.preflight`).
     """
-    from rths_actuator_bridge.bridge import BACKENDS, PARAMS, DelayLine
+    from rths_actuator_bridge.bridge import PARAMS, DelayLine, backend_class
     from rths_actuator_bridge.safety import SAFETY_PARAMS, SafetyLimits
-    from rths_actuator_bridge.simulated import SIM_PARAMS
-    from rths_actuator_bridge.udp import UDP_PARAMS
 
     core = {k: v for k, v in params.items()
             if k not in NODE_PARAMS and k not in ns.ROS_BUILTIN_PARAMS
             and not k.startswith('qos_overrides')}
+    core = renamed(core, 'dtm', 'specimen', 'bridge parameters')
     backend = core.get('backend', 'simulated')
-    if backend not in BACKENDS:
-        raise ValueError(f"parameter 'backend' = {backend!r} is unknown; use one of "
-                         f"{', '.join(repr(b) for b in BACKENDS)}")
-    known = {*PARAMS, *SAFETY_PARAMS,
-             *(UDP_PARAMS if backend == 'udp' else SIM_PARAMS)}
+    known = {*PARAMS, *SAFETY_PARAMS, *backend_class(core).params}
     unknown = sorted(set(core) - known)
     if unknown:
         raise ValueError(f'unknown parameter(s) {", ".join(unknown)} for backend {backend!r}; '

@@ -123,6 +123,6 @@ def converter(x):
 
 
 #: Simulated-backend parameters of the benchmark plant (for ``bridge.yaml``).
-BRIDGE_PARAMS = {'actuator_model': 'silva2020', 'fs_hz': FS_HZ, 'dtm': 'none',
+BRIDGE_PARAMS = {'actuator_model': 'silva2020', 'fs_hz': FS_HZ, 'specimen': 'none',
                  'displacement_noise_m': DISPLACEMENT_NOISE_M, 'force_noise_n': FORCE_NOISE_N,
                  'adc_bits': 0, 'daq_filter_hz': 0.0}

@@ -1,4 +1,4 @@
-"""Simulated plant: servo-hydraulic actuator -> shake table -> DTM damper (seed ch. 4-5).
+"""Simulated plant: servo-hydraulic actuator -> shake table -> specimen (seed ch. 4-5).
 
 Continuous-time model (default)
 -------------------------------
@@ -13,7 +13,12 @@ velocity ``s G_a`` and acceleration ``xdd_s = s^2 G_a U`` are proper and follow
 from the actuator state ``q``: ``x_s = C q``, ``xd_s = C A q``,
 ``xdd_s = C A^2 q + C A B u``.
 
-DTM on the table (seed eq. 44-47, Table 4 via :mod:`rths_numerical.dtm`)::
+The specimen is the entry ``specimen`` names in :data:`rths_numerical.specimens.SPECIMENS`:
+a mass on the table (the DTM), a device between the table and the ground (the MR damper)
+or nothing (the bare table).
+
+DTM on the table (seed eq. 44-47, Table 4; the model is
+:meth:`rths_numerical.dtm.DTMParameters.state_space`)::
 
     m_d xdd_d + c_1 xd_d2s + k_1 x_d2s + (c_v xd_d2s + k_v x_d2s) = 0          (44)
     m_d xdd_d + c_d xd_d2s + k_d x_d2s = 0,  c_d = c_1 + c_v, k_d = k_1 + k_v  (45)
@@ -58,10 +63,10 @@ they remove the sample-synchronous acceleration ripple of the ZOH command
 staircase that a raw sample of ``xdd_s`` would alias into the record.  The
 actuator displacement and the force are not filtered (no extra loop delay).
 
-MR damper (``dtm: mr``): the specimen is a magnetorheological damper between
-the table and the reaction frame (:mod:`.mr_specimen`); its stroke is the table
-displacement and the measured force is the damper force (the Bouc-Wen model of
-Spencer et al. 1997 at the constant voltage ``mr_voltage_v``).
+A device specimen (``specimen: mr``, a magnetorheological damper between the table
+and the reaction frame) is advanced by :mod:`.stroke_specimen`: its stroke is the table
+displacement and the measured force is the device force (for ``mr`` the Bouc-Wen model
+of Spencer et al. 1997 at the constant voltage ``mr_voltage_v``).
 
 Sensors: Gaussian noise of standard deviation ``displacement_noise_m``,
 ``force_noise_n``, ``rel_disp_noise_m``, ``accel_noise_m_s2`` from a seeded
@@ -70,17 +75,20 @@ Sensors: Gaussian noise of standard deviation ``displacement_noise_m``,
 ``+-accel_range_m_s2`` (0 bits = no quantisation).
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 import math
 
 import numpy as np
 from scipy.linalg import expm
 
-from rths_common.params import LOOP_RATE_RANGE_HZ
+from rths_common.params import LOOP_RATE_RANGE_HZ, renamed
 from rths_common.timebase import same_rate
+from rths_numerical.dtm import DTMParameters
+from rths_numerical.specimens import DEFAULT_SPECIMEN, SPECIMENS, specimen_params
 
 from .backend import Backend
 from .channels import CHANNELS, zoh
+from .stroke_specimen import StrokeTableSpecimen
 
 
 def _quantise(x, bits: int, full_range: float):
@@ -97,8 +105,8 @@ class PlantConfig:
 
     fs_hz: float = 1024.0
     actuator_model: str = '3pole'
-    dtm: str = 'valve4'
-    frame_mass_kg: float = float('nan')  # nan -> FRAME_MASS_KG
+    specimen: str = DEFAULT_SPECIMEN
+    frame_mass_kg: float = float('nan')  # nan -> the specimen's frame mass
     displacement_noise_m: float = 0.0
     force_noise_n: float = 0.0
     rel_disp_noise_m: float = 0.0
@@ -113,8 +121,7 @@ class PlantConfig:
     friction_v_m_s: float = 1e-3
     friction_substeps: int = 16
     daq_filter_hz: float = 200.0
-    mr_voltage_v: float = 1.0
-    mr_substeps: int = 8
+    specimen_settings: dict = field(default_factory=dict)   # the specimen's own parameters
 
 
 #: Simulated-backend parameters: key -> (type, default, unit/meaning).
@@ -122,10 +129,11 @@ SIM_PARAMS = {
     'fs_hz': (float, 1024.0, '[Hz] loop sampling frequency (seed: 1024 Hz)'),
     'actuator_model': (str, '3pole', "'3pole' | '4pole' (Table 1) | 'silva2020' (benchmark "
                        'plant with its specimen, see silva2020.py) | path to an ARX plant.yaml'),
-    'dtm': (str, 'valve4', "'valve1'..'valve4' | 'novalve' (Table 4) | 'none' (bare table) | "
-            "'mr' (MR damper, .mr_specimen)"),
+    'specimen': (str, DEFAULT_SPECIMEN, 'the specimen on the table '
+                 '(rths_numerical.specimens.SPECIMENS)'),
     'frame_mass_kg': (float, float('nan'),
-                      '[kg] DTM supporting-frame mass (default 250.0 lbm = 113.4 kg)'),
+                      "[kg] mass the load cells carry with the table (default: the specimen's; "
+                      'the DTM frame 250.0 lbm = 113.4 kg)'),
     'displacement_noise_m': (float, 0.0, '[m] std of actuator displacement sensor noise'),
     'force_noise_n': (float, 0.0, '[N] std of load-cell force noise'),
     'rel_disp_noise_m': (float, 0.0, '[m] std of DTM relative-displacement (LVDT) noise'),
@@ -141,8 +149,7 @@ SIM_PARAMS = {
     'friction_substeps': (int, 16, '[-] sub-steps per sample when friction_n > 0'),
     'daq_filter_hz': (float, 200.0, '[Hz] cut-off of the 2nd-order Butterworth anti-alias '
                       'filter of the specimen channels (table_accel, rel_disp, rel_vel); 0 = off'),
-    'mr_voltage_v': (float, 1.0, '[V] constant command voltage of the MR damper (dtm: mr)'),
-    'mr_substeps': (int, 8, '[-] RK4 sub-steps per sample of the MR damper model (dtm: mr)'),
+    **specimen_params()[0],
 }
 #: Ranges of the rates, counts and specimen settings of :data:`SIM_PARAMS` (inclusive).
 SIM_RANGES = {
@@ -151,18 +158,28 @@ SIM_RANGES = {
     'friction_n': (0.0, 1.0e6),
     'friction_substeps': (1, 4096),
     'daq_filter_hz': (0.0, 100_000.0),
-    'mr_voltage_v': (0.0, 10.0),
-    'mr_substeps': (1, 4096),
+    **specimen_params()[1],
 }
+#: Allowed values of the plant's parameters that name a choice.
+SIM_CHOICES = {'specimen': SPECIMENS.names()}
 
 #: Specimen instrumentation channels that pass the DAQ anti-alias filter.
 DAQ_FILTERED = ('table_accel', 'rel_disp', 'rel_vel')
 
 
 def plant_config(params: dict) -> PlantConfig:
-    """Build a :class:`PlantConfig` from flat parameters, validating each key (ValueError)."""
-    values = {}
+    """Build a :class:`PlantConfig` from flat parameters, validating each key (ValueError).
+
+    The former key ``dtm`` is accepted for ``specimen`` with a one-line note.
+    """
+    where = "parameter 'dtm' (now 'specimen')" if 'dtm' in params else "parameter 'specimen'"
+    params = renamed(params, 'dtm', 'specimen', 'bridge parameters')
+    entry = SPECIMENS.entry(params.get('specimen', DEFAULT_SPECIMEN), where)
+    own = set(specimen_params()[0])
+    values = {'specimen_settings': entry.settings(params)}
     for key, (typ, default, meaning) in SIM_PARAMS.items():
+        if key in own:
+            continue
         raw = params.get(key, default)
         try:
             val = typ(raw)
@@ -187,17 +204,6 @@ def plant_config(params: dict) -> PlantConfig:
     if not (math.isnan(cfg.frame_mass_kg) or cfg.frame_mass_kg >= 0):
         raise ValueError(f"parameter 'frame_mass_kg' = {cfg.frame_mass_kg} must be >= 0")
     return cfg
-
-
-def _dtm_params(name: str):
-    """Table 4 parameters of ``name``, or None for 'none'."""
-    if name in ('none', '', 'mr'):   # 'mr': a bare table carrying the MR damper
-        return None
-    from rths_numerical.dtm import dtm_configuration
-    try:
-        return dtm_configuration(name)
-    except ValueError as err:
-        raise ValueError(f"parameter 'dtm': {err}, or 'none'") from None
 
 
 #: Plant parameters that :meth:`SimulatedPlant.retune` scales during a run (1.0 = as built):
@@ -242,12 +248,10 @@ class SimulatedPlant:
         self.config = config if config is not None else plant_config(params)
         cfg = self.config
         self.dt = 1.0 / cfg.fs_hz
-        self.dtm = _dtm_params(cfg.dtm)
-        if math.isnan(cfg.frame_mass_kg):
-            from rths_numerical.dtm import FRAME_MASS_KG
-            self.frame_mass = FRAME_MASS_KG if self.dtm is not None else 0.0
-        else:
-            self.frame_mass = cfg.frame_mass_kg
+        self.specimen = SPECIMENS.entry(cfg.specimen, "parameter 'specimen'")
+        self.dtm = self.specimen.table_mass   # the mass on the table (eq. 46), or None
+        self.frame_mass = (self.specimen.frame_mass_kg if math.isnan(cfg.frame_mass_kg)
+                           else cfg.frame_mass_kg)
         self.arx = None
         self._scales = dict.fromkeys(RETUNE_KEYS, 1.0)
         self._noiseless = (cfg.adc_bits <= 0 and cfg.displacement_noise_m <= 0
@@ -259,34 +263,40 @@ class SimulatedPlant:
             self._build_silva2020()
         else:
             self._build_arx(cfg.actuator_model)
-        self.mr = None
-        if cfg.dtm == 'mr':
-            from .mr_specimen import MRTableSpecimen
-            self.mr = MRTableSpecimen(self, cfg)
+        self.mr = None   # a device specimen (between the table and the ground), if any
+        device, substeps = self.specimen.make_device(cfg.specimen_settings)
+        if device is not None:
+            self.mr = StrokeTableSpecimen(self, device, substeps, cfg.specimen)
         self.reset()
 
     # ----------------------------------------------------------------- building
-    def _dtm_cmk(self):
+    def _table_mass(self) -> DTMParameters:
+        """Return the mass on the table as built and retuned (a massless placeholder if none)."""
         if self.dtm is None:
-            return 1.0, 0.0, 0.0
-        return self.dtm.m_d, self.dtm.c_d, self.dtm.k_d * self._scales['dtm_stiffness']
+            return DTMParameters(1.0, 0.0, 0.0)
+        return replace(self.dtm, k_d=self.dtm.k_d * self._scales['dtm_stiffness'])
+
+    def _dtm_cmk(self):
+        """Return ``(m_d, c_d, k_d)`` of the mass on the table, retuned."""
+        mass = self._table_mass()
+        return mass.m_d, mass.c_d, mass.k_d
 
     def _build_continuous(self, kind: str):
         aa, ba, ca = _actuator_ss(kind, self._scales)
         n = aa.shape[0]
-        m_d, c_d, k_d = self._dtm_cmk()
+        mass = self._table_mass()
+        a_m, b_m = mass.state_space()  # eq. 46: inputs table acceleration, friction force
         c_acc = ca @ aa @ aa           # xdd_s = C A^2 q + C A B u
         d_acc = (ca @ aa @ ba).item()
         a = np.zeros((n + 2, n + 2))
         a[:n, :n] = aa
-        a[n, n + 1] = 1.0
-        a[n + 1, :n] = -c_acc.ravel()
-        a[n + 1, n] = -k_d / m_d
-        a[n + 1, n + 1] = -c_d / m_d
+        a[n:, n:] = a_m
+        a[n + 1, :n] = b_m[1, 0] * c_acc.ravel()
         b = np.zeros((n + 2, 2))       # inputs: command u, friction force f_c [N]
         b[:n, 0] = ba.ravel()
-        b[n + 1, 0] = -d_acc
-        b[n + 1, 1] = -1.0 / m_d
+        b[n + 1, 0] = b_m[1, 0] * d_acc
+        b[n + 1, 1] = b_m[1, 1]
+        c_d, k_d = mass.c_d, mass.k_d
         if self.dtm is None:       # bare table: DTM states stay at zero
             a[n:, :] = 0.0
             b[n:, :] = 0.0
@@ -308,7 +318,7 @@ class SimulatedPlant:
         self._set_linear(*self._add_daq_filter(a, b, c, d))
 
     def _build_silva2020(self):
-        """Benchmark plant of :mod:`.silva2020` with its own SDOF specimen (``dtm`` ignored)."""
+        """Build the benchmark plant of :mod:`.silva2020` (it carries its own SDOF specimen)."""
         from .silva2020 import channel_model
         self.dtm, self.frame_mass = None, 0.0
         self._set_linear(*channel_model(self.silva2020_params))
@@ -372,11 +382,12 @@ class SimulatedPlant:
         a = np.asarray(model.a, float)
         b = np.concatenate([np.zeros(int(model.d)), np.asarray(model.b, float)])
         self._arx_a, self._arx_b = a / a[0], b / a[0]
-        m_d, c_d, k_d = self._dtm_cmk()
-        # absolute DTM coordinates [x_d, v_d, x_s, slope], x_s linear within a sample
+        a_m, _ = self._table_mass().state_space()
+        # absolute DTM coordinates [x_d, v_d, x_s, slope], x_s linear within a sample:
+        # eq. 46 in x_d2s = x_d - x_s (its table-acceleration input cancels)
         a4 = np.zeros((4, 4))
         a4[0, 1] = 1.0
-        a4[1] = [-k_d / m_d, -c_d / m_d, k_d / m_d, c_d / m_d]
+        a4[1] = [a_m[1, 0], a_m[1, 1], -a_m[1, 0], -a_m[1, 1]]
         a4[2, 3] = 1.0
         self._arx_dtm = expm(a4 * self.dt)
 
@@ -390,7 +401,7 @@ class SimulatedPlant:
         """
         if self.config.actuator_model not in ('3pole', '4pole') or self.mr is not None:
             raise ValueError('retune needs a continuous Table 1 actuator model (3pole, 4pole) '
-                             'and a linear specimen (not dtm: mr)')
+                             f'and a linear specimen (not specimen: {self.config.specimen})')
         for key, value in scales.items():
             if key not in RETUNE_KEYS:
                 raise ValueError(f'retune: unknown parameter {key!r}; use {RETUNE_KEYS}')
@@ -426,7 +437,7 @@ class SimulatedPlant:
             self._y_hist = np.zeros(len(self._arx_a) - 1)
             self._z = np.zeros(2)
             self._xs, self._slope = 0.0, 0.0
-        if getattr(self, 'mr', None) is not None:
+        if getattr(self, 'mr', None) is not None:   # (reset() runs before mr is set)
             self.mr.reset()
         self.true = dict.fromkeys(CHANNELS, 0.0)
 
@@ -477,10 +488,9 @@ class SimulatedPlant:
         self._z = w[:2]
         accel = (slope - self._slope) / self.dt
         self._xs, self._slope = xs_new, slope
-        m_d, c_d, k_d = self._dtm_cmk()
         rel_disp = self._z[0] - xs_new if self.dtm is not None else 0.0
         rel_vel = self._z[1] - slope if self.dtm is not None else 0.0
-        force = self.frame_mass * accel - (c_d * rel_vel + k_d * rel_disp)
+        force = self.frame_mass * accel - self._table_mass().frame_force(rel_disp, rel_vel)
         self.k += 1
         values = (xs_new, slope, accel, rel_disp, rel_vel, force)
         self.true = dict(zip(CHANNELS, values, strict=True))
@@ -559,6 +569,12 @@ def silva2020_plant(params=None, **config) -> SimulatedPlant:
 
 class SimulatedBackend(Backend):
     """Backend over :class:`SimulatedPlant`; each ``write()`` advances exactly one sample."""
+
+    summary = 'simulated plant: actuator + shake table + specimen (simulated.py)'
+    params = SIM_PARAMS
+    ranges = SIM_RANGES
+    choices = SIM_CHOICES
+    in_process = True
 
     def _configure(self, params: dict):
         self.plant = SimulatedPlant(plant_config(params))

@@ -95,6 +95,28 @@ def _params(params: dict, spec: dict) -> dict:
 class UdpBackend(Backend):
     """Backend talking to a servo controller over UDP (see module docstring)."""
 
+    summary = 'a servo controller over UDP (the datagram protocol of udp.py)'
+    params = UDP_PARAMS
+    ranges = UDP_RANGES
+
+    @classmethod
+    def make_safe(cls, params: dict) -> str:
+        """Send DEACTIVATE to the servo controller of ``params``; OSError without its ACK."""
+        host, port = str(params.get('host', '127.0.0.1')), int(params.get('port', 0))
+        n_channels = int(params.get('n_channels', 1))
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            sock.settimeout(0.2)
+            for _ in range(5):
+                sock.sendto(pack(DEACTIVATE, 0, (), n_channels), (host, port))
+                try:
+                    kind, *_ = unpack(sock.recvfrom(65536)[0])
+                except (socket.timeout, ValueError):
+                    continue
+                if kind == ACK:
+                    return (f'servo controller {host}:{port} acknowledged DEACTIVATE (actuator '
+                            'stopped)')
+        raise OSError(f'no ACK from {host}:{port}')
+
     def _configure(self, params: dict):
         p = _params(params, UDP_PARAMS)
         if not 1 <= p['port'] <= 65535:

@@ -27,7 +27,9 @@ import time
 
 import numpy as np
 
-METHOD_NAMES = ('fir', 'rls_fir', 'ats', 'amb')
+from rths_compensator.methods import METHODS, adaptive_names
+
+METHOD_NAMES = METHODS.names()
 SCENARIOS = ('unchanged', 'stiffness_drop', 'plant_drift')
 #: The RTHS benchmark's perturbed plants (:mod:`.bench_adaptive_silva`; needs its record).
 SILVA = 'silva2020_perturbed'
@@ -178,7 +180,7 @@ def _plot(path, scenario, target, runs):
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    adaptive = [m for m in METHOD_NAMES if m != 'fir']
+    adaptive = list(adaptive_names())
     fig, axes = plt.subplots(1 + len(adaptive), 1, figsize=(9, 2.4 * (1 + len(adaptive))),
                              sharex=True)
     width = int(0.5 * FS_HZ)

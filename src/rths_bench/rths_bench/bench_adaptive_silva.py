@@ -18,9 +18,11 @@ import time
 
 import numpy as np
 
+from rths_compensator.methods import METHODS
+
 from . import rths_benchmark as rb
 
-METHOD_NAMES = ('fir', 'rls_fir', 'ats', 'amb')
+METHOD_NAMES = METHODS.names()
 NAME = 'silva2020_perturbed'
 #: Band of the delay estimate (eq. 42) [Hz]: the records' energy lies below it.
 DELAY_BAND_HZ = 10.0

@@ -37,6 +37,8 @@ import time
 import numpy as np
 import yaml
 
+from rths_compensator.schemes import DEFAULT_SCHEME
+
 #: (name, one-way delay [ms], jitter [ms], loss [%]); 'local' = no relay.
 CONDITIONS = (
     ('local', None, 0.0, 0.0),
@@ -79,7 +81,7 @@ def write_run_config(directory, rate_hz, duration_s, priority, taps_from=None) -
             data = yaml.safe_load(path.read_text())
             data['compensator']['ros__parameters'].update(
                 taps=src['taps'], denominator=src.get('denominator', [1.0]),
-                scheme=src.get('scheme', 'wls'))
+                scheme=src.get('scheme', DEFAULT_SCHEME))
             path.write_text(yaml.safe_dump(data, sort_keys=False))
     return config
 
@@ -319,7 +321,7 @@ def _identify_and_design(workdir, base, link_ms, delay_steps, net, args, log) ->
     plant, taps = workdir / 'plant.yaml', workdir / 'compensator.yaml'
     if rths_main(['identify', '--bag', str(workdir / 'bag'), '--out', str(plant)]):
         raise RuntimeError('rths identify failed')
-    if rths_main(['design', '--plant', str(plant), '--scheme', 'wls', '--taps', '400',
+    if rths_main(['design', '--plant', str(plant), '--scheme', DEFAULT_SCHEME, '--taps', '400',
                   '--fc', '10', '--out', str(taps)]):
         raise RuntimeError('rths design failed')
     return taps

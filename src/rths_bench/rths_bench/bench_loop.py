@@ -54,6 +54,10 @@ import time
 
 import numpy as np
 
+from rths_actuator_bridge.bridge import DEFAULT_BACKEND
+from rths_compensator.schemes import DEFAULT_SCHEME
+from rths_numerical.specimens import DEFAULT_SPECIMEN
+
 MISS_TARGET_PCT = 0.1
 GIVE_UP_PCT = 10.0  # --find-max stops stepping the rate up past this miss rate
 FIND_MAX_RATES = (1024, 1536, 2048, 2560, 3072, 4096)
@@ -147,14 +151,14 @@ def write_config(directory, rate_hz=1024.0, duration_s=10.0, taps=400, model='sd
         return params
 
     bridge = dict(tuning('bridge'), clock=clock, spin_margin_us=float(margin_us),
-                  backend='simulated', fs_hz=float(rate_hz),
-                  actuator_model='3pole', dtm='valve4', seed=1,
+                  backend=DEFAULT_BACKEND, fs_hz=float(rate_hz),
+                  actuator_model='3pole', specimen=DEFAULT_SPECIMEN, seed=1,
                   watchdog_steps=int(watchdog_steps))
     if compensator_filter is None:
         fir, den = [1.0] + [0.0] * (int(taps) - 1), [1.0]
     else:
         fir, den = ([float(v) for v in np.ravel(c)] for c in compensator_filter)
-    compensator = dict(tuning('compensator'), scheme='wls', fs_hz=float(rate_hz),
+    compensator = dict(tuning('compensator'), scheme=DEFAULT_SCHEME, fs_hz=float(rate_hz),
                        taps=fir, denominator=den)
     numerical = dict(tuning('numerical'), model=model, integrator='cr', fs_hz=float(rate_hz),
                      duration_s=float(duration_s), record=record, scale=0.05)

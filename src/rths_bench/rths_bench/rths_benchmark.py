@@ -44,6 +44,10 @@ import numpy as np
 from scipy import signal
 from scipy.linalg import expm
 
+from rths_actuator_bridge.bridge import DEFAULT_BACKEND
+from rths_compensator.methods import adaptive_names
+from rths_compensator.schemes import fir_schemes
+
 #: Published J1-J9 of the example controller, El Centro x 0.4 (Silva et al. 2020, Table 3;
 #: preprint "Benchmark_Control_Problem_for_Real_time_Hybrid_Simulation_Updated_V23.pdf" in
 #: the benchmark's code package, github.com/MECHS-RCN/BENCHMARKS, "RTHS code RT V23.zip").
@@ -65,7 +69,7 @@ CASES = ('1', '2', '3', '4')
 EXAMPLE_KP, EXAMPLE_KI = 2.0, 95.0
 EXAMPLE_GT = ([50.8316, 8570.40], [1.0, 8570.40])
 #: Adaptive compensators that ``--controller`` also runs (:mod:`rths_compensator.adaptive`).
-ADAPTIVE_CONTROLLERS = ('rls_fir', 'ats', 'amb')
+ADAPTIVE_CONTROLLERS = adaptive_names()
 #: A run counts as unstable when its measured displacement leaves this multiple of the
 #: reference floor-1 peak (or turns non-finite).
 UNSTABLE_FACTOR = 10.0
@@ -473,7 +477,7 @@ def graph_params(case: str, design, record_at2: str, scale: float, seed: int = 1
     compensator = {'scheme': design.scheme, 'fs_hz': FS_HZ,
                    'taps': [float(v) for v in design.taps],
                    'denominator': [float(v) for v in design.denominator]}
-    bridge = dict(BRIDGE_PARAMS, backend='simulated', seed=int(seed), **GRAPH_SAFETY)
+    bridge = dict(BRIDGE_PARAMS, backend=DEFAULT_BACKEND, seed=int(seed), **GRAPH_SAFETY)
     return {'numerical': numerical, 'compensator': compensator, 'bridge': bridge}
 
 
@@ -922,7 +926,7 @@ def register(commands, benches):
     p.add_argument('--duration', type=float, default=0.0, help='shorten the record [s]; 0 = all')
     p.add_argument('--taps', type=int, default=200, help='fir: number of taps n')
     p.add_argument('--fc', type=float, default=30.0, help='fir: passband edge [Hz]')
-    p.add_argument('--scheme', default='ls', choices=('ls', 'wls', 'mm'), help='fir: scheme')
+    p.add_argument('--scheme', default='ls', choices=fir_schemes(), help='fir: scheme')
     p.add_argument('--lowpass', type=float, default=400.0,
                    help='fir: cut-off [Hz] of the target low-pass (order 4) that bounds |G|')
     p.add_argument('--epsilon', type=float, default=0.002, help='fir: passband tolerance')

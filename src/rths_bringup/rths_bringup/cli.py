@@ -31,6 +31,7 @@ CLI_MODULES = (
     'rths_bringup.run',
     'rths_bringup.install',
     'rths_bringup.replay',
+    'rths_bringup.extensions',
     'rths_numerical.cli',
     'rths_compensator.cli',
     'rths_actuator_bridge.cli',

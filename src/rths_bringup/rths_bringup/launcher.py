@@ -530,63 +530,35 @@ class Launcher:
             self.say(f'bridge did not report a safety stop within {2 * bound:.2f} s '
                      f'({describe_exit(bridge.returncode)}); stopping it')
 
-    def bridge_backend(self) -> str:
-        """Return the bridge's backend from its params file and overrides (default 'simulated')."""
-        backend = self.overrides.get('bridge', {}).get('backend')
-        if backend:
-            return str(backend)
+    def bridge_params(self) -> dict:
+        """Return the bridge's parameters: its params file with the overrides."""
+        import yaml
+
         try:
-            import yaml
             data = yaml.safe_load((self.config_dir / 'bridge.yaml').read_text()) or {}
-            return str(data['bridge']['ros__parameters'].get('backend', 'simulated'))
+            params = dict(data['bridge']['ros__parameters'])
         except (OSError, ValueError, KeyError, TypeError):
-            return 'simulated'
+            params = {}
+        params.update(self.overrides.get('bridge', {}))
+        return params
 
     def safe_state_after_bridge_death(self, bridge: Child):
         """Return the bridge was killed: say (and, with hardware, make sure) the plant is safe.
 
-        Simulated backend: the plant lived in the bridge process and stopped with
-        it; nothing moves.  UDP backend: the bridge can no longer run its safe
-        stop, so the launcher sends the servo controller DEACTIVATE: the
-        controller stops taking commands and its own interlock holds the
+        The backend's class knows how (:meth:`rths_actuator_bridge.backend.Backend.make_safe`):
+        the simulated plant lived in the bridge process and stopped with it; the UDP
+        backend's servo controller is sent DEACTIVATE, so its own interlock holds the
         actuator (the emulator: ``rths controller-emulator``, udp.py).
         """
-        backend = self.bridge_backend()
-        if backend != 'udp':
-            self.say(f'bridge {describe_exit(bridge.returncode)}: the {backend} plant ran inside '
-                     'the bridge process and stopped with it: safe state (nothing moves)')
-            return
+        from rths_actuator_bridge.bridge import backend_class
+
+        params = self.bridge_params()
         try:
-            self.say(self.deactivate_udp_controller())
+            self.say(f'bridge {describe_exit(bridge.returncode)}: '
+                     + backend_class(params).make_safe(params))
         except (OSError, ValueError) as err:
-            self.say(f'bridge {describe_exit(bridge.returncode)}: could not reach the servo '
-                     f'controller ({err}); its own command watchdog must stop the actuator')
-
-    def deactivate_udp_controller(self) -> str:
-        """Send DEACTIVATE to the bridge's UDP servo controller; describe the outcome."""
-        import socket
-
-        import yaml
-
-        from rths_actuator_bridge import udp
-
-        data = yaml.safe_load((self.config_dir / 'bridge.yaml').read_text()) or {}
-        params = dict(data.get('bridge', {}).get('ros__parameters', {}))
-        params.update(self.overrides.get('bridge', {}))
-        host, port = str(params.get('host', '127.0.0.1')), int(params.get('port', 0))
-        n_channels = int(params.get('n_channels', 1))
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-            sock.settimeout(0.2)
-            for _ in range(5):
-                sock.sendto(udp.pack(udp.DEACTIVATE, 0, (), n_channels), (host, port))
-                try:
-                    kind, *_ = udp.unpack(sock.recvfrom(65536)[0])
-                except (socket.timeout, ValueError):
-                    continue
-                if kind == udp.ACK:
-                    return (f'bridge died: servo controller {host}:{port} acknowledged '
-                            'DEACTIVATE (actuator stopped)')
-        raise OSError(f'no ACK from {host}:{port}')
+            self.say(f'bridge {describe_exit(bridge.returncode)}: could not bring the actuator '
+                     f'to rest ({err}); its controller\'s own command watchdog must stop it')
 
     def _child(self, name):
         return next((c for c in self.children if c.name == name), None)

@@ -20,7 +20,7 @@ checked by the same plain-Python core its node uses:
 On top of that every file is scanned for values no node can use: ``.nan`` /
 ``.inf``, numbers written with a unit (``'0.254 m'``: the files hold SI
 numbers only) and values outside the range the node declares
-(:func:`rths_common.params.check_range`).  Every ValueError names the file,
+(:func:`rths_common.params.check_spec`).  Every ValueError names the file,
 the field and the fix.
 """
 
@@ -151,8 +151,9 @@ def check_bridge(path) -> dict:
 
     params = load_params_file(path, 'bridge')
     core = _wrap(path, 'bridge', check_bridge_params, params)
-    if core.get('backend', 'simulated') == 'simulated':
-        from rths_actuator_bridge.bridge import make_backend
+    from rths_actuator_bridge.bridge import backend_class, make_backend
+
+    if backend_class(core).in_process:   # build the plant: its own checks run
         _wrap(path, 'bridge', make_backend, core).close()
     return params
 
@@ -198,10 +199,10 @@ def node_schema_of(node: str) -> dict:
 
 
 def check_ranges(path, node: str, params: dict) -> None:
-    """Refuse a value outside its declared range, as the node would at start-up."""
-    from rths_common.params import check_range
+    """Refuse a value outside its declared range or choices, as the node would at start-up."""
+    from rths_common.params import check_spec
 
     schema = node_schema_of(node)
     for key, value in params.items():
         if key in schema:
-            _wrap(path, node, check_range, key, value, schema[key])
+            _wrap(path, node, check_spec, key, value, schema[key])

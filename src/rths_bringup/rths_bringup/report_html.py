@@ -16,7 +16,8 @@ PLOTS = {
     'tracking_zoom.png': 'Actuator tracking around the peak: interface displacement, '
                          'compensated command and measured displacement (table 5)',
     'bode_actuator.png': 'Measured FRF of the actuator during the RTHS (table 5)',
-    'mr_hysteresis.png': 'MR-damper specimen: measured force against displacement',
+    'specimen_hysteresis.png': 'Hysteretic specimen (e.g. the MR damper): measured force '
+                               'against displacement',
 }
 
 _STYLE = ('body{font-family:sans-serif;max-width:60em;margin:1em auto;color:#222}'
@@ -50,7 +51,7 @@ def tables(s: dict) -> str:
           f"{s['uncontrolled_max_disp_2nd_m'] / _INCH:.4f}", '-',
           f"{s['uncontrolled_rms_disp_2nd_m']:.4e}",
           f"{s['uncontrolled_rms_disp_2nd_m'] / _INCH:.4f}", '-'),
-         (f"RTHS ({s['damper']})", f"{s['max_disp_2nd_m']:.4e}",
+         (f"RTHS ({s['specimen']})", f"{s['max_disp_2nd_m']:.4e}",
           f"{s['max_disp_2nd_m'] / _INCH:.4f}", f"{s['reduction_max_pct']:.1f}",
           f"{s['rms_disp_2nd_m']:.4e}", f"{s['rms_disp_2nd_m'] / _INCH:.4f}",
           f"{s['reduction_rms_pct']:.1f}")))
@@ -69,7 +70,7 @@ def _figure(name: str, data: bytes, caption: str) -> str:
 def render(summary: dict, images: dict) -> str:
     """Return the whole page; ``images`` maps a plot's file name to its PNG bytes."""
     s = summary
-    title = (f"RTHS review: {s['record']} x {s['scale']}, DTM {s['damper']}, {s['mode']}, "
+    title = (f"RTHS review: {s['record']} x {s['scale']}, specimen {s['specimen']}, {s['mode']}, "
              f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)")
     misses = f"deadline misses: {s['deadline_misses']} ({s['deadline_miss_pct']:.3f} %)"
     faults = ''.join(f'<li>{html.escape(f)}</li>' for f in s.get('safety_faults', []))

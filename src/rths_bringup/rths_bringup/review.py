@@ -5,6 +5,7 @@ from pathlib import Path
 import numpy as np
 
 from rths_common import bagio, topics
+from rths_numerical.specimens import SPECIMENS, specimen_of
 
 #: Loop topics that carry one message per step, and the array field to summarise.
 STEP_TOPICS = {
@@ -89,8 +90,8 @@ def loop_summary(bag) -> dict:
 #: Upper edge [Hz] of the band over which delays are averaged (the seed's RTHS design band).
 DELAY_BAND_HZ = 10.0
 ZOOM_S = 3.0
-#: ``specimen`` of the summary per bridge ``dtm`` value (every Table 4 DTM is a ``dtm``).
-SPECIMENS = {'mr': 'mr_damper', 'none': 'none'}
+#: The plot of a hysteretic specimen's measured force against its stroke (report_html.PLOTS).
+HYSTERESIS_PNG = 'specimen_hysteresis.png'
 
 
 def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
@@ -203,27 +204,31 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     ug = sub.ug[:n] if sub.frame == 'absolute' else 0.0
     floor2 = desired - ug
     dt = 1.0 / fs
-    damper = bridge.get('dtm', 'valve4')
+    name = specimen_of(bridge)
+    specimen = SPECIMENS.entry(name, f'{bag}: bridge parameter specimen')
     uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
                     if isinstance(model, LinearModel) else None)
     backend = numerical.get('backend', 'builtin')
-    if damper == 'mr' or backend != 'builtin':
-        # nonlinear specimen or OpenSees model: the same substructure, offline, with the same
-        # specimen model on a perfect actuator (and without it for the uncontrolled response)
+    if specimen.device is not None or backend != 'builtin':
+        # a device specimen or an OpenSees model: the same substructure, offline, with the
+        # same specimen model on a perfect actuator (and without it for the uncontrolled one)
         uncontrolled, reference = offline_references(numerical, bridge, dt)
-    else:
-        reference = simulate_reference(model, sub.ag, dt, damper=damper,
+    elif specimen.table_mass is not None:
+        reference = simulate_reference(model, sub.ag, dt, damper=specimen.table_mass,
                                        n_dtm=sub.force_scale,
+                                       frame_mass_kg=specimen.frame_mass_kg,
                                        integrator=numerical.get('integrator', 'cr'),
-                                       uncontrolled=uncontrolled) if damper != 'none' else None
+                                       uncontrolled=uncontrolled)
+    else:
+        reference = None
     ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
     stage(2, REVIEW_STAGES)
     unc = uncontrolled['metrics']
     max_d, rms_d = float(np.max(np.abs(floor2))), float(np.sqrt(np.mean(floor2 ** 2)))
     bridge_steps = max(len(status.get('step', [])), 1)
     summary = {
-        'record': numerical.get('record'), 'scale': numerical.get('scale'), 'damper': damper,
-        'specimen': SPECIMENS.get(damper, 'dtm'),
+        'record': numerical.get('record'), 'scale': numerical.get('scale'),
+        'specimen': name, 'damper': name,   # damper: the former name of the key
         'mode': info.get('mode'), 'fs_hz': fs, 'steps': n, 'duration_s': n * dt,
         'compensator': compensator,
         'numerical_backend': numerical.get('backend', 'builtin'),
@@ -253,11 +258,13 @@ def review_rths(bag, out_dir, progress=None) -> dict:
                          hinge['hinge_moment'], fs, f"hinge of {summary['numerical_model']} "
                          f"({hinge['source']})", ('rotation [mrad]', 'moment [N m]'),
                          velocity=False)
-    if damper == 'mr':
-        summary['mr_voltage_v'] = float(bridge.get('mr_voltage_v', 1.0))
+    if specimen.params:
+        summary.update(specimen.settings(bridge))
         (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
-        _hysteresis_plot(out_dir / 'mr_hysteresis.png', measured, meas['force'][:n, 0], fs,
-                         f"MR damper at {summary['mr_voltage_v']:g} V (measured)")
+    if specimen.hysteresis:
+        settings = ', '.join(f'{k} {v:g}' for k, v in specimen.settings(bridge).items())
+        _hysteresis_plot(out_dir / HYSTERESIS_PNG, measured, meas['force'][:n, 0], fs,
+                         f'specimen {name} ({settings}), measured')
     stage(3, REVIEW_STAGES)
     from rths_bringup.report_html import write_report
     write_report(out_dir, summary)
@@ -269,7 +276,7 @@ def review_text(s: dict) -> str:
     """Return the review as text, in the layout of the seed's tables 5-9."""
     inch = 0.0254
     lines = [
-        f"RTHS review: {s['record']} x {s['scale']}, DTM {s['damper']}, {s['mode']}, "
+        f"RTHS review: {s['record']} x {s['scale']}, specimen {s['specimen']}, {s['mode']}, "
         f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)",
         '',
         'Table 5 layout: actuator time delay and relative RMS tracking error',
@@ -285,7 +292,7 @@ def review_text(s: dict) -> str:
         f"{s['uncontrolled_max_disp_2nd_m'] / inch:8.4f}        -     "
         f"{s['uncontrolled_rms_disp_2nd_m']:.4e}  {s['uncontrolled_rms_disp_2nd_m'] / inch:8.4f}"
         '        -',
-        f"  RTHS ({s['damper']})".ljust(19) + f"{s['max_disp_2nd_m']:.4e}  "
+        f"  RTHS ({s['specimen']})".ljust(19) + f"{s['max_disp_2nd_m']:.4e}  "
         f"{s['max_disp_2nd_m'] / inch:8.4f}   {s['reduction_max_pct']:7.1f}   "
         f"{s['rms_disp_2nd_m']:.4e}  {s['rms_disp_2nd_m'] / inch:8.4f}   "
         f"{s['reduction_rms_pct']:7.1f}",
@@ -316,22 +323,18 @@ def offline_references(numerical, bridge, dt):
     """Uncontrolled and reference responses from the run's own substructure, offline.
 
     The reference couples the same substructure with the run's specimen model on
-    a perfect actuator (:class:`~rths_numerical.reference.DTMSpecimen` or
-    :class:`~rths_numerical.mr_damper.MRSpecimen`); the uncontrolled run has no
-    specimen force.  Returns ``(uncontrolled, reference)`` dicts with ``disp``
-    and ``metrics`` (the reference also its whole ``history``; None if the
+    a perfect actuator (:meth:`rths_numerical.specimens.Specimen.reference`); the
+    uncontrolled run has no specimen force.  Returns ``(uncontrolled, reference)``
+    dicts with ``disp`` and ``metrics`` (the reference also its whole ``history``; None if the
     bridge ran a bare table).
     """
-    from rths_numerical.mr_damper import MRSpecimen
-    from rths_numerical.reference import DTMSpecimen, coupled_rths, metrics
+    from rths_numerical.reference import coupled_rths, metrics
     from rths_numerical.substructure import make_substructure
-    damper = bridge.get('dtm', 'valve4')
     free = coupled_rths(make_substructure(numerical), lambda x: np.zeros(1))
     uncontrolled = {'disp': free['output_disp'], 'metrics': metrics(free['output_disp'])}
-    if damper == 'none':
+    specimen = SPECIMENS.entry(specimen_of(bridge)).reference(dt, bridge)
+    if specimen is None:
         return uncontrolled, None
-    specimen = (MRSpecimen(dt, float(bridge.get('mr_voltage_v', 1.0))) if damper == 'mr'
-                else DTMSpecimen(damper, dt))
     hist = coupled_rths(make_substructure(numerical), specimen)
     return uncontrolled, {'disp': hist['output_disp'], 'history': hist,
                           'metrics': metrics(hist['output_disp'], uncontrolled['metrics'])}

@@ -32,6 +32,17 @@ import sys
 
 from rths_bringup.commands import default_config_dir, launch
 from rths_common import runinfo
+from rths_common.params import add_renamed_option, renamed
+from rths_compensator.methods import DEFAULT as METHOD_DEFAULT
+from rths_compensator.methods import METHODS, adaptive_names
+from rths_compensator.params import PROVENANCE, identity_params
+from rths_compensator.schemes import DEFAULT_SCHEME, designed
+from rths_numerical.specimens import (
+    DEFAULT_SPECIMEN,
+    SPECIMENS,
+    specimen_of,
+    specimen_settings,
+)
 
 NODE_FILES = {'numerical': 'numerical.yaml', 'compensator': 'compensator.yaml',
               'bridge': 'bridge.yaml'}
@@ -62,14 +73,17 @@ def register(commands, benches):
     p.add_argument('--scale', type=float, default=0.135,
                    help='ground-motion scale factor (seed: kobe 0.135, northridge 0.039, '
                         'el centro 0.10; default 0.135)')
-    p.add_argument('--damper', default='valve4',
-                   help='specimen: a DTM configuration of Table 4 (valve1..valve4, novalve; '
-                        'default valve4) or mr, an MR damper between the 2nd floor and the '
-                        'ground (Bouc-Wen model of Spencer et al. 1997; the table then follows '
-                        'the relative floor displacement)')
-    p.add_argument('--mr-voltage', type=float, default=1.0,
-                   help='--damper mr: constant command voltage [V] (Spencer et al. 1997 '
-                        'tested 0-2.25 V; default 1.0)')
+    p.add_argument('--specimen', default=DEFAULT_SPECIMEN, choices=SPECIMENS.names(),
+                   help=f'the specimen (default {DEFAULT_SPECIMEN}): an entry of '
+                        'rths_numerical.specimens (docs/extending.md lists them: the Table 4 '
+                        'DTMs, the bare table, a damper between the floor and the ground)')
+    add_renamed_option(p, '--damper', '--specimen')
+    p.add_argument('--mr-voltage', type=float, default=None,
+                   help='the MR damper: constant command voltage [V] (Spencer et al. 1997 '
+                        'tested 0-2.25 V; default 1.0); --specimen-param mr_voltage_v=V')
+    p.add_argument('--specimen-param', action='append', default=[], metavar='KEY=VALUE',
+                   help="a parameter of the specimen's own (bridge.yaml keys such as "
+                        'mr_voltage_v; repeatable)')
     p.add_argument('--force-scale', type=float, default=5.0,
                    help='DTMs the one in the lab stands for: its measured force is multiplied '
                         'by this in the building (seed 6.2: 5, the default)')
@@ -88,17 +102,18 @@ def register(commands, benches):
                         'lock-step)')
     p.add_argument('--duration', type=float, default=0.0,
                    help='simulated seconds of the RTHS run (default 0: the whole record)')
-    p.add_argument('--scheme', default='wls', help='compensator scheme (default wls)')
+    p.add_argument('--scheme', default=DEFAULT_SCHEME, choices=designed(),
+                   help=f'compensator scheme (default {DEFAULT_SCHEME}; rths design --help)')
     p.add_argument('--fc', type=float, default=10.0, help='FIR cut-off [Hz] (default 10)')
     p.add_argument('--taps', type=int, default=400, help='FIR taps n (default 400)')
     p.add_argument('--ident-duration', type=float, default=40.0,
                    help='identification run length [s] (default 40: 4 records of 10 s)')
     p.add_argument('--plant', default=None,
                    help='skip steps 1-2 and design from this identified plant.yaml')
-    p.add_argument('--adaptive', default='fir', choices=('fir', 'rls_fir', 'ats', 'amb'),
-                   help='compensation method of the RTHS run (default fir: the designed FIR; '
-                        'rls_fir, ats, amb adapt on line from it, lock-step only; rls_fir costs '
-                        'n^2 per step: use it with --taps 32..64; docs/adaptive.md)')
+    p.add_argument('--adaptive', default=METHOD_DEFAULT, choices=METHODS.names(),
+                   help=f'compensation method of the RTHS run (default {METHOD_DEFAULT}: the '
+                        f'designed FIR; {", ".join(adaptive_names())} adapt on line from it, '
+                        'lock-step only; docs/adaptive.md)')
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                    help='storage of the bags (default mcap; sqlite3 for older tools)')
     p.add_argument('--no-compensation', action='store_true',
@@ -108,7 +123,7 @@ def register(commands, benches):
     live.add_arguments(p)
     p.epilog = ('Exit codes: 0 the run completed and was reviewed; 3 the bridge\'s safety '
                 'supervisor stopped the RTHS (OUT/summary.json then holds safety_stop, the '
-                'fault text, and the steps run; e.g. --no-compensation --damper novalve '
+                'fault text, and the steps run; e.g. --no-compensation --specimen novalve '
                 '--force-scale 60 goes unstable); 1 a phase failed; 2 bad input.')
     p.set_defaults(func=cmd_run)
 
@@ -243,7 +258,7 @@ def read_safety_stop(bag):
     bridge = runinfo.section(info, 'bridge')
     summary = {
         'record': numerical.get('record'), 'scale': numerical.get('scale'),
-        'damper': bridge.get('dtm'), 'force_scale': numerical.get('force_scale'),
+        'specimen': specimen_of(bridge), 'force_scale': numerical.get('force_scale'),
         'actuator_model': bridge.get('actuator_model'), 'mode': info.get('mode'),
         'fs_hz': fs, 'compensator': runinfo.section(info, 'compensator'),
     }
@@ -251,6 +266,7 @@ def read_safety_stop(bag):
         steps, state, faults[0], channel0(meas['applied']), channel0(meas['displacement']),
         channel0(meas['force']), fs, float(bridge.get('safe_position_m', 0.0) or 0.0)))
     summary['safety_faults'] = faults
+    summary['damper'] = summary['specimen']   # the former name of the key, kept for a while
     return summary
 
 
@@ -263,7 +279,7 @@ def safety_stop_text(s: dict) -> str:
 
     lines = [
         f"RTHS ABORTED by the bridge's safety supervisor: {s['record']} x {s['scale']}, "
-        f"DTM {s['damper']} x {s['force_scale']}, {s['mode']}, compensator {scheme}",
+        f"specimen {s['specimen']} x {s['force_scale']}, {s['mode']}, compensator {scheme}",
         f"  safety stop: {s['safety_stop']}",
         f"  fault at step {s['fault_step']} ({s['fault_time_s']:.3f} s); hold, ramp to the safe "
         f"position {s['safe_position_m']:g} m; STOPPED at step {s['stop_step']} "
@@ -280,6 +296,11 @@ def safety_stop_text(s: dict) -> str:
     if len(s.get('safety_faults', [])) > 1:
         lines.append('  further faults: ' + '; '.join(s['safety_faults'][1:]))
     return '\n'.join(lines) + '\n'
+
+
+def _identity(fs: float) -> dict:
+    """Return the identity compensator's filter fields at ``fs`` [Hz] (no provenance)."""
+    return {k: v for k, v in identity_params(fs).items() if k != PROVENANCE}
 
 
 def _model_param(model: str, config: Path) -> str:
@@ -323,23 +344,21 @@ def _run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     base = {node: runinfo.load_params(config / fname, node) for node, fname in NODE_FILES.items()}
     fs = float(base['numerical'].get('fs_hz', 1024.0))
-    base['bridge']['fs_hz'] = fs
-    base['bridge']['dtm'] = args.damper
+    base['bridge'] = renamed(base['bridge'], 'dtm', 'specimen', str(config / 'bridge.yaml'))
+    pairs = args.specimen_param + ([f'mr_voltage_v={args.mr_voltage}']
+                                   if args.mr_voltage is not None else [])
+    base['bridge'].update(fs_hz=fs, specimen=args.specimen,
+                          **specimen_settings(args.specimen, pairs, '--specimen-param'))
     model_param = _model_param(args.model, config)   # bad names fail before the long phases
     if args.numerical == 'opensees':
         from rths_numerical.opensees_backend import import_opensees
         import_opensees()
-    if args.damper == 'mr':
-        from rths_numerical.mr_damper import check_voltage
-        base['bridge']['mr_voltage_v'] = check_voltage(args.mr_voltage)
     _say(f'results in {out}')
 
     # 1-2: identification and design
     comp_file = out / 'compensator.yaml'
     if args.no_compensation:
-        runinfo.write_params(comp_file, 'compensator',
-                             {'scheme': 'identity', 'fs_hz': fs, 'taps': [1.0],
-                              'denominator': [1.0]})
+        runinfo.write_params(comp_file, 'compensator', _identity(fs))
         _say('no compensation: identity taps')
     else:
         plant = Path(args.plant) if args.plant else out / 'plant.yaml'
@@ -353,8 +372,7 @@ def _run(args) -> int:
             # the excitation replaces the building: only its own keys apply
             cfg = _phase_config(ident, {
                 'numerical': numerical, 'bridge': base['bridge'],
-                'compensator': dict(base['compensator'], scheme='identity', taps=[1.0],
-                                    denominator=[1.0], fs_hz=fs)})
+                'compensator': {**base['compensator'], **_identity(fs)}})
             stop = _launch_phase('identification', cfg, ident / 'bag', 'identification', fs,
                                  args.mode, {'numerical': numerical, 'bridge': base['bridge']},
                                  storage=args.storage, live=args.live, layout=args.layout)
@@ -376,7 +394,7 @@ def _run(args) -> int:
              f'rths install-taps {out})')
     comp = runinfo.load_params(comp_file, 'compensator')
     comp.update({k: base['compensator'][k] for k in ('executor',) if k in base['compensator']})
-    if args.adaptive != 'fir':
+    if METHODS.entry(args.adaptive).adaptive:
         if args.no_compensation or args.mode != 'lockstep':
             raise ValueError(f'--adaptive {args.adaptive} needs a designed FIR and lock-step '
                              'mode (drop --no-compensation / use --mode lockstep)')
@@ -387,14 +405,11 @@ def _run(args) -> int:
     # 3: the RTHS run
     numerical = dict(base['numerical'], model=model_param,
                      record=args.record, scale=float(args.scale),
-                     force_scale=float(args.force_scale), interface_frame='absolute',
-                     backend=args.numerical)
+                     force_scale=float(args.force_scale), backend=args.numerical,
+                     # the frame the table must follow, and the specimen's mass for P_I^E
+                     **SPECIMENS[args.specimen].numerical_params())
     if args.numerical == 'opensees':
         numerical['integrator'] = 'central_difference'   # the RTHS pairing (README)
-    if args.damper == 'mr':
-        # the damper's stroke is the floor's displacement relative to the ground; it carries
-        # no mass of its own, so there is no ground term to add (seed eq. 24, P_I^E = 0)
-        numerical.update(interface_frame='relative', specimen_mass_kg=0.0)
     for key in ('sdof_mass_kg', 'sdof_freq_hz', 'sdof_zeta', 'harmonic_freq_hz'):
         numerical.pop(key, None)
     numerical['duration_s'] = float(args.duration)

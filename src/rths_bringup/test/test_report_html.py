@@ -7,7 +7,7 @@ import re
 from rths_bringup import report_html
 
 SUMMARY = {
-    'record': 'kobe', 'scale': 0.135, 'damper': 'valve4', 'mode': 'lockstep', 'fs_hz': 1024.0,
+    'record': 'kobe', 'scale': 0.135, 'specimen': 'valve4', 'mode': 'lockstep', 'fs_hz': 1024.0,
     'steps': 4096, 'duration_s': 4.0, 'compensator': {'scheme': 'wls', 'n_taps': 400},
     'delay_ms_before': 13.932, 'delay_ms_after': 0.297,
     'tracking_rel_rms_pct_before': 5.71, 'tracking_rel_rms_pct_after': 0.09,

@@ -32,8 +32,8 @@ def make_node(name: str, schema: dict | None = None, defaults: dict | None = Non
 
     ``schema`` (key -> :class:`rths_common.params.Spec`, from
     :func:`rths_common.params.node_schema`) describes them: each key it names gets
-    a read-only descriptor with its type, description and range (a value outside
-    the range raises ValueError naming the parameter), so ``ros2 param describe``
+    a read-only descriptor with its type, description, choices and range (a value
+    outside them raises ValueError naming the parameter), so ``ros2 param describe``
     shows them.  Keys of ``defaults`` (the node-level ``NODE_PARAMS``) that the
     file does not set are declared with their default.  A key the schema does not
     name is left to the core's check, which rejects it by name; no parameter can
@@ -51,14 +51,14 @@ def make_node(name: str, schema: dict | None = None, defaults: dict | None = Non
 
 
 def _describe(node: Node, key: str, spec) -> None:
-    """Check the file's value against ``spec``'s range, then set the descriptor.
+    """Check the file's value against ``spec``'s range and choices, then set the descriptor.
 
     An integer given for a float parameter (``fs_hz: 1024``) becomes a float.
     """
-    from rths_common.params import check_range
+    from rths_common.params import check_spec
 
     value = node.get_parameter(key)
-    check_range(key, value.value, spec)
+    check_spec(key, value.value, spec)
     type_, alternative = value.type_, None
     if (spec.range is not None and isinstance(spec.range[0], float)
             and type_ == Parameter.Type.INTEGER):
@@ -69,7 +69,7 @@ def _describe(node: Node, key: str, spec) -> None:
 
 def descriptor(key: str, type_: Parameter.Type, spec) -> ParameterDescriptor:
     """Return the read-only descriptor of ``key``: type, description and ``spec``'s range."""
-    out = ParameterDescriptor(name=key, type=type_.value, description=spec.description,
+    out = ParameterDescriptor(name=key, type=type_.value, description=spec.text(),
                               read_only=True)
     if spec.range is not None:
         low, high = spec.range

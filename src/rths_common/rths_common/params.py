@@ -7,13 +7,20 @@ with the unit in brackets): :data:`rths_numerical.substructure.PARAMS`,
 The keys that configure a node itself, not its core, are described here once
 (:data:`NODE_KEYS`); each node takes the subset its ``NODE_PARAMS`` names.
 Beside each registry a table of ranges (``*_RANGES``: key -> inclusive (low,
-high), ints for an integer parameter) bounds the rates, limits, gains and counts.
-:func:`node_schema` joins both into the node's schema (key -> :class:`Spec`) and
+high), ints for an integer parameter) bounds the rates, limits, gains and counts,
+and a table of choices (``*_CHOICES``: key -> the allowed values, most often a
+:class:`rths_common.registry.Registry`'s names) closes the keys that name a
+specimen, a scheme, a method or a backend.
+:func:`node_schema` joins them into the node's schema (key -> :class:`Spec`) and
 :func:`rths_common.node_support.make_node` turns it into ROS parameter
-descriptors (type, range, read-only, description), so ``ros2 param describe``
-shows them; :func:`check_range` gives the error of a value outside its range.
+descriptors (type, range, read-only, description with the choices), so ``ros2
+param describe`` shows them; :func:`check_spec` gives the error of a value outside
+its range or its choices.  :func:`renamed` accepts a key under its former name
+with a one-line deprecation note.
 """
 
+import argparse
+import sys
 from typing import NamedTuple
 
 #: Parameters that configure a node itself, not its core (the union of the nodes'
@@ -57,11 +64,32 @@ NODE_RANGES = {
 }
 
 
+#: Allowed values of the node-level keys that take one of a few words.
+NODE_CHOICES = {
+    'mode': ('lockstep', 'realtime'),
+    'executor': ('events', 'single'),
+    'clock': ('loop', 'thread', 'timer'),
+    'gc': ('auto', 'default', 'freeze', 'disable'),
+}
+
+
 class Spec(NamedTuple):
-    """One parameter of a node's schema: what it is (unit in brackets) and its range."""
+    """One parameter of a node's schema: what it is (unit in brackets), its range, its choices."""
 
     description: str
     range: tuple | None = None   # inclusive (low, high); ints: an integer parameter
+    choices: tuple | None = None  # the allowed values (None: any value of the type)
+
+    def text(self) -> str:
+        """Return the description with the allowed values (what ``ros2 param describe`` shows)."""
+        if not self.choices:
+            return self.description
+        return f'{self.description} (one of: {choices_text(self.choices)})'
+
+
+def choices_text(choices, sep: str = ', ') -> str:
+    """Return the allowed values as a user reads them: ``a, b, c``."""
+    return sep.join(str(c) for c in choices)
 
 
 def core_params(params: dict) -> dict:
@@ -69,19 +97,35 @@ def core_params(params: dict) -> dict:
     return {k: v for k, v in params.items() if k not in NODE_KEYS}
 
 
-def node_schema(node_params, core: dict, ranges: dict | None = None) -> dict:
+def node_schema(node_params, core: dict, ranges: dict | None = None,
+                choices: dict | None = None) -> dict:
     """Return the schema (key -> :class:`Spec`) of a node: its node-level keys and its core's.
 
     ``core`` maps a key to a description, or to a tuple whose last item is
-    the description (the packages' registries); ``ranges`` are the core's
-    ranges (the node-level keys take theirs from :data:`NODE_RANGES`).
+    the description (the packages' registries); ``ranges`` and ``choices`` are
+    the core's (the node-level keys take theirs from :data:`NODE_RANGES` and
+    :data:`NODE_CHOICES`).
     """
     ranges = {**NODE_RANGES, **(ranges or {})}
-    schema = {key: Spec(NODE_KEYS[key], ranges.get(key)) for key in node_params}
+    allowed = {**NODE_CHOICES, **(choices or {})}
+    schema = {key: Spec(NODE_KEYS[key], ranges.get(key), _tuple(allowed.get(key)))
+              for key in node_params}
     for key, spec in core.items():
         text = spec[-1] if isinstance(spec, tuple) else str(spec)
-        schema[key] = Spec(text, ranges.get(key))
+        schema[key] = Spec(text, ranges.get(key), _tuple(allowed.get(key)))
     return schema
+
+
+def _tuple(choices):
+    return None if choices is None else tuple(choices)
+
+
+def check_spec(key: str, value, spec: Spec) -> None:
+    """Refuse a value outside ``spec``'s range or choices (ValueError naming key, values, fix)."""
+    if spec.choices is not None and value not in spec.choices:
+        raise ValueError(f'parameter {key} = {value!r} is not one of {choices_text(spec.choices)}; '
+                         f'fix it in the params file ({spec.description})')
+    check_range(key, value, spec)
 
 
 def check_range(key: str, value, spec: Spec) -> None:
@@ -109,3 +153,48 @@ def check_range(key: str, value, spec: Spec) -> None:
 def _num(value) -> str:
     """``value`` as written in a range: an int as it is, a float in ``%g``."""
     return str(value) if isinstance(value, int) else f'{value:g}'
+
+
+#: (old, new, where) already noted by :func:`renamed`: each note is printed once.
+_NOTED: set = set()
+
+
+def renamed(params: dict, old: str, new: str, where: str) -> dict:
+    """Return ``params`` with the key ``old`` renamed ``new`` and a one-line note on stderr.
+
+    Keys under their former name are accepted for a while; the note names the file or
+    option to change.  Both given: the one given last wins (an override of a file that
+    already has the new key), as a later line of a file would.
+    """
+    if old not in params:
+        return params
+    keys = list(params)
+    later = old if new not in params or keys.index(old) > keys.index(new) else new
+    if (old, new, where) not in _NOTED:
+        _NOTED.add((old, new, where))
+        both = (f'; both are given, the later ({later}: {params[later]!r}) is used'
+                if new in params and params[new] != params[old] else '')
+        print(f'note: {where}: {old!r} is now called {new!r}; the old name is accepted for '
+              f'now, rename it{both}', file=sys.stderr)
+    out = {k: v for k, v in params.items() if k != old}
+    out[new] = params[later]
+    return out
+
+
+def add_renamed_option(parser, old: str, new: str) -> None:
+    """Accept the command-line option ``old`` (hidden from --help) as ``new``, with a note.
+
+    ``new`` must already be an option of ``parser``; ``old`` stores into its ``dest``.
+    """
+    target = next(a for a in parser._actions if new in a.option_strings)
+
+    class Renamed(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None):
+            print(f'note: {old} is now called {new}; the old name is accepted for now',
+                  file=sys.stderr)
+            if target.choices is not None and values not in target.choices:
+                parser.error(f'argument {new}: invalid choice: {values!r} (choose from '
+                             f'{", ".join(map(str, target.choices))})')
+            setattr(namespace, target.dest, values)
+
+    parser.add_argument(old, action=Renamed, help=argparse.SUPPRESS, metavar=target.metavar)

@@ -9,7 +9,8 @@ available: then nothing adapts).  ``coefficients()`` returns the current coeffic
 publishing) and ``status`` a :class:`Status` (``fixed``, ``adapting``, ``frozen`` or
 ``fallback``, and why).
 
-Methods (:func:`make_method` builds each from the identified plant and its designed FIR):
+Methods (the registry :data:`.methods.METHODS`; :func:`make_method` builds each from the
+identified plant and its designed FIR):
 
 ``fir``
     :class:`FixedFir`, the designed compensator ``G = A*/B+* . H`` (:mod:`.design`).
@@ -48,9 +49,9 @@ from scipy import signal
 
 from .design import Design, plant_polynomials
 from .filters import MultiChannelFilter
+from .identification import load_plant
 from .indicators import time_delay_ms
-
-METHODS = ('fir', 'rls_fir', 'ats', 'amb')
+from .methods import DEFAULT, METHODS, method_of
 
 
 @dataclasses.dataclass
@@ -100,6 +101,11 @@ class FixedFir:
         self._x = np.zeros(1)
         self.status = Status('fixed', 'designed compensator')
 
+    @classmethod
+    def from_design(cls, design: Design, plant=None, guards=None, **options):
+        """Run ``design`` as it is (the plant, guards and options are not used)."""
+        return cls(design.taps, design.denominator)
+
     def step(self, target, measured_prev=None):
         """Return the command for ``target`` (a non-finite one repeats the last finite one)."""
         if math.isfinite(target):
@@ -121,6 +127,13 @@ class AdaptiveMethod:
     """Shared guard logic; subclasses implement ``_command``, ``_adapt`` and ``coefficients``."""
 
     name = ''
+
+    @classmethod
+    def from_design(cls, design: Design, plant=None, guards: Guards = None, **options):
+        """Build the method from the designed FIR and the identified ``plant`` (required)."""
+        if plant is None:
+            raise ValueError(f'method {cls.name!r} needs the identified plant (plant.yaml)')
+        return cls(design, plant, guards, **options)
 
     def __init__(self, design: Design, guards: Guards = None):
         self.fs_hz = float(design.fs_hz)
@@ -571,15 +584,9 @@ class Amb(AdaptiveMethod):
 
 
 def make_method(name, design: Design, plant=None, guards: Guards = None, **options):
-    """Build the method ``name`` (fir, rls_fir, ats, amb) from a designed FIR and its plant."""
-    if name == 'fir':
-        return FixedFir(design.taps, design.denominator)
-    if plant is None:
-        raise ValueError(f'method {name!r} needs the identified plant (plant.yaml)')
-    classes = {'rls_fir': RlsFir, 'ats': Ats, 'amb': Amb}
-    if name not in classes:
-        raise ValueError(f'method {name!r} is unknown; use one of {", ".join(METHODS)}')
-    return classes[name](design, plant, guards, **options)
+    """Build the method ``name`` (:data:`.methods.METHODS`) from a designed FIR and its plant."""
+    entry = METHODS.entry(name)
+    return entry.method_class().from_design(design, plant, guards, **options)
 
 
 #: Severity order of the states when several channels report (the worst is shown).
@@ -634,17 +641,13 @@ def methods_from_params(params: dict, n_channels: int) -> ChannelMethods:
     method also needs the plant.yaml the FIR was designed on: ``plant``, or the provenance's
     (``provenance: {plant: ...}`` in a file, ``provenance.plant`` in a node).
     """
-    from .identification import load_plant
-
-    name = str(params.get('method', 'fir') or 'fir')
-    if name not in METHODS:
-        raise ValueError(f'parameter method = {name!r} is unknown; use one of '
-                         f'{", ".join(METHODS)}')
+    entry = method_of(params, 'parameter method')
+    name = str(params.get('method') or DEFAULT)
     design = Design(str(params.get('scheme', '')), np.asarray(params['taps'], float),
                     np.asarray(params.get('denominator', [1.0]), float),
                     float(params.get('fs_hz', 1024.0)))
     plant = None
-    if name != 'fir':
+    if entry.adaptive:
         provenance = params.get('provenance') or {}
         path = str(params.get('plant') or provenance.get('plant')
                    or params.get('provenance.plant') or '')

@@ -9,6 +9,18 @@
 
 import sys
 
+from rths_common.columns import read_columns
+
+from .schemes import SCHEMES, designed
+
+#: What a design reports beside its options, kept in the provenance.
+DESIGN_RESULTS = ('a_tilde', 'model', 'q', 'solver', 'auto_score', 'bandwidth_hz')
+#: Design option -> the ``rths design`` argument that gives it (``--option KEY=VALUE`` gives
+#: any other option a scheme names).
+OPTION_ARGS = {'n_taps': 'taps', 'fc_hz': 'fc', 'epsilon': 'epsilon', 'zero_tol': 'zero_tol',
+               'gain_weight': 'gain_weight', 'alpha': 'alpha', 'poles': 'mff_model',
+               'delay_ms': 'delay_ms', 'band_hz': 'band'}
+
 
 def _log(msg):
     print(msg, file=sys.stderr, flush=True)
@@ -33,6 +45,16 @@ def register(commands, benches):
     src.add_argument('--csv', help='identification run as CSV (time, command, measured)')
     src.add_argument('--bag', help='identification run as a rosbag2 bag directory')
     p.add_argument('--val-csv', help='arx-grid: separate validation run (CSV); default: split')
+    p.add_argument('--columns', default='time,command,measured', metavar='TIME,COMMAND,MEASURED',
+                   help='CSV: the time, command and measured-displacement columns, by header '
+                        'name or 0-based index (default time,command,measured), e.g. '
+                        '"Time,Cmd,Disp" or 0,1,2')
+    p.add_argument('--time-unit', choices=('s', 'ms'), default=None,
+                   help='CSV: unit of the time column (default: from the header, e.g. '
+                        '"Time (ms)" or "time [s]", else s)')
+    p.add_argument('--length-unit', choices=('m', 'mm', 'in'), default=None,
+                   help='CSV: unit of the command and measured columns (default: from the '
+                        'header, e.g. "Cmd (mm)", else m)')
     p.add_argument('--out', required=True, help='plant file to write (YAML)')
     p.add_argument('--method', default='oe', choices=('oe', 'arx-grid'),
                    help='oe (default): dead time from the data, output-error refinement, '
@@ -77,10 +99,11 @@ def register(commands, benches):
                     'non-finite or constraint-violating designs, and designs whose command for '
                     'the record\'s motion in the design band would exceed the actuator\'s '
                     'stroke, velocity or acceleration limits (--limits; --force writes it '
-                    'anyway). With --auto --bandwidth HZ it searches scheme, n and fc.')
+                    'anyway). With --auto --bandwidth HZ it searches scheme, n and fc. '
+                    'Schemes: '
+                    + '; '.join(f'{n}: {s.summary}' for n, s in SCHEMES.items() if s.designer))
     p.add_argument('--plant', required=True, help='plant file from rths identify')
-    p.add_argument('--scheme', default=None,
-                   choices=('ls', 'wls', 'mm', 'inverse', 'mff', 'npz', 'zpetc', 'zmetc'),
+    p.add_argument('--scheme', default=None, choices=designed(),
                    help=f'compensator scheme ({DD["scheme"]})')
     p.add_argument('--taps', type=int, default=DD['n_taps'],
                    help=f'FIR length n of H ({DD["n_taps"]})')
@@ -104,6 +127,8 @@ def register(commands, benches):
                    help='inverse: actuator delay [ms] (default: from the plant over --band)')
     p.add_argument('--band', type=float, default=20.0,
                    help='band [Hz] for the predicted indicators of non-FIR schemes (20)')
+    p.add_argument('--option', action='append', default=[], metavar='KEY=VALUE',
+                   help='a design option of the scheme that has no flag of its own (repeatable)')
     p.add_argument('--auto', action='store_true', help='search scheme, n, fc (needs --bandwidth)')
     p.add_argument('--bandwidth', type=float, help='operating bandwidth [Hz] for --auto')
     p.add_argument('--limits', default=None,
@@ -152,14 +177,44 @@ def register(commands, benches):
     p.set_defaults(func=cmd_bench_compensators)
 
 
-def _read_run(args, path):
-    from rths_common.timebase import infer_rate
+def _column_spec(args) -> tuple:
+    """``(columns, units)`` of --columns/--time-unit/--length-unit for the column reader."""
+    cells = [c.strip() for c in str(getattr(args, 'columns', None)
+                                    or 'time,command,measured').split(',')]
+    if len(cells) != 3 or not all(cells):
+        raise ValueError(f'--columns {args.columns!r}: give three columns, time, command and '
+                         'measured, by name or 0-based index, e.g. "Time,Cmd,Disp" or 0,1,2')
+    names = ('time', 'command', 'measured')
+    columns = {n: int(c) if c.isdigit() else c for n, c in zip(names, cells, strict=True)}
+    units = {}
+    if getattr(args, 'time_unit', None):
+        units['time'] = args.time_unit
+    if getattr(args, 'length_unit', None):
+        units.update(command=args.length_unit, measured=args.length_unit)
+    return columns, units
 
-    from .io import read_csv_columns
-    cols = read_csv_columns(path, ('time', 'command', 'measured'))
+
+def read_run(path, columns=None, units=None):
+    """``(t, u, y, rate, report)`` of a CSV run in SI; ``report`` names columns and units."""
+    from rths_common.timebase import infer_rate
+    columns = columns or {n: n for n in ('time', 'command', 'measured')}
+    report = {}
+    cols = read_columns(path, columns, units=units or None, report=report,
+                        contract='time, command and measured displacement (--columns)')
     rate = infer_rate(cols['time'], path)
+    return cols['time'], cols['command'], cols['measured'], rate, report
+
+
+def _read_run(args, path):
+    columns, units = _column_spec(args)
+    t, u, y, rate, report = read_run(path, columns, units)
     _log(f'{path}: sampling rate {rate}')
-    return cols['time'], cols['command'], cols['measured'], rate.fs_hz
+    _log(f'{path}: ' + '; '.join(f'{n} = column {c!r} in {unit or "SI"} ({src})'
+                                 for n, (c, unit, src) in report.items()))
+    if rate.fs_hz < 100.0:
+        _log(f'WARNING: {path}: {rate.fs_hz:.6g} Hz is low for an actuator record; if the time '
+             'column is in milliseconds give --time-unit ms (or write "Time (ms)" in the header)')
+    return t, u, y, rate.fs_hz
 
 
 def _read_source(args):
@@ -173,25 +228,25 @@ def _read_source(args):
         return t, u, y, sampling_rate_hz(t, args.bag), {'kind': 'bag',
                                                         'path': os.path.abspath(args.bag)}
     t, u, y, fs = _read_run(args, args.csv)
-    return t, u, y, fs, {'kind': 'csv', 'path': os.path.abspath(args.csv)}
+    columns, units = _column_spec(args)
+    return t, u, y, fs, {'kind': 'csv', 'path': os.path.abspath(args.csv),
+                         'columns': columns, 'units': units}
 
 
 def read_record(record: dict):
     """``(u, y, fs)`` of the identification record a plant.yaml names (ValueError if gone)."""
+    import os
+
     from rths_common.bagio import read_identification
     from rths_common.timebase import sampling_rate_hz
-
-    from .io import read_csv_columns
     path = record.get('path', '')
-    import os
     if not os.path.exists(path):
         raise OSError(f'{path}: identification record not found')
     if record.get('kind') == 'bag':
         t, u, y = read_identification(path)
-    else:
-        cols = read_csv_columns(path, ('time', 'command', 'measured'))
-        t, u, y = cols['time'], cols['command'], cols['measured']
-    return u, y, sampling_rate_hz(t, path)
+        return u, y, sampling_rate_hz(t, path)
+    t, u, y, rate, _ = read_run(path, record.get('columns'), record.get('units'))
+    return u, y, rate.fs_hz
 
 
 def cmd_identify(args) -> int:
@@ -314,11 +369,13 @@ def cmd_design(args) -> int:
     if not 0 < zero_tol <= 1:
         raise ValueError(f'--zero-tol must lie in (0, 1], got {zero_tol}')
     scheme = args.scheme or dsg.DESIGN_DEFAULTS['scheme']
-    if args.zero_tol is not None and not args.auto and scheme not in dsg.FIR_SCHEMES:
-        raise ValueError(f'--zero-tol applies to the FIR schemes (ls, wls, mm) and --auto, '
-                         f'not to --scheme {scheme}; drop it')
-    if args.gain_weight is not None and (args.auto or scheme not in ('ls', 'wls')):
-        raise ValueError('--gain-weight applies to --scheme ls and wls; drop it')
+    if args.zero_tol is not None and not args.auto and not SCHEMES.entry(scheme).fir:
+        raise ValueError(f'--zero-tol applies to the FIR schemes ({", ".join(dsg.FIR_SCHEMES)}) '
+                         f'and --auto, not to --scheme {scheme}; drop it')
+    if args.gain_weight is not None and (
+            args.auto or 'gain_weight' not in SCHEMES.entry(scheme).options):
+        raise ValueError('--gain-weight applies to the least-squares FIR schemes (ls, wls); '
+                         'drop it')
     if args.auto:
         comp, band = _design_auto(args, plant, zero_tol)
     else:
@@ -353,20 +410,15 @@ def _design_auto(args, plant, zero_tol):
 
 
 def _design_one(args, plant, scheme, zero_tol):
+    """Design ``scheme`` from its registry entry: the defaults, then the flags, then --option."""
     from . import design as dsg
-    if scheme in dsg.FIR_SCHEMES:
-        overrides = {'scheme': scheme, 'n_taps': args.taps, 'fc_hz': args.fc,
-                     'zero_tol': zero_tol}
-        if args.epsilon is not None:
-            overrides['epsilon'] = args.epsilon
-        if args.gain_weight is not None:
-            overrides['gain_weight'] = args.gain_weight
-        return dsg.design_default(plant, **overrides), args.fc
-    opts = {}
-    if scheme == 'inverse':
-        opts = {'delay_ms': args.delay_ms, 'band_hz': args.band}
-    elif scheme == 'mff':
-        opts = {'alpha': args.alpha, 'poles': args.mff_model}
+    entry = SCHEMES.entry(scheme, '--scheme')
+    given = dict(vars(args), zero_tol=zero_tol)
+    opts = {key: given[OPTION_ARGS[key]] for key in entry.options
+            if key in OPTION_ARGS and given[OPTION_ARGS[key]] is not None}
+    opts.update(_options(args.option, entry.options))
+    if entry.fir:
+        return dsg.design_default(plant, scheme=scheme, **opts), args.fc
     return dsg.design(plant, scheme, **opts), args.band
 
 
@@ -440,8 +492,7 @@ def _assess_and_write(args, plant, comp, band) -> int:
             'record_tracking_pct': pred.get('record_tracking_pct'),
             'limits': limits.source if limits else None,
             'limits_exceeded': '; '.join(violations)}
-    for key in ('n_taps', 'fc_hz', 'epsilon', 'zero_tol', 'gain_weight', 'alpha', 'delay_ms',
-                'a_tilde', 'model', 'q', 'solver', 'auto_score', 'bandwidth_hz'):
+    for key in SCHEMES.entry(comp.scheme).options + DESIGN_RESULTS:
         if key in comp.info:
             prov[key] = comp.info[key]
     write_compensator_params(args.out, comp.taps, comp.denominator, comp.fs_hz, comp.scheme,
@@ -474,6 +525,21 @@ def design_text(comp, band, pred, ref_text, record_note) -> str:
     return '\n'.join(lines)
 
 
+def _options(pairs, allowed) -> dict:
+    """``--option KEY=VALUE`` pairs as a dict (numbers as floats); refuse keys not ``allowed``."""
+    out = {}
+    for pair in pairs:
+        key, sep, value = pair.partition('=')
+        if not sep or key not in allowed:
+            raise ValueError(f'--option {pair}: give KEY=VALUE with KEY one of '
+                             f'{", ".join(allowed) or "(none: this scheme takes no options)"}')
+        try:
+            out[key] = float(value)
+        except ValueError:
+            out[key] = value
+    return out
+
+
 def _snap_plant_rate(plant, where) -> None:
     """Design for the shortest rate the plant's fs_hz stands for (1024.000524 -> 1024)."""
     from rths_common.timebase import format_hz, nominal_rate
@@ -489,10 +555,10 @@ def cmd_compensate(args) -> int:
     from rths_common.timebase import format_hz, same_rate, sampling_rate_hz
 
     from .filters import CausalFilter
-    from .io import read_csv_columns, write_csv_columns
+    from .io import write_csv_columns
     from .params import load_compensator_params
     params = load_compensator_params(args.params)
-    cols = read_csv_columns(args.csv, ('time', 'command'))
+    cols = read_columns(args.csv, ('time', 'command'))
     fs = sampling_rate_hz(cols['time'], args.csv)
     if not same_rate(fs, params['fs_hz']):
         raise ValueError(f'{args.csv}: sampling rate {format_hz(fs)} Hz differs from fs_hz '

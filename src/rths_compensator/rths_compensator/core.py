@@ -22,6 +22,8 @@ import numpy as np
 from rths_common.gaps import DISPLACEMENT_ORDER
 from rths_common.stepping import GapPolicy, StaleStep, StepResult
 
+from .methods import method_of
+
 
 class CompensatorCore:
     """The designed (or adaptive) compensator, one step per interface displacement.
@@ -33,7 +35,7 @@ class CompensatorCore:
 
     def __init__(self, params: dict):
         self.params = params
-        self.adaptive = str(params.get('method', 'fir') or 'fir') != 'fir'
+        self.adaptive = method_of(params).adaptive
         self.filter: Any = None   # MultiChannelFilter or adaptive.ChannelMethods
         self.policy = GapPolicy(DISPLACEMENT_ORDER)
         self.measured: dict = {}   # adaptive: step -> (measured displacement, applied)

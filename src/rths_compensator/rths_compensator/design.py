@@ -56,9 +56,12 @@ from scipy import linalg, optimize, signal
 
 from .identification import ArxModel, factor_zeros
 from .indicators import time_delay_ms
+from .plants import actuator_poles
+from .schemes import DEFAULT_SCHEME, SCHEMES, auto_schemes, designed, fir_schemes
 
-FIR_SCHEMES = ('ls', 'wls', 'mm')
-ALL_SCHEMES = FIR_SCHEMES + ('inverse', 'mff', 'npz', 'zpetc', 'zmetc')
+#: The FIR schemes and every designed scheme, from the registry (:mod:`.schemes`).
+FIR_SCHEMES = fir_schemes()
+ALL_SCHEMES = designed()
 
 #: Default passband tolerance epsilon on |T_com - 1| (eq. 35-36); the seed gives no value.
 DEFAULT_EPSILON = 0.002
@@ -66,8 +69,8 @@ DEFAULT_EPSILON = 0.002
 #: The design defaults of ``rths design`` and ``rths run`` (their one definition): the
 #: seed's RTHS compensator (section 6.1: WLS, n = 400, fc = 10 Hz) with a small weight on
 #: the compensator's own gain above the passband (:func:`_with_gain_rows`).
-DESIGN_DEFAULTS = {'scheme': 'wls', 'n_taps': 400, 'fc_hz': 10.0, 'epsilon': DEFAULT_EPSILON,
-                   'gain_weight': 1e-6, 'zero_tol': 1.0}
+DESIGN_DEFAULTS = {'scheme': DEFAULT_SCHEME, 'n_taps': 400, 'fc_hz': 10.0,
+                   'epsilon': DEFAULT_EPSILON, 'gain_weight': 1e-6, 'zero_tol': 1.0}
 
 
 def default_grid(fs_hz: float) -> int:
@@ -613,7 +616,6 @@ def design_mff(poles, alpha: float, fs_hz: float, method: str = 'bilinear') -> D
     ``fs_hz`` with ``scipy.signal.cont2discrete`` (``method``, default Tustin).
     """
     if isinstance(poles, str):
-        from .plants import actuator_poles
         kind = poles
         poles = actuator_poles(poles)
     else:
@@ -659,34 +661,50 @@ def design_zmetc(plant, fs_hz: float = None) -> Design:
                   {'dead_time': d}).check()
 
 
+def design_ls(plant, fs_hz: float = None, **options) -> Design:
+    """Design the FIR scheme ``ls`` (:func:`design_fir`)."""
+    return design_fir(plant, scheme='ls', fs_hz=fs_hz, **options)
+
+
+def design_wls(plant, fs_hz: float = None, **options) -> Design:
+    """Design the FIR scheme ``wls`` (:func:`design_fir`)."""
+    return design_fir(plant, scheme='wls', fs_hz=fs_hz, **options)
+
+
+def design_mm(plant, fs_hz: float = None, **options) -> Design:
+    """Design the FIR scheme ``mm`` (:func:`design_fir`)."""
+    return design_fir(plant, scheme='mm', fs_hz=fs_hz, **options)
+
+
+def design_inverse_for(plant, fs_hz: float = None, delay_ms: float = None,
+                       band_hz: float = 20.0) -> Design:
+    """Inverse compensation of ``plant``: ``delay_ms``, else the plant's delay over ``band_hz``."""
+    b_star, a_star, d, fs = plant_polynomials(plant, fs_hz)
+    if delay_ms is None:
+        delay_ms = time_delay_ms(np.r_[np.zeros(d), b_star], a_star, fs, float(band_hz))
+    return design_inverse(fs, delay_ms)
+
+
+def design_mff_for(plant, fs_hz: float = None, alpha: float = 7.0,
+                   poles: str = '3pole') -> Design:
+    """Model-based feed-forward at the plant's rate from the Table 1 ``poles`` model."""
+    return design_mff(poles, float(alpha), plant_polynomials(plant, fs_hz)[3])
+
+
 def design(plant, scheme: str, fs_hz: float = None, **options) -> Design:
-    """Design the compensator ``scheme`` (ls, wls, mm, inverse, mff, npz, zpetc, zmetc).
+    """Design the compensator ``scheme`` (a designed name of :data:`.schemes.SCHEMES`).
 
     Options: FIR -> ``n_taps, fc_hz, epsilon, ...`` (:func:`design_fir`); inverse ->
     ``delay_ms`` (default: the plant's delay over ``band_hz``, default 20 Hz); mff ->
-    ``alpha`` (default 7), ``poles`` (default '3pole').
+    ``alpha`` (default 7), ``poles`` (default '3pole').  A non-FIR scheme takes only the
+    options its entry names; the others are ignored.
     """
-    scheme = scheme.lower()
-    if scheme in FIR_SCHEMES:
-        return design_fir(plant, scheme=scheme, fs_hz=fs_hz, **options)
-    if scheme == 'inverse':
-        _, a_star, d, fs = plant_polynomials(plant, fs_hz)
-        delay = options.get('delay_ms')
-        if delay is None:
-            b_star = plant_polynomials(plant, fs_hz)[0]
-            band = float(options.get('band_hz', 20.0))
-            delay = time_delay_ms(np.r_[np.zeros(d), b_star], a_star, fs, band)
-        return design_inverse(fs, delay)
-    if scheme == 'mff':
-        fs = plant_polynomials(plant, fs_hz)[3]
-        return design_mff(options.get('poles', '3pole'), float(options.get('alpha', 7.0)), fs)
-    if scheme == 'npz':
-        return design_npz(plant, fs_hz)
-    if scheme == 'zpetc':
-        return design_zpetc(plant, fs_hz)
-    if scheme == 'zmetc':
-        return design_zmetc(plant, fs_hz)
-    raise ValueError(f'scheme {scheme!r} unknown; use one of {", ".join(ALL_SCHEMES)}')
+    entry = SCHEMES.entry(str(scheme).lower())
+    if not entry.designer:
+        raise ValueError(f'scheme {scheme!r} is not designed; use one of {", ".join(designed())}')
+    if not entry.fir:
+        options = {k: v for k, v in options.items() if k in entry.options}
+    return entry.design_function()(plant, fs_hz=fs_hz, **options)
 
 
 def compensated(plant, comp: Design, fs_hz: float = None):
@@ -736,18 +754,20 @@ def auto_score(pred: dict, n_coefficients: int) -> float:
 
 def auto_design(plant, bandwidth_hz: float, fs_hz: float = None, epsilon: float = None,
                 taps=(25, 50, 100, 200), fc_factors=(1.5, 2.0, 3.0, 4.0),
-                schemes=('ls', 'wls', 'mm', 'npz', 'zpetc', 'zmetc'), log=None,
+                schemes=None, log=None,
                 zero_tol: float = 1.0, progress=None):
     """Search scheme, n and fc for the operating ``bandwidth_hz``; return (best, table).
 
     Every candidate is designed on the plant model and scored by :func:`auto_score` from
     its predicted indicators over ``0 < f <= bandwidth_hz``; ``zero_tol`` is passed to
-    the FIR candidates (:func:`design_fir`).  ``log(text)`` gets a line per candidate,
+    the FIR candidates (:func:`design_fir`); ``schemes`` default to the registry's
+    ``auto`` entries.  ``log(text)`` gets a line per candidate,
     ``progress(done, total)`` the count.  ``table`` lists dicts
     (scheme, n_taps, fc_hz, score, delay_ms, gain_error_db, highpass_gain_db,
     n_coefficients, error) sorted best first.
     """
     _, _, _, fs = plant_polynomials(plant, fs_hz)
+    schemes = auto_schemes() if schemes is None else schemes
     if not 0 < bandwidth_hz < fs / 2:
         raise ValueError(f'--bandwidth {bandwidth_hz} Hz must lie in (0, {fs / 2}) Hz')
     eps = DEFAULT_EPSILON if epsilon is None else epsilon

@@ -4,7 +4,7 @@ Layout (``G(z^-1) = (b0 + b1 z^-1 + ...)/(a0 + a1 z^-1 + ...)``, see :mod:`.filt
 
     compensator:
       ros__parameters:
-        scheme: wls            # ls, wls, mm, inverse, mff, npz, zpetc, zmetc, identity
+        scheme: wls            # a name of rths_compensator.schemes.SCHEMES
         fs_hz: 1024.0
         taps: [ ... ]          # b0..bn, always written as doubles ('.' or 'e')
         denominator: [1.0]     # a0..am; [1.0] for a pure FIR
@@ -32,14 +32,15 @@ import numpy as np
 import yaml
 
 from rths_common.files import atomic_open
-from rths_common.params import LOOP_RATE_RANGE_HZ
+from rths_common.params import LOOP_RATE_RANGE_HZ, node_schema
 from rths_common.timebase import format_hz, same_rate
 
-SCHEMES = ('ls', 'wls', 'mm', 'inverse', 'mff', 'npz', 'zpetc', 'zmetc', 'identity')
+from .methods import METHODS
+from .schemes import SCHEMES
 
 #: The filter fields of a compensator parameters file: key -> (default, meaning [unit]).
 FILTER_PARAMS = {
-    'scheme': ('identity', f'design scheme: {" | ".join(SCHEMES)}'),
+    'scheme': ('identity', 'design scheme (rths_compensator.schemes)'),
     'fs_hz': (1024.0, '[Hz] sampling rate the taps were designed for (= the loop rate)'),
     'taps': ([1.0], '[-] numerator coefficients b0..bn of G(z^-1)'),
     'denominator': ([1.0], '[-] denominator coefficients a0..am ([1.0]: a FIR)'),
@@ -48,19 +49,18 @@ FILTER_PARAMS = {
 FILTER_RANGES = {'fs_hz': LOOP_RATE_RANGE_HZ}
 #: The compensator's method key (not a filter field): key -> (default, meaning).
 METHOD_PARAMS = {
-    'method': ('fir', 'fir | rls_fir | ats | amb: the designed filter, or an adaptive method '
-                      'started from it (lock-step only; needs provenance.plant; '
-                      'docs/adaptive.md)'),
+    'method': ('fir', 'the designed filter, or an adaptive method started from it (lock-step '
+                      'only; needs provenance.plant; docs/adaptive.md)'),
 }
+#: Allowed values of the scheme and the method (the registries' names).
+CHOICES = {'scheme': SCHEMES.names(), 'method': METHODS.names()}
 #: The key (a mapping) that holds a file's provenance; ROS names its entries provenance.*.
 PROVENANCE = 'provenance'
 
 
 def param_schema(node_params) -> dict:
     """Return the compensator node's parameter schema: its ``node_params`` and the filter's."""
-    from rths_common.params import node_schema
-
-    return node_schema(node_params, {**FILTER_PARAMS, **METHOD_PARAMS}, FILTER_RANGES)
+    return node_schema(node_params, {**FILTER_PARAMS, **METHOD_PARAMS}, FILTER_RANGES, CHOICES)
 
 
 def check_compensator_params(params: dict, where: str) -> None:
@@ -82,9 +82,10 @@ def check_compensator_params(params: dict, where: str) -> None:
 def check_sampling_rate(params: dict, loop_fs_hz: float, where: str, loop_where: str) -> None:
     """Refuse taps designed for another rate than the loop's (ValueError names the fix).
 
-    The identity compensator (G = 1) holds at every rate.
+    A scheme that is not designed (identity, G = 1) holds at every rate.
     """
-    if params.get('scheme') == 'identity':
+    scheme = SCHEMES.get(params.get('scheme'))
+    if scheme is not None and not scheme.designer:
         return
     fs, loop_fs_hz = float(params.get('fs_hz', FILTER_PARAMS['fs_hz'][0])), float(loop_fs_hz)
     if not same_rate(fs, loop_fs_hz):
@@ -131,7 +132,7 @@ def _check(where, taps, denominator, fs_hz, scheme):
         raise ValueError(f'{where}: field fs_hz must be > 0 Hz, got {fs_hz!r}')
     if scheme not in SCHEMES:
         raise ValueError(f'{where}: field scheme {scheme!r} is unknown; use one of '
-                         f'{", ".join(SCHEMES)}')
+                         f'{SCHEMES.text(", ")}')
     return b, a, fs
 
 

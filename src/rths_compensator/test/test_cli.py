@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from rths_common.columns import read_columns
 from rths_compensator import cli
 from rths_compensator.identification import load_plant
-from rths_compensator.io import read_csv_columns
 from rths_compensator.params import load_compensator_params
 
 FS = 256.0
@@ -62,7 +62,7 @@ def test_identify_design_compensate_chain(tmp_path, run_csv, capsys):
     out_path = tmp_path / 'out.csv'
     assert _run(['compensate', '--params', str(comp_path), '--csv', str(csv_path),
                  '--out', str(out_path)]) == 0
-    cols = read_csv_columns(out_path, ('time', 'command', 'compensated'))
+    cols = read_columns(out_path, ('time', 'command', 'compensated'))
     ref = signal.lfilter(params['taps'], params['denominator'], cols['command'])
     np.testing.assert_allclose(cols['compensated'], ref, rtol=1e-8,
                                atol=1e-9 * np.max(np.abs(ref)))
@@ -262,9 +262,9 @@ def test_design_defaults_predict_and_stay_within_limits(lab_csv, tmp_path, capsy
     assert true_pct < 0.5
     # predicted from the record's held-out part alone, without the model, for the reference
     # (the record's motion in 0-10 Hz): within 0.2 % of the true actuator's tracking of it
+    from rths_common.columns import read_columns
     from rths_compensator.assessment import reference_signal
-    from rths_compensator.io import read_csv_columns
-    measured = read_csv_columns(lab_csv[0], ('measured',))['measured']
+    measured = read_columns(lab_csv[0], ('measured',))['measured']
     reference, _ = reference_signal(2000.0, 10.0, measured)
     true_ref = tracking(act, params['taps'], params['denominator'], reference)['tracking_pct']
     assert prov['record_tracking_pct'] == pytest.approx(true_ref, abs=0.2)
@@ -281,3 +281,35 @@ def test_design_beyond_the_limits_is_refused_unless_forced(lab_csv, tmp_path):
     assert not out.exists()
     assert _run(argv + ['--force']) == 0
     assert load_compensator_params(out)['provenance']['limits_exceeded']
+
+
+def test_identify_reads_a_daq_file_by_column_names_and_units(lab_csv, tmp_path, capsys):
+    """The lab's own CSV: ``Time (ms), Cmd (mm), Disp (mm)``, its columns named on the line."""
+    import yaml
+
+    from rths_common.columns import read_columns
+    cols = read_columns(lab_csv[0], ('time', 'command', 'measured'))
+    daq = tmp_path / 'daq.csv'
+    np.savetxt(daq, np.column_stack([cols['time'] * 1e3, cols['command'] * 1e3,
+                                     cols['measured'] * 1e3])[:30000],
+               delimiter=',', header='Time (ms),Cmd (mm),Disp (mm)', comments='', fmt='%.9g')
+    plant = tmp_path / 'plant.yaml'
+    with pytest.raises(ValueError, match='missing column.*--columns'):
+        _run(['identify', '--csv', str(daq), '--out', str(plant)])
+    assert _run(['identify', '--csv', str(daq), '--out', str(plant), '--no-plot',
+                 '--columns', 'Time,Cmd,Disp', '--na-max', '3', '--nb-max', '4']) == 0
+    err = capsys.readouterr().err
+    assert "time = column 'Time' in ms (header)" in err
+    assert "measured = column 'Disp' in mm (header)" in err
+    doc = yaml.safe_load(plant.read_text())
+    assert doc['fs_hz'] == 2000.0 and abs(doc['b'][0] + sum(doc['b'][1:])) < 1.0
+    assert doc['selection']['record']['columns'] == {'time': 'Time', 'command': 'Cmd',
+                                                     'measured': 'Disp'}
+    # by index, units from the options (a header-less file)
+    bare = tmp_path / 'bare.csv'
+    np.savetxt(bare, np.loadtxt(daq, delimiter=',', skiprows=1), delimiter=',', fmt='%.9g')
+    assert _run(['identify', '--csv', str(bare), '--out', str(plant), '--no-plot',
+                 '--columns', '0,1,2', '--time-unit', 'ms', '--length-unit', 'mm',
+                 '--na-max', '3', '--nb-max', '4']) == 0
+    assert "time = column '#0' in ms (option)" in capsys.readouterr().err
+    assert yaml.safe_load(plant.read_text())['fs_hz'] == 2000.0

@@ -123,13 +123,13 @@ def bench_real_cmd(args) -> int:
 def _io_records(paths, args, what):
     import os
 
+    from rths_common.columns import read_columns
     from rths_discrepancy import iodisc
-    from rths_discrepancy.io import read_csv_columns
     recs = []
     for path in paths:
         if not os.path.exists(path):
             raise OSError(f'{what} {path}: no such file')
-        cols = read_csv_columns(path, [args.input] + list(args.output))
+        cols = read_columns(path, None, keep_nan=True, min_rows=0)
         recs.append(iodisc.records_from_columns(cols, args.input, args.output, fs=args.fs,
                                                 time_col=args.time,
                                                 source=os.path.basename(path)))
@@ -187,8 +187,10 @@ def run_discrepancy_cmd(args) -> int:
             _say(f'note: {err}; the nominal model is the default valve #4 and the reference '
                  'is not re-run')
         if run is not None and model is None:
+            from rths_numerical.specimens import specimen_of
+
             model = rerun.run_damper_model(run[1])
-            _say(f"nominal model: the run's damper {run[1].get('dtm', 'valve4')} "
+            _say(f"nominal model: the run's specimen {specimen_of(run[1])} "
                  f'(m_d {model.m_d:g} kg, c_d {model.c_d:g} N s/m, k_d {model.k_d:g} N/m)')
     _say(f'rths discrepancy: {args.scenario}, {len(data["time"])} samples from {args.measured}')
     from rths_common.progress import Progress

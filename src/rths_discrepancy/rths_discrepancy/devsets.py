@@ -28,6 +28,7 @@ import time
 
 import numpy as np
 
+from rths_common.columns import read_columns
 from rths_discrepancy import iodisc
 
 #: Published reference errors: RMSE of the simulated output on the benchmark's test data.
@@ -87,9 +88,8 @@ def cascaded_tanks(root):
 
 
 def _read_csv(path):
-    from rths_discrepancy.io import read_csv_columns
-    cols = read_csv_columns(path, ())
-    return {k.strip('"'): v for k, v in cols.items()}
+    """Every named column of a CSV with a header row (empty cells NaN)."""
+    return read_columns(path, None, keep_nan=True)
 
 
 def bouc_wen(root):

@@ -14,6 +14,7 @@ naming the file/column and the fix.
 
 import numpy as np
 
+from rths_common.columns import read_columns
 from rths_common.timebase import infer_rate, sampling_rate_hz
 
 #: Required columns per scenario: (input, output channels...).
@@ -68,40 +69,14 @@ def sample_rate(data: dict) -> float:
     return sampling_rate_hz(data['time'])
 
 
-def read_csv_columns(path, expected, keep=None) -> dict:
-    """Read a CSV with a header row; return ``{column: float array}`` (empty cells NaN).
-
-    ``expected`` names the header a user should write (for the empty-file error);
-    ``keep`` (None: every column) selects the columns returned.
-    """
-    import csv
-    with open(path, newline='') as fh:
-        reader = csv.reader(fh)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise ValueError(f'{path}: empty file; expected a header row '
-                             f'{",".join(expected)}') from None
-        rows = [r for r in reader if r and any(c.strip() for c in r)]
-    cols = {}
-    for j, name in enumerate(header):
-        if keep is not None and name not in keep:
-            continue
-        vals = []
-        for i, r in enumerate(rows):
-            cell = r[j].strip() if j < len(r) else ''
-            try:
-                vals.append(float(cell) if cell else np.nan)
-            except ValueError:
-                raise ValueError(f'{path}: row {i + 2}, column {name}: {cell!r} is not a '
-                                 f'number') from None
-        cols[name] = np.array(vals)
-    return cols
-
-
 def load_csv(path, scenario: str) -> dict:
-    """Read a CSV with a header row and return the validated columns of ``scenario``."""
-    cols = read_csv_columns(path, COLUMNS.get(scenario, ()))
+    """Read a CSV with a header row and return the validated columns of ``scenario``.
+
+    Empty cells are read as NaN, for :func:`validate` to name them.
+    """
+    if scenario not in COLUMNS:
+        raise ValueError(f'unknown scenario {scenario!r}; use one of {", ".join(COLUMNS)}')
+    cols = read_columns(path, COLUMNS[scenario], keep_nan=True, min_rows=0)
     return validate(scenario, cols, source=str(path))
 
 

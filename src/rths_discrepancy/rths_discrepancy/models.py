@@ -206,8 +206,8 @@ def _loop_filter(b, a, u, load, fs):
 def default_model(scenario: str):
     """Nominal model of a scenario without ``--model``: Table 4 valve #4 or Table 1 3-pole."""
     if scenario == 'specimen':
-        from rths_numerical.dtm import dtm_configuration
-        p = dtm_configuration('valve4')
+        from rths_numerical.dtm import SEED_CONFIGURATION, dtm_configuration
+        p = dtm_configuration(SEED_CONFIGURATION)
         return SpecimenModel(p.m_d, p.c_d, p.k_d)
     if scenario == 'actuator':
         return actuator_from_dict({'kind': 'continuous', 'table1': '3pole'})

@@ -64,13 +64,15 @@ def run_parameters(bag, config=None) -> tuple:
 
 
 def run_damper_model(bridge: dict) -> models.SpecimenModel:
-    """Nominal specimen model of a run: the Table 4 DTM of the bridge's ``dtm`` parameter."""
-    from rths_numerical.dtm import dtm_configuration
+    """Nominal specimen model of a run: the mass on the table of the bridge's ``specimen``."""
+    from rths_numerical.specimens import SPECIMENS, specimen_of
 
-    name = str(bridge.get('dtm', 'valve4'))
-    if name in ('none', ''):
-        raise ValueError("the run's bridge has dtm: none; there is no specimen to review")
-    p = dtm_configuration(name)
+    name = specimen_of(bridge)
+    p = SPECIMENS.entry(name, "the run's bridge parameter").table_mass
+    if p is None:
+        key = 'specimen' if 'specimen' in bridge else 'dtm'
+        raise ValueError(f"the run's bridge has {key}: {name}, no mass on the table; there is "
+                         'no specimen to review (the specimen scenario reviews a DTM, eq. 46)')
     return models.SpecimenModel(p.m_d, p.c_d, p.k_d)
 
 

@@ -135,9 +135,11 @@ def validate(data, source='data'):
 
 def load_csv(path):
     """Read a restoring-force CSV (header row; extra columns ignored)."""
-    from rths_discrepancy.io import read_csv_columns
+    from rths_common.columns import read_columns, read_header
 
-    cols = read_csv_columns(path, COLUMNS, keep=COLUMNS + OPTIONAL)
+    present = read_header(path)
+    cols = read_columns(path, COLUMNS + tuple(c for c in OPTIONAL if c in present),
+                        keep_nan=True, min_rows=0)
     return validate(cols, source=str(path))
 
 

@@ -44,7 +44,7 @@ import math
 
 import numpy as np
 
-from .dtm import TABLE4
+from .dtm import SEED_CONFIGURATION, TABLE4
 from .model import LinearModel, rayleigh_coefficients
 
 E_PA = 26672e6
@@ -56,7 +56,7 @@ BEAM_BD = (0.30, 0.50)   # width, depth [m]
 COL_BD = (0.30, 0.30)
 N_DTM = 5
 MASS_RATIO = 0.0206
-BUILDING_MASS_KG = N_DTM * TABLE4['valve4'].m_d / MASS_RATIO
+BUILDING_MASS_KG = N_DTM * TABLE4[SEED_CONFIGURATION].m_d / MASS_RATIO
 ZETA_MODES = (0.042, 0.10)
 SEED_FREQS_HZ = (2.81, 7.77)
 IX2 = 2  # index of the 2nd-floor x DOF in the 16-DOF model

@@ -10,6 +10,8 @@ import os
 
 from rths_common.files import atomic_open, save_figure
 
+from .dtm import SEED_CONFIGURATION, STUDY_CONFIGURATIONS, TABLE4, dtm_configuration
+
 
 def _progress(label):
     """Return a ``(i, n)`` callback drawing a progress line (rths_common.progress)."""
@@ -70,7 +72,7 @@ def cmd_simulate(args):
           f'(peak {peak_g(ag):.4f} g, {ag.size / fs:.1f} s at {fs:g} Hz)', flush=True)
     unc = simulate_uncontrolled(model, ag, 1 / fs, args.integrator)
     rows = {'uncontrolled': unc}
-    dampers = ['valve4', 'novalve'] if args.damper == 'all' else (
+    dampers = list(STUDY_CONFIGURATIONS) if args.damper == 'all' else (
         [] if args.damper == 'none' else [args.damper])
     for d in dampers:
         rows[d] = simulate_reference(model, ag, 1 / fs, d, args.n_dtm, integrator=args.integrator,
@@ -124,7 +126,6 @@ def cmd_study_building_frequency(args):
     """Run ``rths study building-frequency``."""
     import numpy as np
 
-    from .dtm import dtm_configuration
     from .ground_motion import baseline_correct, ground_motion
     from .studies import CRITERIA, building_frequency_study, den_hartog, warburton_ground
     model = _building(args.building)
@@ -345,7 +346,7 @@ def _backend_comparison(backend, record, scale, duration_s, fs_hz):
                              ('builtin_cr', 'builtin', 'cr'),
                              (backend, backend, 'central_difference')):
         sub = make_substructure(dict(base, backend=be, integrator=integ))
-        p50, runs[label] = _advance_p50_us(sub, DTMSpecimen('valve4', sub.dt))
+        p50, runs[label] = _advance_p50_us(sub, DTMSpecimen(SEED_CONFIGURATION, sub.dt))
         out[f'step_us_p50_{label}'] = p50
 
     def diff(a, b):
@@ -501,7 +502,6 @@ def _mr_fit_plot(path, tests, params):
 
 def register(commands, benches):
     """Add this package's ``rths <command>`` and ``rths bench <name>`` parsers."""
-    from .dtm import TABLE4
     fm = commands.add_parser(
         'fit-mr', help='fit the MR-damper model (Spencer et al. 1997) to real sinusoid tests',
         description='Fit the phenomenological Bouc-Wen MR-damper model of Spencer, Dyke, Sain '
@@ -554,7 +554,8 @@ def register(commands, benches):
     bf.add_argument('--n-freq', type=int, default=40)
     bf.add_argument('--mu-max', type=float, default=0.05)
     bf.add_argument('--n-ratio', type=int, default=26)
-    bf.add_argument('--dampers', nargs='+', default=['valve4', 'novalve'], choices=list(TABLE4))
+    bf.add_argument('--dampers', nargs='+', default=list(STUDY_CONFIGURATIONS),
+                    choices=list(TABLE4))
     bf.add_argument('--out', default='out/study')
     bf.set_defaults(func=cmd_study_building_frequency)
     dt_ = studies.add_parser(

@@ -16,10 +16,22 @@ inertia) is ``c_d * xd_d2s + k_d * x_d2s = -m_d * xdd_d``.
 Natural frequency and damping ratio (seed eq. 48-49, with the evident
 ``f_n = omega_n / (2 pi)``): ``omega_n = sqrt(k_d / m_d)``,
 ``zeta = c_d / (2 m_d omega_n)``.
+
+:meth:`DTMParameters.state_space` is eq. 46 as a state-space model, written once here
+for the simulated plant (rths_actuator_bridge.simulated) and the numerical reference
+(:class:`.reference.DTMSpecimen`).
 """
 
 from dataclasses import dataclass
 import math
+
+import numpy as np
+
+#: The configuration the seed's RTHS tests use (section 6.2) and the default specimen.
+SEED_CONFIGURATION = 'valve4'
+#: The configurations of the seed's numerical studies (tables 6-8, chapter 7): with and
+#: without the valve.
+STUDY_CONFIGURATIONS = (SEED_CONFIGURATION, 'novalve')
 
 #: Mass of the DTM's supporting frame: 250.0 lbm (seed section 5.1) in kg.
 FRAME_MASS_KG = 250.0 * 0.45359237
@@ -47,6 +59,26 @@ class DTMParameters:
     def zeta(self) -> float:
         """Damping ratio [-] (eq. 49)."""
         return self.c_d / (2.0 * self.m_d * self.omega_n)
+
+    def state_space(self, mass_error: float = 0.0):
+        """Return ``(A, B)`` of eq. 46 with an extra force ``f`` on the moving mass.
+
+        State ``[x_d2s, xd_d2s]``, inputs ``[xdd_s, f]``::
+
+            (m_d + dm) xdd_d2s = -(m_d + dm) xdd_s - c_d xd_d2s - k_d x_d2s - f
+
+        The force on the frame is ``c_d xd_d2s + k_d x_d2s + f`` (:meth:`frame_force`).
+        """
+        m = self.m_d + float(mass_error)
+        if not m > 0:
+            raise ValueError(f'mass_error {mass_error} kg leaves no moving mass')
+        a = np.array([[0.0, 1.0], [-self.k_d / m, -self.c_d / m]])
+        b = np.array([[0.0, 0.0], [-1.0, -1.0 / m]])
+        return a, b
+
+    def frame_force(self, rel_disp, rel_vel):
+        """Return the force [N] the damper exerts on its frame, ``c_d xd_d2s + k_d x_d2s``."""
+        return self.c_d * rel_vel + self.k_d * rel_disp
 
     @classmethod
     def from_frequency(cls, m_d: float, f_n: float, zeta: float) -> "DTMParameters":

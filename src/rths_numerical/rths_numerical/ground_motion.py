@@ -1,4 +1,9 @@
-"""Ground motions: the seed's records, a PEER AT2 reader, scaling, resampling, baseline correction.
+"""Ground motions: the seed's records, the record formats, scaling, resampling, baseline correction.
+
+Record files are read by the format their name ends with (:data:`FORMATS`: PEER
+``.AT2``, the gmspy ``.dat`` layout, or a column text file ``.csv``/``.txt`` with a
+header naming ``time`` and ``accel`` with its unit, e.g. ``accel [g]``); a new format is
+one reader function and one entry there (docs/extending.md).
 
 Records (seed section 6.3: El Centro 1940 at 10 %, Northridge 1994 at 3.9 %,
 Kobe 1995 at 13.5 %) come from the PyPI package ``gmspy`` which ships PEER
@@ -23,10 +28,18 @@ ground ends at rest near zero displacement.  The absolute interface frame of
 :mod:`.substructure` needs that consistency.
 """
 
+import importlib.util
 import math
 import os
+from typing import Callable, NamedTuple
 
 import numpy as np
+
+from rths_common.columns import read_columns
+from rths_common.registry import Registry
+from rths_common.timebase import sampling_rate_hz
+
+from .signals import blwn
 
 G = 9.80665
 RECORDS = {'kobe': 'Kobe', 'northridge': 'Northridge', 'imperial_valley': 'Imperial_Valley'}
@@ -35,7 +48,6 @@ SEED_SCALES = {'imperial_valley': 0.10, 'northridge': 0.039, 'kobe': 0.135}
 
 
 def _gmspy_file(name):
-    import importlib.util
     spec = importlib.util.find_spec('gmspy')
     if spec is None or not spec.origin:
         raise OSError('record files need the PyPI package gmspy: pip install gmspy')
@@ -45,24 +57,30 @@ def _gmspy_file(name):
 def read_gmspy_dat(path):
     """Read a gmspy ``.dat`` record; return ``(dt [s], accel [m/s^2])``."""
     try:
-        data = np.loadtxt(path, skiprows=5, ndmin=2)
+        col = read_columns(path, {'time': 0, 'accel': 1}, units={'time': 's', 'accel': 'g'},
+                           skip_lines=5, contract='Time[s] Accel[g] after 5 header lines')
     except ValueError as err:
-        raise ValueError(f'{path}: not two numeric columns Time[s] Accel[g] after 5 header '
-                         f'lines ({err}); the file may be truncated: restore the full '
-                         'record') from None
-    if data.shape[0] < 2 or data.shape[1] < 2:
-        raise ValueError(f'{path}: expected two columns Time[s] Accel[g] after 5 header lines')
-    if not np.all(np.isfinite(data)):
-        row = int(np.argwhere(~np.isfinite(data))[0, 0])
-        raise ValueError(f'{path}: data line {row + 1} holds nan/inf; fix or remove it')
-    t = data[:, 0]
+        raise ValueError(f'{err} (expected two numeric columns Time[s] Accel[g] after 5 header '
+                         'lines; the file may be truncated: restore the full record)') from None
+    t = col['time']
     dt = float(np.median(np.diff(t)))
     if not dt > 0 or not np.allclose(np.diff(t), dt, rtol=1e-3, atol=1e-9):
         row = int(np.argmax(np.abs(np.diff(t) - dt))) + 1
         raise ValueError(f'{path}: time column is not equally spaced (step {dt:g} s, but data '
                          f'line {row + 1} is at {t[row]:g} s); resample the record to a '
                          'constant time step')
-    return dt, data[:, 1] * G
+    return dt, col['accel']
+
+
+def read_csv_record(path):
+    """Read a column text record; return ``(dt [s], accel [m/s^2])``.
+
+    The header names ``time`` and ``accel``, each with its unit in brackets
+    (``time [s], accel [g]``); the acceleration is converted to m/s^2 from it.
+    """
+    col = read_columns(path, ('time', 'accel'), require_units=True,
+                       contract='time [s], accel [UNIT] (UNIT: g, m/s^2, gal, ...)')
+    return 1.0 / sampling_rate_hz(col['time'], str(path)), col['accel']
 
 
 def read_at2(path):
@@ -104,10 +122,40 @@ def read_at2(path):
     return dt, values[:npts] * G
 
 
+class RecordFormat(NamedTuple):
+    """A ground-motion file format: its file name endings and its reader."""
+
+    summary: str
+    suffixes: tuple                 # lower-case name endings, e.g. ('.at2',)
+    read: Callable                  # path -> (dt [s], accel [m/s^2])
+
+
+#: Record file formats: name -> entry; a file is read by the entry whose suffix it ends with.
+FORMATS = Registry('record format', 'format', {
+    'at2': RecordFormat('PEER NGA `.AT2`: 4 header lines (`NPTS=`, `DT=`), accelerations in g',
+                        ('.at2',), read_at2),
+    'gmspy': RecordFormat('gmspy `.dat`: 5 header lines, columns Time [s] and Accel [g]',
+                          ('.dat',), read_gmspy_dat),
+    'csv': RecordFormat('column text `.csv`/`.txt` with a header `time [s], accel [UNIT]` '
+                        '(UNIT g, m/s^2, gal, ...)', ('.csv', '.txt'), read_csv_record),
+})
+
+
+def record_format(path) -> RecordFormat:
+    """Return the :data:`FORMATS` entry that reads ``path`` (ValueError naming the endings)."""
+    name = str(path).lower()
+    for entry in FORMATS.values():
+        if name.endswith(entry.suffixes):
+            return entry
+    endings = ', '.join(s for e in FORMATS.values() for s in e.suffixes)
+    raise ValueError(f'record {path}: no reader for this file name; give a file ending in '
+                     f'{endings} ({FORMATS.text(", ")})')
+
+
 def load_record(name_or_path):
     """Return ``(dt [s], accel [m/s^2])`` of 'kobe', 'northridge', 'imperial_valley' or a file.
 
-    Files: ``.AT2`` (PEER) or the gmspy ``.dat`` layout.
+    Files are read by their format (:data:`FORMATS`, by the name's ending).
     """
     key = str(name_or_path).lower()
     if key in RECORDS:
@@ -115,10 +163,9 @@ def load_record(name_or_path):
     path = str(name_or_path)
     if not os.path.exists(path):
         raise ValueError(f'record {name_or_path!r}: not one of {", ".join(RECORDS)} and no such '
-                         'file; give a record name or the path of a PEER .AT2 file')
-    if path.upper().endswith('.AT2'):
-        return read_at2(path)
-    return read_gmspy_dat(path)
+                         f'file; give a record name or the path of a record file '
+                         f'({FORMATS.text(", ")})')
+    return record_format(path).read(path)
 
 
 def scale(accel, factor):
@@ -128,7 +175,9 @@ def scale(accel, factor):
 
 def resample(accel, dt, fs_hz):
     """Resample ``accel`` sampled at ``dt`` [s] to ``fs_hz`` [Hz] (band-limited FFT method)."""
+    # scipy.signal costs the numerical node ~0.7 s at start-up; only records are resampled
     from scipy.signal import resample as fft_resample
+
     accel = np.asarray(accel, dtype=float)
     duration = accel.size * dt
     n_new = int(round(duration * fs_hz))
@@ -182,7 +231,6 @@ def ground_motion(record, fs_hz, scale_factor=1.0, duration_s=None, rng=None, bl
         n = int(round((duration_s or 0.0) * fs_hz))
         return np.zeros(n)
     if record == 'blwn':
-        from .signals import blwn
         if not duration_s:
             raise ValueError('duration_s must be > 0 for record blwn')
         return blwn(duration_s, fs_hz, blwn_band_hz, blwn_peak * G * scale_factor, rng=rng)
@@ -199,5 +247,6 @@ def peak_g(accel):
     return float(np.max(np.abs(accel)) / G) if len(accel) else 0.0
 
 
-__all__ = ['G', 'RECORDS', 'SEED_SCALES', 'load_record', 'read_at2', 'read_gmspy_dat', 'scale',
+__all__ = ['G', 'RECORDS', 'SEED_SCALES', 'FORMATS', 'load_record', 'read_at2', 'read_gmspy_dat',
+           'read_csv_record', 'record_format', 'scale',
            'resample', 'integrate', 'baseline_correct', 'ground_motion', 'peak_g']

@@ -28,7 +28,7 @@ specimen of the whole-numerical reference (:func:`simulate_mr_reference`).
 from dataclasses import asdict, dataclass
 import math
 
-import numpy as np
+from .reference import StrokeSpecimen, coupled_rths
 
 
 @dataclass(frozen=True)
@@ -127,7 +127,7 @@ class MRDamper:
         return self._c1 * self.ydot + self.params.k1 * self.x
 
 
-class MRSpecimen:
+class MRSpecimen(StrokeSpecimen):
     """The MR damper on a perfect actuator: stroke [m] in, force [N] out, one loop step each.
 
     The velocity at step k is ``(3 x_k - 4 x_{k-1} + x_{k-2}) / (2 dt)``; the
@@ -136,29 +136,8 @@ class MRSpecimen:
 
     def __init__(self, dt, voltage=0.0, params: MRParameters = SPENCER_1997, substeps=8):
         """Set the loop step [s], the constant voltage [V], the model and its sub-steps."""
-        self.dt = float(dt)
-        self.substeps = int(substeps)
-        if self.substeps < 1:
-            raise ValueError(f'substeps must be >= 1, got {substeps}')
-        self.damper = MRDamper(params, voltage)
-        self._x = [0.0, 0.0]
-        self._v = 0.0
-
-    def __call__(self, stroke):
-        """Return ``[force]`` [N] for this step's stroke [m]."""
-        x = float(np.asarray(stroke).reshape(-1)[0])
-        x1, x2 = self._x
-        v = (3.0 * x - 4.0 * x1 + x2) / (2.0 * self.dt)
-        h = self.dt / self.substeps
-        xa, va = x1, self._v
-        for j in range(1, self.substeps + 1):
-            s = j / self.substeps
-            xb, vb = x1 + s * (x - x1), self._v + s * (v - self._v)
-            self.damper.advance(xa, va, xb, vb, h)
-            xa, va = xb, vb
-        self._x = [x, x1]
-        self._v = v
-        return np.array([self.damper.force()])
+        super().__init__(MRDamper(params, voltage), dt, substeps)
+        self.damper = self.device
 
 
 def simulate_mr_reference(numerical_params, voltage, params: MRParameters = SPENCER_1997):
@@ -168,7 +147,6 @@ def simulate_mr_reference(numerical_params, voltage, params: MRParameters = SPEN
     model, record, integrator, force scale, interface frame).  Returns the
     substructure's history (``output_disp`` is the reference 2nd-floor response).
     """
-    from .reference import coupled_rths
-    from .substructure import make_substructure
+    from .substructure import make_substructure  # substructure -> specimens -> this module
     sub = make_substructure(numerical_params)
     return coupled_rths(sub, MRSpecimen(sub.dt, voltage, params))

@@ -15,14 +15,16 @@ building (no DTMs, no frames).
 
 :class:`DTMSpecimen` stands in for the lab: given the table displacement of
 each step it returns the measured force ``m_f a_table + m_d a_moving_mass``
-(the project's convention, see :mod:`.substructure`).  :func:`coupled_rths`
+(the project's convention, see :mod:`.substructure`); :class:`StrokeSpecimen` does
+the same for a device between the table and the ground (the MR damper).  :func:`coupled_rths`
 runs a :class:`.substructure.NumericalSubstructure` against any such callable
 exactly as the ROS lock-step loop does.
 """
 
 import numpy as np
+from scipy.linalg import expm
 
-from .dtm import FRAME_MASS_KG, DTMParameters, dtm_configuration
+from .dtm import FRAME_MASS_KG, SEED_CONFIGURATION, DTMParameters, dtm_configuration
 from .integrators import make_integrator
 from .model import LinearModel
 
@@ -96,7 +98,7 @@ def simulate_uncontrolled(model: LinearModel, ag, dt, integrator='cr'):
             'accel_abs': a[:, out] + model.gamma[out] * np.asarray(ag), 'metrics': metrics(disp)}
 
 
-def simulate_reference(model: LinearModel, ag, dt, damper='valve4', n_dtm=5,
+def simulate_reference(model: LinearModel, ag, dt, damper=SEED_CONFIGURATION, n_dtm=5,
                        frame_mass_kg=FRAME_MASS_KG, integrator='cr', uncontrolled=None):
     """Simulate the building + ``n_dtm`` DTMs (Table 4 ``damper``), all numerical (seed 6.3.4).
 
@@ -137,10 +139,9 @@ class DTMSpecimen:
     for its Coulomb friction, rths_actuator_bridge.simulated).
     """
 
-    def __init__(self, dtm='valve4', dt=1 / 1024, frame_mass_kg=FRAME_MASS_KG, force=None,
+    def __init__(self, dtm=SEED_CONFIGURATION, dt=1 / 1024, frame_mass_kg=FRAME_MASS_KG, force=None,
                  mass_error=0.0, substeps=16):
         """Store the parameters and the exact one-step matrices (scipy expm)."""
-        from scipy.linalg import expm
         self.dtm = dtm if isinstance(dtm, DTMParameters) else dtm_configuration(dtm)
         self.dt = float(dt)
         self.frame_mass = float(frame_mass_kg)
@@ -148,12 +149,7 @@ class DTMSpecimen:
         self.substeps = int(substeps) if force is not None else 1
         if self.substeps < 1:
             raise ValueError(f'substeps must be >= 1, got {substeps}')
-        m = self.dtm.m_d + float(mass_error)
-        if not m > 0:
-            raise ValueError(f'mass_error {mass_error} kg leaves no moving mass')
-        c, k = self.dtm.c_d, self.dtm.k_d
-        A = np.array([[0.0, 1.0], [-k / m, -c / m]])
-        B = np.array([[0.0, 0.0], [-1.0, -1.0 / m]])  # inputs: a_table, force
+        A, B = self.dtm.state_space(mass_error)   # inputs: a_table, force
         big = np.zeros((4, 4))
         big[:2, :2], big[:2, 2:] = A, B
         E = expm(big * self.dt / self.substeps)
@@ -176,8 +172,44 @@ class DTMSpecimen:
             self._z = self._Ad @ self._z + self._Bd @ np.array([acc, f])
         if self.force is not None:
             f = self.force(self._z[0], self._z[1])
-        c, k = self.dtm.c_d, self.dtm.k_d
-        return np.array([self.frame_mass * acc - (c * self._z[1] + k * self._z[0] + f)])
+        return np.array([self.frame_mass * acc - (self.dtm.frame_force(self._z[0], self._z[1])
+                                                  + f)])
+
+
+class StrokeSpecimen:
+    """A device between the table and the ground on a perfect actuator: stroke in, force out.
+
+    ``device`` has ``reset()``, ``advance(x0, v0, x1, v1, h)`` (its states over ``h``
+    seconds, stroke and velocity linear in between) and ``force()`` [N].  The velocity
+    at step k is ``(3 x_k - 4 x_{k-1} + x_{k-2}) / (2 dt)``; each loop step is split into
+    ``substeps`` sub-steps.
+    """
+
+    def __init__(self, device, dt, substeps=8):
+        """Set the device, the loop step [s] and its sub-steps."""
+        self.dt = float(dt)
+        self.substeps = int(substeps)
+        if self.substeps < 1:
+            raise ValueError(f'substeps must be >= 1, got {substeps}')
+        self.device = device
+        self._x = [0.0, 0.0]
+        self._v = 0.0
+
+    def __call__(self, stroke):
+        """Return ``[force]`` [N] for this step's stroke [m]."""
+        x = float(np.asarray(stroke).reshape(-1)[0])
+        x1, x2 = self._x
+        v = (3.0 * x - 4.0 * x1 + x2) / (2.0 * self.dt)
+        h = self.dt / self.substeps
+        xa, va = x1, self._v
+        for j in range(1, self.substeps + 1):
+            s = j / self.substeps
+            xb, vb = x1 + s * (x - x1), self._v + s * (v - self._v)
+            self.device.advance(xa, va, xb, vb, h)
+            xa, va = xb, vb
+        self._x = [x, x1]
+        self._v = v
+        return np.array([self.device.force()])
 
 
 def coupled_rths(substructure, specimen):

@@ -43,7 +43,7 @@ import math
 
 import numpy as np
 
-from .dtm import DTMParameters, dtm_configuration
+from .dtm import SEED_CONFIGURATION, DTMParameters, dtm_configuration
 from .model import LinearModel
 
 CRITERIA = ('max_disp', 'max_accel', 'rms_disp', 'rms_accel')
@@ -139,8 +139,8 @@ def _criteria(disp, acc):
     }
 
 
-def building_frequency_study(model: LinearModel, ag, dt, f1_hz, mass_ratios, damper='valve4',
-                             progress=None):
+def building_frequency_study(model: LinearModel, ag, dt, f1_hz, mass_ratios,
+                             damper=SEED_CONFIGURATION, progress=None):
     """Seed 7.1: criteria on the grid (f1 of the building) x (DTM mass / building mass).
 
     Returns ``{criterion: array (len(f1_hz), len(mass_ratios))}`` plus the axes.

@@ -57,7 +57,7 @@ import numpy as np
 
 from rths_common.params import LOOP_RATE_RANGE_HZ
 
-from .dtm import FRAME_MASS_KG, TABLE4
+from .dtm import FRAME_MASS_KG, SEED_CONFIGURATION, TABLE4
 from .ground_motion import G, baseline_correct, ground_motion, integrate
 from .integrators import INTEGRATORS, make_integrator
 from .model import LinearModel, load_model_yaml, sdof_model
@@ -89,7 +89,7 @@ PARAMS = {
     'force_scale': (None, '[-] specimens represented by the one in the lab (5 for '
                     'building2story, else 1)'),
     'interface_frame': ('absolute', "'absolute' or 'relative' (module docstring)"),
-    'specimen_mass_kg': (FRAME_MASS_KG + TABLE4['valve4'].m_d,
+    'specimen_mass_kg': (FRAME_MASS_KG + TABLE4[SEED_CONFIGURATION].m_d,   # the seed's DTM
                          '[kg] mass of ONE specimen moving with the table, for P_I^E in the '
                          'relative frame'),
     'sdof_mass_kg': (1000.0, '[kg] SDOF mass'),

@@ -1,13 +1,14 @@
-"""The MR-damper specimen of the simulated plant (``dtm: mr``).
+"""A device specimen of the simulated plant: between the table and the ground, driven by its stroke.
 
-The damper (:class:`rths_numerical.mr_damper.MRDamper`, Spencer et al. 1997)
+The device (a specimen entry's ``device`` in :mod:`rths_numerical.specimens`, e.g.
+the MR damper of Spencer et al. 1997, :class:`rths_numerical.mr_damper.MRDamper`)
 sits between the shake table and the reaction frame: its stroke is the table
-displacement ``x_s``.  Each sample is split into ``mr_substeps`` exact-ZOH
+displacement ``x_s``.  Each sample is split into ``substeps`` exact-ZOH
 sub-steps of the actuator; at every sub-step end the table displacement and
-velocity (actuator states, no differentiation) drive one RK4 step of the
-damper's internal states.  The measured force is the damper force (plus
+velocity (actuator states, no differentiation) advance the device's states
+(``advance(x0, v0, x1, v1, h)``).  The measured force is the device force (plus
 ``frame_mass_kg`` times the table acceleration, 0 by default: the load cell
-sits at the damper's rod).  The damper does not load the actuator (as for the
+sits at the device's rod).  The device does not load the actuator (as for the
 DTM: the actuator model is command -> displacement).
 """
 
@@ -16,22 +17,20 @@ import numpy as np
 from .channels import CHANNELS, zoh
 
 
-class MRTableSpecimen:
-    """Advances a :class:`~.simulated.SimulatedPlant` (bare table) with the MR damper on it."""
+class StrokeTableSpecimen:
+    """Advances a :class:`~.simulated.SimulatedPlant` (bare table) with a device on it."""
 
-    def __init__(self, plant, cfg):
+    def __init__(self, plant, device, substeps: int, name: str):
         """Check the plant (continuous actuator) and precompute the sub-step matrices."""
-        from rths_numerical.mr_damper import MRDamper
-
         if plant.arx is not None:
-            raise ValueError("parameter 'dtm' = 'mr' needs a continuous actuator model "
-                             "('3pole' or '4pole'), not an ARX plant.yaml")
-        if cfg.mr_substeps < 1:
-            raise ValueError(f"parameter 'mr_substeps' = {cfg.mr_substeps} must be >= 1")
+            raise ValueError(f"parameter 'specimen' = {name!r} needs a continuous actuator "
+                             "model ('3pole' or '4pole'), not an ARX plant.yaml")
+        if substeps < 1:
+            raise ValueError(f'specimen {name!r}: sub-steps = {substeps} must be >= 1')
         self.plant = plant
-        self.damper = MRDamper(voltage=cfg.mr_voltage_v)
-        self.h = plant.dt / cfg.mr_substeps
-        self.substeps = cfg.mr_substeps
+        self.damper = device
+        self.h = plant.dt / substeps
+        self.substeps = substeps
         self._ad, bd = zoh(plant.a_c, plant.b_c, self.h)
         self._bd_u = np.ascontiguousarray(bd[:, 0])
         self._c_disp = plant.c[CHANNELS.index('table_disp')].copy()

@@ -1,0 +1,79 @@
+"""Compensator schemes: the registry from a scheme's name to how it is designed.
+
+Each entry names its design function (the function, or ``module:function`` to import it
+on first use; called as
+``function(plant, fs_hz=None, **options)`` and returning a
+:class:`rths_compensator.design.Design`), the options of ``rths design`` it takes,
+and whether ``rths design --auto`` searches it.  The parameters file's ``scheme``
+(validated here, :mod:`.params`), ``rths design --scheme`` and the docs tables take
+their names from :data:`SCHEMES`; docs/extending.md adds a scheme.
+
+The design modules are imported when a design is asked for, not with this
+registry: they pull SciPy's signal and optimize packages (about 1 s), which the
+compensator node, that only validates the name, never needs.
+"""
+
+import importlib
+from typing import Any, NamedTuple
+
+from rths_common.registry import Registry
+
+#: Options every FIR scheme takes (``rths design --taps --fc --epsilon --zero-tol``).
+FIR_OPTIONS = ('n_taps', 'fc_hz', 'epsilon', 'zero_tol')
+#: The least-squares FIR schemes also weigh the compensator's own gain (``--gain-weight``).
+LS_OPTIONS = FIR_OPTIONS + ('gain_weight',)
+
+
+class Scheme(NamedTuple):
+    """One compensator scheme: its design function and the options it takes."""
+
+    summary: str
+    designer: Any = ''          # the function, or 'module:function'; '' = not designed
+    options: tuple = ()         # option names the design function takes
+    fir: bool = False           # an FIR (eq. 28): --auto searches its n and fc
+    auto: bool = False          # one of the candidates of rths design --auto
+
+    def design_function(self):
+        """Return the design function (a ``module:function`` path: imports its module)."""
+        if callable(self.designer):
+            return self.designer
+        module, _, name = self.designer.partition(':')
+        return getattr(importlib.import_module(module), name)
+
+
+#: Scheme name -> entry (the allowed values of the compensator's ``scheme``).
+SCHEMES = Registry('compensator scheme', 'scheme', {
+    'ls': Scheme('FIR by least squares (eq. 28-31)', 'rths_compensator.design:design_ls',
+                 LS_OPTIONS, fir=True, auto=True),
+    'wls': Scheme('FIR by weighted least squares (eq. 32; the seed\'s choice)',
+                  'rths_compensator.design:design_wls', LS_OPTIONS, fir=True, auto=True),
+    'mm': Scheme('FIR by minimax, a linear programme (eq. 33-36)',
+                 'rths_compensator.design:design_mm', FIR_OPTIONS, fir=True, auto=True),
+    'inverse': Scheme('inverse compensation of a pure delay (eq. 1-2)',
+                      'rths_compensator.design:design_inverse_for', ('delay_ms', 'band_hz')),
+    'mff': Scheme('model-based feed-forward from the Table 1 poles (eq. 4)',
+                  'rths_compensator.design:design_mff_for', ('alpha', 'poles')),
+    'npz': Scheme('NPZ-Ignore (eq. 8)', 'rths_compensator.design:design_npz', auto=True),
+    'zpetc': Scheme('modified causal ZPETC (eq. 12)', 'rths_compensator.design:design_zpetc',
+                    auto=True),
+    'zmetc': Scheme('ZMETC (eq. 14)', 'rths_compensator.design:design_zmetc', auto=True),
+    'identity': Scheme('no compensation, G = 1 (rths run --no-compensation)'),
+})
+
+#: The scheme of seed section 6.1 (rths run's default).
+DEFAULT_SCHEME = 'wls'
+
+
+def designed() -> tuple:
+    """Return the names of the schemes ``rths design --scheme`` can design."""
+    return tuple(name for name, s in SCHEMES.items() if s.designer)
+
+
+def fir_schemes() -> tuple:
+    """Return the names of the FIR schemes (eq. 28)."""
+    return tuple(name for name, s in SCHEMES.items() if s.fir)
+
+
+def auto_schemes() -> tuple:
+    """Return the names of the schemes ``rths design --auto`` compares."""
+    return tuple(name for name, s in SCHEMES.items() if s.auto)
