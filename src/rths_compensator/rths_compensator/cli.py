@@ -84,7 +84,7 @@ def register(commands, benches):
                         'prediction')
     p.set_defaults(func=cmd_identify)
 
-    from .design import DESIGN_DEFAULTS as DD
+    from .schemes import DESIGN_DEFAULTS as DD
     p = commands.add_parser(
         'design', help='design a delay compensator from plant.yaml -> ROS 2 parameters file',
         description='Design the FIR compensator (ls, wls, mm; eq. 28-36) or a comparison '

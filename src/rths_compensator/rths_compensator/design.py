@@ -57,20 +57,14 @@ from scipy import linalg, optimize, signal
 from .identification import ArxModel, factor_zeros
 from .indicators import time_delay_ms
 from .plants import actuator_poles
-from .schemes import DEFAULT_SCHEME, SCHEMES, auto_schemes, designed, fir_schemes
+from .schemes import DESIGN_DEFAULTS, SCHEMES, auto_schemes, designed, fir_schemes
 
 #: The FIR schemes and every designed scheme, from the registry (:mod:`.schemes`).
 FIR_SCHEMES = fir_schemes()
 ALL_SCHEMES = designed()
 
 #: Default passband tolerance epsilon on |T_com - 1| (eq. 35-36); the seed gives no value.
-DEFAULT_EPSILON = 0.002
-
-#: The design defaults of ``rths design`` and ``rths run`` (their one definition): the
-#: seed's RTHS compensator (section 6.1: WLS, n = 400, fc = 10 Hz) with a small weight on
-#: the compensator's own gain above the passband (:func:`_with_gain_rows`).
-DESIGN_DEFAULTS = {'scheme': DEFAULT_SCHEME, 'n_taps': 400, 'fc_hz': 10.0,
-                   'epsilon': DEFAULT_EPSILON, 'gain_weight': 1e-6, 'zero_tol': 1.0}
+DEFAULT_EPSILON = DESIGN_DEFAULTS['epsilon']
 
 
 def default_grid(fs_hz: float) -> int:

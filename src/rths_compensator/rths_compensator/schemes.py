@@ -63,6 +63,13 @@ SCHEMES = Registry('compensator scheme', 'scheme', {
 #: The scheme of seed section 6.1 (rths run's default).
 DEFAULT_SCHEME = 'wls'
 
+#: The design defaults of ``rths design`` and ``rths run`` (their one definition): the
+#: seed's RTHS compensator (section 6.1: WLS, n = 400, fc = 10 Hz; epsilon, the passband
+#: tolerance of eq. 35-36, has no value in the seed) with a small weight on the
+#: compensator's own gain above the passband (``design._with_gain_rows``).
+DESIGN_DEFAULTS = {'scheme': DEFAULT_SCHEME, 'n_taps': 400, 'fc_hz': 10.0, 'epsilon': 0.002,
+                   'gain_weight': 1e-6, 'zero_tol': 1.0}
+
 
 def designed() -> tuple:
     """Return the names of the schemes ``rths design --scheme`` can design."""
