@@ -40,6 +40,10 @@ UNITS = {
     'v': 1.0, 'a': 1.0, 'hz': 1.0,
 }
 
+#: Units a lab's displacement and time columns may be given in (``rths identify`` options).
+LENGTH_UNITS = ('m', 'mm', 'in')
+TIME_UNITS = ('s', 'ms')
+
 _HEADER = re.compile(r'^\s*(?P<name>[^\[\]]*?)\s*(\[(?P<unit>[^\]]*)\])?\s*$')
 #: A unit in parentheses, as DAQ software writes it (``Disp (mm)``): taken only when known.
 _PAREN_UNIT = re.compile(r'^\s*(?P<name>.*?)\s*\((?P<unit>[^()]*)\)\s*$')

@@ -9,7 +9,7 @@
 
 import sys
 
-from rths_common.columns import read_columns
+from rths_common.columns import LENGTH_UNITS, TIME_UNITS, read_columns
 
 from .schemes import SCHEMES, designed
 
@@ -49,10 +49,10 @@ def register(commands, benches):
                    help='CSV: the time, command and measured-displacement columns, by header '
                         'name or 0-based index (default time,command,measured), e.g. '
                         '"Time,Cmd,Disp" or 0,1,2')
-    p.add_argument('--time-unit', choices=('s', 'ms'), default=None,
+    p.add_argument('--time-unit', choices=TIME_UNITS, default=None,
                    help='CSV: unit of the time column (default: from the header, e.g. '
                         '"Time (ms)" or "time [s]", else s)')
-    p.add_argument('--length-unit', choices=('m', 'mm', 'in'), default=None,
+    p.add_argument('--length-unit', choices=LENGTH_UNITS, default=None,
                    help='CSV: unit of the command and measured columns (default: from the '
                         'header, e.g. "Cmd (mm)", else m)')
     p.add_argument('--out', required=True, help='plant file to write (YAML)')
@@ -309,8 +309,9 @@ def identification_text(ident) -> str:
         f'({info["method"]}, {info["criterion"]})',
         f'validation fit on the held-out {val["n_validation"] / m.fs_hz:.4g} s: simulation '
         f'NRMSE {val["nrmse_pct"]:.3f} % (in band 0-{info["band_hz"]:.3g} Hz: '
-        f'{val["nrmse_band_pct"]:.3f} %); frequency response within {val["frf_error_pct"]:.2f} % '
-        f'of the record\'s ({val["frf_error_sigma"]:.1f} x its standard deviation)',
+        f'{val["nrmse_band_pct"]:.3f} %); frequency response at most {val["frf_error_sigma"]:.1f} '
+        f'standard deviations from the record\'s, {val["frf_error_pct"]:.2f} % beyond its '
+        '+-2 std band',
         '  candidates: ' + '; '.join(info['candidates'][:4]),
     ]
     lines += [f'WARNING: {w}' for w in ident.warnings]

@@ -77,9 +77,9 @@ def design_default(plant, **overrides) -> 'Design':
     opts = dict(DESIGN_DEFAULTS, **overrides)
     scheme = opts.pop('scheme')
     fs = plant_polynomials(plant, opts.pop('fs_hz', None))[3]
-    if scheme in ('ls', 'wls'):
+    if 'gain_weight' in SCHEMES.entry(scheme).options:      # the least-squares schemes
         opts.setdefault('n_grid', default_grid(fs))
-    elif scheme == 'mm':
+    else:
         opts.pop('gain_weight', None)
     return design_fir(plant, fs_hz=None if isinstance(plant, ArxModel) else fs,
                       scheme=scheme, **opts)
