@@ -31,6 +31,12 @@ MSG_FIELDS = {
                    'safety_state': 2, 'fault': 'stroke limit: command 0.31 m > 0.254 m'},
     'Specimen': {'step': 11, 'table_accel': [0.75, -0.5], 'rel_disp': [0.003, -0.001],
                  'rel_vel': [0.04, -0.02]},
+    'ControllerStatus': {'step': 12, 'address': '192.168.1.20:5005', 'protocol_version': 2,
+                         'replies': 10230, 'replies_lost': 21, 'replies_late': 52,
+                         'replies_malformed': 1, 'replies_duplicate': 3,
+                         'replies_out_of_order': 4, 'datagrams_foreign': 5, 'restarts': 1,
+                         'worst_reply_ms': 2.375, 'status': 5,
+                         'fault': 'controller fault at step 7: command limit: stroke'},
 }
 
 #: Every field of every service: (request, response).

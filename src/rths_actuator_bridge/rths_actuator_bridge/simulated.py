@@ -606,7 +606,7 @@ class SimulatedBackend(Backend):
         m = self._last = self.plant.measure()
         return float(m['table_disp']), float(m['force']), m
 
-    def _read(self):
+    def _read(self, wait_s=None):
         if self._last is None:
             raise RuntimeError('read() before the first write()')
         m = self._last

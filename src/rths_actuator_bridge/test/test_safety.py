@@ -221,9 +221,10 @@ def test_lost_measurements_trip_after_the_configured_count():
     sup = SafetySupervisor(LIM)
     sup.activate(0.0)
     sup.filter(0, 0.0)
-    for _ in range(LIM.max_invalid_measurements - 1):
+    for _ in range(LIM.max_invalid_measurements):     # up to the limit: filled, no trip
         assert sup.check_measurement([np.nan], [np.nan]) == ''
-    assert 'measurement lost' in sup.check_measurement([np.nan], [np.nan])
+    assert sup.state == safety.ACTIVE
+    assert 'measurement lost' in sup.check_measurement([np.nan], [np.nan])   # one more
 
 
 def test_instability_detector_growing_force_oscillation():
@@ -454,7 +455,7 @@ def test_lost_measurements_through_the_bridge_hold_ramp_stop_and_deactivate():
     """The sensors go dead (non-finite readings) and never come back."""
     u = _offset_sine(4000, 0.004, 2.0)
     first = int(round(FS * 3 / 8 / 2.0))    # the trip falls on a velocity peak: HOLD must brake
-    dead_from = first - (4 - 1)
+    dead_from = first - 4          # 4 invalid readings are filled, the 5th trips
 
     def kill_sensors(bridge):
         plant = bridge.backend.plant
@@ -468,9 +469,13 @@ def test_lost_measurements_through_the_bridge_hold_ramp_stop_and_deactivate():
         plant.measure = dead_after
 
     b, results = _bridge_to_stop({'max_invalid_measurements': 4}, u, kill_sensors)
-    assert b.supervisor.fault == 'measurement lost: 4 non-finite readings in a row (limit 4)'
-    assert all(np.isfinite(r.displacement[0]) for r in results[:dead_from])
-    assert all(np.isnan(r.displacement[0]) for r in results[dead_from:])
+    assert b.supervisor.fault == ('measurement lost: non-finite readings: 5 in a row (more '
+                                  'than max_invalid_measurements 4)')
+    assert all(np.isfinite(r.displacement[0]) and not r.filled for r in results[:dead_from])
+    # the gap policy holds the last valid reading in every dead step (the published values)
+    held = results[dead_from - 1]
+    assert all(r.filled == 1 and r.displacement[0] == held.displacement[0]
+               and r.force[0] == held.force[0] for r in results[dead_from:])
     _check_safe_stop(b, results, u, first)
     # the trip came at full speed: the hold braked at the acceleration limit over many steps
     v = np.diff([r.applied[0] for r in results[first - 1:]]) * FS

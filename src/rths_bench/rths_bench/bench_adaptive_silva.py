@@ -18,11 +18,11 @@ import time
 
 import numpy as np
 
-from rths_compensator.methods import METHODS
+from rths_compensator.methods import compensator_names
 
 from . import rths_benchmark as rb
 
-METHOD_NAMES = METHODS.names()
+METHOD_NAMES = compensator_names()
 NAME = 'silva2020_perturbed'
 #: Band of the delay estimate (eq. 42) [Hz]: the records' energy lies below it.
 DELAY_BAND_HZ = 10.0

@@ -45,8 +45,12 @@ from scipy import signal
 from scipy.linalg import expm
 
 from rths_actuator_bridge.bridge import DEFAULT_BACKEND
+from rths_common import datasets
 from rths_compensator.methods import adaptive_names
 from rths_compensator.schemes import fir_schemes
+
+#: The FIR design scheme of the benchmark's ``fir`` controller (least squares, eq. 28).
+BENCHMARK_SCHEME = 'ls'
 
 #: Published J1-J9 of the example controller, El Centro x 0.4 (Silva et al. 2020, Table 3;
 #: preprint "Benchmark_Control_Problem_for_Real_time_Hybrid_Simulation_Updated_V23.pdf" in
@@ -63,7 +67,9 @@ J_NAMES = tuple(f'J{i}' for i in range(1, 10))
 RECORDS = {'elcentro': ('ElCentroAccelNoScaling.mat', 0.4),
            'kobe': ('KobeAccelNoScaling.mat', 0.4),
            'morganhill': ('MorganAccelNoScaling.mat', 0.4)}
-DATA_ENV = 'RTHS_DATA_DIR'
+DATA_ENV = datasets.DATA_ENV
+#: Prefix of the seed's public records (from the PyPI package gmspy): ``gmspy:kobe``.
+GMSPY_PREFIX = 'gmspy:'
 CASES = ('1', '2', '3', '4')
 #: Example controller (paper eq. 23-24): PI gains and phase lead G_T(s).
 EXAMPLE_KP, EXAMPLE_KI = 2.0, 95.0
@@ -83,7 +89,7 @@ def _log(msg):
 def record_path(record: str, data_dir: str = None) -> str:
     """File of ``record`` (a name of :data:`RECORDS` or a path); OSError naming the fix."""
     if record in RECORDS:
-        base = data_dir or os.environ.get(DATA_ENV)
+        base = data_dir or datasets.data_dir()
         if not base:
             raise OSError(f'record {record!r}: set {DATA_ENV} (or --data-dir) to the directory '
                           f'holding {RECORDS[record][0]} (the benchmark code package, '
@@ -98,7 +104,21 @@ def record_path(record: str, data_dir: str = None) -> str:
 
 
 def load_record(record: str, data_dir: str = None):
-    """``(time [s], acceleration [m/s^2], default scale)`` of a record, unscaled."""
+    """``(time [s], acceleration [m/s^2], default scale)`` of a record, unscaled.
+
+    ``gmspy:NAME`` is one of the seed's public records (kobe, northridge,
+    imperial_valley; :mod:`rths_numerical.ground_motion`), default scale 1: for labs
+    without the benchmark's files (their PGA differs from El Centro's: set a scale).
+    """
+    if record.startswith(GMSPY_PREFIX):
+        from rths_numerical.ground_motion import RECORDS as SEED_RECORDS
+        from rths_numerical.ground_motion import load_record as load_seed_record
+        name = record[len(GMSPY_PREFIX):]
+        if name not in SEED_RECORDS:
+            raise ValueError(f'record {record!r}: use {GMSPY_PREFIX} with one of '
+                             f'{", ".join(SEED_RECORDS)}')
+        dt, acc = load_seed_record(name)
+        return np.arange(acc.size) * dt, np.asarray(acc, float), 1.0
     path = record_path(record, data_dir)
     if path.endswith('.mat'):
         from scipy.io import loadmat
@@ -265,7 +285,7 @@ def target_lowpass(order: int, cutoff_hz: float, fs_hz: float):
 
 def _identify_once(seed: int = 7, record_s: float = 20.0, band_hz: float = 50.0,
                    peak_m: float = 10e-3, prefilter_hz: float = 100.0, n_taps: int = 200,
-                   fc_hz: float = 30.0, scheme: str = 'ls', epsilon: float = 0.002,
+                   fc_hz: float = 30.0, scheme: str = BENCHMARK_SCHEME, epsilon: float = 0.002,
                    lowpass_order: int = 4, lowpass_hz: float = 400.0,
                    na_min: int = 4, na_max: int = 8, nb_max: int = 1, d_min: int = 0,
                    d_max: int = 4,
@@ -399,9 +419,20 @@ def _plant_batch(params_list, dt, seed):
     return plants, ad, bd, cx, cf
 
 
-def run_batch(runs, ag, controller, seed: int = 0, progress=None) -> dict:
+def run_noise(seed: int, n: int):
+    """``(displacement [m], force [N])`` sensor noise of one run: ``n`` samples each."""
+    from rths_actuator_bridge.silva2020 import DISPLACEMENT_NOISE_M, FORCE_NOISE_N
+    rng = np.random.default_rng(seed)
+    return (DISPLACEMENT_NOISE_M * rng.standard_normal(n),
+            FORCE_NOISE_N * rng.standard_normal(n))
+
+
+def run_batch(runs, ag, controller, seed: int = 0, progress=None, seeds=None) -> dict:
     """Run every ``(case, plant_params)`` of ``runs`` under ``ag`` (4096 Hz) in lock-step.
 
+    Sensor noise: one stream seeded ``seed`` for the whole batch, or, given ``seeds`` (one
+    per run), each run's own stream (:func:`run_noise`), so that a run gives the same
+    numbers alone as in any batch (the study runner's chunks rely on it).
     Returns arrays (runs x N): ``y_n`` (N x 3 floors per run), ``x_m``, ``u``.
     """
     from rths_actuator_bridge.silva2020 import DISPLACEMENT_NOISE_M, FORCE_NOISE_N, FS_HZ
@@ -413,9 +444,15 @@ def run_batch(runs, ag, controller, seed: int = 0, progress=None) -> dict:
             for c, p in runs]
     an = np.stack([m[0] for m in mats])
     bf, b0, b1 = (np.stack([m[i] for m in mats]) for i in (1, 2, 3))
-    rng = np.random.default_rng(seed)
-    noise_x = DISPLACEMENT_NOISE_M * rng.standard_normal((n, batch))
-    noise_f = FORCE_NOISE_N * rng.standard_normal((n, batch))
+    if seeds is None:
+        rng = np.random.default_rng(seed)
+        noise_x = DISPLACEMENT_NOISE_M * rng.standard_normal((n, batch))
+        noise_f = FORCE_NOISE_N * rng.standard_normal((n, batch))
+    else:
+        if len(seeds) != batch:
+            raise ValueError(f'run_batch: {len(seeds)} seeds for {batch} runs')
+        noise_x, noise_f = (np.stack(cols, axis=1)
+                            for cols in zip(*(run_noise(s, n) for s in seeds), strict=True))
     xp = np.zeros((batch, ad.shape[1], 1))
     z = np.zeros((batch, an.shape[1], 1))
     f_prev = np.zeros(batch)
@@ -684,19 +721,22 @@ def plants_of(info, fs_hz):
 
 
 # ----------------------------------------------------------------------------- the bench
-def make_controller(name: str, batch: int, dt: float, fir_options: dict = None, log=_log):
+def make_controller(name: str, batch: int, dt: float, fir_options: dict = None, log=_log,
+                    designed=None):
     """Build controller ``name`` (example, fir or an adaptive method) for ``batch`` runs.
 
     ``rls_fir``, ``ats`` and ``amb`` start from the same identification and FIR design
-    as ``fir`` (:class:`MethodController`, one method per run).
+    as ``fir`` (:class:`MethodController`, one method per run).  ``designed``: the
+    ``(design, info)`` of :func:`identify_and_design` with ``fir_options``, when the
+    caller already has it (the study runner keeps one per worker).
     """
     if name == 'example':
         return ExampleController(dt, batch)
+    if name in ('fir',) + ADAPTIVE_CONTROLLERS:
+        design, info = designed or identify_and_design(log=log, **(fir_options or {}))
     if name == 'fir':
-        design, info = identify_and_design(log=log, **(fir_options or {}))
         return FirController(design, batch, info)
     if name in ADAPTIVE_CONTROLLERS:
-        design, info = identify_and_design(log=log, **(fir_options or {}))
         design_plant, identified = plants_of(info, 1.0 / dt)
         return MethodController(name, design, design_plant if name == 'rls_fir'
                                 else identified, batch, info=info)
@@ -711,14 +751,13 @@ def run_benchmark(controller: str = 'example', record: str = 'elcentro', n_draws
 
     Returns the summary dict (issue 13 layout) plus ``_extra`` (time histories).
     """
-    from rths_actuator_bridge.silva2020 import FS_HZ, Silva2020Params, perturbed
+    from rths_actuator_bridge.silva2020 import FS_HZ, Silva2020Params
     dt = 1.0 / FS_HZ
     t0, c0 = time.perf_counter(), time.process_time()
     t, ag = ground_acceleration(record, FS_HZ, data_dir=data_dir, duration_s=duration_s)
-    rng = np.random.default_rng(seed)
     nominal = Silva2020Params()
     runs = [(c, nominal) for c in cases]
-    draws = [perturbed(rng) for _ in range(n_draws)]
+    draws = perturbed_draws(n_draws, seed)
     runs += [('1', p) for p in draws]
     log(f'rths-benchmark: controller {controller}, record {record} ({t[-1]:.2f} s, '
         f'{len(t)} steps at {FS_HZ:g} Hz), {len(cases)} cases + {n_draws} perturbed plants '
@@ -740,10 +779,7 @@ def run_benchmark(controller: str = 'example', record: str = 'elcentro', n_draws
         n_unstable += bad
         if not bad:
             pj.append(criteria(out['x_m'][i], out['y_n'][i], refs['1'], dt))
-    summary['perturbed'] = {
-        'n': n_draws, 'J1_max': max((j['J1'] for j in pj), default=None),
-        'J2_max': max((j['J2'] for j in pj), default=None),
-        'J3_max': max((j['J3'] for j in pj), default=None), 'unstable': int(n_unstable)}
+    summary['perturbed'] = perturbed_summary(n_draws, pj, n_unstable)
     summary['settings'] = {'record': record, 'scale': RECORDS.get(record, (None, 1.0))[1],
                            'duration_s': float(t[-1]), 'fs_hz': FS_HZ, 'seed': seed,
                            'controller': ctrl.describe(), 'loop_s': round(loop_s, 2),
@@ -751,10 +787,29 @@ def run_benchmark(controller: str = 'example', record: str = 'elcentro', n_draws
                            'cpu_s': round(time.process_time() - c0, 2),
                            'load_average_1min': round(os.getloadavg()[0], 2)}
     summary['command'] = {c: command_stats(out['u'][i], FS_HZ) for i, c in enumerate(cases)}
-    summary['draws'] = [{k: round(float(getattr(p, k)), 6) for k in ('b1', 'b2', 'a3', 'k_e')}
-                        for p in draws]
+    summary['draws'] = [draw_record(p) for p in draws]
     summary['_extra'] = {'t': t, 'ag': ag, 'out': out, 'refs': refs, 'cases': list(cases)}
     return summary
+
+
+def perturbed_draws(n: int, seed: int) -> list:
+    """Draw the ``n`` perturbed plants of case 1 with ``seed`` (paper section 4.3)."""
+    from rths_actuator_bridge.silva2020 import perturbed
+    rng = np.random.default_rng(seed)
+    return [perturbed(rng) for _ in range(n)]
+
+
+def draw_record(params) -> dict:
+    """Return the drawn parameters of one perturbed plant, for the JSON."""
+    return {k: round(float(getattr(params, k)), 6) for k in ('b1', 'b2', 'a3', 'k_e')}
+
+
+def perturbed_summary(n: int, stable: list, n_unstable: int) -> dict:
+    """Return the ``perturbed`` block: J1-J3 maxima over the stable draws, unstable count."""
+    return {'n': n, 'J1_max': max((j['J1'] for j in stable), default=None),
+            'J2_max': max((j['J2'] for j in stable), default=None),
+            'J3_max': max((j['J3'] for j in stable), default=None),
+            'unstable': int(n_unstable)}
 
 
 def comparison(summary: dict, published: dict = None) -> dict:
@@ -863,7 +918,8 @@ def write_outputs(summary: dict, directory: str, plots: bool = True) -> list:
 
 
 # ----------------------------------------------------------------------------- CLI
-def _cases(text: str) -> tuple:
+def parse_cases(text: str) -> tuple:
+    """Return the cases of ``--cases`` (a comma-separated subset of 1,2,3,4)."""
     cases = tuple(c.strip() for c in text.split(',') if c.strip())
     bad = [c for c in cases if c not in CASES]
     if bad or not cases:
@@ -871,12 +927,18 @@ def _cases(text: str) -> tuple:
     return cases
 
 
+def fir_options(args) -> dict:
+    """Return the FIR design options of the command line (as identify_and_design names them)."""
+    return {'n_taps': args.taps, 'fc_hz': args.fc, 'scheme': args.scheme,
+            'epsilon': args.epsilon, 'lowpass_hz': args.lowpass}
+
+
 def _cmd(args) -> int:
-    fir = {'n_taps': args.taps, 'fc_hz': args.fc, 'scheme': args.scheme,
-           'epsilon': args.epsilon, 'lowpass_hz': args.lowpass}
+    fir = fir_options(args)
     if args.via == 'loop':
         summary = run_benchmark(args.controller, args.record, args.draws, args.seed,
-                                args.duration or None, args.data_dir, fir, _cases(args.cases))
+                                args.duration or None, args.data_dir, fir,
+                                parse_cases(args.cases))
     elif args.controller != 'fir':
         raise ValueError(f'--via {args.via} runs the feed-forward fir controller only: the '
                          'example controller needs the measured displacement in the '
@@ -885,8 +947,13 @@ def _cmd(args) -> int:
                          '--adaptive)')
     else:
         summary = run_graph_benchmark(args.via, args.record, args.data_dir, args.out,
-                                      _cases(args.cases), args.duration or None, args.seed,
-                                      fir)
+                                      parse_cases(args.cases), args.duration or None,
+                                      args.seed, fir)
+    return print_outputs(summary, args)
+
+
+def print_outputs(summary: dict, args) -> int:
+    """Print the table, write the outputs into ``args.out`` and print the times."""
     print(table_markdown(summary))
     for f in write_outputs(summary, args.out, plots=not args.no_plots):
         print(f'wrote {f}')
@@ -917,7 +984,9 @@ def register(commands, benches):
     p.add_argument('--out', required=True, help='output directory')
     p.add_argument('--record', default='elcentro',
                    help='elcentro (default), kobe, morganhill (x 0.4, from the data '
-                        'directory), or a file path (unscaled)')
+                        'directory), gmspy:imperial_valley, gmspy:kobe, gmspy:northridge (the '
+                        "seed's public records, no data directory needed, unscaled) or a file "
+                        'path (unscaled)')
     p.add_argument('--data-dir', default=None,
                    help=f'directory of the records (default ${DATA_ENV})')
     p.add_argument('--draws', type=int, default=20, help='perturbed plants of case 1 (>= 20 '
@@ -926,7 +995,7 @@ def register(commands, benches):
     p.add_argument('--duration', type=float, default=0.0, help='shorten the record [s]; 0 = all')
     p.add_argument('--taps', type=int, default=200, help='fir: number of taps n')
     p.add_argument('--fc', type=float, default=30.0, help='fir: passband edge [Hz]')
-    p.add_argument('--scheme', default='ls', choices=fir_schemes(), help='fir: scheme')
+    p.add_argument('--scheme', default=BENCHMARK_SCHEME, choices=fir_schemes(), help='fir: scheme')
     p.add_argument('--lowpass', type=float, default=400.0,
                    help='fir: cut-off [Hz] of the target low-pass (order 4) that bounds |G|')
     p.add_argument('--epsilon', type=float, default=0.002, help='fir: passband tolerance')

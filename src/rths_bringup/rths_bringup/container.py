@@ -120,7 +120,7 @@ def tee_publishers(shells, fd: int, n_steps: int):
     enlarge_pipe(fd)
     tee = Tee(fd, capacity=TEE_RECORDS_PER_STEP * n_steps + TEE_SLACK_RECORDS)
     for shell in shells:
-        for attr in ('pub', 'status_pub', 'specimen_pub', 'coef_pub'):
+        for attr in ('pub', 'status_pub', 'specimen_pub', 'coef_pub', 'controller_pub'):
             publisher = getattr(shell, attr, None)
             if publisher is not None:
                 setattr(shell, attr, TeePublisher(publisher, tee))

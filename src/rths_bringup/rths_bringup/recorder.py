@@ -88,7 +88,8 @@ class Recorder:
         for topic, msgtype in topics.LOOP_TOPICS.items():
             if topic in teed and topic != topics.EMERGENCY_STOP:
                 continue   # the container's tee brings every one of these
-            qos = status_qos() if topic in (topics.STATUS, topics.SPECIMEN) else recorder_qos(mode)
+            qos = (status_qos() if topic in (topics.STATUS, topics.SPECIMEN, topics.CONTROLLER)
+                   else recorder_qos(mode))
             self.node.create_subscription(ns.message_class(msgtype), topic,
                                           self._callback(topic), qos, raw=True)
         tuning = self.tune()

@@ -28,6 +28,16 @@ _STYLE = ('body{font-family:sans-serif;max-width:60em;margin:1em auto;color:#222
 _INCH = 0.0254
 
 
+def specimen_title(s: dict) -> str:
+    """Return the specimen as a review's title names it (``valve4``, ``external ... H:P``)."""
+    return s.get('specimen_label') or s['specimen']
+
+
+def row_label(s: dict) -> str:
+    """Return the specimen as a table row names it: its name, or ``external``."""
+    return 'external' if s.get('specimen') == 'external controller' else s['specimen']
+
+
 def _table(caption: str, header, rows) -> str:
     cells = ''.join(f'<th>{html.escape(str(h))}</th>' for h in header)
     body = ''.join('<tr>' + ''.join(f'<td>{html.escape(str(c))}</td>' for c in row) + '</tr>'
@@ -36,7 +46,10 @@ def _table(caption: str, header, rows) -> str:
 
 
 def tables(s: dict) -> str:
-    """Tables 5-9 of a review summary (:func:`rths_bringup.review.review_rths`) as HTML."""
+    """Return tables 5-9 of a review summary (:func:`rths_bringup.review.review_rths`) as HTML.
+
+    A site review (``kind`` site) has table 5 only: its model ran in the client.
+    """
     out = _table('Table 5 layout: actuator time delay and relative RMS tracking error',
                  ('', 'before compensation', 'after compensation'),
                  (('time delay [ms]', f"{s['delay_ms_before']:.3f}", f"{s['delay_ms_after']:.3f}"),
@@ -44,6 +57,9 @@ def tables(s: dict) -> str:
                    f"{s['tracking_rel_rms_pct_after']:.2f}")))
     out += ('<p>before: plant input &rarr; output; after: interface displacement &rarr; '
             'output</p>\n')
+    if s.get('kind') == 'site':
+        return out + ('<p>Tables 6-9 need the numerical model, which ran in the client '
+                      '(OpenSees/OpenFresco): not part of a site review.</p>\n')
     out += _table(
         'Tables 6-8 layout: 2nd-floor displacement',
         ('model', 'max [m]', 'max [in]', 'red. [%]', 'RMS [m]', 'RMS [in]', 'red. [%]'),
@@ -51,13 +67,26 @@ def tables(s: dict) -> str:
           f"{s['uncontrolled_max_disp_2nd_m'] / _INCH:.4f}", '-',
           f"{s['uncontrolled_rms_disp_2nd_m']:.4e}",
           f"{s['uncontrolled_rms_disp_2nd_m'] / _INCH:.4f}", '-'),
-         (f"RTHS ({s['specimen']})", f"{s['max_disp_2nd_m']:.4e}",
+         (f"RTHS ({row_label(s)})", f"{s['max_disp_2nd_m']:.4e}",
           f"{s['max_disp_2nd_m'] / _INCH:.4f}", f"{s['reduction_max_pct']:.1f}",
           f"{s['rms_disp_2nd_m']:.4e}", f"{s['rms_disp_2nd_m'] / _INCH:.4f}",
           f"{s['reduction_rms_pct']:.1f}")))
+    error = s['rths_vs_reference_rel_rms_pct']
     out += _table('Table 9 layout: RTHS vs whole-numerical reference',
                   ('actuator time delay [ms]', 'relative RMS error [%]'),
-                  ((f"{s['delay_ms_after']:.3f}", f"{s['rths_vs_reference_rel_rms_pct']:.2f}"),))
+                  ((f"{s['delay_ms_after']:.3f}",
+                    f'{error:.2f}' if error is not None else
+                    'none: no model of the external controller\'s specimen'),))
+    c = s.get('controller')
+    if c:
+        out += _table(f"Servo controller {c['address']} (protocol version "
+                      f"{c['protocol_version']})",
+                      ('replies used', 'lost', 'late', 'malformed', 'restarts',
+                       'worst reply [ms]'),
+                      ((c['replies'], c['replies_lost'], c['replies_late'],
+                        c['replies_malformed'], c['restarts'], f"{c['worst_reply_ms']:.3f}"),))
+        if c.get('fault'):
+            out += f"<p>controller fault: {html.escape(c['fault'])}</p>\n"
     return out
 
 
@@ -70,7 +99,9 @@ def _figure(name: str, data: bytes, caption: str) -> str:
 def render(summary: dict, images: dict) -> str:
     """Return the whole page; ``images`` maps a plot's file name to its PNG bytes."""
     s = summary
-    title = (f"RTHS review: {s['record']} x {s['scale']}, specimen {s['specimen']}, {s['mode']}, "
+    what = (f"site review: backend {s['backend']}"
+            if s.get('kind') == 'site' else f"RTHS review: {s['record']} x {s['scale']}")
+    title = (f"{what}, specimen {specimen_title(s)}, {s['mode']}, "
              f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)")
     misses = f"deadline misses: {s['deadline_misses']} ({s['deadline_miss_pct']:.3f} %)"
     faults = ''.join(f'<li>{html.escape(f)}</li>' for f in s.get('safety_faults', []))

@@ -92,6 +92,49 @@ DELAY_BAND_HZ = 10.0
 ZOOM_S = 3.0
 #: The plot of a hysteretic specimen's measured force against its stroke (report_html.PLOTS).
 HYSTERESIS_PNG = 'specimen_hysteresis.png'
+#: ``specimen`` of a run through a servo controller (a backend outside the bridge process).
+EXTERNAL = 'external controller'
+#: Counts of an external controller in ``summary['controller']`` (rths_msgs/ControllerStatus).
+CONTROLLER_KEYS = ('replies_lost', 'replies_late', 'replies_malformed', 'restarts',
+                   'worst_reply_ms', 'replies', 'replies_duplicate', 'replies_out_of_order',
+                   'datagrams_foreign', 'protocol_version', 'address', 'fault')
+
+
+def external_controller(bridge: dict) -> str:
+    """Return ``'external controller HOST:PORT'`` for a run through a servo controller, else ''.
+
+    Any backend whose plant does not live in the bridge's process drives a lab's actuator
+    and specimen through its controller: the review has no model of them.
+    """
+    from rths_actuator_bridge.bridge import backend_class
+    try:
+        in_process = backend_class(bridge).in_process
+    except ValueError:       # a backend this installation does not know: not in the process
+        in_process = False
+    if in_process:
+        return ''
+    return f"{EXTERNAL} {bridge.get('host', '?')}:{bridge.get('port', '?')}"
+
+
+def controller_counts(bag):
+    """Return the last ``/rths/controller`` counts of a bag as a dict, or None if none."""
+    last = None
+    for _, _, msg in bagio.read_messages(bag, [topics.CONTROLLER]):
+        last = msg
+    if last is None:
+        return None
+    out = {key: getattr(last, key) for key in CONTROLLER_KEYS}
+    out['worst_reply_ms'] = round(float(out['worst_reply_ms']), 3)
+    return {k: (int(v) if isinstance(v, (int, np.integer)) else v) for k, v in out.items()}
+
+
+def controller_text(c: dict) -> str:
+    """One line of an external controller's counts (review text and report)."""
+    text = (f"controller {c['address']} (protocol version {c['protocol_version']}): "
+            f"replies lost {c['replies_lost']}, late {c['replies_late']}, malformed "
+            f"{c['replies_malformed']}, restarts {c['restarts']}, worst reply "
+            f"{c['worst_reply_ms']:.3f} ms ({c['replies']} used)")
+    return text + (f"; fault: {c['fault']}" if c.get('fault') else '')
 
 
 def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ,
@@ -135,45 +178,12 @@ def _numerical_params(info: dict) -> dict:
     return core_params(runinfo.section(info, 'numerical'))
 
 
-#: Stages of :func:`review_rths` reported to its ``progress``.
-REVIEW_STAGES = 4
+def _tracking(bag, fs):
+    """Return desired, applied (shifted by the delay line), measured up to a safety trip.
 
-
-def review_rths(bag, out_dir, progress=None) -> dict:
-    """Tables 5-9 of an RTHS bag: JSON summary, text report, PNG plots and ``report.html``.
-
-    ``report.html`` (:mod:`rths_bringup.report_html`) holds the tables and every
-    plot in one self-contained file.  ``progress(done, 4)`` follows the stages: bag
-    read, references simulated, plots drawn, report written.
+    Also the measurement arrays, the bridge's status and the step count ``n``.
+    ValueError if the bag holds under 2 s or lost messages.
     """
-    stage = progress or (lambda done, total: None)
-    import json
-
-    from rths_common import runinfo
-    from rths_compensator.indicators import relative_rms_pct
-    from rths_numerical.model import LinearModel
-    from rths_numerical.reference import (
-        relative_rms_error,
-        simulate_reference,
-        simulate_uncontrolled,
-    )
-    from rths_numerical.substructure import make_substructure
-
-    bag, out_dir = Path(bag), Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    info = bagio.run_info(bag)
-    if info.get('kind') != 'rths':
-        raise ValueError(f'{bag}: not an RTHS run bag (run information kind = '
-                         f'{info.get("kind")!r}); record it with rths run')
-    fs = bagio.sampling_rate(bag)
-    numerical = _numerical_params(info)
-    bridge = runinfo.section(info, 'bridge')
-    compensator = runinfo.section(info, 'compensator')
-    sub = make_substructure(numerical)
-    model = sub.model
-    if sub.iface != [model.output_dof]:
-        raise ValueError('the review needs the output DOF to be the interface DOF')
-
     disp = bagio.step_arrays(bag, topics.INTERFACE_DISPLACEMENT, ('displacement',))
     meas = bagio.step_arrays(bag, topics.MEASUREMENT, ('applied', 'displacement', 'force'))
     n = int(min(disp['step'].size, meas['step'].size))
@@ -199,26 +209,85 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     if not ok.all():
         n = int(np.argmin(ok))
         desired, applied, measured = desired[:n], applied[:n], measured[:n]
-    stage(1, REVIEW_STAGES)
+    return desired, applied, measured, meas, status, n
 
+
+def table5_of(desired, applied, measured, fs) -> dict:
+    """Return table 5: delay and tracking of the plant (command) and the compensated actuator."""
+    from rths_compensator.indicators import relative_rms_pct
     # Table 5: the plant (command -> measured; with D > 0 it includes the D-step delay line)
     # and the compensated actuator (desired -> measured)
-    table5 = {
+    return {
         'delay_ms_before': weighted_delay_ms(applied, measured, fs),
         'delay_ms_after': weighted_delay_ms(desired, measured, fs),
         'tracking_rel_rms_pct_before': relative_rms_pct(applied, measured),
         'tracking_rel_rms_pct_after': relative_rms_pct(desired, measured),
     }
+
+
+#: Stages of :func:`review_rths` reported to its ``progress``.
+REVIEW_STAGES = 4
+
+
+def review_rths(bag, out_dir, progress=None) -> dict:
+    """Tables 5-9 of an RTHS bag: JSON summary, text report, PNG plots and ``report.html``.
+
+    ``report.html`` (:mod:`rths_bringup.report_html`) holds the tables and every
+    plot in one self-contained file.  ``progress(done, 4)`` follows the stages: bag
+    read, references simulated, plots drawn, report written.
+    """
+    stage = progress or (lambda done, total: None)
+    import json
+
+    from rths_common import runinfo
+    from rths_numerical.model import LinearModel
+    from rths_numerical.reference import (
+        relative_rms_error,
+        simulate_reference,
+        simulate_uncontrolled,
+    )
+    from rths_numerical.substructure import make_substructure
+
+    bag, out_dir = Path(bag), Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    info = bagio.run_info(bag)
+    if info.get('kind') != 'rths':
+        raise ValueError(f'{bag}: not an RTHS run bag (run information kind = '
+                         f'{info.get("kind")!r}); record it with rths run')
+    fs = bagio.sampling_rate(bag)
+    numerical = _numerical_params(info)
+    if not numerical:   # rths site: the model ran in the client (OpenSees), table 5 only
+        return review_site(bag, out_dir, info, fs, stage)
+    bridge = runinfo.section(info, 'bridge')
+    compensator = runinfo.section(info, 'compensator')
+    sub = make_substructure(numerical)
+    model = sub.model
+    if sub.iface != [model.output_dof]:
+        raise ValueError('the review needs the output DOF to be the interface DOF')
+
+    desired, applied, measured, meas, status, n = _tracking(bag, fs)
+    stage(1, REVIEW_STAGES)
+
+    table5 = table5_of(desired, applied, measured, fs)
     # Tables 6-9: the 2nd floor relative to the ground
     ug = sub.ug[:n] if sub.frame == 'absolute' else 0.0
     floor2 = desired - ug
     dt = 1.0 / fs
     name = specimen_of(bridge)
-    specimen = SPECIMENS.entry(name, f'{bag}: bridge parameter specimen')
+    remote = bridge.get('backend') == 'genericclient'
+    external = '' if remote else external_controller(bridge)
+    if remote:   # a remote site: no model of its specimen (compared with the bare building)
+        name, bridge = 'remote', dict(bridge, specimen='none')
     uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
                     if isinstance(model, LinearModel) else None)
     backend = numerical.get('backend', 'builtin')
-    if specimen.device is not None or backend != 'builtin':
+    specimen = None if external else SPECIMENS.entry(specimen_of(bridge),
+                                                     f'{bag}: bridge parameter specimen')
+    if specimen is None:   # no model of the lab's specimen: no reference to compare with
+        if uncontrolled is None:
+            uncontrolled, _ = offline_references(numerical, dict(bridge, specimen='none'), dt)
+        reference = None
+    elif specimen.device is not None or backend != 'builtin':
         # a device specimen or an OpenSees model: the same substructure, offline, with the
         # same specimen model on a perfect actuator (and without it for the uncontrolled one)
         uncontrolled, reference = offline_references(numerical, bridge, dt)
@@ -230,33 +299,43 @@ def review_rths(bag, out_dir, progress=None) -> dict:
                                        uncontrolled=uncontrolled)
     else:
         reference = None
-    ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
+    if external:
+        ref_disp = None
+    else:
+        ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
     stage(2, REVIEW_STAGES)
     unc = uncontrolled['metrics']
     max_d, rms_d = float(np.max(np.abs(floor2))), float(np.sqrt(np.mean(floor2 ** 2)))
     bridge_steps = max(len(status.get('step', [])), 1)
     summary = {
         'record': numerical.get('record'), 'scale': numerical.get('scale'),
-        'specimen': name, 'damper': name,   # damper: the former name of the key
+        # damper: the former name of the key
+        'specimen': EXTERNAL if external else name, 'damper': EXTERNAL if external else name,
+        'specimen_label': external or name,
         'mode': info.get('mode'), 'fs_hz': fs, 'steps': n, 'duration_s': n * dt,
         'compensator': compensator,
         'numerical_backend': numerical.get('backend', 'builtin'),
         'numerical_model': getattr(model, 'name', str(numerical.get('model'))),
         'residual_drift_m': residual_drift(floor2, fs),
-        'reference_residual_drift_m': residual_drift(ref_disp, fs),
+        'reference_residual_drift_m': _or_none(ref_disp, lambda r: residual_drift(r, fs)),
         **table5,
         'max_disp_2nd_m': max_d, 'rms_disp_2nd_m': rms_d,
         'uncontrolled_max_disp_2nd_m': unc['max_disp_m'],
         'uncontrolled_rms_disp_2nd_m': unc['rms_disp_m'],
         'reduction_max_pct': 100 * (1 - max_d / unc['max_disp_m']),
         'reduction_rms_pct': 100 * (1 - rms_d / unc['rms_disp_m']),
-        'reference_max_disp_2nd_m': float(np.max(np.abs(ref_disp))),
-        'reference_rms_disp_2nd_m': float(np.sqrt(np.mean(ref_disp ** 2))),
-        'rths_vs_reference_rel_rms_pct': relative_rms_error(floor2, ref_disp),
+        'reference_max_disp_2nd_m': _or_none(ref_disp, lambda r: float(np.max(np.abs(r)))),
+        'reference_rms_disp_2nd_m': _or_none(ref_disp,
+                                             lambda r: float(np.sqrt(np.mean(r ** 2)))),
+        'rths_vs_reference_rel_rms_pct': _or_none(ref_disp,
+                                                  lambda r: relative_rms_error(floor2, r)),
         'deadline_misses': int(status.get('misses', 0)),
         'deadline_miss_pct': 100.0 * status.get('misses', 0) / bridge_steps,
         'safety_faults': status.get('faults', []),
     }
+    counts = controller_counts(bag)
+    if counts is not None:
+        summary['controller'] = counts
     (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
     (out_dir / 'review.txt').write_text(review_text(summary))
     _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp,
@@ -267,10 +346,10 @@ def review_rths(bag, out_dir, progress=None) -> dict:
                          hinge['hinge_moment'], fs, f"hinge of {summary['numerical_model']} "
                          f"({hinge['source']})", ('rotation [mrad]', 'moment [N m]'),
                          velocity=False)
-    if specimen.params:
+    if specimen is not None and specimen.params:
         summary.update(specimen.settings(bridge))
         (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
-    if specimen.hysteresis:
+    if specimen is not None and specimen.hysteresis:
         settings = ', '.join(f'{k} {v:g}' for k, v in specimen.settings(bridge).items())
         _hysteresis_plot(out_dir / HYSTERESIS_PNG, measured, meas['force'][:n, 0], fs,
                          f'specimen {name} ({settings}), measured')
@@ -281,11 +360,79 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     return summary
 
 
+def _or_none(value, f):
+    return None if value is None else f(value)
+
+
+def review_site(bag, out_dir, info, fs, stage) -> dict:
+    """Review a ``rths site`` run: table 5 and the tracking plots (the model was the client's).
+
+    Tables 6-9 need the numerical model, which ran in the client (OpenSees,
+    OpenFresco): the bag holds none, so they are left out rather than guessed.
+    """
+    import json
+
+    from rths_actuator_bridge.bridge import DEFAULT_BACKEND
+    from rths_common import runinfo
+    desired, applied, measured, meas, status, n = _tracking(bag, fs)
+    stage(1, REVIEW_STAGES)
+    bridge = runinfo.section(info, 'bridge')
+    summary = {
+        'kind': 'site', 'mode': info.get('mode'), 'fs_hz': fs, 'steps': n,
+        'duration_s': n / fs,
+        'backend': bridge.get('backend', DEFAULT_BACKEND),
+        'specimen': bridge.get('specimen', bridge.get('dtm', '-')),   # as the site's file says
+        'compensator': runinfo.section(info, 'compensator'),
+        **table5_of(desired, applied, measured, fs),
+        'deadline_misses': int(status.get('misses', 0)),
+        'deadline_miss_pct': 100.0 * status.get('misses', 0)
+        / max(len(status.get('step', [])), 1),
+        'safety_faults': status.get('faults', []),
+        'site_events': [f.split(': ', 1)[1] for f in  # drop the 'step 0: ' prefix
+                        read_loop(bag)['status'].get('site', {}).get('faults', [])],
+    }
+    counts = controller_counts(bag)
+    if counts is not None:    # the site's own actuator through a servo controller
+        summary['controller'] = counts
+    stage(2, REVIEW_STAGES)
+    out_dir = Path(out_dir)
+    (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
+    (out_dir / 'review.txt').write_text(review_text(summary))
+    _tracking_plots(out_dir, fs, desired, applied, measured)
+    stage(3, REVIEW_STAGES)
+    from rths_bringup.report_html import write_report
+    write_report(out_dir, summary)
+    stage(4, REVIEW_STAGES)
+    return summary
+
+
+def _site_text(s: dict) -> str:
+    lines = [
+        f"Site review (rths site): backend {s['backend']}, "
+        f"specimen {s['specimen']}, {s['mode']}, {s['steps']} steps at {s['fs_hz']:g} Hz "
+        f"({s['duration_s']:.1f} s)", '',
+        'Table 5 layout: actuator time delay and relative RMS tracking error',
+        '                      before compensation   after compensation',
+        f"  time delay [ms]     {s['delay_ms_before']:>19.3f}   {s['delay_ms_after']:>18.3f}",
+        f"  rel. RMS error [%]  {s['tracking_rel_rms_pct_before']:>19.2f}   "
+        f"{s['tracking_rel_rms_pct_after']:>18.2f}",
+        '  (before: plant input -> output; after: trial displacement -> output)', '',
+        'Tables 6-9 need the numerical model, which ran in the client: not part of a site '
+        'review.']
+    lines += [f'site: {e}' for e in s['site_events']]
+    if s['safety_faults']:
+        lines.append('safety faults: ' + '; '.join(s['safety_faults']))
+    return '\n'.join(lines) + '\n'
+
+
 def review_text(s: dict) -> str:
     """Return the review as text, in the layout of the seed's tables 5-9."""
+    from rths_bringup.report_html import row_label, specimen_title
+    if s.get('kind') == 'site':
+        return _site_text(s)
     inch = 0.0254
     lines = [
-        f"RTHS review: {s['record']} x {s['scale']}, specimen {s['specimen']}, {s['mode']}, "
+        f"RTHS review: {s['record']} x {s['scale']}, specimen {specimen_title(s)}, {s['mode']}, "
         f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)",
         '',
         'Table 5 layout: actuator time delay and relative RMS tracking error',
@@ -301,17 +448,24 @@ def review_text(s: dict) -> str:
         f"{s['uncontrolled_max_disp_2nd_m'] / inch:8.4f}        -     "
         f"{s['uncontrolled_rms_disp_2nd_m']:.4e}  {s['uncontrolled_rms_disp_2nd_m'] / inch:8.4f}"
         '        -',
-        f"  RTHS ({s['specimen']})".ljust(19) + f"{s['max_disp_2nd_m']:.4e}  "
+        f"  RTHS ({row_label(s)})".ljust(19) + f"{s['max_disp_2nd_m']:.4e}  "
         f"{s['max_disp_2nd_m'] / inch:8.4f}   {s['reduction_max_pct']:7.1f}   "
         f"{s['rms_disp_2nd_m']:.4e}  {s['rms_disp_2nd_m'] / inch:8.4f}   "
         f"{s['reduction_rms_pct']:7.1f}",
         '',
-        'Table 9 layout: RTHS vs whole-numerical reference',
-        f"  actuator time delay {s['delay_ms_after']:.3f} ms, relative RMS error "
-        f"{s['rths_vs_reference_rel_rms_pct']:.2f} %",
+        'Table 9 layout: RTHS vs whole-numerical reference'
+        + (' (here the uncontrolled building: a remote specimen has no model here)'
+           if s['specimen'] == 'remote' else ''),
+        (f"  actuator time delay {s['delay_ms_after']:.3f} ms, relative RMS error "
+         f"{s['rths_vs_reference_rel_rms_pct']:.2f} %"
+         if s['rths_vs_reference_rel_rms_pct'] is not None else
+         f"  none: the specimen is an {EXTERNAL} (the review has no model of it); actuator "
+         f"time delay {s['delay_ms_after']:.3f} ms"),
         '',
         f"deadline misses: {s['deadline_misses']} ({s['deadline_miss_pct']:.3f} %)",
     ]
+    if s.get('controller'):
+        lines.append(controller_text(s['controller']))
     if s['safety_faults']:
         lines.append('safety faults: ' + '; '.join(s['safety_faults']))
     return '\n'.join(lines) + '\n'
@@ -388,22 +542,37 @@ def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    from rths_compensator.indicators import frf_h1
-
     t = np.arange(desired.size) / fs
     fig, ax = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
     ax[0].plot(t, unc_disp * 1e3, color='0.6', lw=0.8, label='uncontrolled (numerical)')
-    ax[0].plot(t, ref_disp * 1e3, lw=1.0, label='reference: building + specimens (numerical)')
+    if ref_disp is not None:
+        ax[0].plot(t, ref_disp * 1e3, lw=1.0,
+                   label='reference: building + specimens (numerical)')
     ax[0].plot(t, floor2 * 1e3, '--', lw=1.0, label='RTHS')
     ax[0].set_ylabel('2nd-floor displacement [mm]')
     ax[0].legend(loc='upper right', fontsize=8)
-    ax[1].plot(t, (floor2 - ref_disp) * 1e3, lw=0.8)
-    ax[1].set_ylabel('RTHS - reference [mm]')
+    if ref_disp is None:   # an external controller's specimen: no model, no reference
+        ax[1].plot(t, (floor2 - unc_disp) * 1e3, lw=0.8)
+        ax[1].set_ylabel('RTHS - uncontrolled [mm]')
+    else:
+        ax[1].plot(t, (floor2 - ref_disp) * 1e3, lw=0.8)
+        ax[1].set_ylabel('RTHS - reference [mm]')
     ax[1].set_xlabel('time [s]')
     fig.tight_layout()
     fig.savefig(out_dir / 'time_history.png', dpi=110)
     plt.close(fig)
+    _tracking_plots(out_dir, fs, desired, applied, measured)
 
+
+def _tracking_plots(out_dir, fs, desired, applied, measured):
+    """Tracking around the peak and the measured FRF of the actuator (table 5's plots)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    from rths_compensator.indicators import frf_h1
+
+    t = np.arange(desired.size) / fs
     k = int(np.argmax(np.abs(desired)))
     lo, hi = max(0, k - int(ZOOM_S * fs / 2)), min(desired.size, k + int(ZOOM_S * fs / 2))
     fig, ax = plt.subplots(figsize=(10, 4))

@@ -73,10 +73,15 @@ def register(commands, benches):
     p.add_argument('--scale', type=float, default=0.135,
                    help='ground-motion scale factor (seed: kobe 0.135, northridge 0.039, '
                         'el centro 0.10; default 0.135)')
-    p.add_argument('--specimen', default=DEFAULT_SPECIMEN, choices=SPECIMENS.names(),
+    p.add_argument('--specimen', default=DEFAULT_SPECIMEN, type=_specimen_arg,
+                   choices=_RemoteOr(SPECIMENS.names()),
                    help=f'the specimen (default {DEFAULT_SPECIMEN}): an entry of '
                         'rths_numerical.specimens (docs/extending.md lists them: the Table 4 '
-                        'DTMs, the bare table, a damper between the floor and the ground)')
+                        'DTMs, the bare table, a damper between the floor and the ground), or '
+                        'tcp://HOST:PORT: a remote experimental site (rths site, OpenFresco; '
+                        'the bridge speaks the OpenSees genericClient protocol to it; steps 1-2 '
+                        'are skipped: the site compensates its own actuator, identity taps here; '
+                        'the review compares with the uncontrolled building)')
     add_renamed_option(p, '--damper', '--specimen')
     p.add_argument('--mr-voltage', type=float, default=None,
                    help='the MR damper: constant command voltage [V] (Spencer et al. 1997 '
@@ -84,6 +89,13 @@ def register(commands, benches):
     p.add_argument('--specimen-param', action='append', default=[], metavar='KEY=VALUE',
                    help="a parameter of the specimen's own (bridge.yaml keys such as "
                         'mr_voltage_v; repeatable)')
+    p.add_argument('--backend', choices=('simulated', 'udp'), default='simulated',
+                   help='simulated (default): the plant model in the bridge; udp: a servo '
+                        "controller (--controller), the lab's own actuator and specimen "
+                        '(docs/controller_protocol.md)')
+    p.add_argument('--controller', default=None, metavar='HOST:PORT',
+                   help='--backend udp: the servo controller (e.g. 192.168.1.20:5005; '
+                        'rths controller-emulator prints its own)')
     p.add_argument('--force-scale', type=float, default=5.0,
                    help='DTMs the one in the lab stands for: its measured force is multiplied '
                         'by this in the building (seed 6.2: 5, the default)')
@@ -128,8 +140,9 @@ def register(commands, benches):
                    help='skip steps 1-2 and design from this identified plant.yaml')
     p.add_argument('--adaptive', default=METHOD_DEFAULT, choices=METHODS.names(),
                    help=f'compensation method of the RTHS run (default {METHOD_DEFAULT}: the '
-                        f'designed FIR; {", ".join(adaptive_names())} adapt on line from it, '
-                        'lock-step only; docs/adaptive.md)')
+                        f'designed FIR; {", ".join(adaptive_names())} adapt on line from it; '
+                        'pi_lead: the RTHS benchmark\'s PI + lead feedback controller, the '
+                        'designed FIR its fallback; lock-step or realtime; docs/adaptive.md)')
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                    help='storage of the bags (default mcap; sqlite3 for older tools)')
     p.add_argument('--no-compensation', action='store_true',
@@ -268,13 +281,18 @@ def read_safety_stop(bag):
     def channel0(table):
         return table[:, 0] if table.shape[1] else np.full(steps.size, np.nan)
 
+    from rths_bringup.review import EXTERNAL, controller_counts, external_controller
+
     info = bagio.run_info(bag)
     fs = bagio.sampling_rate(bag)
     numerical = runinfo.section(info, 'numerical')
     bridge = runinfo.section(info, 'bridge')
+    external = external_controller(bridge)
     summary = {
         'record': numerical.get('record'), 'scale': numerical.get('scale'),
-        'specimen': specimen_of(bridge), 'force_scale': numerical.get('force_scale'),
+        'specimen': EXTERNAL if external else specimen_of(bridge),
+        'specimen_label': external or specimen_of(bridge),
+        'force_scale': numerical.get('force_scale'),
         'actuator_model': bridge.get('actuator_model'), 'mode': info.get('mode'),
         'fs_hz': fs, 'compensator': runinfo.section(info, 'compensator'),
     }
@@ -283,6 +301,9 @@ def read_safety_stop(bag):
         channel0(meas['force']), fs, float(bridge.get('safe_position_m', 0.0) or 0.0)))
     summary['safety_faults'] = faults
     summary['damper'] = summary['specimen']   # the former name of the key, kept for a while
+    counts = controller_counts(bag)
+    if counts is not None:
+        summary['controller'] = counts
     return summary
 
 
@@ -293,9 +314,12 @@ def safety_stop_text(s: dict) -> str:
     def metres(value, spec):
         return 'none' if value is None else f'{value:{spec}} m'
 
+    from rths_bringup.report_html import specimen_title
+    from rths_bringup.review import controller_text
+
     lines = [
         f"RTHS ABORTED by the bridge's safety supervisor: {s['record']} x {s['scale']}, "
-        f"specimen {s['specimen']} x {s['force_scale']}, {s['mode']}, compensator {scheme}",
+        f"specimen {specimen_title(s)} x {s['force_scale']}, {s['mode']}, compensator {scheme}",
         f"  safety stop: {s['safety_stop']}",
         f"  fault at step {s['fault_step']} ({s['fault_time_s']:.3f} s); hold, ramp to the safe "
         f"position {s['safe_position_m']:g} m; STOPPED at step {s['stop_step']} "
@@ -311,12 +335,82 @@ def safety_stop_text(s: dict) -> str:
     ]
     if len(s.get('safety_faults', [])) > 1:
         lines.append('  further faults: ' + '; '.join(s['safety_faults'][1:]))
+    if s.get('controller'):
+        lines.append('  ' + controller_text(s['controller']))
     return '\n'.join(lines) + '\n'
+
+
+def bridge_params(bridge: dict, args, config: Path) -> dict:
+    """Return the bridge's params of a run: the simulated plant's specimen, or a controller.
+
+    ``--backend udp --controller HOST:PORT``: the simulated plant's keys of the
+    config are dropped (the lab's controller has its own actuator and specimen),
+    the rest (limits, loop settings) are kept.
+    """
+    from rths_actuator_bridge.safety import SAFETY_PARAMS
+    from rths_actuator_bridge.simulated import SIM_PARAMS
+    from rths_numerical.specimens import specimen_params
+
+    bridge = renamed(bridge, 'dtm', 'specimen', str(config / 'bridge.yaml'))
+    pairs = args.specimen_param + ([f'mr_voltage_v={args.mr_voltage}']
+                                   if args.mr_voltage is not None else [])
+    if args.backend == 'simulated':
+        if args.controller:
+            raise ValueError('--controller needs --backend udp')
+        if args.specimen.startswith('tcp://'):
+            return remote_bridge(bridge, args.specimen)
+        return dict(bridge, backend='simulated', specimen=args.specimen,
+                    **specimen_settings(args.specimen, pairs, '--specimen-param'))
+    if args.specimen != DEFAULT_SPECIMEN or pairs:
+        raise ValueError('--specimen/--specimen-param/--mr-voltage: with --backend udp the '
+                         "specimen is the controller's; drop them")
+    host, sep, port = str(args.controller or '').rpartition(':')
+    if not args.controller or not sep or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f'--backend udp needs --controller HOST:PORT (got '
+                         f'{args.controller!r}), e.g. 127.0.0.1:5005')
+    simulated = {*SIM_PARAMS, *specimen_params()[0]} - set(SAFETY_PARAMS)
+    kept = {k: v for k, v in bridge.items() if k not in simulated}
+    return dict(kept, backend='udp', host=host or '127.0.0.1', port=int(port))
+
+
+def remote_bridge(bridge: dict, site: str) -> dict:
+    """Return the bridge parameters for a remote site ``tcp://host:port`` as the specimen.
+
+    The node's own keys, the safety limits and the loop rate stay; the local
+    plant's keys go (the specimen is the site's); ``backend: genericclient``.
+    """
+    from rths_actuator_bridge.bridge import PARAMS
+    from rths_actuator_bridge.genericclient import parse_site
+    from rths_actuator_bridge.safety import SAFETY_PARAMS
+    from rths_common.params import NODE_KEYS
+    parse_site(site)
+    keep = {k: v for k, v in bridge.items() if k in NODE_KEYS or k in SAFETY_PARAMS
+            or k in PARAMS}
+    return dict(keep, backend='genericclient', site=site)
 
 
 def _identity(fs: float) -> dict:
     """Return the identity compensator's filter fields at ``fs`` [Hz] (no provenance)."""
     return {k: v for k, v in identity_params(fs).items() if k != PROVENANCE}
+
+
+class _RemoteOr(tuple):
+    """The registry's specimen names as ``--specimen`` choices; a ``tcp://`` site is one too."""
+
+    def __contains__(self, value):
+        return str(value).startswith('tcp://') or tuple.__contains__(self, value)
+
+
+def _specimen_arg(value: str) -> str:
+    """Return ``--specimen``; a ``tcp://host:port`` is checked here (names by the choices)."""
+    import argparse
+    if str(value).startswith('tcp://'):
+        from rths_actuator_bridge.genericclient import parse_site
+        try:
+            parse_site(value)
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+    return value
 
 
 def _model_param(model: str, config: Path) -> str:
@@ -388,11 +482,10 @@ def _run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     base = {node: runinfo.load_params(config / fname, node) for node, fname in NODE_FILES.items()}
     fs = float(base['numerical'].get('fs_hz', 1024.0))
-    base['bridge'] = renamed(base['bridge'], 'dtm', 'specimen', str(config / 'bridge.yaml'))
-    pairs = args.specimen_param + ([f'mr_voltage_v={args.mr_voltage}']
-                                   if args.mr_voltage is not None else [])
-    base['bridge'].update(fs_hz=fs, specimen=args.specimen,
-                          **specimen_settings(args.specimen, pairs, '--specimen-param'))
+    base['bridge'] = bridge_params(dict(base['bridge'], fs_hz=fs), args, config)
+    remote = base['bridge'].get('backend') == 'genericclient'
+    if remote:   # a remote site: its own specimen, actuator and compensator
+        args.no_compensation = True
     model_param = _model_param(args.model, config)   # bad names fail before the long phases
     if args.numerical == 'opensees':
         from rths_numerical.opensees_backend import import_opensees
@@ -403,7 +496,8 @@ def _run(args) -> int:
     comp_file = out / 'compensator.yaml'
     if args.no_compensation:
         runinfo.write_params(comp_file, 'compensator', _identity(fs))
-        _say('no compensation: identity taps')
+        _say(f'remote site {args.specimen}: identity taps here (the site compensates its own '
+             'actuator)' if remote else 'no compensation: identity taps')
     else:
         plant = Path(args.plant) if args.plant else out / 'plant.yaml'
         if not args.plant:
@@ -441,19 +535,23 @@ def _run(args) -> int:
     comp = runinfo.load_params(comp_file, 'compensator')
     comp.update({k: base['compensator'][k] for k in ('executor',) if k in base['compensator']})
     if METHODS.entry(args.adaptive).adaptive:
-        if args.no_compensation or args.mode != 'lockstep':
-            raise ValueError(f'--adaptive {args.adaptive} needs a designed FIR and lock-step '
-                             'mode (drop --no-compensation / use --mode lockstep)')
+        if args.no_compensation:
+            raise ValueError(f'--adaptive {args.adaptive} needs a designed FIR (drop '
+                             '--no-compensation)')
         provenance = dict(comp.get('provenance') or {})
         provenance['plant'] = str(Path(str(provenance.get('plant', ''))).resolve())
         comp.update(method=args.adaptive, provenance=provenance)
+    elif args.adaptive != METHOD_DEFAULT:
+        comp.update(method=args.adaptive)
 
     # 3: the RTHS run
     numerical = dict(base['numerical'], model=model_param,
                      record=args.record, scale=float(args.scale),
                      force_scale=float(args.force_scale), backend=args.numerical,
                      # the frame the table must follow, and the specimen's mass for P_I^E
-                     **SPECIMENS[args.specimen].numerical_params())
+                     # (a controller's or a remote site's specimen: the numerical config's own)
+                     **({} if remote or args.backend != 'simulated' else
+                        SPECIMENS[args.specimen].numerical_params()))
     if args.numerical == 'opensees':
         numerical['integrator'] = 'central_difference'   # the RTHS pairing (README)
     for key in ('sdof_mass_kg', 'sdof_freq_hz', 'sdof_zeta', 'harmonic_freq_hz'):

@@ -52,3 +52,53 @@ def test_weighted_delay_is_the_plants_own_on_a_narrow_band_run():
     tau = -np.unwrap(np.angle(h)) / (2 * np.pi * f[sel])
     own = 1e3 * np.sum(tau * pxx[sel]) / np.sum(pxx[sel])
     assert weighted_delay_ms(x, y, fs) == pytest.approx(own, abs=0.01)
+
+
+def test_review_of_a_site_bag_has_table_5_and_no_guessed_model(tmp_path):
+    """A bag of rths site (the model ran in the client): table 5, plots, report; no 6-9."""
+    from pathlib import Path
+
+    from rths_actuator_bridge import openfresco as of
+    from rths_actuator_bridge.site import build_site, load_site_config
+    from rths_bringup.review import review_rths
+
+    config = load_site_config(None, Path(__file__).resolve().parents[3] / 'config')
+    core = build_site(config, tmp_path / 'bag')
+    sizes = of.Sizes.generic_client(1)
+    core.accept(sizes)
+    fs = core.fs_hz
+    for k in range(int(3 * fs)):   # 3 s of a 2.7 Hz trial under a Hann window
+        x = 1e-3 * (1 - np.cos(2 * np.pi * k / (3 * fs))) * np.sin(2 * np.pi * 2.7 * k / fs)
+        core.handle(of.decode(of.encode_request(sizes, of.SET_TRIAL_RESPONSE, [x], [0], [0],
+                                                k / fs), sizes))
+        if k:   # step 0 is the structure at rest, sent before the first analysis step
+            core.handle(of.decode(of.encode_request(sizes, of.COMMIT_STATE), sizes))
+    core.finish()
+    core.recorder.event('client test said goodbye')
+    core.recorder.close()
+    summary = review_rths(tmp_path / 'bag', tmp_path / 'review')
+    assert summary['kind'] == 'site' and summary['steps'] == int(3 * fs)
+    assert summary['backend'] == 'simulated' and summary['mode'] == 'pseudodynamic'
+    # the designed compensator of config/ removes most of the 3-pole actuator's delay
+    assert summary['delay_ms_before'] > 5.0 and abs(summary['delay_ms_after']) < 2.0
+    assert summary['site_events'] == ['client test said goodbye']
+    text = (tmp_path / 'review' / 'review.txt').read_text()
+    assert 'Tables 6-9 need the numerical model' in text
+    assert (tmp_path / 'review' / 'report.html').is_file()
+    assert (tmp_path / 'review' / 'tracking_zoom.png').is_file()
+    assert not (tmp_path / 'review' / 'time_history.png').exists()
+
+
+def test_remote_site_bridge_keeps_the_limits_and_drops_the_local_plant():
+    from rths_actuator_bridge.bridge import check_core_params
+    from rths_bringup.run import remote_bridge
+    from rths_common.params import core_params
+    local = {'mode': 'lockstep', 'backend': 'simulated', 'fs_hz': 1024.0, 'dtm': 'valve4',
+             'actuator_model': '3pole', 'seed': 1, 'stroke_m': 0.2, 'velocity_m_s': 0.5}
+    remote = remote_bridge(local, 'tcp://10.0.0.5:8090')
+    assert remote == {'mode': 'lockstep', 'backend': 'genericclient', 'fs_hz': 1024.0,
+                      'stroke_m': 0.2, 'velocity_m_s': 0.5, 'site': 'tcp://10.0.0.5:8090'}
+    check_core_params(core_params(remote))   # a valid bridge of the genericclient backend
+    import pytest
+    with pytest.raises(ValueError, match='tcp://host:port'):
+        remote_bridge(local, 'http://10.0.0.5')

@@ -23,6 +23,10 @@ SPECIMEN = '/rths/specimen'
 #: compensator node -> recorder: adaptive coefficients, decimated (std_msgs/msg/Float64MultiArray)
 COMPENSATOR_COEFFICIENTS = '/rths/compensator_coefficients'
 
+#: actuator bridge -> recorder: counts of an external servo controller's replies
+#: (rths_msgs/msg/ControllerStatus)
+CONTROLLER = '/rths/controller'
+
 LOOP_TOPICS = {
     INTERFACE_DISPLACEMENT: 'rths_msgs/msg/InterfaceDisplacement',
     COMMAND: 'rths_msgs/msg/Command',
@@ -31,4 +35,5 @@ LOOP_TOPICS = {
     SPECIMEN: 'rths_msgs/msg/Specimen',
     EMERGENCY_STOP: 'std_msgs/msg/String',
     COMPENSATOR_COEFFICIENTS: 'std_msgs/msg/Float64MultiArray',
+    CONTROLLER: 'rths_msgs/msg/ControllerStatus',
 }

@@ -6,8 +6,9 @@ Subscribes ``/rths/interface_displacement`` and publishes ``/rths/command``, the
 designed ``G = taps / denominator`` applied causally per interface DOF
 (lock-step or realtime; behaviour and measurements: docs/nodes.md).
 
-Parameter ``method`` (fir | rls_fir | ats | amb, lock-step only): an adaptive method
-started from the designed taps; it also subscribes ``/rths/measurement`` and publishes
+Parameter ``method`` (fir | rls_fir | ats | amb | pi_lead, lock-step or realtime): an
+adaptive method started from the designed taps, or the reference PI + lead feedback
+controller; these also subscribe ``/rths/measurement`` and publish
 ``/rths/compensator_coefficients`` (docs/adaptive.md).
 """
 
@@ -64,7 +65,7 @@ class CompensatorNode:
                             'loop_fs_hz: the fs_hz of numerical.yaml and bridge.yaml, which '
                             'rths launch passes')
         self.lockstep = self.own['mode'] == 'lockstep'
-        self.core = CompensatorCore(self.params)
+        self.core = CompensatorCore(self.params, realtime=not self.lockstep)
         self.driver = Driver(self.core, self.lockstep, self.on_reject)
         self.log = self.node.get_logger()
         qos = loop_qos(self.own['mode'])
@@ -111,20 +112,19 @@ class CompensatorNode:
         from rths_compensator.adaptive import methods_from_params
         from rths_msgs.msg import Measurement
 
-        if not self.lockstep:
-            raise ValueError(f"parameter method = {self.params['method']}: the adaptive "
-                             'methods run in lock-step mode only (mode: lockstep)')
         methods_from_params(self.params, 1)          # check the method and its plant now
         self.pending = None                          # the displacement message waiting
         self.coef_pub = self.node.create_publisher(Float64MultiArray,
                                                    topics.COMPENSATOR_COEFFICIENTS,
                                                    loop_qos(self.own['mode']))
+        self.io_meas = Transport(Measurement, ('applied', 'displacement'), not self.lockstep)
         self.node.create_subscription(Measurement, topics.MEASUREMENT, self.on_measurement,
-                                      loop_qos(self.own['mode']))
+                                      loop_qos(self.own['mode']), raw=not self.lockstep)
 
     def on_measurement(self, msg):
-        """Keep measurement k for the command of step k + 1 (and run it if it waits)."""
-        result = self.core.measure(msg.step, list(msg.displacement), list(msg.applied))
+        """Keep measurement k for the command of step k + 1 (lock-step: run it if it waits)."""
+        _, step, (applied, displacement) = self.io_meas.decode(msg)
+        result = self.core.measure(step, displacement, applied)
         if result is not None:
             self.publish(result, *self.pending)
 

@@ -49,8 +49,13 @@ FILTER_PARAMS = {
 FILTER_RANGES = {'fs_hz': LOOP_RATE_RANGE_HZ}
 #: The compensator's method key (not a filter field): key -> (default, meaning).
 METHOD_PARAMS = {
-    'method': ('fir', 'the designed filter, or an adaptive method started from it (lock-step '
-                      'only; needs provenance.plant; docs/adaptive.md)'),
+    'method': ('fir', 'the designed filter, an adaptive method started from it (needs '
+                      'provenance.plant) or pi_lead (docs/adaptive.md)'),
+    'pi_lead_kp': (2.0, '[-] pi_lead: proportional gain (Silva et al. 2020: 2)'),
+    'pi_lead_ki': (95.0, '[1/s] pi_lead: integral gain (Silva et al. 2020: 95)'),
+    'pi_lead_num': ([50.8316, 8570.4], '[s, -] pi_lead: lead numerator b1, b0 of '
+                                       '(b1 s + b0) / (a1 s + a0)'),
+    'pi_lead_den': ([1.0, 8570.4], '[s, -] pi_lead: lead denominator a1, a0'),
 }
 #: Allowed values of the scheme and the method (the registries' names).
 CHOICES = {'scheme': SCHEMES.names(), 'method': METHODS.names()}

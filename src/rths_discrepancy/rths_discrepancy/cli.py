@@ -89,11 +89,13 @@ def bench_real_cmd(args) -> int:
     import json
     import os
 
+    from rths_common import datasets
     from rths_discrepancy import restoring
-    data_dir = args.data or os.environ.get('RTHS_DATA_DIR')
+    data_dir = args.data or datasets.data_dir()
     if not data_dir or not os.path.isdir(data_dir):
-        raise OSError('--data DIR (or RTHS_DATA_DIR) must name the directory holding '
-                      'DATA_EMPS.mat and the MR-damper .txt files (README: real data)')
+        raise OSError(f'--data DIR (or {datasets.DATA_ENV}; unset: ../shared/data beside the '
+                      f'repository) must name the directory holding DATA_EMPS.mat and the '
+                      f'MR-damper .txt files; looked in {args.data or datasets.where()}')
     from rths_common.progress import Progress
 
     with Progress(len(restoring.REAL), 'real records') as bar:
@@ -448,7 +450,8 @@ def register(commands, benches):
                     'and the EMPS parameters against the published ones. The data are not in '
                     'the repository (README: real data).')
     g.add_argument('--data', metavar='DIR', help='directory with the original files (default: '
-                                                 '$RTHS_DATA_DIR)')
+                                                 '$RTHS_DATA_DIR; unset: ../shared/data beside '
+                                                 'the repository)')
     g.add_argument('--out', required=True, metavar='FILE.json', help='JSON result file')
     g.add_argument('--reports', metavar='DIR', help='also write each record\'s report and plots')
     g.set_defaults(func=bench_real_cmd)

@@ -1,7 +1,8 @@
 """The public development data sets of the io scenario, their protocols and published figures.
 
-The files are not in the repository: they live in the shared data directory
-(``RTHS_DATA_DIR``; its README gives sources, licences and checksums):
+The files are not in the repository: they live in the data directory
+(:mod:`rths_common.datasets`: ``$RTHS_DATA_DIR``, by default ``../shared/data`` beside the
+repository; its README gives sources, licences and checksums):
 
 * ``cascaded_tanks/dataBenchmark.csv`` -- Schoukens, Mattsson, Wigren, Noel, *Cascaded
   tanks benchmark combining soft and hard nonlinearities* (2016), via forgi86/dynonet
@@ -66,13 +67,17 @@ PUBLISHED = {
 
 
 def data_dir(explicit=None):
-    """Return the shared data directory: ``explicit``, ``$RTHS_DATA_DIR`` or ``../shared/data``."""
-    for d in (explicit, os.environ.get('RTHS_DATA_DIR'),
-              os.path.join(os.getcwd(), '..', 'shared', 'data')):
-        if d and os.path.isdir(d):
-            return d
-    raise OSError('no data directory: give --data DIR or set RTHS_DATA_DIR to the folder '
-                  'holding cascaded_tanks/, bouc_wen/ and f16gvt/ (README: real data)')
+    """Return the data directory: ``explicit``, else :func:`rths_common.datasets.data_dir`.
+
+    That is ``$RTHS_DATA_DIR``, else ``../shared/data`` beside the repository.
+    """
+    from rths_common import datasets
+    d = explicit or datasets.data_dir()
+    if d and os.path.isdir(d):
+        return str(d)
+    raise OSError(f'no data directory at {explicit or datasets.where()}: give --data DIR or set '
+                  f'{datasets.DATA_ENV} to the folder holding cascaded_tanks/, bouc_wen/ and '
+                  'f16gvt/ (README: real data)')
 
 
 def _rec(u, y, fs, source, outputs, periodic=False):

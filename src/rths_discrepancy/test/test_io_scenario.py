@@ -4,12 +4,11 @@ Synthetic systems with a known answer, and the cascaded-tanks benchmark against 
 published errors (real data, not in the repository).
 """
 
-import os
-
 import numpy as np
 import pytest
 from scipy import signal
 
+from rths_common.testing import require_data
 from rths_discrepancy import devsets, iodisc, linear
 
 
@@ -109,21 +108,12 @@ def test_io_refuses_a_record_without_rate_or_column():
         iodisc.records_from_columns(cols, 'u', ['z'], fs=10.0, source='a.csv')
 
 
-def _data_dir():
-    for d in (os.environ.get('RTHS_DATA_DIR'),
-              os.path.join(os.path.dirname(__file__), '..', '..', '..', '..', 'shared', 'data')):
-        if d and os.path.isfile(os.path.join(d, 'cascaded_tanks', 'dataBenchmark.csv')):
-            return d
-    if os.environ.get('CI') == 'true':
-        pytest.fail('the shared data directory (cascaded_tanks/) is missing: set RTHS_DATA_DIR')
-    pytest.skip('shared data directory not found (set RTHS_DATA_DIR)')
-
-
 def test_cascaded_tanks_against_the_published_errors():
     # Cascaded tanks benchmark (Schoukens, Mattsson, Wigren, Noel 2016; data via
     # forgi86/dynonet, MIT repository): test-record RMSE of the simulated level.
     # Published: BLA 0.75 V (Relan et al. 2017); Volterra 0.54 V (Birpoutsoukis et al. 2018).
-    train, test = devsets.cascaded_tanks(_data_dir())
+    # Without the data set: skip, and fail in CI (rths_common.testing.require_data).
+    train, test = devsets.cascaded_tanks(str(require_data('cascaded_tanks').parent))
     res = iodisc.run(train, test, plots=False)
     row = devsets.compare('cascaded_tanks', res)
     assert row['baseline_rmse'] <= 1.2 * 0.75

@@ -2,8 +2,9 @@
 
 The synthetic records are a displacement path (three sines) and the force of
 ``m a + c v + k x`` plus a known effect, with 0.5 % white noise on the force.
-The real records (EMPS, MR damper) run only where the data are present
-(``RTHS_DATA_DIR``); they are not in the repository.
+The real records (EMPS, MR damper) come from the data directory (rths_common.datasets:
+``$RTHS_DATA_DIR``, by default ``../shared/data`` beside the repository), not from the
+repository; without them those tests skip, and fail in CI (rths_common.testing).
 """
 
 import json
@@ -12,6 +13,7 @@ import os
 import numpy as np
 import pytest
 
+from rths_common.testing import require_data
 from rths_discrepancy import effects as fx
 from rths_discrepancy import restoring
 
@@ -156,30 +158,32 @@ def test_csv_contract_and_errors(tmp_path):
                  '--model', 'm.yaml', '--out', str(tmp_path / 'o2')]) == 2
 
 
-DATA_DIR = os.environ.get('RTHS_DATA_DIR', '')
-
-
-@pytest.mark.skipif(not DATA_DIR or restoring.find_file(DATA_DIR, '2mm5Hz1A.txt') is None,
-                    reason='real MR-damper record 2mm5Hz1A.txt (github.com/DanielMaurelE/'
-                           'vRTHS_AMBC_MRdamper, MIT) not under RTHS_DATA_DIR; not in the repo')
 def test_real_mr_damper_short_record():
-    """MR damper, 2 mm at 5 Hz and 1 A (issue 15 target: held-out NRMSE <= 8 %)."""
-    path = restoring.find_file(DATA_DIR, '2mm5Hz1A.txt')
+    """MR damper, 2 mm at 5 Hz and 1 A: held-out NRMSE <= 8 % and the gap halved at least.
+
+    Data: the measured sinusoid test 2mm5Hz1A.txt of github.com/DanielMaurelE/
+    vRTHS_AMBC_MRdamper (MIT, (c) 2022 mequiroz). The record has no published fit of this
+    workflow's kind: the figure is the project's target for a named effect on a measured
+    MR damper (8 %), well above the measurement noise; the Spencer et al. (1997) model fit
+    to all 30 tests is tested in rths_numerical's test_mr_damper.
+    """
+    path = require_data('mr_damper') / '2mm5Hz1A.txt'
     res = restoring.run(restoring.validate(restoring.convert('mr-damper', path)), plots=False)
     assert res['effect'] not in ('none', 'unexplained')
     assert res['nrmse_after'] <= 0.08
     assert res['nrmse_after'] < 0.5 * res['nrmse_before']
 
 
-@pytest.mark.skipif(not DATA_DIR or restoring.find_file(DATA_DIR, 'DATA_EMPS.mat') is None,
-                    reason='real EMPS record DATA_EMPS.mat (github.com/forgi86/sysid-neural-'
-                           'continuous, Apache-2.0) not under RTHS_DATA_DIR; not in the repo')
 def test_real_emps_names_friction_with_offset():
-    """EMPS: issue 15's target (friction with force_offset, NRMSE <= 5 %, parameters within 10 %).
+    """EMPS: friction with force_offset named, NRMSE <= 5 %, parameters within 10 % of published.
 
-    The published M, Fv, Fc and offset are those of Simulation_EMPS.m of the data set.
+    Data: the measured estimation record DATA_EMPS.mat of the EMPS benchmark (Janot, Gautier,
+    Brunot), github.com/forgi86/sysid-neural-continuous examples/EMPS/data (Apache-2.0).
+    Published figure: the IDIM-LS estimates M = 95.1089 kg, Fv = 203.5034 N s/m,
+    Fc = 20.3935 N, offset = -3.1648 N printed in the data set's EMPS_Description.pdf (the
+    parameters its Simulation_EMPS.m uses; restoring.EMPS_PUBLISHED).
     """
-    path = restoring.find_file(DATA_DIR, 'DATA_EMPS.mat')
+    path = require_data('emps') / 'DATA_EMPS.mat'
     res = restoring.run(restoring.validate(restoring.convert('emps', path)), plots=False)
     assert 'force_offset' in res['parameters']
     assert {'coulomb_friction', 'asymmetric_friction'} & set(res['parameters'])

@@ -510,7 +510,8 @@ def register(commands, benches):
                     'files: t, x [mm], v [mm/s], F [N]); print the errors, compare with the '
                     "paper's parameters, write JSON (and a PNG of the loops).")
     fm.add_argument('--data', default=None,
-                    help='directory of the test files (default: $RTHS_DATA_DIR/mr_damper)')
+                    help='directory of the test files (default: $RTHS_DATA_DIR/mr_damper; '
+                         'RTHS_DATA_DIR unset: ../shared/data beside the repository)')
     fm.add_argument('--out', default='out/mr_fit.json', help='JSON results')
     fm.add_argument('--plot', default=None, help='PNG of measured and fitted loops')
     fm.add_argument('--max-nfev', type=int, default=200, help='least-squares evaluations')

@@ -6,7 +6,9 @@ GitHub DanielMaurelE/vRTHS_AMBC_MRdamper (MIT licence, (c) 2022 mequiroz),
 columns t [s], x [mm], v [mm/s], F [N]; file names ``<amp>mm<freq>Hz<current>A.txt``
 with ``x`` for the decimal point (``25mm0x5Hz0x75A``: 25 mm, 0.5 Hz, 0.75 A).
 The files are not redistributed: :func:`load_tests` reads them from a directory
-the user gives (``rths fit-mr --data DIR`` or ``RTHS_DATA_DIR/mr_damper``).
+the user gives (``rths fit-mr --data DIR``), else from the data set's folder
+``mr_damper/`` of :func:`rths_common.datasets.data_dir` (``$RTHS_DATA_DIR``, by default
+``../shared/data`` beside the repository).
 
 The model is that of :mod:`.mr_damper` with the current ``i`` [A] in place of the
 voltage (``alpha = alpha_a + alpha_b i``, same for c0 and c1; n = 2 as in the
@@ -25,6 +27,8 @@ import re
 
 import numpy as np
 
+from rths_common import datasets
+
 from .mr_damper import SPENCER_1997, MRParameters
 
 #: Fitted parameters (all but n, x0, eta), in this order.
@@ -39,14 +43,16 @@ _NAME = re.compile(r'(\d+(?:x\d+)?)mm(\d+(?:x\d+)?)Hz(\d+(?:x\d+)?)A\.txt$')
 
 
 def data_dir(path=None):
-    """Return the data directory: ``path``, else ``$RTHS_DATA_DIR/mr_damper`` (OSError if none)."""
+    """Return ``path``, else the data set's folder (:mod:`rths_common.datasets`: mr_damper).
+
+    OSError naming the data set, its source and the fix (``--data DIR``) when neither is there.
+    """
     if path:
         return path
-    root = os.environ.get('RTHS_DATA_DIR')
-    if not root:
-        raise OSError('no MR-damper data: give --data DIR (the Preprocesados/*.txt files of '
-                      f"{SOURCE['repository']}) or set RTHS_DATA_DIR (DIR/mr_damper)")
-    return os.path.join(root, 'mr_damper')
+    try:
+        return str(datasets.dataset_dir('mr_damper'))
+    except OSError as err:
+        raise OSError(f'no MR-damper data: give --data DIR, or {err}') from None
 
 
 def load_tests(directory):

@@ -1,29 +1,29 @@
 """The stepped-substructure contract (rths_numerical.stepping), run against both backends.
 
 Every test takes the ``backend`` fixture: ``builtin`` always, ``opensees`` when
-OpenSeesPy is installed (``make setup-opensees``), skipped with the reason
-otherwise.  Both use the central-difference integrator here, so they must agree
-to round-off; the built-in CR-vs-OpenSees figure is in ``rths bench numerical``.
+OpenSeesPy is installed (``make test`` installs it; without it the opensees cases skip
+with the reason, and fail in CI: rths_numerical.testing).  Both use the central-difference
+integrator here, so they must agree to round-off; the built-in CR-vs-OpenSees figure is
+in ``rths bench numerical``.
 """
 
 import numpy as np
 import pytest
 
-from rths_numerical.opensees_backend import opensees_available
 from rths_numerical.reference import DTMSpecimen, coupled_rths, relative_rms_error
 from rths_numerical.stepping import SteppedSubstructure
 from rths_numerical.substructure import make_substructure
+from rths_numerical.testing import require_opensees
 
-OPENSEES, OPENSEES_WHY = opensees_available()
 BUILDING = {'model': 'building2story', 'record': 'kobe', 'scale': 0.135, 'duration_s': 4.0,
             'fs_hz': 1024.0, 'integrator': 'central_difference'}
 
 
 @pytest.fixture(params=['builtin', 'opensees'])
 def backend(request):
-    """Name of the backend under test; opensees skips when OpenSeesPy is missing."""
-    if request.param == 'opensees' and not OPENSEES:
-        pytest.skip(f'OpenSeesPy unavailable: {OPENSEES_WHY}')
+    """Name of the backend under test; opensees needs OpenSeesPy (require_opensees)."""
+    if request.param == 'opensees':
+        require_opensees()
     return request.param
 
 

@@ -41,12 +41,8 @@ def test_bench_backend_comparison_tiny():
     Over the first second alone the two starts differ visibly (OpenSees assumes
     d_{-1} = d_0, the built-in d_{-1} = dt^2/2 a_0): 1.03e-3.
     """
-    import pytest
-
-    from rths_numerical.opensees_backend import opensees_available
-    ok, why = opensees_available()
-    if not ok:
-        pytest.skip(f'OpenSeesPy unavailable: {why}')
+    from rths_numerical.testing import require_opensees
+    require_opensees()
     args = _parser().parse_args(['bench', 'numerical', '--backend', 'opensees'])
     assert args.backend == 'opensees' and args.duration_s == 0.0
     out = cli._backend_comparison('opensees', 'kobe', 0.135, 4.0, 1024.0)

@@ -8,12 +8,16 @@ import pytest
 
 from rths_numerical import opensees_backend
 from rths_numerical.building import building_16dof
-from rths_numerical.opensees_backend import mass_decoupling, opensees_available
+from rths_numerical.opensees_backend import mass_decoupling
 from rths_numerical.reference import relative_rms_error
 from rths_numerical.substructure import make_substructure
+from rths_numerical.testing import require_opensees
 
-OPENSEES, OPENSEES_WHY = opensees_available()
-needs_opensees = pytest.mark.skipif(not OPENSEES, reason=f'OpenSeesPy unavailable: {OPENSEES_WHY}')
+
+@pytest.fixture
+def needs_opensees():
+    """Require OpenSeesPy: skip without it, fail in CI (rths_numerical.testing)."""
+    require_opensees()
 
 
 def _python(code):
@@ -21,8 +25,7 @@ def _python(code):
                           timeout=60)
 
 
-@needs_opensees
-def test_the_bundled_blas_preload_is_what_makes_the_import_work():
+def test_the_bundled_blas_preload_is_what_makes_the_import_work(needs_opensees):
     """Without the preload the import fails for want of libblas.so.3 (issue 16).
 
     ``import_opensees()`` preloads the wheel's own copy and succeeds.
@@ -36,8 +39,7 @@ def test_the_bundled_blas_preload_is_what_makes_the_import_work():
     assert done.returncode == 0 and 'ok' in done.stdout, done.stderr
 
 
-@needs_opensees
-def test_a_failed_import_names_the_missing_library_and_the_fix():
+def test_a_failed_import_names_the_missing_library_and_the_fix(needs_opensees):
     code = ('from rths_numerical import opensees_backend as ob\n'
             'ob._preload_bundled_libraries = lambda: []\n'
             'try:\n    ob.import_opensees()\nexcept OSError as e:\n    print(e)\n')
@@ -78,8 +80,7 @@ def test_mass_decoupling_keeps_the_interface_dof_and_diagonalises_the_mass():
     np.testing.assert_array_equal(mass_decoupling(np.diag([1.0, 2.0]), [1]), np.eye(2))
 
 
-@needs_opensees
-def test_newmark_matches_the_builtin_newmark_without_a_specimen():
+def test_newmark_matches_the_builtin_newmark_without_a_specimen(needs_opensees):
     """Same record, same integrator, no interface force: OpenSees equals the built-in model.
 
     Average acceleration in both, the excited x DOFs (issue 16 target <= 1e-3;

@@ -5,11 +5,15 @@ import textwrap
 import numpy as np
 import pytest
 
-from rths_numerical.opensees_backend import opensees_available
 from rths_numerical.substructure import make_substructure
+from rths_numerical.testing import require_opensees
 
-OPENSEES, OPENSEES_WHY = opensees_available()
-pytestmark = pytest.mark.skipif(not OPENSEES, reason=f'OpenSeesPy unavailable: {OPENSEES_WHY}')
+
+@pytest.fixture(autouse=True)
+def _opensees():
+    """Every test here builds an OpenSees model: skip without OpenSeesPy, fail in CI."""
+    require_opensees()
+
 
 SDOF = '''
 def build(ops):

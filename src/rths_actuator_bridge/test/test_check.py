@@ -1,0 +1,122 @@
+"""``rths controller-check``: passes the reference controller, fails naming each of its faults.
+
+The emulator runs in a thread here (one process: no start-up cost per case), SCHED_FIFO as
+a real-time controller would, and so does the checker; one case runs both as the commands a
+lab would type.  The test machine is loaded (other test processes,
+and here the emulator shares the checker's interpreter), so a Python controller answers
+replies a period late, scattered (up to 7 % seen at load 12 on 2 cores): the checks here
+tolerate scattered late replies; a controller's fault is a regular pattern, which fails
+whatever the tolerance.  (The default tolerance, 0.1 %, is for a real-time controller.)
+"""
+
+import json
+import os
+import re
+import subprocess
+import sys
+
+from conftest import PLANT
+import pytest
+
+from rths_actuator_bridge.check import check_controller, pattern, periodic
+from rths_actuator_bridge.emulator import ControllerEmulator
+
+STEPS = 1200
+FS = 2048.0     # a short sequence: 0.6 s
+
+
+def _check(faults=None, version=0, **kwargs):
+    emu = ControllerEmulator(dict(PLANT, fs_hz=FS), faults=faults, rt_priority=50).start()
+    try:
+        return check_controller('127.0.0.1', emu.address[1], steps=STEPS, version=version,
+                                fs_hz=FS, late_tolerance=0.5, rt_priority=40, **kwargs)
+    finally:
+        emu.stop()
+
+
+def _failed(report):
+    return {c['name']: c['detail'] for c in report['checks'] if not c['passed']}
+
+
+def test_pattern_names_a_regular_fault_among_scattered_outliers():
+    assert periodic([200, 400, 600, 800, 1000, 55, 901], 1200) == 200
+    assert periodic([55, 901, 1003], 1200) == 0
+    assert periodic([200, 400, 800, 1000], 1200) == 200          # one of five missing
+    assert periodic([400, 800], 1200) == 0                          # two are not a pattern
+    assert pattern([500, 1000], 1200) == 'steps 500, 1000'
+    assert pattern([300, 600, 900, 17], 1200) == 'steps 300, 600, 900 (every 300th step; ' \
+                                                 '1 other(s))'
+
+
+@pytest.mark.parametrize('version', [1, 2])
+def test_the_reference_controller_passes(version):
+    report = _check(version=version)
+    assert report['passed'], report['fault']
+    names = [c['name'] for c in report['checks']]
+    assert names == ['activate', 'sequence', 'restart', 'late_command', 'duplicate_command'] + (
+        ['heartbeat'] if version == 2 else []) + ['deactivate']
+    seq = report['checks'][1]
+    assert seq['replies'] == STEPS and seq['replies_lost'] == 0
+    assert 0 < report['latency_ms']['p50'] <= report['latency_ms']['max']
+    assert report['protocol_version'] == version
+
+
+@pytest.mark.parametrize('faults, check, words', [
+    ({'drop_every': 200}, 'sequence', ['replies lost:', 'every 200th step']),
+    ({'late_every': 200, 'late_s': 0.003}, 'sequence', ['replies late', 'every 200th step']),
+    ({'malformed_at': 600}, 'sequence', ['malformed', 'step 600', 'bad magic']),
+    ({'silence_at': 600, 'silence_s': 0.3}, 'sequence', ['controller silent for']),
+    ({'restart_at': 600, 'restart_s': 0.2}, 'restart', ['controller restarted: new session']),
+])
+def test_each_fault_fails_the_check_naming_it(faults, check, words):
+    report = _check(faults)
+    assert not report['passed']
+    detail = _failed(report)[check]
+    assert all(w in detail for w in words), detail
+    assert detail in report['fault']
+    if 'silence_at' in faults:
+        # a silence whose steps include step 600 (a loaded machine may starve the emulator's
+        # thread around it too)
+        spans = [(int(a), int(b or STEPS)) for a, b in re.findall(
+            r'silent for \d+ ms from step (\d+) to (?:step (\d+)|the end)', detail)]
+        assert any(a <= 600 <= b for a, b in spans), detail
+
+
+def test_a_channel_count_mismatch_fails_at_activate():
+    emu = ControllerEmulator(PLANT, n_channels=2).start()
+    try:
+        report = check_controller('127.0.0.1', emu.address[1], channels=1, steps=STEPS)
+    finally:
+        emu.stop()
+    assert _failed(report) == {'activate': 'the controller has 2 channel(s), 1 asked (1 '
+                                           'channel(s) asked, this controller has 2 '
+                                           'channel(s))'}
+
+
+def test_the_commands_a_lab_types(tmp_path):
+    """``rths controller-emulator --late-every 200`` then ``rths controller-check``: exit 1."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    cli = [sys.executable, '-m', 'rths_actuator_bridge.cli']
+    emu = subprocess.Popen(cli + ['controller-emulator', '--port', '0', '--duration-s', '60',
+                                  '--late-every', '200', '--rt-priority', '50'],
+                           stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        line = emu.stdout.readline()
+        assert 'faults: late_every 200' in line, line
+        address = line.split('listening on ')[1].split()[0]
+        out = tmp_path / 'check.json'
+        proc = subprocess.run(cli + ['controller-check', address, '--steps', '1000',
+                                     '--late-tolerance-pct', '50', '--rt-priority', '40',
+                                     '--out', str(out)],
+                              capture_output=True, text=True, env=env, timeout=60)
+    finally:
+        emu.kill()
+        emu.wait(10)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert 'FAIL: sequence:' in proc.stdout and 'replies late' in proc.stdout
+    assert 'every 200th step' in proc.stdout
+    report = json.loads(out.read_text())
+    assert report['passed'] is False and 'every 200th step' in report['fault']
+    bad = subprocess.run(cli + ['controller-check', 'localhost'], capture_output=True,
+                         text=True, env=env, timeout=60)
+    assert bad.returncode == 2 and 'HOST:PORT' in bad.stderr

@@ -1,0 +1,46 @@
+"""``rths bench rths-benchmark --draws N`` through the study runner; the commands' help."""
+
+import json
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from rths_bringup.cli import build_parser, main
+
+
+def test_benchmark_draws_go_through_the_runner_with_the_commands_own_draws(tmp_path):
+    # A synthetic 1.5 s record (a 3.5 Hz burst) in a 2-column file: no data set needed.
+    t = np.arange(0, 1.5, 0.01)
+    record = tmp_path / 'burst.txt'
+    np.savetxt(record, np.column_stack([t, 1.5 * np.sin(2 * np.pi * 3.5 * t)]))
+    common = ['bench', 'rths-benchmark', '--controller', 'example', '--record', str(record),
+              '--draws', '3', '--seed', '5', '--no-plots', '--cases', '1']
+    assert main(common + ['--out', str(tmp_path / 'direct')]) == 0
+    assert main(common + ['--out', str(tmp_path / 'runner'), '--workers', '1']) == 0
+    direct, runner = ({name: json.loads((tmp_path / d / name).read_text())
+                       for name in ('summary.json', 'details.json')}
+                      for d in ('direct', 'runner'))
+    assert runner['summary.json']['perturbed']['n'] == 3
+    assert runner['summary.json']['perturbed']['unstable'] == 0
+    assert runner['details.json']['draws'] == direct['details.json']['draws']
+    # the nominal case runs in this process either way (its noise stream differs with the
+    # batch it is in)
+    ours, theirs = runner['summary.json']['cases']['1'], direct['summary.json']['cases']['1']
+    assert ours['J1'] == theirs['J1'] and abs(ours['J2'] - theirs['J2']) < 1.0
+    rows = pq.read_table(tmp_path / 'runner' / 'study' / 'runs').to_pylist()
+    assert sorted(round(r['b1'], 6) for r in rows) == sorted(
+        d['b1'] for d in direct['details.json']['draws'])
+    # each draw has its own noise through the runner: close to, not equal to, the batch's
+    assert abs(runner['summary.json']['perturbed']['J2_max']
+               - direct['summary.json']['perturbed']['J2_max']) < 5.0
+
+
+def test_help_names_the_scenarios_and_the_cluster_options():
+    parser = build_parser()
+    study = next(a for a in parser._actions if a.dest == 'command').choices['study']
+    sub = next(a for a in study._actions if a.dest == 'study').choices
+    assert {'run', 'dtm-tuning', 'building-frequency'} <= set(sub)
+    text = sub['run'].format_help()
+    for word in ('benchmark', 'dtm-tuning', 'building-frequency', 'design', '--scheduler',
+                 '--workers', 'cluster-check'):
+        assert word in text
