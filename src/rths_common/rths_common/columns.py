@@ -118,7 +118,7 @@ def _delimiter(lines, delimiter):
 
 def read_columns(path, columns, *, units=None, keep_nan: bool = False, min_rows: int = 2,
                  contract: str = '', delimiter=None, skip_lines: int = 0,
-                 require_units: bool = False, report: dict = None) -> dict:
+                 require_units: bool = False, report: dict | None = None) -> dict:
     """Read ``columns`` of a column text file; return ``{column: float array in SI}``.
 
     ``columns``: names (need a header row) or 0-based indices, or a mapping
