@@ -29,6 +29,9 @@ import numpy as np
 
 from rths_compensator.methods import adaptive_names, compensator_names
 
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
+
 METHOD_NAMES = compensator_names()
 SCENARIOS = ('unchanged', 'stiffness_drop', 'plant_drift')
 #: The RTHS benchmark's perturbed plants (:mod:`.bench_adaptive_silva`; needs its record).

@@ -37,6 +37,7 @@ node does not receive the measurement.
 import json
 import math
 import os
+from pathlib import Path
 import sys
 import time
 
@@ -51,6 +52,9 @@ from rths_compensator.schemes import fir_schemes
 
 #: The FIR design scheme of the benchmark's ``fir`` controller (least squares, eq. 28).
 BENCHMARK_SCHEME = 'ls'
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 #: Published J1-J9 of the example controller, El Centro x 0.4 (Silva et al. 2020, Table 3;
 #: preprint "Benchmark_Control_Problem_for_Real_time_Hybrid_Simulation_Updated_V23.pdf" in
@@ -540,8 +544,6 @@ def launch_graph(params: dict, out_dir: str, log=_log) -> dict:
     with ``params`` on top), records ``out_dir/bag`` and the numerical node's history;
     returns the same arrays as :func:`run_cores`.
     """
-    from pathlib import Path
-
     from rths_bringup.commands import default_config_dir, launch
     from rths_bringup.run import NODE_FILES
     from rths_common import bagio, runinfo, topics

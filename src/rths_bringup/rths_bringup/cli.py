@@ -21,8 +21,12 @@ exits with code 2.  Set ``RTHS_DEBUG=1`` to see the traceback.
 
 import argparse
 import importlib
+from importlib.metadata import entry_points
 import os
 import sys
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 #: Modules of this package and the ones below that add sub-commands, in --help order.
 CLI_MODULES = (
@@ -48,8 +52,6 @@ ENTRY_POINT_GROUP = 'rths.cli'
 
 def cli_modules() -> list:
     """Return the names of every module that adds sub-commands: ours, then the entry points'."""
-    from importlib.metadata import entry_points
-
     plugins = sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda ep: ep.name)
     return list(dict.fromkeys(list(CLI_MODULES) + [ep.value for ep in plugins]))
 

@@ -657,6 +657,7 @@ def methods_from_params(params: dict, n_channels: int) -> ChannelMethods:
         plant = load_plant(path)
     options = {}
     if entry.feedback:
+        # lazy: .feedback imports this module (its methods subclass AdaptiveMethod)
         from .feedback import options_from_params
         options = options_from_params(params)
     return ChannelMethods(name, design, plant, n_channels, **options)

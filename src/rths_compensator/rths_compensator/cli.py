@@ -7,11 +7,15 @@
 * ``rths bench compensators``  the seed's numerical study (section 4.3.3) -> JSON (+ plots)
 """
 
+import os
 import sys
 
 from rths_common.columns import LENGTH_UNITS, TIME_UNITS, read_columns
 
 from .schemes import SCHEMES, designed
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 #: What a design reports beside its options, kept in the provenance.
 DESIGN_RESULTS = ('a_tilde', 'model', 'q', 'solver', 'auto_score', 'bandwidth_hz')
@@ -102,7 +106,10 @@ def register(commands, benches):
                     'anyway). With --auto --bandwidth HZ it searches scheme, n and fc. '
                     'Schemes: '
                     + '; '.join(f'{n}: {s.summary}' for n, s in SCHEMES.items() if s.designer))
-    p.add_argument('--plant', required=True, help='plant file from rths identify')
+    p.add_argument('--plant', required=True,
+                   help='plant file from rths identify, or the updated_model.yaml of rths '
+                        'discrepancy --scenario actuator (its time_delay and linear loop '
+                        'loads folded into the ARX; other effects refused)')
     p.add_argument('--scheme', default=None, choices=designed(),
                    help=f'compensator scheme ({DD["scheme"]})')
     p.add_argument('--taps', type=int, default=DD['n_taps'],
@@ -425,8 +432,6 @@ def _design_one(args, plant, scheme, zero_tol):
 
 def _limits(args):
     """Return the limits of --limits, else of the repo's config/bridge.yaml (None if absent)."""
-    import os
-
     from .assessment import DesignLimits
     path = args.limits
     if path is None:
@@ -454,8 +459,6 @@ def _plant_record(plant_path):
 
 
 def _assess_and_write(args, plant, comp, band) -> int:
-    import os
-
     import numpy as np
 
     from .assessment import assess
@@ -625,7 +628,6 @@ def cmd_bench_compensators(args) -> int:
     print(f'identified plant: ARX na={model.na} nb={model.nb} d={model.d}')
     print(f'wrote {args.out}')
     if args.plots:
-        import os
 
         from .identification import save_plant
         for path in bench.make_plots(result, args.plots):

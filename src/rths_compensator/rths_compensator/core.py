@@ -26,6 +26,7 @@ import numpy as np
 
 from rths_common.gaps import DISPLACEMENT_ORDER
 from rths_common.stepping import GapPolicy, StaleStep, StepResult
+from rths_compensator.filters import MultiChannelFilter
 
 from .methods import method_of, uses_measurement
 
@@ -46,6 +47,7 @@ class CompensatorCore:
         self.policy = GapPolicy(DISPLACEMENT_ORDER)
         self.measured: dict = {}   # adaptive: step -> (measured displacement, applied)
         self.pending: tuple | None = None   # adaptive: (k, x) waiting for measurement k - 1
+        self.last_target: np.ndarray | None = None   # the last step's interface displacement
 
     @property
     def next_step(self) -> int:
@@ -54,9 +56,9 @@ class CompensatorCore:
 
     def _build(self, n_channels: int):
         if self.adaptive:
+            # lazy: start-up cost: SciPy (~1 s), which this module needs only here
             from rths_compensator.adaptive import methods_from_params
             return methods_from_params(self.params, n_channels)
-        from rths_compensator.filters import MultiChannelFilter
         return MultiChannelFilter(self.params['taps'], self.params['denominator'],
                                   n_channels=n_channels)
 
@@ -66,8 +68,6 @@ class CompensatorCore:
         A method on the measurement is built here (imports, the plant) and stepped on
         throwaway copies; the run's own one starts fresh.
         """
-        from rths_compensator.filters import MultiChannelFilter
-
         MultiChannelFilter(self.params['taps'], self.params['denominator'],
                            n_channels=1).step(np.zeros(1))
         if self.adaptive:
@@ -85,6 +85,7 @@ class CompensatorCore:
         if self.adaptive:
             return self._adaptive_step(k, x)
         x, rows = self.policy.admit(k, x)
+        self.last_target = x
         filt = self.filter
         if filt is None:
             filt = self.filter = self._build(max(x.size, 1))
@@ -100,7 +101,7 @@ class CompensatorCore:
         if k != self.next_step:
             raise StaleStep(f'adaptive compensator: step {k} is not the expected step '
                             f'{self.next_step} (adaptive methods run in lock-step)')
-        x = np.asarray(x, dtype=float)
+        x = self.last_target = np.asarray(x, dtype=float)
         if k > 0 and (k - 1) not in self.measured:
             self.pending = (k, x)
             return None
@@ -116,6 +117,7 @@ class CompensatorCore:
 
     def _adaptive_realtime(self, k, x):
         x, rows = self.policy.admit(k, x)
+        self.last_target = x
         filt = self.filter
         if filt is None or len(filt.methods) != max(x.size, 1):
             filt = self.filter = self._build(max(x.size, 1))

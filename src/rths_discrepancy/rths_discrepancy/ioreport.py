@@ -25,8 +25,10 @@ def write(out_dir, result, per, plots=True):
 
 
 def _plot(out_dir, name, p):
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
     d = p['_plot']
     y, b, a = d['t_test'], d['before'], d['after']

@@ -10,6 +10,11 @@
 """
 
 import argparse
+import importlib
+import os
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 #: From this many perturbed draws, ``rths bench rths-benchmark`` uses the study runner:
 #: one vectorised batch of N runs holds ~2.4 MB per run and second of record (1000
@@ -76,7 +81,6 @@ def _scenario_lines() -> str:
 
 
 def _summary_of(module, name) -> str:
-    import importlib
     try:
         return getattr(importlib.import_module(module), name).summary
     except ImportError as err:          # a scenario whose package is missing here
@@ -145,8 +149,8 @@ def _benchmark(args, direct) -> int:
     if args.via != 'loop' or not (args.draws >= DRAWS_VIA_RUNNER or args.scheduler
                                   or args.workers):
         return direct(args)
-    import os
 
+    # lazy: optional dependency (threadpoolctl)
     from threadpoolctl import threadpool_limits
 
     from rths_bench import rths_benchmark as rb
