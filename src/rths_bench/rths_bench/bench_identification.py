@@ -23,6 +23,9 @@ import time
 
 import numpy as np
 
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
+
 RATES_HZ = (1024.0, 2000.0, 4096.0)
 DELAYS_S = (0.005, 0.0125, 0.020)
 NOISE_PCT = (0.0, 0.5, 1.0, 2.0)

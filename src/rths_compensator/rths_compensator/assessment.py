@@ -32,6 +32,10 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 
+from rths_common.runinfo import load_params
+from rths_numerical.signals import blwn
+
+from .design import compensated
 from .estimation import impulse_response
 from .indicators import time_delay_ms
 
@@ -52,7 +56,6 @@ class DesignLimits:
     @classmethod
     def from_bridge_params(cls, path) -> 'DesignLimits':
         """Read ``stroke_m``, ``velocity_m_s``, ``acceleration_m_s2`` of a bridge params file."""
-        from rths_common.runinfo import load_params
         params = load_params(path, 'bridge')
         values = {}
         for key in ('stroke_m', 'velocity_m_s', 'acceleration_m_s2'):
@@ -81,7 +84,6 @@ def reference_signal(fs_hz: float, band_hz: float, measured=None, limits=None,
         r[r.size - m:] *= ramp[::-1]
         return r, f'the record\'s measured displacement in 0-{cutoff:.3g} Hz'
 
-    from rths_numerical.signals import blwn
     peak = REFERENCE_PEAK_FRACTION * (limits.stroke_m if limits else 0.254)
     return (blwn(duration_s, fs_hz, cutoff, peak, seed, 0.5),
             f'band-limited white noise 0-{cutoff:.3g} Hz, peak {peak * 1e3:.3g} mm')
@@ -117,7 +119,6 @@ def compensator_figures(comp, band_hz: float, reference) -> dict:
 
 def loop_figures_model(plant, comp, band_hz: float, n_points: int = 512) -> dict:
     """Predictions of ``T_com = P G`` on the plant model (delay, gain error, gain above band)."""
-    from .design import compensated
     num, den = compensated(plant, comp)
     fs = comp.fs_hz
     delay = time_delay_ms(num, den, fs, band_hz, n_points)

@@ -37,6 +37,8 @@ import dataclasses
 import numpy as np
 from scipy import linalg, optimize, signal
 
+from rths_common.files import atomic_open
+
 from .identification import ArxModel
 
 #: Validation simulation NRMSE [%] (raw record) above which the fit is called poor.
@@ -450,11 +452,11 @@ def validate(model: ArxModel, u, y, fs_hz: float, split: int, band_hz: float) ->
 
 def plot_identification(ident: Identified, path, title: str = '') -> str:
     """PNG of the validation fit: held-out time series, FRF magnitude and phase (+- 2 std)."""
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
-
-    from rths_common.files import atomic_open
     m, info = ident.model, ident.info
     fs, split = m.fs_hz, info['split']
     sim = m.simulate(ident.command)

@@ -22,6 +22,8 @@ import dataclasses
 import numpy as np
 from scipy import linalg, signal
 
+from rths_numerical.signals import blwn
+
 from .identification import ArxModel
 
 
@@ -150,7 +152,6 @@ def identification_record(actuator: SyntheticActuator, duration_s: float = 60.0,
                           band_hz: float = 40.0, peak: float = 0.005, noise_pct: float = 0.5,
                           rng=None):
     """``(time, command, measured)`` of a BLWN identification test of ``actuator``."""
-    from rths_numerical.signals import blwn
     rng = np.random.default_rng(rng)
     u = blwn(duration_s, actuator.fs_hz, band_hz, peak, rng, taper_s=0.5)
     y = actuator.simulate(u, noise_pct, rng)
@@ -166,7 +167,6 @@ def tracking_signals(fs_hz: float, duration_s: float = 20.0, peak: float = 0.005
     follow a sine that starts with a jump in velocity); ``noise``: band-limited white noise
     0-10 Hz (:func:`rths_numerical.signals.blwn`, 0.5 s tapers).  Both peak at ``peak``.
     """
-    from rths_numerical.signals import blwn
     t = np.arange(int(round(duration_s * fs_hz))) / fs_hz
     fade = 0.5 * (1 - np.cos(np.pi * np.minimum(1.0, t)))
     sine = (np.sin(2 * np.pi * t) + np.sin(2 * np.pi * 5 * t)) * fade
