@@ -226,18 +226,25 @@ def _read_run(args, path):
 
 def _read_source(args):
     """``(t, u, y, fs, record)`` of --bag or --csv; ``record`` says how to read it again."""
-    import os
-
     from rths_common.bagio import read_identification
     from rths_common.timebase import sampling_rate_hz
     if args.bag:
         t, u, y = read_identification(args.bag)
-        return t, u, y, sampling_rate_hz(t, args.bag), {'kind': 'bag',
-                                                        'path': os.path.abspath(args.bag)}
+        fs = sampling_rate_hz(t, args.bag)
+        _check_causality(u, y, fs, args.bag)
+        return t, u, y, fs, {'kind': 'bag', 'path': os.path.abspath(args.bag)}
     t, u, y, fs = _read_run(args, args.csv)
+    _check_causality(u, y, fs, args.csv)
     columns, units = _column_spec(args)
     return t, u, y, fs, {'kind': 'csv', 'path': os.path.abspath(args.csv),
                          'columns': columns, 'units': units}
+
+
+def _check_causality(u, y, fs, where):
+    """Refuse a record whose measured signal leads the command (columns swapped)."""
+    from .causality import check_causality
+    lag = check_causality(u, y, fs, str(where))
+    _log(f'identify: the measured signal lags the command by {lag * 1e3:.2f} ms')
 
 
 def read_record(record: dict):
@@ -329,11 +336,13 @@ def _identify_arx_grid(args) -> int:
     """``rths identify --method arx-grid``: the seed's grid and BIC histogram."""
     from rths_common.timebase import format_hz, same_rate
 
+    from .causality import check_causality
     from .identification import identify, save_plant, split_records
     t, u, y, fs, record = _read_source(args)
     records = split_records(t, u, y, args.record_s)
     if args.val_csv:
         tv, uv, yv, fsv = _read_run(args, args.val_csv)
+        check_causality(uv, yv, fsv, args.val_csv)
         if not same_rate(fsv, fs):
             raise ValueError(f'{args.val_csv}: sampling rate {format_hz(fsv)} Hz differs '
                              f'from {format_hz(fs)} Hz of the identification run; record '
@@ -426,6 +435,8 @@ def _design_one(args, plant, scheme, zero_tol):
             if key in OPTION_ARGS and given[OPTION_ARGS[key]] is not None}
     opts.update(_options(args.option, entry.options))
     if entry.fir:
+        from .params import check_filter_cost
+        check_filter_cost(args.taps, plant.fs_hz, f'--taps {args.taps}')
         return dsg.design_default(plant, scheme=scheme, **opts), args.fc
     return dsg.design(plant, scheme, **opts), args.band
 

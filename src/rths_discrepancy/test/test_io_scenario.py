@@ -9,7 +9,7 @@ import pytest
 from scipy import signal
 
 from rths_common.testing import require_data
-from rths_discrepancy import devsets, iodisc, linear
+from rths_discrepancy import devsets, iodisc, ioreport, linear
 from rths_discrepancy import signals as sg
 
 
@@ -117,8 +117,9 @@ def _data_dir(name):
 def test_cascaded_tanks_against_the_published_errors():
     # Cascaded tanks benchmark (Schoukens, Mattsson, Wigren, Noel 2016; data via
     # forgi86/dynonet, MIT repository): test-record RMSE [V] of the simulated level.
-    # Published (Math. Probl. Eng. 2021, 6613425, Table 2, validation column): BLA 0.7574,
-    # Volterra 3rd degree with transient removal 0.5400, PNLSS-I 0.4498.  The benchmark
+    # Published (Math. Probl. Eng. 2021, 6613425, Table 2, column "MSE (validation)", read
+    # as the benchmark's e_RMS): BLA 0.7574, Volterra 3rd degree with transient removal
+    # 0.5400, PNLSS-I 0.4498.  The benchmark
     # document names a hard (overflow) saturation with weakly nonlinear outflows.
     train, test = devsets.cascaded_tanks(_data_dir('cascaded_tanks'))
     res = iodisc.run(train, test, plots=False)
@@ -171,3 +172,12 @@ def test_quiet_silences_the_io_scenario_progress(tmp_path, monkeypatch, capsys):
     assert main(args + ['--quiet']) == 0
     out = capsys.readouterr()
     assert out.err == '' and 'effect:' in out.out
+
+
+def test_report_names_a_diverged_candidate_instead_of_printing_its_error():
+    # A candidate whose free run is unstable (the tanks' backlash block reached 4e144)
+    # reads as diverged, not as an error size; an unfitted one as '-'.
+    assert ioreport.nrmse_cell(4.1e144) == 'diverged (free run unstable)'
+    assert ioreport.nrmse_cell(float('nan')) == 'diverged (free run unstable)'
+    assert ioreport.nrmse_cell(None) == '-'
+    assert ioreport.nrmse_cell(0.21634) == '0.2163'
