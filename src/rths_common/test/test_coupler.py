@@ -86,4 +86,3 @@ def test_interface_forces_do_the_same_work_as_the_actuators():
 def test_wrong_number_of_forces_is_refused():
     with pytest.raises(ValueError, match='1 forces given for 2'):
         MARTHS.interface_forces(np.zeros(1))
-
