@@ -566,8 +566,13 @@ def cmd_review(args) -> int:
     """``rths review``."""
     from rths_bringup.review import print_review
 
+    from rths_common import bagio
+
     bag = Path(args.bag)
     out = Path(args.out) if args.out else bag.parent
+    if not bagio.bag_dir(bag).is_dir():
+        raise OSError(f'bag directory {bag} does not exist')
+    bagio.run_info(bag)   # a damaged bag is refused before anything is written
     summary = _review(bag, out)
     print_review(summary)
     print(f'wrote {out}/report.html, {out}/summary.json, {out}/review.txt and plots')

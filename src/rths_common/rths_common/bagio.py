@@ -154,13 +154,54 @@ def run_info(bag) -> dict:
     import yaml
 
     bag = bag_dir(bag)
-    meta = bag / 'metadata.yaml'
-    if meta.exists():
-        info = yaml.safe_load(meta.read_text())['rosbag2_bagfile_information']
-        if info.get('custom_data'):
-            return dict(info['custom_data'])
+    if (bag / 'metadata.yaml').exists():
+        custom = metadata(bag).get('custom_data')
+        if custom:
+            if not isinstance(custom, dict):
+                raise ValueError(f'{bag / "metadata.yaml"}: custom_data is not a mapping; '
+                                 "rebuild the file with 'rths bag reindex'")
+            return dict(custom)
     side = bag / RUN_INFO_FILE
-    return yaml.safe_load(side.read_text()) if side.exists() else {}
+    if not side.exists():
+        return {}
+    try:
+        data = yaml.safe_load(side.read_text())
+    except yaml.YAMLError as err:
+        raise ValueError(f'{side}: not valid YAML ({_first_line(err)})') from None
+    if data is not None and not isinstance(data, dict):
+        raise ValueError(f'{side}: must be a mapping of run information, '
+                         f'got {type(data).__name__}')
+    return data or {}
+
+
+def _first_line(err) -> str:
+    return str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+
+
+def metadata(bag) -> dict:
+    """Return ``rosbag2_bagfile_information`` of a bag's metadata.yaml, checked to be a mapping.
+
+    A file that is not YAML, not a mapping or lacks that key raises ValueError
+    naming the file and the fix (``rths bag reindex`` rebuilds it from the data file).
+    """
+    import yaml
+
+    meta = bag_dir(bag) / 'metadata.yaml'
+    fix = f"rebuild it with 'rths bag reindex {bag_dir(bag)}'"
+    try:
+        data = yaml.safe_load(meta.read_text())
+    except yaml.YAMLError as err:
+        raise ValueError(f'{meta}: not valid YAML ({_first_line(err)}); {fix}') from None
+    except UnicodeDecodeError:
+        raise ValueError(f'{meta}: not a text file; {fix}') from None
+    if not isinstance(data, dict):
+        raise ValueError(f'{meta}: must be a mapping with rosbag2_bagfile_information, got '
+                         f'{type(data).__name__}; {fix}')
+    info = data.get('rosbag2_bagfile_information')
+    if not isinstance(info, dict):
+        raise ValueError(f'{meta}: rosbag2_bagfile_information is missing or not a mapping; '
+                         f'{fix}')
+    return info
 
 
 def reindex(bag) -> Path:
@@ -243,8 +284,13 @@ def open_reader(bag):
         raise OSError(f'bag directory {bag} does not exist')
     if not (bag / 'metadata.yaml').exists():
         reindex(bag)
-    reader = Reader(bag)
-    reader.open()
+    metadata(bag)   # a damaged file is named here, not deep inside rosbags
+    try:
+        reader = Reader(bag)
+        reader.open()
+    except Exception as err:  # noqa: BLE001 - rosbags' own errors: name the bag and the fix
+        raise ValueError(f'bag {bag}: cannot be opened ({_first_line(err)}); if the recording '
+                         f"was cut, try 'rths bag reindex {bag}'") from None
     return reader
 
 
@@ -271,10 +317,28 @@ def read_messages(bag, topic_names=None):
     reader = open_reader(bag)
     try:
         conns = [c for c in reader.connections if topic_names is None or c.topic in topic_names]
-        for conn, timestamp, raw in reader.messages(connections=conns):
-            yield conn.topic, timestamp, store.deserialize_cdr(raw, conn.msgtype)
+        for conn, timestamp, raw in _checked(bag, reader.messages(connections=conns)):
+            try:
+                msg = store.deserialize_cdr(raw, conn.msgtype)
+            except Exception as err:  # noqa: BLE001 - a damaged message: name the bag and topic
+                raise ValueError(f'bag {bag}: a {conn.topic} message at {timestamp} ns cannot '
+                                 f'be read ({_first_line(err)}); the bag is damaged') from None
+            yield conn.topic, timestamp, msg
     finally:
         reader.close()
+
+
+def _checked(bag, messages):
+    """Yield from rosbags' message iterator; a damaged chunk raises ValueError naming the bag."""
+    while True:
+        try:
+            item = next(messages)
+        except StopIteration:
+            return
+        except Exception as err:  # noqa: BLE001 - rosbags/mcap/sqlite errors of a damaged file
+            raise ValueError(f'bag {bag}: damaged data ({_first_line(err)}); '
+                             f"'rths bag repair {bag}' keeps what is readable") from None
+        yield item
 
 
 def read_topic(bag, topic: str) -> list:
