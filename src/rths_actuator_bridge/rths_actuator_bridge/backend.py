@@ -29,6 +29,7 @@ Safety limits (both)
 """
 
 from abc import ABC, abstractmethod
+import inspect
 
 import numpy as np
 
@@ -74,7 +75,6 @@ class Backend(ABC):
 
     def __init__(self):
         """Create an unconfigured backend."""
-        import inspect
         # a backend whose _read takes wait_s waits for an external reading at most that long
         self._timed_reads = 'wait_s' in inspect.signature(self._read).parameters
         self.lifecycle = UNCONFIGURED

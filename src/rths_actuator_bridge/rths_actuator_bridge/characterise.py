@@ -30,11 +30,16 @@ The experimental vs fitted transfer-function plot mirrors figures 18-21.
 
 from dataclasses import asdict, dataclass
 import math
+import os
 
 import numpy as np
 
+from rths_common.bagio import read_specimen
 from rths_common.columns import read_columns
+from rths_common.files import atomic_open
 from rths_common.timebase import sampling_rate_hz
+from rths_numerical.dtm import FRAME_MASS_KG, TABLE4, TABLE4_PRINTED
+from rths_numerical.signals import blwn
 
 #: Moving mass of the DTM: 569.5 lbm (seed section 5.1) in kg.
 MOVING_MASS_KG = 569.5 * 0.45359237
@@ -76,6 +81,7 @@ def transfer_function(m_d: float, c_d: float, k_d: float, freqs_hz) -> np.ndarra
 
 def frf_estimate(record: DTMRecord, nperseg: int = None):
     """H1 estimate of X_d2s / Xdd_s: ``(freqs [Hz], H, coherence)``."""
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from scipy.signal import coherence, csd, welch
     fs = record.fs_hz
     n = len(record.base_accel)
@@ -114,6 +120,7 @@ def _initial_guess(records, m_d: float):
 
 
 def _discrete(m_d, c_d, k_d, fs):
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from scipy.signal import cont2discrete
     num, den, _ = cont2discrete(([-m_d], [m_d, c_d, k_d]), 1.0 / fs, method='foh')
     return np.ravel(num), np.ravel(den)
@@ -133,6 +140,7 @@ def _free_basis(m_d, c_d, k_d, n, fs):
 
 
 def _residuals(theta, records, m_d, scales):
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from scipy.signal import lfilter
     c_d, k_d = np.exp(theta)
     out = []
@@ -150,6 +158,7 @@ def excitation_band(record: DTMRecord) -> float:
     """Upper edge [Hz] of the excitation: ``band_hz`` if known, else from the acceleration PSD."""
     if record.band_hz:
         return float(record.band_hz[1])
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from scipy.signal import welch
     f, p = welch(record.base_accel, fs=record.fs_hz,
                  nperseg=int(min(len(record.base_accel), round(10 * record.fs_hz))))
@@ -163,6 +172,7 @@ def prepare(record: DTMRecord, band_hz: float = None) -> DTMRecord:
     Removing the measurement noise above the excitation band avoids the
     errors-in-variables bias of the noisy acceleration input.
     """
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from scipy.signal import butter, sosfiltfilt
     fs = record.fs_hz
     f_cut = min(1.1 * (band_hz or excitation_band(record)), 0.45 * fs)
@@ -181,6 +191,7 @@ def fit_dtm(records, m_d: float = MOVING_MASS_KG, initial=None, prefilter: bool 
     ``prefilter`` low-passes both signals at 1.1 x the excitation band and
     decimates (:func:`prepare`) before the output-error fit.
     """
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from scipy.optimize import least_squares
     records = [records] if isinstance(records, DTMRecord) else list(records)
     if not records:
@@ -232,8 +243,10 @@ def average_frf(records, nperseg: int = None):
 
 def plot_fit(records, fit: DTMFit, path, title: str = '', f_max_hz: float = 10.0):
     """Write the experimental vs fitted transfer function (magnitude, phase) to a PNG."""
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
     nperseg = int(round(20 * records[0].fs_hz))
     nperseg = min([nperseg] + [len(r.base_accel) for r in records])
@@ -272,7 +285,6 @@ def read_csv(path, name: str = None) -> DTMRecord:
 
 def write_csv(path, record: DTMRecord, force=None):
     """Write a record in the :func:`read_csv` layout (atomic)."""
-    from rths_common.files import atomic_open
     t = np.arange(len(record.base_accel)) / record.fs_hz
     cols = [t, record.base_accel, record.rel_disp] + ([force] if force is not None else [])
     header = 'time,base_accel,rel_disp' + (',force' if force is not None else '')
@@ -283,9 +295,6 @@ def write_csv(path, record: DTMRecord, force=None):
 
 def read_bag(path):
     """Return the DTM record (table acceleration, relative displacement) of a rosbag2 run bag."""
-    from rths_common.bagio import read_specimen
-    from rths_numerical.dtm import FRAME_MASS_KG
-
     spec = read_specimen(path, FRAME_MASS_KG)
     t = np.asarray(spec['time'], float)
     return DTMRecord(np.asarray(spec['base_accel'], float), np.asarray(spec['rel_disp'], float),
@@ -295,6 +304,7 @@ def read_bag(path):
 # --------------------------------------------------------------------- simulated tests
 def chirp_displacement(duration_s, fs_hz, f_max_hz, peak_m, f_min_hz=0.1, taper_s=2.0):
     """Linear displacement chirp ``f_min -> f_max`` with half-cosine tapers [m]."""
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from scipy.signal import chirp
     t = np.arange(int(round(duration_s * fs_hz))) / fs_hz
     x = chirp(t, f0=f_min_hz, t1=t[-1], f1=f_max_hz, method='linear', phi=-90)
@@ -331,8 +341,7 @@ BENCH_CHIRPS = ([(5, a) for a in (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4)]
 def simulated_test(dtm: str, kind: str, band_hz: float, peak_in: float, seed: int,
                    duration_s: float = 60.0, fs_hz: float = 1024.0, noise: dict = None):
     """One simulated shake-table test of ``dtm`` through the full plant -> :class:`DTMRecord`."""
-    from rths_numerical.signals import blwn
-
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from .simulated import SimulatedPlant
     rng = np.random.default_rng(seed)
     peak = peak_in * INCH
@@ -364,7 +373,6 @@ def _stats(values) -> dict:
 def bench_dtm(configs=None, blwn_s: float = 60.0, chirp_s: float = 40.0, per_record=True,
               progress=print, plot_dir=None) -> dict:
     """Reproduce Table 4 from simulated tests of each configuration (see ``rths bench dtm``)."""
-    from rths_numerical.dtm import TABLE4, TABLE4_PRINTED
     configs = list(configs or TABLE4)
     out = {'configurations': {}, 'tolerance_pct': 3.0}
     worst = 0.0
@@ -396,7 +404,6 @@ def bench_dtm(configs=None, blwn_s: float = 60.0, chirp_s: float = 40.0, per_rec
                           'f_n': _stats([f.f_n for f in rec_c])},
             }
         if plot_dir is not None:
-            import os
             os.makedirs(plot_dir, exist_ok=True)
             plot_fit(blwns, fit, os.path.join(plot_dir, f'dtm_{name}.png'))
         out['configurations'][name] = entry

@@ -26,6 +26,7 @@ checker's own send lateness is reported as ``send_late_ms_max`` (the floor of th
 """
 
 import math
+import os
 import select
 import socket
 import struct
@@ -161,9 +162,9 @@ def check_controller(host: str, port: int, channels: int = 1, fs_hz: float = 102
     if not (math.isfinite(amplitude_m) and 0 <= amplitude_m <= 0.01):
         raise ValueError(f'--amplitude-m {amplitude_m} must lie in 0..0.01 m')
     say = progress or (lambda text: None)
-    import os
     previous = (os.sched_getscheduler(0), os.sched_getparam(0))
     if rt_priority > 0:
+        # lazy: start-up cost: SciPy (~1 s), which this module needs only here
         from .emulator import realtime_thread
         say(realtime_thread(rt_priority))
     try:

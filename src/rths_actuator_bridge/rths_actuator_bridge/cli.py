@@ -10,10 +10,14 @@
 import argparse
 import json
 import sys
+import time
 
 from rths_common.files import atomic_open
 from rths_common.params import add_renamed_option
 from rths_numerical.specimens import DEFAULT_SPECIMEN, SPECIMENS
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 
 def _progress(text: str):
@@ -44,8 +48,6 @@ def _add_plant_options(p):
 
 def run_emulator(args) -> int:
     """Serve the simulated plant over UDP until interrupted or --duration-s elapses."""
-    import time
-
     from .emulator import ControllerEmulator
     params = {'actuator_model': args.actuator_model, 'specimen': args.specimen,
               'fs_hz': args.fs_hz,

@@ -32,6 +32,7 @@ the per-step sets ``drop``, ``duplicate``, ``corrupt``, ``delay_s``, ``relabel``
 """
 
 import math
+import os
 import random
 import socket
 import threading
@@ -56,7 +57,6 @@ def realtime_thread(priority: int) -> str:
     """SCHED_FIFO ``priority`` for the calling thread, as a real-time controller runs; describe."""
     if priority <= 0:
         return 'normal scheduling'
-    import os
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
         return f'SCHED_FIFO {priority}'

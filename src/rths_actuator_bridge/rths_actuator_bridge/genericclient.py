@@ -20,6 +20,7 @@ supervisor counts it and stops the run after ``max_invalid_measurements``.
 """
 
 import socket
+import ssl
 import time
 from urllib.parse import urlsplit
 
@@ -57,7 +58,6 @@ def parse_site(url: str) -> tuple:
 
 def client_tls_context(ca: str, cert: str = '', key: str = ''):
     """Return an SSL context that checks the site against ``ca`` and shows ``cert`` if given."""
-    import ssl
     ctx = ssl.create_default_context(ssl.Purpose.SERVER_AUTH, cafile=ca)
     ctx.check_hostname = False   # sites are addressed by IP in a lab; the CA pins the peer
     if cert:

@@ -8,15 +8,20 @@ controller) under the safety supervisor, and publishes ``/rths/measurement`` and
 realtime clocks (behaviour and measurements: docs/nodes.md).
 """
 
+import functools
 import sys
 import time
 
 from lifecycle_msgs.msg import State
 import numpy as np
 import rclpy
+from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import TransitionCallbackReturn
 from std_msgs.msg import String, UInt64
 
+from rths_actuator_bridge.backend import Backend
+from rths_actuator_bridge.managed import ManagedNode
+from rths_actuator_bridge.safety import HOLD, RAMP, STOPPED, SafetyLimits
 from rths_common import node_support as ns
 from rths_common import topics
 from rths_common.qos import loop_qos, run_info_qos, status_qos
@@ -44,6 +49,7 @@ def check_bridge_params(params: dict) -> dict:
     naming the field and the fix.  Used by the node and by ``rths launch``'s
     pre-flight check (:mod:`rths_bringup.preflight`).
     """
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from rths_actuator_bridge.bridge import check_core_params
 
     core = {k: v for k, v in params.items()
@@ -56,12 +62,8 @@ class BridgeNode:
     """ROS shell around a backend and its safety supervisor."""
 
     def __init__(self):
-        import functools
-
-        from rths_actuator_bridge.backend import Backend
+        # lazy: start-up cost: SciPy (~1 s), which this module needs only here
         from rths_actuator_bridge.bridge import Bridge, backend_class, param_schema
-        from rths_actuator_bridge.managed import ManagedNode
-        from rths_actuator_bridge.safety import SafetyLimits
 
         managed = functools.partial(ManagedNode, shell=self)   # UNCONFIGURED
         self.node = ns.make_node('bridge', param_schema(NODE_PARAMS), NODE_PARAMS, managed)
@@ -308,8 +310,6 @@ class BridgeNode:
 
     def start_clock(self):
         """Tick 0 is now; start the clock thread or timer if one is used."""
-        from rclpy.clock import Clock, ClockType
-
         self.ticks.start(time.monotonic_ns())
         prio, cpus, _ = ns.tuning(self.own, 'bridge')
         self.tuning = ns.tune_process(prio, cpus, 'default')  # threads created since
@@ -330,7 +330,6 @@ class BridgeNode:
         if ticks is None or not ticks.running or self.stopped:
             return None
         if self.n_steps is not None and ticks.k >= self.n_steps:
-            from rths_actuator_bridge.safety import HOLD, RAMP
             if self.bridge.state not in (HOLD, RAMP):
                 if not self.run_over:
                     self.run_over = True
@@ -382,8 +381,6 @@ class BridgeNode:
 
     def apply(self, step, command, t_in, latency_us=-1.0, missed=False):
         """One step through the supervisor and the backend; publish measurement and status."""
-        from rths_actuator_bridge.safety import STOPPED
-
         t0 = time.perf_counter_ns()
         result = self.bridge.step(step, command, realtime=not self.lockstep)
         state, fault = result.state, result.fault

@@ -68,6 +68,19 @@ and the reaction frame) is advanced by :mod:`.stroke_specimen`: its stroke is th
 displacement and the measured force is the device force (for ``mr`` the Bouc-Wen model
 of Spencer et al. 1997 at the constant voltage ``mr_voltage_v``).
 
+Hidden effects (the simulated lab as a test of the discrepancy workflow): bridge keys in
+physical units that make the lab differ from its nominal model by one effect of the
+library of :mod:`rths_discrepancy.effects` (:data:`HIDDEN_EFFECTS` maps each key to its
+scenario and effect).  They are recorded with the other bridge parameters in the bag's
+run information (the ground truth of a test); the workflow never reads them.  On the
+mass on the table: ``specimen_damping_error_n_s_m`` (c_d + dc), ``specimen_stiffness_error_n_m``
+(k_d + dk), ``specimen_mass_error_kg`` (m_d + dm), and the forces on the moving mass
+``friction_n`` (above), ``specimen_cubic_stiffness_n_m3`` (k3 x^3) and ``specimen_backlash_m``
+(``k_d (dz(x, b) - x)``, a clearance +-b before the spring engages), integrated with the
+friction's sub-steps; on the sensors: ``rel_disp_bias_m`` (the DTM displacement sensor),
+``force_offset_n`` (the load cells) and ``displacement_bias_m`` (the actuator's displacement
+sensor); in the command path the bridge's ``command_delay_steps``.
+
 Sensors: Gaussian noise of standard deviation ``displacement_noise_m``,
 ``force_noise_n``, ``rel_disp_noise_m``, ``accel_noise_m_s2`` from a seeded
 ``numpy.random.Generator``; ADC quantisation with ``adc_bits`` over
@@ -80,14 +93,17 @@ import math
 
 import numpy as np
 from scipy.linalg import expm
+from scipy.signal import lfilter, tf2ss
 
 from rths_common.params import LOOP_RATE_RANGE_HZ, renamed
 from rths_common.timebase import same_rate
+from rths_compensator.plants import actuator_poles
 from rths_numerical.dtm import DTMParameters
 from rths_numerical.specimens import DEFAULT_SPECIMEN, SPECIMENS, specimen_params
 
 from .backend import Backend
 from .channels import CHANNELS, zoh
+from .silva2020 import BRIDGE_PARAMS, channel_model
 from .stroke_specimen import StrokeTableSpecimen
 
 
@@ -121,6 +137,14 @@ class PlantConfig:
     friction_v_m_s: float = 1e-3
     friction_substeps: int = 16
     daq_filter_hz: float = 200.0
+    specimen_damping_error_n_s_m: float = 0.0
+    specimen_stiffness_error_n_m: float = 0.0
+    specimen_mass_error_kg: float = 0.0
+    specimen_cubic_stiffness_n_m3: float = 0.0
+    specimen_backlash_m: float = 0.0
+    rel_disp_bias_m: float = 0.0
+    force_offset_n: float = 0.0
+    displacement_bias_m: float = 0.0
     specimen_settings: dict = field(default_factory=dict)   # the specimen's own parameters
 
 
@@ -149,7 +173,34 @@ SIM_PARAMS = {
     'friction_substeps': (int, 16, '[-] sub-steps per sample when friction_n > 0'),
     'daq_filter_hz': (float, 200.0, '[Hz] cut-off of the 2nd-order Butterworth anti-alias '
                       'filter of the specimen channels (table_accel, rel_disp, rel_vel); 0 = off'),
+    'specimen_damping_error_n_s_m': (float, 0.0, '[N s/m] hidden: damping added to the '
+                                     "DTM's c_d"),
+    'specimen_stiffness_error_n_m': (float, 0.0, "[N/m] hidden: stiffness added to the DTM's k_d"),
+    'specimen_mass_error_kg': (float, 0.0, "[kg] hidden: mass added to the DTM's m_d"),
+    'specimen_cubic_stiffness_n_m3': (float, 0.0, '[N/m^3] hidden: cubic spring k3 x^3 on the '
+                                      'DTM moving mass'),
+    'specimen_backlash_m': (float, 0.0, '[m] hidden: clearance +-b before the DTM spring '
+                            'engages'),
+    'rel_disp_bias_m': (float, 0.0, '[m] hidden: offset of the DTM relative-displacement sensor'),
+    'force_offset_n': (float, 0.0, '[N] hidden: offset of the load cells'),
+    'displacement_bias_m': (float, 0.0, "[m] hidden: offset of the actuator's displacement "
+                            'sensor'),
     **specimen_params()[0],
+}
+
+#: Hidden-effect keys of :data:`SIM_PARAMS` -> (scenario, effect of rths_discrepancy.effects).
+#: The bridge's ``command_delay_steps`` (D steps) is the actuator's ``time_delay`` D / fs_hz.
+HIDDEN_EFFECTS = {
+    'friction_n': ('specimen', 'coulomb_friction'),
+    'specimen_damping_error_n_s_m': ('specimen', 'viscous_damping_error'),
+    'specimen_stiffness_error_n_m': ('specimen', 'stiffness_error'),
+    'specimen_mass_error_kg': ('specimen', 'mass_error'),
+    'specimen_cubic_stiffness_n_m3': ('specimen', 'cubic_stiffness'),
+    'specimen_backlash_m': ('specimen', 'backlash'),
+    'rel_disp_bias_m': ('specimen', 'sensor_bias'),
+    'force_offset_n': ('specimen', 'force_offset'),
+    'displacement_bias_m': ('actuator', 'sensor_bias'),
+    'command_delay_steps': ('actuator', 'time_delay'),
 }
 #: Ranges of the rates, counts and specimen settings of :data:`SIM_PARAMS` (inclusive).
 SIM_RANGES = {
@@ -158,6 +209,14 @@ SIM_RANGES = {
     'friction_n': (0.0, 1.0e6),
     'friction_substeps': (1, 4096),
     'daq_filter_hz': (0.0, 100_000.0),
+    'specimen_damping_error_n_s_m': (-1.0e5, 1.0e5),
+    'specimen_stiffness_error_n_m': (-1.0e7, 1.0e7),
+    'specimen_mass_error_kg': (-1.0e4, 1.0e4),
+    'specimen_cubic_stiffness_n_m3': (-1.0e13, 1.0e13),
+    'specimen_backlash_m': (0.0, 0.1),
+    'rel_disp_bias_m': (-0.254, 0.254),
+    'force_offset_n': (-1.0e5, 1.0e5),
+    'displacement_bias_m': (-0.254, 0.254),
     **specimen_params()[1],
 }
 #: Allowed values of the plant's parameters that name a choice.
@@ -194,13 +253,18 @@ def plant_config(params: dict) -> PlantConfig:
     for key in ('daq_filter_hz', 'displacement_noise_m', 'force_noise_n', 'rel_disp_noise_m',
                 'accel_noise_m_s2',
                 'displacement_range_m', 'force_range_n', 'rel_disp_range_m', 'accel_range_m_s2',
-                'friction_n'):
+                'friction_n', 'specimen_backlash_m'):
         if not (getattr(cfg, key) >= 0 and math.isfinite(getattr(cfg, key))):
             raise ValueError(f'parameter {key!r} = {getattr(cfg, key)} must be finite and >= 0')
     if not 0 <= cfg.adc_bits <= 32:
         raise ValueError(f"parameter 'adc_bits' = {cfg.adc_bits} must be 0 (off) .. 32")
     if cfg.friction_substeps < 1 or not cfg.friction_v_m_s > 0:
         raise ValueError("parameters 'friction_substeps' must be >= 1 and 'friction_v_m_s' > 0")
+    for key in ('specimen_damping_error_n_s_m', 'specimen_stiffness_error_n_m',
+                'specimen_mass_error_kg', 'specimen_cubic_stiffness_n_m3', 'rel_disp_bias_m',
+                'force_offset_n', 'displacement_bias_m'):
+        if not math.isfinite(getattr(cfg, key)):
+            raise ValueError(f'parameter {key!r} = {getattr(cfg, key)} must be finite')
     if not (math.isnan(cfg.frame_mass_kg) or cfg.frame_mass_kg >= 0):
         raise ValueError(f"parameter 'frame_mass_kg' = {cfg.frame_mass_kg} must be >= 0")
     return cfg
@@ -215,9 +279,6 @@ RETUNE_KEYS = ('actuator_gain', 'actuator_bandwidth', 'actuator_mode_frequency',
 
 def _actuator_ss(kind: str, scales: dict = None):
     """Return the controllable state space (A, B, C) of a Table 1 actuator model, retuned."""
-    from scipy.signal import tf2ss
-
-    from rths_compensator.plants import actuator_poles
     try:
         poles = actuator_poles(kind)
     except ValueError as err:
@@ -263,6 +324,7 @@ class SimulatedPlant:
             self._build_silva2020()
         else:
             self._build_arx(cfg.actuator_model)
+        self._check_hidden()
         self.mr = None   # a device specimen (between the table and the ground), if any
         device, substeps = self.specimen.make_device(cfg.specimen_settings)
         if device is not None:
@@ -270,11 +332,34 @@ class SimulatedPlant:
         self.reset()
 
     # ----------------------------------------------------------------- building
+    def _check_hidden(self):
+        """Refuse a hidden effect on the moving mass this plant cannot simulate (never drop it)."""
+        cfg = self.config
+        on_mass = [k for k in ('friction_n', 'specimen_damping_error_n_s_m',
+                               'specimen_stiffness_error_n_m', 'specimen_mass_error_kg',
+                               'specimen_cubic_stiffness_n_m3', 'specimen_backlash_m',
+                               'rel_disp_bias_m') if getattr(cfg, k)]
+        if on_mass and self.dtm is None:
+            raise ValueError(f"parameter(s) {', '.join(on_mass)}: specimen {cfg.specimen} has "
+                             'no mass on the table; set them to 0')
+        if self.arx is not None and self._nonlinear:
+            raise ValueError("parameters friction_n / specimen_cubic_stiffness_n_m3 / "
+                             "specimen_backlash_m need the continuous actuator model "
+                             "(actuator_model '3pole' or '4pole'), not an ARX plant.yaml")
+
     def _table_mass(self) -> DTMParameters:
         """Return the mass on the table as built and retuned (a massless placeholder if none)."""
         if self.dtm is None:
             return DTMParameters(1.0, 0.0, 0.0)
-        return replace(self.dtm, k_d=self.dtm.k_d * self._scales['dtm_stiffness'])
+        cfg = self.config
+        mass = replace(self.dtm, m_d=self.dtm.m_d + cfg.specimen_mass_error_kg,
+                       c_d=self.dtm.c_d + cfg.specimen_damping_error_n_s_m,
+                       k_d=self.dtm.k_d + cfg.specimen_stiffness_error_n_m)
+        if not (mass.m_d > 0 and mass.c_d >= 0 and mass.k_d > 0):
+            raise ValueError('the hidden specimen errors leave m_d <= 0, c_d < 0 or k_d <= 0 '
+                             f'(m_d {mass.m_d:g} kg, c_d {mass.c_d:g} N s/m, k_d {mass.k_d:g} '
+                             'N/m); use smaller errors')
+        return replace(mass, k_d=mass.k_d * self._scales['dtm_stiffness'])
 
     def _dtm_cmk(self):
         """Return ``(m_d, c_d, k_d)`` of the mass on the table, retuned."""
@@ -319,7 +404,6 @@ class SimulatedPlant:
 
     def _build_silva2020(self):
         """Build the benchmark plant of :mod:`.silva2020` (it carries its own SDOF specimen)."""
-        from .silva2020 import channel_model
         self.dtm, self.frame_mass = None, 0.0
         self._set_linear(*channel_model(self.silva2020_params))
 
@@ -335,7 +419,7 @@ class SimulatedPlant:
         self._x_tmp = np.zeros(self.n_states)
         self._y_buf = np.zeros(self.c.shape[0])
         self._y_tmp = np.zeros(self.c.shape[0])
-        if self.config.friction_n > 0 and self.dtm is not None:
+        if self._nonlinear:
             h = self.dt / self.config.friction_substeps
             self._ad_h, self._bd_h = zoh(a, b, h)
 
@@ -369,6 +453,7 @@ class SimulatedPlant:
 
     def _build_arx(self, path: str):
         try:
+            # lazy: optional: tried here, refused with a clear message when missing
             from rths_compensator.identification import load_plant
         except ImportError:
             raise ValueError(f"parameter 'actuator_model' = {path!r}: loading an ARX plant.yaml "
@@ -441,9 +526,22 @@ class SimulatedPlant:
             self.mr.reset()
         self.true = dict.fromkeys(CHANNELS, 0.0)
 
-    def _friction(self, rel_vel: float) -> float:
+    @property
+    def _nonlinear(self) -> bool:
+        """Return True if a force on the moving mass needs the sub-stepped integration."""
         cfg = self.config
-        return cfg.friction_n * math.tanh(rel_vel / cfg.friction_v_m_s)
+        return self.dtm is not None and (cfg.friction_n > 0 or cfg.specimen_backlash_m > 0
+                                         or cfg.specimen_cubic_stiffness_n_m3 != 0)
+
+    def _friction(self, rel_disp: float, rel_vel: float) -> float:
+        """Force [N] on the moving mass: friction, the hidden cubic spring and clearance."""
+        cfg = self.config
+        f = cfg.friction_n * math.tanh(rel_vel / cfg.friction_v_m_s)
+        f += cfg.specimen_cubic_stiffness_n_m3 * rel_disp ** 3
+        if cfg.specimen_backlash_m > 0:
+            dz = math.copysign(max(abs(rel_disp) - cfg.specimen_backlash_m, 0.0), rel_disp)
+            f += self._table_mass().k_d * (dz - rel_disp)
+        return f
 
     def step(self, command: float) -> dict:
         """Hold ``command`` [m] for one sample; return the true channels at its end."""
@@ -452,12 +550,12 @@ class SimulatedPlant:
             return self.mr.step(u)
         if self.arx is not None:
             return self._step_arx(u)
-        if self.config.friction_n > 0 and self.dtm is not None:
+        if self._nonlinear:
             fc = 0.0
             for _ in range(self.config.friction_substeps):
-                fc = self._friction(self.x[self._i_rel_vel])
+                fc = self._friction(self.x[self._i_rel_vel - 1], self.x[self._i_rel_vel])
                 self.x = self._ad_h @ self.x + self._bd_h @ np.array([u, fc])
-            fc = self._friction(self.x[self._i_rel_vel])
+            fc = self._friction(self.x[self._i_rel_vel - 1], self.x[self._i_rel_vel])
             y = self.c @ self.x + self.d @ np.array([u, fc])
         else:
             # x' = Ad x + Bd u, y = C x' + D u: the same operations as
@@ -501,6 +599,10 @@ class SimulatedPlant:
         cfg = self.config
         t = self.true if true is None else true
         out = dict(t)
+        for key, bias in (('rel_disp', cfg.rel_disp_bias_m), ('force', cfg.force_offset_n),
+                          ('table_disp', cfg.displacement_bias_m)):
+            if bias:
+                out[key] = out[key] + bias
         if self._noiseless:
             return out      # no noise, no ADC: the true values (as floats for one sample)
         spec = (('table_disp', cfg.displacement_noise_m, cfg.displacement_range_m),
@@ -508,7 +610,7 @@ class SimulatedPlant:
                 ('rel_disp', cfg.rel_disp_noise_m, cfg.rel_disp_range_m),
                 ('table_accel', cfg.accel_noise_m_s2, cfg.accel_range_m_s2))
         for key, sigma, full in spec:
-            val = np.asarray(t[key], float)
+            val = np.asarray(out[key], float)
             if sigma > 0:
                 val = val + sigma * self.rng.standard_normal(val.shape)
             out[key] = _quantise(val, cfg.adc_bits, full)
@@ -521,8 +623,7 @@ class SimulatedPlant:
         linear case runs as one vectorised state-space filter.
         """
         u = np.asarray(commands, float).ravel()
-        if self.arx is None and self.mr is None and not (self.config.friction_n > 0
-                                                         and self.dtm is not None):
+        if self.arx is None and self.mr is None and not self._nonlinear:
             true = self._simulate_linear(u)
         else:
             rows = [self.step(ui) for ui in u]
@@ -535,7 +636,6 @@ class SimulatedPlant:
         With ``Ad = V diag(lam) V^-1`` and ``z = V^-1 x``, each mode obeys
         ``z_{k+1} = lam z_k + g u_k``, one complex ``lfilter`` call per mode.
         """
-        from scipy.signal import lfilter
         if len(u) == 0:
             return {key: np.zeros(0) for key in CHANNELS}
         lam, vec = np.linalg.eig(self._ad)
@@ -559,8 +659,6 @@ def silva2020_plant(params=None, **config) -> SimulatedPlant:
     ``params`` is a :class:`.silva2020.Silva2020Params` (None: nominal); ``config``
     overrides :data:`.silva2020.BRIDGE_PARAMS` (e.g. ``seed``, or zero noise).
     """
-    from .silva2020 import BRIDGE_PARAMS
-
     class Silva2020Plant(SimulatedPlant):
         silva2020_params = params
 

@@ -41,8 +41,18 @@ import threading
 import time
 
 import numpy as np
+import yaml
 
 from rths_common import cdr, topics
+from rths_common.bagio import BagWriter
+from rths_common.params import core_params
+from rths_common.runinfo import flatten, load_params
+from rths_compensator.core import CompensatorCore
+from rths_compensator.params import (
+    check_compensator_params,
+    check_sampling_rate,
+    load_compensator_params,
+)
 
 from . import openfresco as of
 from . import safety
@@ -111,7 +121,6 @@ class SiteRecorder:
 
     def __init__(self, path, run_info: dict):
         """Create the bag at ``path`` (must not exist) with the run information."""
-        from rths_common.bagio import BagWriter
         self.writer = BagWriter(path, run_info=run_info)
         self.path = Path(path)
 
@@ -307,7 +316,6 @@ class SiteCore:
 # ---------------------------------------------------------------------- configuration
 def _section(doc: dict, name: str, node: str, base: Path, default: Path) -> dict:
     """Return a node's parameters: a params file (relative to the config), inline, default."""
-    from rths_common.runinfo import load_params
     value = doc.get(name, str(default))
     if isinstance(value, dict):
         return dict(value.get('ros__parameters', value))
@@ -316,7 +324,6 @@ def _section(doc: dict, name: str, node: str, base: Path, default: Path) -> dict
                          'parameters')
     path = Path(value) if Path(value).is_absolute() else base / value
     if node == 'compensator':
-        from rths_compensator.params import load_compensator_params
         return load_compensator_params(path)
     return load_params(path, node)
 
@@ -329,11 +336,7 @@ def load_site_config(path=None, config_dir=None) -> dict:
     parameters inline; missing ones are ``config_dir``'s bridge.yaml and
     compensator.yaml.  Without a file: those two and the site defaults.
     """
-    import yaml
-
-    from rths_common.params import core_params
-    from rths_compensator.params import check_compensator_params, check_sampling_rate
-
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from .bridge import check_core_params
     config_dir = (Path(config_dir) if config_dir else Path('config')).resolve()
     doc, base = {}, config_dir
@@ -367,7 +370,6 @@ def load_site_config(path=None, config_dir=None) -> dict:
 
 def run_info(config: dict) -> dict:
     """Return the bag's run information of a site run (kind ``rths``, no numerical section)."""
-    from rths_common.runinfo import flatten
     fs = float(config['bridge'].get('fs_hz', safety.SAFETY_PARAMS['fs_hz'][0]))
     info = flatten('rths', fs, config['site']['mode'],
                    {'bridge': config['bridge'], 'compensator': config['compensator'],
@@ -377,8 +379,7 @@ def run_info(config: dict) -> dict:
 
 def build_site(config: dict, bag=None, log=print) -> 'SiteCore':
     """Create the bridge (configured, not yet active), compensator, recorder and site core."""
-    from rths_compensator.core import CompensatorCore
-
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from .bridge import Bridge
     bridge = Bridge()
     bridge.configure(config['bridge'])

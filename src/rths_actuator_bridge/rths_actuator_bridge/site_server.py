@@ -23,6 +23,7 @@ and the bag is closed readable.
 
 import ipaddress
 import socket
+import ssl
 import sys
 import threading
 import time
@@ -70,7 +71,6 @@ def check_allow(allow) -> list:
 
 def server_tls_context(cert: str, key: str, ca: str = ''):
     """Return the site's SSL context; with ``ca`` the client must show a certificate it signed."""
-    import ssl
     if not cert:
         raise ValueError('--tls-key/--tls-ca need --tls-cert (the site certificate, PEM)')
     ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)

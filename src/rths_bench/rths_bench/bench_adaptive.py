@@ -27,9 +27,12 @@ import time
 
 import numpy as np
 
-from rths_compensator.methods import METHODS, adaptive_names
+from rths_compensator.methods import adaptive_names, compensator_names
 
-METHOD_NAMES = METHODS.names()
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
+
+METHOD_NAMES = compensator_names()
 SCENARIOS = ('unchanged', 'stiffness_drop', 'plant_drift')
 #: The RTHS benchmark's perturbed plants (:mod:`.bench_adaptive_silva`; needs its record).
 SILVA = 'silva2020_perturbed'

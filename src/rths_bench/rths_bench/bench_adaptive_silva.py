@@ -18,11 +18,14 @@ import time
 
 import numpy as np
 
-from rths_compensator.methods import METHODS
+from rths_compensator.methods import compensator_names
 
 from . import rths_benchmark as rb
 
-METHOD_NAMES = METHODS.names()
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
+
+METHOD_NAMES = compensator_names()
 NAME = 'silva2020_perturbed'
 #: Band of the delay estimate (eq. 42) [Hz]: the records' energy lies below it.
 DELAY_BAND_HZ = 10.0

@@ -27,7 +27,9 @@ identification run through the link with the same D puts the D steps into
 the identified plant, and the compensator designed on it compensates them.
 """
 
+import argparse
 import json
+import os
 from pathlib import Path
 import subprocess
 import sys
@@ -38,6 +40,9 @@ import numpy as np
 import yaml
 
 from rths_compensator.schemes import DEFAULT_SCHEME
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 #: (name, one-way delay [ms], jitter [ms], loss [%]); 'local' = no relay.
 CONDITIONS = (
@@ -150,7 +155,6 @@ def run_condition(name, delay_ms, jitter_ms, loss_pct, config, workdir, net=None
                   (('numerical', 'numerical'), ('compensator', 'compensator'),
                    ('bridge', 'bridge'), ('recorder', 'bridge'))}
         overrides['numerical'] = {'remote_graph': True, 'wait_for_subscribers': 1}
-        import os
         env = dict(os.environ, **_env(net, 'link', dom_a))
         env.pop('ROS_DOMAIN_ID', None)
         argv = [*(net.prefix('link') if net else []), rths_executable(), 'linkemu',
@@ -411,7 +415,6 @@ def _bench_absorb(args) -> int:
 
 def register(commands, benches):
     """Add ``rths bench distributed`` and ``rths bench absorb-delay``."""
-    import os
     p = benches.add_parser('distributed', help='realtime loop across an emulated lab network '
                            '(netns hosts, link delay/jitter/loss): misses and tracking error')
     p.add_argument('--out', required=True, help='JSON file to write')
@@ -469,5 +472,4 @@ def register(commands, benches):
 
 def argparse_bool():
     """Return the argparse action of a ``--flag/--no-flag`` option."""
-    import argparse
     return argparse.BooleanOptionalAction

@@ -45,6 +45,7 @@ of its ticks missed or skipped by stalls (``late_or_missed_pct``); every
 rate's result is in ``runs``.
 """
 
+import gc
 import json
 import os
 from pathlib import Path
@@ -57,6 +58,9 @@ import numpy as np
 from rths_actuator_bridge.bridge import DEFAULT_BACKEND
 from rths_compensator.schemes import DEFAULT_SCHEME
 from rths_numerical.specimens import DEFAULT_SPECIMEN
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 MISS_TARGET_PCT = 0.1
 GIVE_UP_PCT = 10.0  # --find-max stops stepping the rate up past this miss rate
@@ -308,8 +312,6 @@ def platform_floor(rate_hz: float, duration_s: float, priority: int = 80) -> dic
     This thread sleeps to absolute deadlines ``t0 + k / rate`` and records how
     late it woke; nothing else runs in it.  Its scheduling is restored after.
     """
-    import gc
-
     period_ns = int(round(1e9 / rate_hz))
     n = max(int(duration_s * rate_hz), 1)
     late = np.zeros(n, dtype=np.int64)

@@ -45,6 +45,9 @@ import time
 
 import numpy as np
 
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
+
 #: The fields of the JSON, in order (checked literally).
 FIELDS = ('steps', 'round_trip_us_p50', 'round_trip_us_p99', 'max_abs_diff_vs_direct',
           'messages_per_step', 'safety_state_final')

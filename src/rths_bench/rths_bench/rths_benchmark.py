@@ -37,6 +37,7 @@ node does not receive the measurement.
 import json
 import math
 import os
+from pathlib import Path
 import sys
 import time
 
@@ -48,6 +49,12 @@ from rths_actuator_bridge.bridge import DEFAULT_BACKEND
 from rths_common import datasets
 from rths_compensator.methods import adaptive_names
 from rths_compensator.schemes import fir_schemes
+
+#: The FIR design scheme of the benchmark's ``fir`` controller (least squares, eq. 28).
+BENCHMARK_SCHEME = 'ls'
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 #: Published J1-J9 of the example controller, El Centro x 0.4 (Silva et al. 2020, Table 3;
 #: preprint "Benchmark_Control_Problem_for_Real_time_Hybrid_Simulation_Updated_V23.pdf" in
@@ -282,7 +289,7 @@ def target_lowpass(order: int, cutoff_hz: float, fs_hz: float):
 
 def _identify_once(seed: int = 7, record_s: float = 20.0, band_hz: float = 50.0,
                    peak_m: float = 10e-3, prefilter_hz: float = 100.0, n_taps: int = 200,
-                   fc_hz: float = 30.0, scheme: str = 'ls', epsilon: float = 0.002,
+                   fc_hz: float = 30.0, scheme: str = BENCHMARK_SCHEME, epsilon: float = 0.002,
                    lowpass_order: int = 4, lowpass_hz: float = 400.0,
                    na_min: int = 4, na_max: int = 8, nb_max: int = 1, d_min: int = 0,
                    d_max: int = 4,
@@ -537,8 +544,6 @@ def launch_graph(params: dict, out_dir: str, log=_log) -> dict:
     with ``params`` on top), records ``out_dir/bag`` and the numerical node's history;
     returns the same arrays as :func:`run_cores`.
     """
-    from pathlib import Path
-
     from rths_bringup.commands import default_config_dir, launch
     from rths_bringup.run import NODE_FILES
     from rths_common import bagio, runinfo, topics
@@ -992,7 +997,7 @@ def register(commands, benches):
     p.add_argument('--duration', type=float, default=0.0, help='shorten the record [s]; 0 = all')
     p.add_argument('--taps', type=int, default=200, help='fir: number of taps n')
     p.add_argument('--fc', type=float, default=30.0, help='fir: passband edge [Hz]')
-    p.add_argument('--scheme', default='ls', choices=fir_schemes(), help='fir: scheme')
+    p.add_argument('--scheme', default=BENCHMARK_SCHEME, choices=fir_schemes(), help='fir: scheme')
     p.add_argument('--lowpass', type=float, default=400.0,
                    help='fir: cut-off [Hz] of the target low-pass (order 4) that bounds |G|')
     p.add_argument('--epsilon', type=float, default=0.002, help='fir: passband tolerance')

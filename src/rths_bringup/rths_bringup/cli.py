@@ -7,7 +7,11 @@ sub-parser collection of ``rths <command>`` and ``benches`` the one of
 the exit code) with ``set_defaults``.  This package and the ones below it are
 listed in :data:`CLI_MODULES`; packages above it (the benchmarks, ``rths_bench``)
 declare theirs as ``rths.cli`` entry points in their setup.py, so that nothing
-here imports upward.
+here imports upward.  A module that adds options to another package's command
+(``rths_study`` gives ``rths bench rths-benchmark`` its cluster options) does it in
+an optional ``extend(commands, benches)``: it runs after every module's
+``register``, so it finds the command whatever order the modules load in, and it
+raises if the command is missing.
 
 Commands that can run longer than a few seconds (:data:`PROGRESS_COMMANDS` and
 every benchmark) show their progress on stderr through
@@ -26,8 +30,12 @@ exits with code 2.  Set ``RTHS_DEBUG=1`` to see the traceback.
 
 import argparse
 import importlib
+from importlib.metadata import entry_points
 import os
 import sys
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 #: Modules of this package and the ones below that add sub-commands, in --help order.
 CLI_MODULES = (
@@ -53,8 +61,6 @@ ENTRY_POINT_GROUP = 'rths.cli'
 
 def cli_modules() -> list:
     """Return the names of every module that adds sub-commands: ours, then the entry points'."""
-    from importlib.metadata import entry_points
-
     plugins = sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda ep: ep.name)
     return list(dict.fromkeys(list(CLI_MODULES) + [ep.value for ep in plugins]))
 
@@ -107,9 +113,12 @@ def build_parser() -> argparse.ArgumentParser:
         description='Benchmarks: each prints its results and writes them to --out as JSON.')
     benches = bench.add_subparsers(dest='bench', metavar='NAME')
     benches.required = True
-    for name in cli_modules():
-        module = importlib.import_module(name)
+    modules = [importlib.import_module(name) for name in cli_modules()]
+    for module in modules:
         module.register(commands, benches)
+    for module in modules:      # options added to other packages' commands
+        if hasattr(module, 'extend'):
+            module.extend(commands, benches)
     _add_quiet(commands, benches)
     check_option_ranges(parser)
     return parser

@@ -1,11 +1,15 @@
 """The orchestration sub-commands of ``rths``: launch and bag."""
 
 import json
+import os
 from pathlib import Path
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 
 def register(commands, benches):
-    """Add ``rths launch`` and ``rths bag info|reindex``."""
+    """Add ``rths launch`` and ``rths bag info|reindex|export``."""
     p = commands.add_parser(
         'launch', help='start the node graph (composed or one process per node), supervise it',
         description='Start the actuator bridge, compensator and numerical node, each with its '
@@ -39,6 +43,26 @@ def register(commands, benches):
                                         'after its last complete record first.')
     b.add_argument('bag', help='bag directory')
     b.set_defaults(func=cmd_bag_reindex)
+    b = bag_cmds.add_parser('export', help='write the restoring-force CSV of a run bag',
+                            description='Write the measured displacement and force of an rths '
+                                        'run bag (channel 0) as a CSV of the restoring-force '
+                                        'contract: time_s, displacement_m, force_N; read it '
+                                        'with rths discrepancy --scenario restoring-force '
+                                        '--measured F.csv (or pass the bag itself).')
+    b.add_argument('bag', help='bag directory (e.g. RUN_DIR/rths/bag)')
+    b.add_argument('--out', required=True, help='CSV file to write')
+    b.set_defaults(func=cmd_bag_export)
+
+
+def cmd_bag_export(args) -> int:
+    """``rths bag export BAG --out F.csv``: the restoring-force columns of a run bag."""
+    from rths_discrepancy import restoring
+
+    data = restoring.validate(restoring.read_bag(args.bag), source=args.bag)
+    restoring.write_csv(args.out, data)
+    print(f"wrote {args.out}: {data['time_s'].size} rows at {data['fs']:g} Hz "
+          f"({', '.join(restoring.COLUMNS)})")
+    return 0
 
 
 def add_launch_args(p):
@@ -63,7 +87,6 @@ def add_launch_args(p):
 
 def default_config_dir() -> Path:
     """Return the repo's config/ (RTHS_ROOT is set by env.sh), else ./config."""
-    import os
     root = os.environ.get('RTHS_ROOT')
     return Path(root) / 'config' if root else Path('config')
 

@@ -34,11 +34,18 @@ collector frozen after start-up (:func:`rths_common.node_support.tune_process`).
 
 import argparse
 import ctypes
+import os
 import sys
 
 import rclpy
+from rclpy.utilities import remove_ros_args
+import yaml
 
+from rths_actuator_bridge.node import BridgeNode
+from rths_bringup.tee import Tee, TeePublisher, enlarge_pipe
 from rths_common import node_support as ns
+from rths_compensator.node import CompensatorNode
+from rths_numerical.node import NumericalNode
 
 EXIT_FAILED = 1
 EXIT_BAD_PARAMS = 2
@@ -55,8 +62,6 @@ NODE_NAMES = ('numerical', 'bridge', 'compensator')
 
 def parse_args(argv) -> argparse.Namespace:
     """Parse the container's own options (everything outside ``--ros-args``)."""
-    from rclpy.utilities import remove_ros_args
-
     p = argparse.ArgumentParser(prog='container', description=__doc__.split('\n')[0])
     p.add_argument('--tee-fd', type=int, default=-1,
                    help='pipe to copy every recorded message into (the recorder reads it)')
@@ -71,8 +76,6 @@ def params_files(argv) -> list:
 
 def params_file_of(argv, node_name: str) -> str:
     """``'params file PATH: '`` of the file with a ``node_name`` section ('' if none)."""
-    import yaml
-
     for path in params_files(argv):
         try:
             with open(path) as f:
@@ -89,8 +92,6 @@ def check_sections(argv) -> None:
     A ROS node ignores the sections of other nodes, so a typo there would run the
     node on its defaults without a word.  ``/**`` (every node) is allowed.
     """
-    import yaml
-
     known = NODE_NAMES
     for path in params_files(argv):
         try:
@@ -109,18 +110,16 @@ def lock_memory() -> str:
     libc = ctypes.CDLL(None, use_errno=True)
     if libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) == 0:
         return 'memory locked'
-    import os
     return f'memory not locked (mlockall refused: {os.strerror(ctypes.get_errno())})'
 
 
 def tee_publishers(shells, fd: int, n_steps: int):
     """Wrap every recorded publisher of ``shells`` in a tee to ``fd``; return the Tee."""
-    from rths_bringup.tee import Tee, TeePublisher, enlarge_pipe
-
     enlarge_pipe(fd)
     tee = Tee(fd, capacity=TEE_RECORDS_PER_STEP * n_steps + TEE_SLACK_RECORDS)
     for shell in shells:
-        for attr in ('pub', 'status_pub', 'specimen_pub', 'coef_pub', 'controller_pub'):
+        for attr in ('pub', 'status_pub', 'specimen_pub', 'coef_pub', 'stability_pub',
+                     'controller_pub'):
             publisher = getattr(shell, attr, None)
             if publisher is not None:
                 setattr(shell, attr, TeePublisher(publisher, tee))
@@ -131,9 +130,6 @@ class Container:
     """The three loop nodes of a run, constructed in this process."""
 
     def __init__(self, argv):
-        from rths_actuator_bridge.node import BridgeNode
-        from rths_compensator.node import CompensatorNode
-        from rths_numerical.node import NumericalNode
 
         check_sections(argv)
         self.shells = {}

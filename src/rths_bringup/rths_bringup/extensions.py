@@ -35,12 +35,38 @@ KEYS = {('bridge', 'specimen'): SPECIMENS, ('bridge', 'backend'): BACKENDS,
 _COMMENTED = re.compile(r'^(?P<head>\s+(?P<key>[a-z_]+): *\S+ *)# (?P<comment>.*)$')
 _BLOCK = re.compile(r'(<!-- registry: (?P<name>[a-z ]+) -->\n)(?P<body>.*?)(<!-- /registry -->)',
                     re.S)
+_SCHEMA = re.compile(r'(<!-- schema: ranges -->\n)(?P<body>.*?)(<!-- /schema -->)', re.S)
+
+
+def schema_table() -> str:
+    """Return docs/nodes.md's table of every ranged parameter of the three loop nodes."""
+    # lazy: start-up cost: the node modules load rclpy (~0.3 s); only this table needs them
+    from rths_actuator_bridge.bridge import param_schema as bridge_schema
+    from rths_actuator_bridge.node import NODE_PARAMS as BRIDGE
+    from rths_compensator.node import NODE_PARAMS as COMPENSATOR
+    from rths_compensator.params import param_schema as compensator_schema
+    from rths_numerical.node import NODE_PARAMS as NUMERICAL
+    from rths_numerical.substructure import param_schema as numerical_schema
+
+    rows = ['| node | parameter | range | what it is |', '|---|---|---|---|']
+    for node, schema in (('numerical', numerical_schema(NUMERICAL)),
+                         ('compensator', compensator_schema(COMPENSATOR)),
+                         ('bridge', bridge_schema(BRIDGE))):
+        for key, spec in schema.items():
+            if spec.range is None:
+                continue
+            low, high = (v if isinstance(v, int) else f'{v:g}' for v in spec.range)
+            kind = 'integer' if isinstance(spec.range[0], int) else 'float'
+            rows.append(f'| {node} | `{key}` | {kind} [{low}, {high}] | {spec.description} |')
+    return '\n'.join(rows) + '\n'
 
 
 def sync_docs(path, write: bool = False) -> list:
-    """Return the registries whose table in ``path`` differs from the registry; fix if ``write``.
+    """Return the generated tables of ``path`` that differ from their source; fix if ``write``.
 
-    A registry of :data:`REGISTRIES` without a block in the file counts as differing.
+    The tables: one per registry (a page that has one must have all of
+    :data:`REGISTRIES`), and the parameter ranges of the loop nodes' schemas
+    (``<!-- schema: ranges -->``, docs/nodes.md).
     """
     path = Path(path)
     text = path.read_text(encoding='utf-8')
@@ -58,7 +84,14 @@ def sync_docs(path, write: bool = False) -> list:
         return match.group(1) + body + match.group(4)
 
     new = _BLOCK.sub(table, text)
-    stale += [name for name in REGISTRIES if name not in seen]
+    if seen:                                   # a page of registry tables has them all
+        stale += [name for name in REGISTRIES if name not in seen]
+    match = _SCHEMA.search(new)
+    if match:
+        body = schema_table()
+        if match.group('body') != body:
+            stale.append('schema: ranges')
+        new = _SCHEMA.sub(lambda m: m.group(1) + body + m.group(3), new)
     if write and new != text:
         path.write_text(new, encoding='utf-8')
     return stale

@@ -9,6 +9,9 @@ checkout stays clean.  Installing them into ``config/`` is this explicit step.
 from pathlib import Path
 import shutil
 
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
+
 
 def register(commands, benches):
     """Add ``rths install-taps``."""

@@ -57,11 +57,19 @@ from dataclasses import dataclass, field
 import os
 from pathlib import Path
 import re
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
+
+import yaml
+
+from rths_bringup.preflight import check_config
+from rths_common.bagio import reindex
+from rths_common.progress import Progress
 
 #: (name, package, executable, params file) in start order; the recorder comes first.
 NODES = (
@@ -83,6 +91,7 @@ _PROGRESS = re.compile(r'\]: progress: step (\d+) of (\d+) ')
 
 def executable(package: str, name: str) -> Path:
     """Path of an installed node executable, found through the ament index like ``ros2 run``."""
+    # lazy: ROS: the ROS-free parts of this module import without it
     from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
     try:
@@ -102,7 +111,6 @@ def config_param(config_dir: Path, overrides: dict, key: str, default):
         return value
     path = Path(config_dir) / 'numerical.yaml'
     try:
-        import yaml
         data = yaml.safe_load(path.read_text()) or {}
     except (OSError, ValueError):
         return default
@@ -252,7 +260,6 @@ class Launcher:
             if self._progress_over:
                 return match is not None
             if self.progress is None:
-                from rths_common.progress import Progress
                 self.progress = Progress(0, self.progress_label, 'steps')
             if match is not None:
                 self.progress.update(int(match.group(1)), int(match.group(2)))
@@ -272,10 +279,6 @@ class Launcher:
 
     def _container_argv(self, tee_fd: int) -> list:
         """Build the container's argv: each node's params file, then one with its overrides."""
-        import tempfile
-
-        import yaml
-
         self._tmp = Path(tempfile.mkdtemp(prefix='rths-container-'))
         argv = [str(executable(*CONTAINER[1:3]))]
         if tee_fd >= 0:
@@ -352,7 +355,6 @@ class Launcher:
     def run(self) -> int:
         """Run the graph until the owner finishes, a node dies or a signal arrives."""
         if self.preflight:  # every params file checked before anything starts or is written
-            from rths_bringup.preflight import check_config
             check_config(self.config_dir)
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         failed = None
@@ -405,11 +407,9 @@ class Launcher:
             for s, handler in previous.items():
                 signal.signal(s, handler)
             if self._tmp is not None:
-                import shutil
                 shutil.rmtree(self._tmp, ignore_errors=True)
         recorder = self._child('recorder')
         if recorder is not None and recorder.returncode != 0 and self.bag is not None:
-            from rths_common.bagio import reindex
             if self.bag.exists():
                 reindex(self.bag)
                 self.say(f'recorder ended with {describe_exit(recorder.returncode)}: '
@@ -461,7 +461,6 @@ class Launcher:
         if key in self.overrides.get('bridge', {}):
             return self.overrides['bridge'][key]
         try:
-            import yaml
             data = yaml.safe_load((self.config_dir / 'bridge.yaml').read_text()) or {}
             return data['bridge']['ros__parameters'].get(key, default)
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
@@ -525,8 +524,6 @@ class Launcher:
 
     def bridge_params(self) -> dict:
         """Return the bridge's parameters: its params file with the overrides."""
-        import yaml
-
         try:
             data = yaml.safe_load((self.config_dir / 'bridge.yaml').read_text()) or {}
             params = dict(data['bridge']['ros__parameters'])
@@ -543,6 +540,7 @@ class Launcher:
         backend's servo controller is sent DEACTIVATE, so its own interlock holds the
         actuator (the emulator: ``rths controller-emulator``, udp.py).
         """
+        # lazy: start-up cost: SciPy (~1 s), which this module needs only here
         from rths_actuator_bridge.bridge import backend_class
 
         params = self.bridge_params()

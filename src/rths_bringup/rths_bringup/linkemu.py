@@ -24,8 +24,12 @@ and a measurement publisher).
 
 from collections import deque
 import random
+import signal
 import threading
 import time
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 #: (topic, QoS kind) relayed from domain A to domain B, and from B to A.
 A_TO_B = (('/rths/interface_displacement', 'loop'), ('/rths/run_steps', 'run_info'),
@@ -242,8 +246,6 @@ class Relay:
 
 def run_relay(args) -> int:
     """``rths linkemu``: relay until SIGINT/SIGTERM, then print the link statistics."""
-    import signal
-
     print(f'linkemu: relaying domain {args.domain_a} <-> {args.domain_b}: delay '
           f'{args.delay_ms:g} ms + U(0, {args.jitter_ms:g}) ms, loss {args.loss_pct:g} %',
           flush=True)

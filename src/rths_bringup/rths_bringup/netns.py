@@ -20,6 +20,7 @@ DDS settings for such a network (also documented in docs/lab_network.md):
 """
 
 import subprocess
+import sys
 
 
 def _ip(*args, check=True):
@@ -94,8 +95,6 @@ class LabNetwork:
 
     def reachable(self, src: str, dst: str, port: int = 47999) -> bool:
         """Return True if a UDP datagram from ``src`` reaches ``dst`` (no ping needed)."""
-        import sys
-
         recv = subprocess.Popen(
             [*self.prefix(dst), sys.executable, '-c',
              'import socket; s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM); '

@@ -18,14 +18,17 @@ simulation with it, without ROS.
 
 from rths_common.params import core_params
 from rths_common.replay import closed_loop
+from rths_compensator.core import CompensatorCore
+from rths_compensator.params import check_sampling_rate
+from rths_numerical.stepping import NumericalCore
 
 
 def offline_rths(numerical: dict, compensator: dict, bridge: dict) -> dict:
     """Run the coupled loop for every step of the substructure; return per-step arrays."""
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from rths_actuator_bridge.bridge import Bridge
-    from rths_compensator.core import CompensatorCore
-    from rths_compensator.params import check_sampling_rate
-    from rths_numerical.stepping import NumericalCore
+
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from rths_numerical.substructure import make_substructure
 
     sub = make_substructure(core_params(numerical))

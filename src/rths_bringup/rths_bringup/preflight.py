@@ -28,6 +28,15 @@ import math
 from pathlib import Path
 import re
 
+import yaml
+
+from rths_common.params import NODE_KEYS, check_spec
+from rths_compensator.params import (
+    check_compensator_params,
+    check_sampling_rate,
+    load_compensator_params,
+)
+
 _UNITS = ('m', 'mm', 'cm', 'in', 'inch', 'inches', 'ft', 's', 'ms', 'us', 'sec', 'hz', 'khz',
           'n', 'kn', 'kg', 'lb', 'lbm', 'lbf', 'kip', 'g', 'm/s', 'mm/s', 'in/s', 'm/s^2',
           'm/s2', '%', 'deg', 'rad', 'kn/m', 'n/m', 'n s/m', 'ns/m')
@@ -37,8 +46,6 @@ _NUMBER_WITH_UNIT = re.compile(
 
 def load_params_file(path, node: str) -> dict:
     """``ros__parameters`` of ``node`` in the params file ``path`` (ValueError/OSError)."""
-    import yaml
-
     path = Path(path)
     try:
         text = path.read_text(encoding='utf-8')
@@ -83,7 +90,10 @@ def _wrap(path, node, func, *args):
 
 def check_numerical(path) -> dict:
     """Validate ``numerical.yaml`` by building the substructure it describes."""
+    # lazy: start-up cost: rclpy (~0.3 s), which this module needs only here
     from rths_numerical.node import NODE_PARAMS
+
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from rths_numerical.substructure import make_substructure
 
     params = load_params_file(path, 'numerical')
@@ -94,9 +104,6 @@ def check_numerical(path) -> dict:
 
 def check_compensator(path) -> dict:
     """Validate ``compensator.yaml`` (known keys, taps, denominator, fs_hz)."""
-    from rths_common.params import NODE_KEYS
-    from rths_compensator.params import check_compensator_params, load_compensator_params
-
     params = load_params_file(path, 'compensator')
     check_compensator_params({k: v for k, v in params.items() if k not in NODE_KEYS}, str(path))
     return _wrap(path, 'compensator', load_compensator_params, path)
@@ -104,7 +111,7 @@ def check_compensator(path) -> dict:
 
 def check_rates(config_dir, numerical: dict, compensator: dict) -> None:
     """Refuse taps designed for another rate than the loop's (numerical.yaml fs_hz)."""
-    from rths_compensator.params import check_sampling_rate
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from rths_numerical.substructure import DEFAULTS
 
     loop_fs = numerical.get('fs_hz', DEFAULTS['fs_hz'])
@@ -114,10 +121,12 @@ def check_rates(config_dir, numerical: dict, compensator: dict) -> None:
 
 def check_bridge(path) -> dict:
     """Validate ``bridge.yaml``: keys, limits, backend settings."""
+    # lazy: start-up cost: rclpy (~0.3 s), which this module needs only here
     from rths_actuator_bridge.node import check_bridge_params
 
     params = load_params_file(path, 'bridge')
     core = _wrap(path, 'bridge', check_bridge_params, params)
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from rths_actuator_bridge.bridge import backend_class, make_backend
 
     if backend_class(core).in_process:   # build the plant: its own checks run
@@ -147,22 +156,23 @@ def check_config(config_dir) -> None:
 
 def node_schema_of(node: str) -> dict:
     """Return the parameter schema (key -> Spec) the node ``node`` declares."""
-    if node == 'bridge':
-        from rths_actuator_bridge.bridge import param_schema
-        from rths_actuator_bridge.node import NODE_PARAMS
-    elif node == 'compensator':
-        from rths_compensator.node import NODE_PARAMS
-        from rths_compensator.params import param_schema
-    else:
-        from rths_numerical.node import NODE_PARAMS
-        from rths_numerical.substructure import param_schema
-    return param_schema(NODE_PARAMS)
+    # lazy: start-up cost: the node modules load rclpy (~0.3 s), the cores SciPy (~1 s)
+    from rths_actuator_bridge import bridge
+    from rths_actuator_bridge import node as bridge_node
+    from rths_compensator import node as compensator_node
+    from rths_compensator import params as compensator_params
+    from rths_numerical import node as numerical_node
+    from rths_numerical import substructure
+
+    schema, params = {
+        'bridge': (bridge.param_schema, bridge_node.NODE_PARAMS),
+        'compensator': (compensator_params.param_schema, compensator_node.NODE_PARAMS),
+    }.get(node, (substructure.param_schema, numerical_node.NODE_PARAMS))
+    return schema(params)
 
 
 def check_ranges(path, node: str, params: dict) -> None:
     """Refuse a value outside its declared range or choices, as the node would at start-up."""
-    from rths_common.params import check_spec
-
     schema = node_schema_of(node)
     for key, value in params.items():
         if key in schema:

@@ -34,6 +34,8 @@ import time
 
 import rclpy
 
+from rths_bringup.tee import TOPICS as TEED_TOPICS
+from rths_bringup.tee import read_records
 from rths_common import bagstore, topics
 from rths_common import node_support as ns
 from rths_common.bagio import BagWriter
@@ -82,7 +84,7 @@ class Recorder:
         self.pipe_thread = None
         teed = ()
         if self.pipe_fd >= 0:
-            from rths_bringup.tee import TOPICS as teed
+            teed = TEED_TOPICS
             self.pipe_thread = threading.Thread(target=self._read_pipe, daemon=True)
             self.pipe_thread.start()
         for topic, msgtype in topics.LOOP_TOPICS.items():
@@ -125,8 +127,6 @@ class Recorder:
 
     def _read_pipe(self):
         """Composed layout: the container's records, from the pipe until it ends."""
-        from rths_bringup.tee import read_records
-
         queue = self.queue
         for record in read_records(self.pipe_fd):
             queue.append(record)

@@ -7,6 +7,9 @@ spaced by their recorded receive times divided by ``--rate-scale``.
 
 import time
 
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
+
 
 def register(commands, benches):
     """Add ``rths replay``."""

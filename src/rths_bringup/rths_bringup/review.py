@@ -1,11 +1,27 @@
 """Review of a recorded run, rebuilt from its bag alone."""
 
+import json
 from pathlib import Path
 
 import numpy as np
+from scipy import signal
+from scipy.signal import coherence
 
-from rths_common import bagio, topics
+from rths_actuator_bridge.bridge import DEFAULT_BACKEND, backend_class
+from rths_bringup.report_html import row_label, specimen_title, write_report
+from rths_common import bagio, runinfo, topics
+from rths_common.params import core_params
+from rths_compensator.indicators import frf_h1, relative_rms_pct
+from rths_numerical.model import LinearModel
+from rths_numerical.reference import (
+    coupled_rths,
+    metrics,
+    relative_rms_error,
+    simulate_reference,
+    simulate_uncontrolled,
+)
 from rths_numerical.specimens import SPECIMENS, specimen_of
+from rths_numerical.substructure import make_substructure
 
 #: Loop topics that carry one message per step, and the array field to summarise.
 STEP_TOPICS = {
@@ -106,7 +122,6 @@ def external_controller(bridge: dict) -> str:
     Any backend whose plant does not live in the bridge's process drives a lab's actuator
     and specimen through its controller: the review has no model of them.
     """
-    from rths_actuator_bridge.bridge import backend_class
     try:
         in_process = backend_class(bridge).in_process
     except ValueError:       # a backend this installation does not know: not in the process
@@ -146,10 +161,6 @@ def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
     Weighting each Welch bin by the desired signal's power gives the delay the
     loop actually experiences and equals the plain average for a flat spectrum.
     """
-    from scipy import signal
-
-    from rths_compensator.indicators import frf_h1
-
     d = np.asarray(desired, dtype=float)
     nperseg = int(min(d.size, 4 * round(fs_hz)))
     f, h = frf_h1(d, measured, fs_hz, nperseg)
@@ -164,8 +175,6 @@ def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ) -> float:
 
 def _numerical_params(info: dict) -> dict:
     """Return the run's numerical core parameters (node-level keys stripped, as offline does)."""
-    from rths_common import runinfo
-    from rths_common.params import core_params
     return core_params(runinfo.section(info, 'numerical'))
 
 
@@ -205,7 +214,6 @@ def _tracking(bag, fs):
 
 def table5_of(desired, applied, measured, fs) -> dict:
     """Return table 5: delay and tracking of the plant (command) and the compensated actuator."""
-    from rths_compensator.indicators import relative_rms_pct
     # Table 5: the plant (command -> measured; with D > 0 it includes the D-step delay line)
     # and the compensated actuator (desired -> measured)
     return {
@@ -228,16 +236,6 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     read, references simulated, plots drawn, report written.
     """
     stage = progress or (lambda done, total: None)
-    import json
-
-    from rths_common import runinfo
-    from rths_numerical.model import LinearModel
-    from rths_numerical.reference import (
-        relative_rms_error,
-        simulate_reference,
-        simulate_uncontrolled,
-    )
-    from rths_numerical.substructure import make_substructure
 
     bag, out_dir = Path(bag), Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -269,34 +267,14 @@ def review_rths(bag, out_dir, progress=None) -> dict:
     external = '' if remote else external_controller(bridge)
     if remote:   # a remote site: no model of its specimen (compared with the bare building)
         name, bridge = 'remote', dict(bridge, specimen='none')
-    uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
-                    if isinstance(model, LinearModel) else None)
-    backend = numerical.get('backend', 'builtin')
-    specimen = None if external else SPECIMENS.entry(specimen_of(bridge),
-                                                     f'{bag}: bridge parameter specimen')
-    if specimen is None:   # no model of the lab's specimen: no reference to compare with
-        if uncontrolled is None:
-            uncontrolled, _ = offline_references(numerical, dict(bridge, specimen='none'), dt)
-        reference = None
-    elif specimen.device is not None or backend != 'builtin':
-        # a device specimen or an OpenSees model: the same substructure, offline, with the
-        # same specimen model on a perfect actuator (and without it for the uncontrolled one)
-        uncontrolled, reference = offline_references(numerical, bridge, dt)
-    elif specimen.table_mass is not None:
-        reference = simulate_reference(model, sub.ag, dt, damper=specimen.table_mass,
-                                       n_dtm=sub.force_scale,
-                                       frame_mass_kg=specimen.frame_mass_kg,
-                                       integrator=numerical.get('integrator', 'cr'),
-                                       uncontrolled=uncontrolled)
-    else:
-        reference = None
+    uncontrolled, reference, specimen = references(numerical, bridge, sub, dt,
+                                                   specimen_known=not external,
+                                                   where=f'{bag}: bridge parameter specimen')
     if external:
         ref_disp = None
     else:
         ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
     stage(2, REVIEW_STAGES)
-    unc = uncontrolled['metrics']
-    max_d, rms_d = float(np.max(np.abs(floor2))), float(np.sqrt(np.mean(floor2 ** 2)))
     bridge_steps = max(len(status.get('step', [])), 1)
     summary = {
         'record': numerical.get('record'), 'scale': numerical.get('scale'),
@@ -307,19 +285,8 @@ def review_rths(bag, out_dir, progress=None) -> dict:
         'compensator': compensator,
         'numerical_backend': numerical.get('backend', 'builtin'),
         'numerical_model': getattr(model, 'name', str(numerical.get('model'))),
-        'residual_drift_m': residual_drift(floor2, fs),
-        'reference_residual_drift_m': _or_none(ref_disp, lambda r: residual_drift(r, fs)),
         **table5,
-        'max_disp_2nd_m': max_d, 'rms_disp_2nd_m': rms_d,
-        'uncontrolled_max_disp_2nd_m': unc['max_disp_m'],
-        'uncontrolled_rms_disp_2nd_m': unc['rms_disp_m'],
-        'reduction_max_pct': 100 * (1 - max_d / unc['max_disp_m']),
-        'reduction_rms_pct': 100 * (1 - rms_d / unc['rms_disp_m']),
-        'reference_max_disp_2nd_m': _or_none(ref_disp, lambda r: float(np.max(np.abs(r)))),
-        'reference_rms_disp_2nd_m': _or_none(ref_disp,
-                                             lambda r: float(np.sqrt(np.mean(r ** 2)))),
-        'rths_vs_reference_rel_rms_pct': _or_none(ref_disp,
-                                                  lambda r: relative_rms_error(floor2, r)),
+        **response_metrics(floor2, ref_disp, uncontrolled['metrics'], fs),
         'deadline_misses': int(status.get('misses', 0)),
         'deadline_miss_pct': 100.0 * status.get('misses', 0) / bridge_steps,
         'safety_faults': status.get('faults', []),
@@ -345,10 +312,65 @@ def review_rths(bag, out_dir, progress=None) -> dict:
         _hysteresis_plot(out_dir / HYSTERESIS_PNG, measured, meas['force'][:n, 0], fs,
                          f'specimen {name} ({settings}), measured')
     stage(3, REVIEW_STAGES)
-    from rths_bringup.report_html import write_report
     write_report(out_dir, summary)
     stage(4, REVIEW_STAGES)
     return summary
+
+
+def references(numerical, bridge, sub, dt, specimen_known=True, where='bridge specimen'):
+    """``(uncontrolled, reference, specimen)`` responses of a run's substructure ``sub``.
+
+    ``uncontrolled``: the building without the specimen; ``reference``: the whole-numerical
+    RTHS (the same substructure with the specimen model on a perfect actuator), None where
+    there is no model of the specimen (``specimen_known`` False: a lab's own controller; a
+    bare table).  Both are dicts with ``disp`` and ``metrics``.
+    """
+    model = sub.model
+    uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
+                    if isinstance(model, LinearModel) else None)
+    backend = numerical.get('backend', 'builtin')
+    specimen = SPECIMENS.entry(specimen_of(bridge), where) if specimen_known else None
+    if specimen is None:   # no model of the lab's specimen: no reference to compare with
+        if uncontrolled is None:
+            uncontrolled, _ = offline_references(numerical, dict(bridge, specimen='none'), dt)
+        reference = None
+    elif specimen.device is not None or backend != 'builtin':
+        # a device specimen or an OpenSees model: the same substructure, offline, with the
+        # same specimen model on a perfect actuator (and without it for the uncontrolled one)
+        uncontrolled, reference = offline_references(numerical, bridge, dt)
+    elif specimen.table_mass is not None:
+        reference = simulate_reference(model, sub.ag, dt, damper=specimen.table_mass,
+                                       n_dtm=sub.force_scale,
+                                       frame_mass_kg=specimen.frame_mass_kg,
+                                       integrator=numerical.get('integrator', 'cr'),
+                                       uncontrolled=uncontrolled)
+    else:
+        reference = None
+    return uncontrolled, reference, specimen
+
+
+def response_metrics(floor2, ref_disp, uncontrolled: dict, fs) -> dict:
+    """Tables 6-9: the 2nd floor's response, its reductions and its error to the reference.
+
+    ``floor2``: the RTHS 2nd-floor displacement relative to the ground [m];
+    ``ref_disp``: the reference's (None: no reference); ``uncontrolled``: the
+    uncontrolled building's ``metrics`` (``max_disp_m``, ``rms_disp_m``).
+    """
+    max_d, rms_d = float(np.max(np.abs(floor2))), float(np.sqrt(np.mean(floor2 ** 2)))
+    return {
+        'residual_drift_m': residual_drift(floor2, fs),
+        'reference_residual_drift_m': _or_none(ref_disp, lambda r: residual_drift(r, fs)),
+        'max_disp_2nd_m': max_d, 'rms_disp_2nd_m': rms_d,
+        'uncontrolled_max_disp_2nd_m': uncontrolled['max_disp_m'],
+        'uncontrolled_rms_disp_2nd_m': uncontrolled['rms_disp_m'],
+        'reduction_max_pct': 100 * (1 - max_d / uncontrolled['max_disp_m']),
+        'reduction_rms_pct': 100 * (1 - rms_d / uncontrolled['rms_disp_m']),
+        'reference_max_disp_2nd_m': _or_none(ref_disp, lambda r: float(np.max(np.abs(r)))),
+        'reference_rms_disp_2nd_m': _or_none(ref_disp,
+                                             lambda r: float(np.sqrt(np.mean(r ** 2)))),
+        'rths_vs_reference_rel_rms_pct': _or_none(ref_disp,
+                                                  lambda r: relative_rms_error(floor2, r)),
+    }
 
 
 def _or_none(value, f):
@@ -361,10 +383,6 @@ def review_site(bag, out_dir, info, fs, stage) -> dict:
     Tables 6-9 need the numerical model, which ran in the client (OpenSees,
     OpenFresco): the bag holds none, so they are left out rather than guessed.
     """
-    import json
-
-    from rths_actuator_bridge.bridge import DEFAULT_BACKEND
-    from rths_common import runinfo
     desired, applied, measured, meas, status, n = _tracking(bag, fs)
     stage(1, REVIEW_STAGES)
     bridge = runinfo.section(info, 'bridge')
@@ -391,7 +409,6 @@ def review_site(bag, out_dir, info, fs, stage) -> dict:
     (out_dir / 'review.txt').write_text(review_text(summary))
     _tracking_plots(out_dir, fs, desired, applied, measured)
     stage(3, REVIEW_STAGES)
-    from rths_bringup.report_html import write_report
     write_report(out_dir, summary)
     stage(4, REVIEW_STAGES)
     return summary
@@ -418,7 +435,6 @@ def _site_text(s: dict) -> str:
 
 def review_text(s: dict) -> str:
     """Return the review as text, in the layout of the seed's tables 5-9."""
-    from rths_bringup.report_html import row_label, specimen_title
     if s.get('kind') == 'site':
         return _site_text(s)
     inch = 0.0254
@@ -482,8 +498,6 @@ def offline_references(numerical, bridge, dt):
     dicts with ``disp`` and ``metrics`` (the reference also its whole ``history``; None if the
     bridge ran a bare table).
     """
-    from rths_numerical.reference import coupled_rths, metrics
-    from rths_numerical.substructure import make_substructure
     free = coupled_rths(make_substructure(numerical), lambda x: np.zeros(1))
     uncontrolled = {'disp': free['output_disp'], 'metrics': metrics(free['output_disp'])}
     specimen = SPECIMENS.entry(specimen_of(bridge)).reference(dt, bridge)
@@ -510,8 +524,10 @@ def _hinge_history(bag, reference):
 def _hysteresis_plot(path, stroke, force, fs, title, labels=('stroke [mm]', 'force [N]'),
                      velocity=True):
     """Force against stroke (and against velocity, by finite differences) of a specimen."""
+    # lazy: start-up cost: matplotlib (~0.5 s), which only the plots need
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(1, 2 if velocity else 1, figsize=(10 if velocity else 6, 4),
                            squeeze=False)
@@ -529,8 +545,10 @@ def _hysteresis_plot(path, stroke, force, fs, title, labels=('stroke [mm]', 'for
 
 
 def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
+    # lazy: start-up cost: matplotlib (~0.5 s), which only the plots need
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
 
     t = np.arange(desired.size) / fs
@@ -557,11 +575,11 @@ def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
 
 def _tracking_plots(out_dir, fs, desired, applied, measured):
     """Tracking around the peak and the measured FRF of the actuator (table 5's plots)."""
+    # lazy: start-up cost: matplotlib (~0.5 s), which only the plots need
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
-
-    from rths_compensator.indicators import frf_h1
 
     t = np.arange(desired.size) / fs
     k = int(np.argmax(np.abs(desired)))
@@ -576,9 +594,6 @@ def _tracking_plots(out_dir, fs, desired, applied, measured):
     fig.tight_layout()
     fig.savefig(out_dir / 'tracking_zoom.png', dpi=110)
     plt.close(fig)
-
-    from scipy import signal
-    from scipy.signal import coherence
 
     fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
     nperseg = int(min(desired.size, 4 * round(fs)))

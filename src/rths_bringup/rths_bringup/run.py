@@ -44,6 +44,9 @@ from rths_numerical.specimens import (
     specimen_settings,
 )
 
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
+
 NODE_FILES = {'numerical': 'numerical.yaml', 'compensator': 'compensator.yaml',
               'bridge': 'bridge.yaml'}
 #: Exit code of ``rths run`` when the bridge's safety supervisor stopped the RTHS run
@@ -73,9 +76,11 @@ def register(commands, benches):
     p.add_argument('--scale', type=float, default=0.135,
                    help='ground-motion scale factor (seed: kobe 0.135, northridge 0.039, '
                         'el centro 0.10; default 0.135)')
-    p.add_argument('--specimen', default=DEFAULT_SPECIMEN, type=_specimen_arg,
+    p.add_argument('--specimen', default=None, type=_specimen_arg,
                    choices=_RemoteOr(SPECIMENS.names()),
-                   help=f'the specimen (default {DEFAULT_SPECIMEN}): an entry of '
+                   help=f'the specimen (default: the specimen of CONFIG/bridge.yaml, else '
+                        f'{DEFAULT_SPECIMEN}; given, it overrides the config with a note): '
+                        'an entry of '
                         'rths_numerical.specimens (docs/extending.md lists them: the Table 4 '
                         'DTMs, the bare table, a damper between the floor and the ground), or '
                         'tcp://HOST:PORT: a remote experimental site (rths site, OpenFresco; '
@@ -121,11 +126,13 @@ def register(commands, benches):
     p.add_argument('--ident-duration', type=float, default=40.0,
                    help='identification run length [s] (default 40: 4 records of 10 s)')
     p.add_argument('--plant', default=None,
-                   help='skip steps 1-2 and design from this identified plant.yaml')
+                   help='skip steps 1-2 and design from this identified plant.yaml (or an '
+                        'updated_model.yaml of rths discrepancy --scenario actuator)')
     p.add_argument('--adaptive', default=METHOD_DEFAULT, choices=METHODS.names(),
                    help=f'compensation method of the RTHS run (default {METHOD_DEFAULT}: the '
-                        f'designed FIR; {", ".join(adaptive_names())} adapt on line from it, '
-                        'lock-step only; docs/adaptive.md)')
+                        f'designed FIR; {", ".join(adaptive_names())} adapt on line from it; '
+                        'pi_lead: the RTHS benchmark\'s PI + lead feedback controller, the '
+                        'designed FIR its fallback; lock-step or realtime; docs/adaptive.md)')
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                    help='storage of the bags (default mcap; sqlite3 for older tools)')
     p.add_argument('--no-compensation', action='store_true',
@@ -340,11 +347,19 @@ def bridge_params(bridge: dict, args, config: Path) -> dict:
     if args.backend == 'simulated':
         if args.controller:
             raise ValueError('--controller needs --backend udp')
+        explicit = args.specimen is not None
+        args.specimen = resolve_specimen(args.specimen, bridge, config / 'bridge.yaml')
         if args.specimen.startswith('tcp://'):
             return remote_bridge(bridge, args.specimen)
-        return dict(bridge, backend='simulated', specimen=args.specimen,
-                    **specimen_settings(args.specimen, pairs, '--specimen-param'))
-    if args.specimen != DEFAULT_SPECIMEN or pairs:
+        if not explicit and args.specimen not in SPECIMENS.names():
+            SPECIMENS.entry(args.specimen, f"{config / 'bridge.yaml'}: specimen")
+        settings = specimen_settings(args.specimen, pairs, '--specimen-param')
+        for key, value in settings.items():
+            if key in bridge and bridge[key] != value:
+                _say(f"note: {key}={value} (--specimen-param) overrides {key}: {bridge[key]} "
+                     f"of {config / 'bridge.yaml'}")
+        return dict(bridge, backend='simulated', specimen=args.specimen, **settings)
+    if args.specimen is not None or pairs:
         raise ValueError('--specimen/--specimen-param/--mr-voltage: with --backend udp the '
                          "specimen is the controller's; drop them")
     host, sep, port = str(args.controller or '').rpartition(':')
@@ -354,6 +369,20 @@ def bridge_params(bridge: dict, args, config: Path) -> dict:
     simulated = {*SIM_PARAMS, *specimen_params()[0]} - set(SAFETY_PARAMS)
     kept = {k: v for k, v in bridge.items() if k not in simulated}
     return dict(kept, backend='udp', host=host or '127.0.0.1', port=int(port))
+
+
+def resolve_specimen(option, bridge: dict, where) -> str:
+    """Return the run's specimen: ``--specimen`` when given, else the config's, else the default.
+
+    An explicit option that differs from the config file's ``specimen`` wins, and the
+    conflict is printed (a note naming both and the file), never silently resolved.
+    """
+    configured = bridge.get('specimen')
+    if option is None:
+        return str(configured) if configured is not None else DEFAULT_SPECIMEN
+    if configured is not None and str(configured) != option:
+        _say(f'note: --specimen {option} overrides specimen: {configured} of {where}')
+    return option
 
 
 def remote_bridge(bridge: dict, site: str) -> dict:
@@ -488,12 +517,14 @@ def _run(args) -> int:
     comp = runinfo.load_params(comp_file, 'compensator')
     comp.update({k: base['compensator'][k] for k in ('executor',) if k in base['compensator']})
     if METHODS.entry(args.adaptive).adaptive:
-        if args.no_compensation or args.mode != 'lockstep':
-            raise ValueError(f'--adaptive {args.adaptive} needs a designed FIR and lock-step '
-                             'mode (drop --no-compensation / use --mode lockstep)')
+        if args.no_compensation:
+            raise ValueError(f'--adaptive {args.adaptive} needs a designed FIR (drop '
+                             '--no-compensation)')
         provenance = dict(comp.get('provenance') or {})
         provenance['plant'] = str(Path(str(provenance.get('plant', ''))).resolve())
         comp.update(method=args.adaptive, provenance=provenance)
+    elif args.adaptive != METHOD_DEFAULT:
+        comp.update(method=args.adaptive)
 
     # 3: the RTHS run
     numerical = dict(base['numerical'], model=model_param,
@@ -536,8 +567,6 @@ def _run(args) -> int:
 
 def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path) -> int:
     """Write and print the summary of an RTHS run the bridge stopped; return EXIT_SAFETY_STOP."""
-    import json
-
     from rths_common.params import core_params
     from rths_numerical.substructure import make_substructure
 

@@ -136,6 +136,7 @@ class TeePublisher:
         """Publish ``msg`` (a message or CDR bytes) and queue its bytes for the recorder."""
         self.publisher.publish(msg)
         if not isinstance(msg, (bytes, bytearray)):
+            # lazy: start-up cost: rclpy (~0.3 s), which this module needs only here
             from rclpy.serialization import serialize_message
             msg = serialize_message(msg)
         self.tee.put(self.index, msg)

@@ -50,10 +50,10 @@ def test_a_specimen_is_one_entry(monkeypatch):
     entry = Specimen('a linear spring-damper between the floor and the ground',
                      device=lambda settings: SpringDamper(2.0e5, 3.0e3),
                      interface_frame='relative')
-    monkeypatch.setitem(SPECIMENS._entries, 'spring', entry)
+    monkeypatch.setitem(SPECIMENS._entries, 'spring_example', entry)
     t = np.arange(int(2 * FS)) / FS
     u = 0.002 * np.sin(2 * np.pi * 1.0 * t)
-    plant = SimulatedPlant(specimen='spring', daq_filter_hz=0.0)
+    plant = SimulatedPlant(specimen='spring_example', daq_filter_hz=0.0)
     rows = [plant.step(uk) for uk in u]
     x = np.array([r['table_disp'] for r in rows])
     v = np.array([r['table_vel'] for r in rows])

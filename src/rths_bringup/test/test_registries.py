@@ -32,9 +32,10 @@ SHARED_WORDS = {
     # the unit millimetre
     'mm': {'rths_common/rths_common/columns.py', 'rths_bringup/rths_bringup/preflight.py'},
 }
-#: Benchmarks reproduce named published cases (the seed's comparison study, the RTHS
-#: benchmark's controllers); they are not where a name chooses behaviour.
-BENCHMARKS = ('rths_compensator/rths_compensator/bench.py', 'rths_bench/')
+#: Benchmarks and studies reproduce named published cases (the seed's comparison study,
+#: the RTHS benchmark's controllers, a study's configurations); they are not where a name
+#: chooses behaviour.
+BENCHMARKS = ('rths_compensator/rths_compensator/bench.py', 'rths_bench/', 'rths_study/')
 
 
 def _subparsers(parser):
@@ -67,7 +68,7 @@ def test_command_line_choices_are_the_registries():
     assert tuple(_option(emulator, '--specimen').choices) == SPECIMENS.names()
 
 
-@pytest.mark.parametrize('path', ['docs/extending.md', 'config/bridge.yaml',
+@pytest.mark.parametrize('path', ['docs/extending.md', 'docs/nodes.md', 'config/bridge.yaml',
                                   'config/compensator.yaml', 'config/numerical.yaml'])
 def test_docs_tables_and_yaml_comments_are_the_registries(path):
     stale = sync(ROOT / path)

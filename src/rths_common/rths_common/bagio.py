@@ -22,12 +22,16 @@ from pathlib import Path
 import sqlite3
 import time
 
+import numpy as np
+import yaml
+
 from rths_common import bagstore, runinfo, topics
 
 
 def _msg_dir() -> Path:
     """Directory holding the rths_msgs .msg files (installed share dir, else the source tree)."""
     try:
+        # lazy: optional: tried here, refused with a clear message when missing
         from ament_index_python.packages import get_package_share_directory
         path = Path(get_package_share_directory('rths_msgs')) / 'msg'
         if path.is_dir():
@@ -46,6 +50,7 @@ def _msg_dir() -> Path:
 @lru_cache(maxsize=1)
 def typestore():
     """Return a ROS 2 Jazzy typestore with the rths_msgs types registered."""
+    # lazy: start-up cost: rosbags (~0.2 s), which this module needs only here
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
@@ -69,6 +74,7 @@ class BagWriter:
 
     def __init__(self, path, topic_types=None, commit_period_s: float = 0.25, run_info=None,
                  storage: str = bagstore.DEFAULT_STORAGE):
+        # lazy: start-up cost: rosbags (~0.2 s), which this module needs only here
         from rosbags.interfaces import Connection
         from rosbags.rosbag2 import Writer
 
@@ -86,7 +92,6 @@ class BagWriter:
         for key, value in self.run_info.items():
             self._writer.set_custom_data(key, value)
         if self.run_info:  # also beside the database, so a crashed recording keeps it
-            import yaml
             (self.path / RUN_INFO_FILE).write_text(yaml.safe_dump(self.run_info))
         self._connections: dict[str, Connection] = {}
         self._commit_period_s = commit_period_s
@@ -144,15 +149,32 @@ RUN_INFO_FILE = 'rths_run.yaml'
 
 
 def bag_dir(bag) -> Path:
-    """Return the bag directory of ``bag`` (itself, or the one holding its .mcap/.db3 file)."""
+    """Return the bag directory of ``bag`` (itself, or the one holding its .mcap/.db3 file).
+
+    A results directory of ``rths run`` given instead of its bag (a directory holding
+    no bag files but bags below it) is refused with a ValueError naming those bags.
+    """
     bag = Path(bag)
-    return bag.parent if bag.is_file() and bag.suffix in ('.mcap', '.db3') else bag
+    if bag.is_file() and bag.suffix in ('.mcap', '.db3'):
+        return bag.parent
+    if bag.is_dir() and not _holds_bag_files(bag):
+        inner = sorted(p.parent for pattern in ('*/metadata.yaml', '*/*/metadata.yaml')
+                       for p in bag.glob(pattern))
+        if inner:
+            raise ValueError(f'{bag} is a results directory, not a bag; pass one of its bags: '
+                             + ', '.join(str(p) for p in inner)
+                             + (f' (the RTHS run: {bag / "rths" / "bag"})'
+                                if bag / 'rths' / 'bag' in inner else ''))
+    return bag
+
+
+def _holds_bag_files(path: Path) -> bool:
+    return (path / 'metadata.yaml').exists() or any(
+        p.suffix in ('.mcap', '.db3') for p in path.iterdir())
 
 
 def run_info(bag) -> dict:
     """Run information of a bag (``fs_hz``, ``mode``, ...): custom_data, else the side file."""
-    import yaml
-
     bag = bag_dir(bag)
     if (bag / 'metadata.yaml').exists():
         custom = metadata(bag).get('custom_data')
@@ -218,8 +240,6 @@ def reindex(bag) -> Path:
 
 def _write_metadata(bag: Path, storage: str, data_file: Path, topic_rows, t0: int, t1: int):
     """Write ``metadata.yaml`` (format 9); ``topic_rows``: (name, type, fmt, qos, hash, count)."""
-    import yaml
-
     total = sum(row[-1] for row in topic_rows)
     info = {
         'version': 9,
@@ -277,6 +297,7 @@ def _reindex_sqlite3(bag: Path) -> Path:
 
 def open_reader(bag):
     """Open a bag for reading with rosbags, reindexing it first if a crash left no metadata."""
+    # lazy: start-up cost: rosbags (~0.2 s), which this module needs only here
     from rosbags.rosbag2 import Reader
 
     bag = bag_dir(bag)
@@ -352,8 +373,6 @@ def step_arrays(bag, topic: str, fields) -> dict:
     A message whose array is shorter than the widest one (e.g. a bridge step
     that applied nothing) is padded with NaN.
     """
-    import numpy as np
-
     steps: list[int] = []
     values: dict[str, list] = {f: [] for f in fields}
     for _, msg in read_topic(bag, topic):
@@ -400,8 +419,6 @@ def read_identification(bag, loop: bool = True):
     and the identified plant includes the D-step delay.  ``loop=False``: the
     actuator alone (applied and measured at the same tick).
     """
-    import numpy as np
-
     fs = sampling_rate(bag)
     data = step_arrays(bag, topics.MEASUREMENT, ('applied', 'displacement'))
     if data['step'].size == 0:
@@ -425,8 +442,6 @@ def read_specimen(bag, frame_mass_kg: float) -> dict:
     inertia).  ``m_frame`` is the bridge's ``frame_mass_kg`` of the run, else
     ``frame_mass_kg``.  Steps with a non-finite value are dropped.
     """
-    import numpy as np
-
     fs = sampling_rate(bag)
     spec = step_arrays(bag, topics.SPECIMEN, ('table_accel', 'rel_disp'))
     if spec['step'].size == 0:

@@ -19,6 +19,7 @@
 
 import os
 from pathlib import Path
+import sqlite3
 import struct
 
 #: Storage identifiers of ``metadata.yaml`` that rths writes and reads.
@@ -42,6 +43,7 @@ def check_storage(storage: str) -> str:
 
 def plugin(storage: str):
     """Return the ``rosbags`` StoragePlugin of a storage identifier."""
+    # lazy: start-up cost: rosbags (~0.2 s), which this module needs only here
     from rosbags.rosbag2 import StoragePlugin
 
     return {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}[check_storage(storage)]
@@ -135,6 +137,7 @@ def mcap_topics(path) -> dict:
     count), ...], 'start_ns', 'end_ns', 'count'}``; the counts come from
     rosbags' scan of the file (its summary, else its records).
     """
+    # lazy: start-up cost: rosbags (~0.2 s), which this module needs only here
     from rosbags.interfaces import ConnectionExtRosbag2
     from rosbags.rosbag2.storage_mcap import McapReader
 
@@ -170,10 +173,12 @@ def _chunk_records(content: bytes) -> bytes:
     (size,) = struct.unpack_from('<Q', content, 32 + n)
     data = content[40 + n:40 + n + size]
     if compression == 'zstd':
+        # lazy: optional dependency (zstandard)
         import zstandard
         return zstandard.ZstdDecompressor().decompress(
             data, max_output_size=struct.unpack_from('<Q', content, 16)[0])
     if compression == 'lz4':
+        # lazy: optional dependency (lz4)
         import lz4.frame
         return lz4.frame.decompress(data)
     return data
@@ -224,7 +229,6 @@ def committed_counts(bag) -> dict:
 
 
 def _sqlite_counts(path: Path) -> dict:
-    import sqlite3
 
     try:
         conn = sqlite3.connect(f'file:{path}?mode=ro', uri=True, timeout=1.0)

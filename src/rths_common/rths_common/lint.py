@@ -24,6 +24,7 @@ def config_path(package: Path) -> Path:
 
 def flake8(package: Path) -> list:
     """Run ament_flake8 over ``package``; return its errors (empty: clean)."""
+    # lazy: optional dependency (ament_flake8)
     from ament_flake8.main import main_with_errors
 
     rc, errors = main_with_errors(argv=['--config', str(config_path(package)), str(package)])
@@ -32,6 +33,7 @@ def flake8(package: Path) -> list:
 
 def pep257(package: Path, tests: Path) -> int:
     """Run ament_pep257 over ``package`` (``tests`` with the tests' ignores); 0 if clean."""
+    # lazy: optional dependency (ament_pep257)
     from ament_pep257.main import main
 
     config = ConfigParser()

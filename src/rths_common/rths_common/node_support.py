@@ -8,18 +8,23 @@ validates every key and reports bad ones by name.
 """
 
 import gc
+import importlib
 import os
 import signal
+import sys
 import threading
 import time
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from rths_common.params import check_spec
 from rths_msgs.msg import LoopStatus
 
 #: Parameters every rclpy node has; they are not passed to the plain-Python cores.
@@ -55,8 +60,6 @@ def _describe(node: Node, key: str, spec) -> None:
 
     An integer given for a float parameter (``fs_hz: 1024``) becomes a float.
     """
-    from rths_common.params import check_spec
-
     value = node.get_parameter(key)
     check_spec(key, value.value, spec)
     type_, alternative = value.type_, None
@@ -236,7 +239,6 @@ def status_msg(node_name: str, step: int, *, period_us=0.0, compute_us=0.0, late
 def make_executor(kind: str = 'events'):
     """Return an executor: 'events' (rclpy.experimental.EventsExecutor) or 'single'."""
     if kind == 'events':
-        from rclpy.experimental import EventsExecutor
         return EventsExecutor()
     if kind == 'single':
         return SingleThreadedExecutor()
@@ -388,8 +390,6 @@ class TickThread:
 
 def message_class(msgtype: str):
     """Python class of a message type given as ``pkg/msg/Name``."""
-    import importlib
-
     package, kind, name = msgtype.split('/')
     return getattr(importlib.import_module(f'{package}.{kind}'), name)
 
@@ -401,8 +401,6 @@ def flush(publishers, timeout_s: float = 2.0) -> bool:
     takes them (and its transient-local history) with it, so a lagging
     recorder would lose the last steps of a run.
     """
-    from rclpy.duration import Duration
-
     ok = True
     for pub in publishers:
         ok = pub.wait_for_all_acked(Duration(nanoseconds=int(timeout_s * 1e9))) and ok
@@ -452,8 +450,6 @@ def own_writer_gid(node, topic: str) -> str:
 
 def params_file_of(argv) -> str:
     """``'PATH: '`` for the ``--params-file PATH`` of a node's argv ('' if none), for errors."""
-    import sys
-
     args = list(sys.argv if argv is None else argv)
     files = [args[i + 1] for i, a in enumerate(args[:-1]) if a == '--params-file']
     return f'params file {files[-1]}: ' if files else ''

@@ -655,4 +655,9 @@ def methods_from_params(params: dict, n_channels: int) -> ChannelMethods:
             raise ValueError(f'parameter method = {name}: parameter provenance.plant (the '
                              'plant.yaml the FIR was designed on) is missing')
         plant = load_plant(path)
-    return ChannelMethods(name, design, plant, n_channels)
+    options = {}
+    if entry.feedback:
+        # lazy: .feedback imports this module (its methods subclass AdaptiveMethod)
+        from .feedback import options_from_params
+        options = options_from_params(params)
+    return ChannelMethods(name, design, plant, n_channels, **options)

@@ -23,11 +23,14 @@ import numpy as np
 from scipy import signal
 
 from rths_common.files import atomic_open
+from rths_common.progress import Progress
+from rths_numerical.signals import blwn
 
 from . import design as dsg
+from ._blas import limit_blas_threads
 from .filters import CausalFilter, MultiChannelFilter
 from .identification import identify, selection_summary
-from .indicators import relative_rms_pct, time_delay_from_data, time_delay_ms
+from .indicators import bode, relative_rms_pct, time_delay_from_data, time_delay_ms
 from .plants import discrete_actuator, unstable_zero_threshold_hz
 
 BANDS_HZ = (5, 10, 20, 30)
@@ -61,7 +64,6 @@ def _log(msg):
 
 
 def _blwn(duration_s, fs_hz, band_hz, peak, rng, taper_s=0.5):
-    from rths_numerical.signals import blwn
     return blwn(duration_s, fs_hz, band_hz, peak, rng, taper_s)
 
 
@@ -100,7 +102,6 @@ def run_study(seed: int = 2024, noise_m: float = 2e-6, eval_s: float = 60.0,
     Nyquist predicted on the identified model) and ``true_highpass_gain_db`` (the same
     for the true plant times the compensator).
     """
-    from ._blas import limit_blas_threads
     limit_blas_threads(1)
     rng = np.random.default_rng(seed)
     b_true, a_true = discrete_actuator('3pole', fs_hz)
@@ -122,7 +123,6 @@ def run_study(seed: int = 2024, noise_m: float = 2e-6, eval_s: float = 60.0,
         val.append((u, measure(u)))
     log(f'[2/4] ARX grid na, nb = 1..{na_max}, 1..{nb_max} ({na_max * nb_max} models), '
         f'selection over {n_validation} validation records')
-    from rths_common.progress import Progress
 
     t0 = time.perf_counter()
     with Progress(na_max * nb_max, 'ARX grid', 'models') as bar:
@@ -305,11 +305,12 @@ def write_json(path, result: dict) -> str:
 
 def make_plots(result: dict, directory: str) -> list:
     """Write PNG figures mirroring the seed's Figures 5-10 into ``directory``."""
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
 
-    from .indicators import bode
     os.makedirs(directory, exist_ok=True)
     extra = result['_extra']
     model, designs = extra['model'], extra['designs']

@@ -7,11 +7,15 @@
 * ``rths bench compensators``  the seed's numerical study (section 4.3.3) -> JSON (+ plots)
 """
 
+import os
 import sys
 
 from rths_common.columns import read_columns
 
 from .schemes import SCHEMES, designed
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 #: What a design reports beside its options, kept in the provenance.
 DESIGN_RESULTS = ('a_tilde', 'model', 'q', 'solver', 'auto_score', 'bandwidth_hz')
@@ -58,7 +62,10 @@ def register(commands, benches):
                     'constraint-violating designs. With --auto --bandwidth HZ it searches '
                     'scheme, n and fc and explains its choice. Schemes: '
                     + '; '.join(f'{n}: {s.summary}' for n, s in SCHEMES.items() if s.designer))
-    p.add_argument('--plant', required=True, help='plant file from rths identify')
+    p.add_argument('--plant', required=True,
+                   help='plant file from rths identify, or the updated_model.yaml of rths '
+                        'discrepancy --scenario actuator (its time_delay and linear loop '
+                        'loads folded into the ARX; other effects refused)')
     p.add_argument('--scheme', choices=designed(), help='compensator scheme')
     p.add_argument('--taps', type=int, default=100, help='FIR length n of H (100)')
     p.add_argument('--fc', type=float, default=64.0, help='FIR passband edge fc [Hz] (64)')
@@ -173,8 +180,6 @@ def cmd_identify(args) -> int:
 
 def cmd_design(args) -> int:
     """``rths design``."""
-    import os
-
     import numpy as np
 
     from . import design as dsg
@@ -344,7 +349,6 @@ def cmd_bench_compensators(args) -> int:
     print(f'identified plant: ARX na={model.na} nb={model.nb} d={model.d}')
     print(f'wrote {args.out}')
     if args.plots:
-        import os
 
         from .identification import save_plant
         for path in bench.make_plots(result, args.plots):

@@ -4,15 +4,20 @@
 in, the command of step k out (a :class:`rths_common.stepping.StepResult`),
 through the designed filter ``G = taps / denominator`` per interface DOF
 (:class:`~rths_compensator.filters.MultiChannelFilter`) or an adaptive
-method started from it (:mod:`rths_compensator.adaptive`, parameter
-``method``).  The compensator node and :mod:`rths_common.replay` step it.
+method started from it (:mod:`rths_compensator.adaptive`) or the reference
+feedback controller (:mod:`rths_compensator.feedback`), parameter ``method``.
+The compensator node and :mod:`rths_common.replay` step it.
 
 Missing-input policy: displacements lost before k are interpolated
 (:data:`rths_common.gaps.DISPLACEMENT_ORDER`, cubic: the designed taps turn a
 held displacement into a command spike) and filtered, so the filter's delay
-line sees one value per step.  An adaptive method needs measurement k - 1 for
-command k: until :meth:`CompensatorCore.measure` brings it, ``step`` returns
-None and keeps the displacement; it takes no gaps (lock-step only).
+line sees one value per step.  A method on the measurement (adaptive or
+feedback) needs measurement k - 1 for command k.  Lock-step: until
+:meth:`CompensatorCore.measure` brings it, ``step`` returns None and keeps the
+displacement.  Realtime (``realtime=True``): ``step`` never waits; it uses
+measurement k - 1 if it has arrived, else none (the method holds its last
+measurement and does not adapt on this step), and lost displacements are
+interpolated as for the designed filter.
 """
 
 from typing import Any
@@ -21,8 +26,9 @@ import numpy as np
 
 from rths_common.gaps import DISPLACEMENT_ORDER
 from rths_common.stepping import GapPolicy, StaleStep, StepResult
+from rths_compensator.filters import MultiChannelFilter
 
-from .methods import method_of
+from .methods import method_of, uses_measurement
 
 
 class CompensatorCore:
@@ -33,13 +39,15 @@ class CompensatorCore:
     on the first step, when the number of interface DOFs is known.
     """
 
-    def __init__(self, params: dict):
+    def __init__(self, params: dict, realtime: bool = False):
         self.params = params
-        self.adaptive = method_of(params).adaptive
+        self.adaptive = uses_measurement(method_of(params))   # steps on the measurement
+        self.realtime = bool(realtime)
         self.filter: Any = None   # MultiChannelFilter or adaptive.ChannelMethods
         self.policy = GapPolicy(DISPLACEMENT_ORDER)
         self.measured: dict = {}   # adaptive: step -> (measured displacement, applied)
         self.pending: tuple | None = None   # adaptive: (k, x) waiting for measurement k - 1
+        self.last_target: np.ndarray | None = None   # the last step's interface displacement
 
     @property
     def next_step(self) -> int:
@@ -48,18 +56,26 @@ class CompensatorCore:
 
     def _build(self, n_channels: int):
         if self.adaptive:
+            # lazy: start-up cost: SciPy (~1 s), which this module needs only here
             from rths_compensator.adaptive import methods_from_params
             return methods_from_params(self.params, n_channels)
-        from rths_compensator.filters import MultiChannelFilter
         return MultiChannelFilter(self.params['taps'], self.params['denominator'],
                                   n_channels=n_channels)
 
-    def warm_up(self):
-        """Run the filter's code path once on a throwaway filter (realtime start-up)."""
-        from rths_compensator.filters import MultiChannelFilter
+    def warm_up(self, n_channels: int = 1):
+        """Build the filter for ``n_channels`` and run its code paths (realtime start-up).
 
+        A method on the measurement is built here (imports, the plant) and stepped on
+        throwaway copies; the run's own one starts fresh.
+        """
         MultiChannelFilter(self.params['taps'], self.params['denominator'],
                            n_channels=1).step(np.zeros(1))
+        if self.adaptive:
+            spare = self._build(n_channels)
+            zero = np.zeros(n_channels)
+            for _ in range(8):
+                spare.step(zero, zero, None)
+            self.filter = self._build(n_channels)
 
     def step(self, k: int, x) -> StepResult | None:
         """Return the command of step ``k`` for its interface displacement ``x`` [m].
@@ -69,6 +85,7 @@ class CompensatorCore:
         if self.adaptive:
             return self._adaptive_step(k, x)
         x, rows = self.policy.admit(k, x)
+        self.last_target = x
         filt = self.filter
         if filt is None:
             filt = self.filter = self._build(max(x.size, 1))
@@ -79,10 +96,12 @@ class CompensatorCore:
         return StepResult(k, (command,), len(rows))
 
     def _adaptive_step(self, k, x):
+        if self.realtime:
+            return self._adaptive_realtime(k, x)
         if k != self.next_step:
             raise StaleStep(f'adaptive compensator: step {k} is not the expected step '
                             f'{self.next_step} (adaptive methods run in lock-step)')
-        x = np.asarray(x, dtype=float)
+        x = self.last_target = np.asarray(x, dtype=float)
         if k > 0 and (k - 1) not in self.measured:
             self.pending = (k, x)
             return None
@@ -96,8 +115,32 @@ class CompensatorCore:
         return StepResult(k, (command,), 0,
                           fault=status.reason if status.state == 'fallback' else '')
 
+    def _adaptive_realtime(self, k, x):
+        x, rows = self.policy.admit(k, x)
+        self.last_target = x
+        filt = self.filter
+        if filt is None or len(filt.methods) != max(x.size, 1):
+            filt = self.filter = self._build(max(x.size, 1))
+        measured = self.measured
+        first = self.next_step
+        for i, row in enumerate(rows):   # lost displacements: interpolated
+            prev, applied = measured.pop(first + i - 1, (None, None))
+            filt.step(row, prev, applied)
+        prev, applied = measured.pop(k - 1, (None, None))
+        command = filt.step(x, prev, applied)
+        for old in [j for j in measured if j < k]:   # late ones: never used
+            del measured[old]
+        self.policy.passed(k)
+        status = filt.status
+        return StepResult(k, (command,), len(rows),
+                          fault=status.reason if status.state == 'fallback' else '')
+
     def measure(self, k: int, displacement, applied) -> StepResult | None:
-        """Adaptive: keep measurement k; return the result of step k + 1 if it was waiting."""
+        """Keep measurement k; lock-step: return the result of step k + 1 if it was waiting."""
+        if self.realtime:
+            if k >= self.next_step - 1:
+                self.measured[k] = (displacement, applied)
+            return None
         self.measured[k] = (displacement, applied)
         if self.pending is not None and self.pending[0] == k + 1:
             return self._adaptive_step(*self.pending)

@@ -193,6 +193,7 @@ class _IncrementalLp:
         self.highs = None
         if lp_method == 'highs':
             try:
+                # lazy: SciPy's private HiGHS module may be missing: linprog is the fall-back
                 from scipy.optimize._highspy import _core
             except ImportError:          # private SciPy module: fall back to linprog
                 _core = None

@@ -42,6 +42,8 @@ import yaml
 from rths_common.files import atomic_open
 from rths_common.timebase import sampling_rate_hz
 
+from .plant_effects import fold_effects
+
 CRITERIA = ('mse', 'fit', 'aic', 'bic')
 
 
@@ -105,7 +107,11 @@ class ArxModel:
 
     @classmethod
     def from_dict(cls, data: dict, where: str = 'plant') -> 'ArxModel':
-        """Build from :meth:`to_dict` output; ValueError names the missing/bad field."""
+        """Build from :meth:`to_dict` output; ValueError names the missing/bad field.
+
+        An ``effects`` mapping (an ``updated_model.yaml`` of ``rths discrepancy``) is
+        folded into the coefficients by :func:`.plant_effects.fold_effects`, or refused.
+        """
         if not isinstance(data, dict):
             raise ValueError(f'{where}: expected a mapping with kind, fs_hz, a, b, d')
         if data.get('kind', 'arx') != 'arx':
@@ -118,6 +124,10 @@ class ArxModel:
             if field in data and int(data[field]) != value:
                 raise ValueError(f'{where}: field {field} = {data[field]} does not match the '
                                  f'length of the coefficient list ({value})')
+        if data.get('effects'):
+            a, b, d = fold_effects(model.a, model.b, model.d, model.fs_hz, data['effects'],
+                                   where)
+            model = cls(a=a, b=b, d=d, fs_hz=model.fs_hz)
         return model
 
 

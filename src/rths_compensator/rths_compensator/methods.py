@@ -1,12 +1,14 @@
 """Compensation methods: the registry from a method's name to the class that runs it.
 
 ``method`` of the compensator parameters chooses how the designed filter runs:
-``fir`` as designed, or an adaptive method started from it (:mod:`.adaptive`,
-docs/adaptive.md).  Each entry names its class (the class, or ``module:Class`` to import
-it on first use; built by
-``Class.from_design(design, plant, guards, **options)``) and whether it needs the
-identified plant.  The parameters' allowed values, ``rths run --adaptive`` and the
-docs tables take their names from :data:`METHODS`; docs/extending.md adds one.
+``fir`` as designed, an adaptive method started from it (:mod:`.adaptive`,
+docs/adaptive.md), or ``pi_lead``, the RTHS benchmark's reference feedback controller
+(:mod:`.feedback`; the designed filter is its fallback).  Each entry names its class
+(the class, or ``module:Class`` to import it on first use; built by
+``Class.from_design(design, plant, guards, **options)``), whether it adapts (and needs
+the identified plant) and whether it is a feedback controller.  The parameters' allowed
+values, ``rths run --adaptive`` and the docs tables take their names from
+:data:`METHODS`; docs/extending.md adds one.
 
 The classes are imported when a method is built, not with this registry: they pull
 SciPy's signal package (about 1 s), which the compensator node running a fixed FIR
@@ -24,7 +26,8 @@ class Method(NamedTuple):
 
     summary: str
     runner: Any                  # the class, or 'module:Class'; it has a from_design classmethod
-    adaptive: bool = True        # adapts on line (lock-step only, needs the plant)
+    adaptive: bool = True        # adapts on line (needs the plant and the measurement)
+    feedback: bool = False       # a feedback controller on the measured displacement
 
     def method_class(self):
         """Return the class that runs the method (a ``module:Class`` path: imports its module)."""
@@ -43,6 +46,9 @@ METHODS = Registry('compensation method', 'method', {
     'ats': Method('adaptive time series (Chae et al. 2013)', 'rths_compensator.adaptive:Ats'),
     'amb': Method('adaptive model-based (Fermandois and Spencer)',
                   'rths_compensator.adaptive:Amb'),
+    'pi_lead': Method('PI tracking controller with phase lead on the measured displacement '
+                      '(the RTHS benchmark\'s reference, Silva et al. 2020)',
+                      'rths_compensator.feedback:PiLead', adaptive=False, feedback=True),
 })
 
 
@@ -53,6 +59,16 @@ DEFAULT = 'fir'
 def method_of(params: dict, where: str = 'compensator parameters') -> Method:
     """Return the entry of ``params['method']`` (default: the fixed designed filter)."""
     return METHODS.entry(str(params.get('method') or DEFAULT), where)
+
+
+def uses_measurement(entry: Method) -> bool:
+    """Tell whether a method needs the measured displacement of the previous step."""
+    return entry.adaptive or entry.feedback
+
+
+def compensator_names() -> tuple:
+    """Return the names of the feed-forward methods (the designed filter and its adaptations)."""
+    return tuple(name for name, m in METHODS.items() if not m.feedback)
 
 
 def adaptive_names() -> tuple:

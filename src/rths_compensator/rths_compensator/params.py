@@ -35,6 +35,7 @@ from rths_common.files import atomic_open
 from rths_common.params import LOOP_RATE_RANGE_HZ, node_schema
 from rths_common.timebase import format_hz, same_rate
 
+from .methods import DEFAULT as DEFAULT_METHOD
 from .methods import METHODS
 from .schemes import SCHEMES
 
@@ -49,18 +50,35 @@ FILTER_PARAMS = {
 FILTER_RANGES = {'fs_hz': LOOP_RATE_RANGE_HZ}
 #: The compensator's method key (not a filter field): key -> (default, meaning).
 METHOD_PARAMS = {
-    'method': ('fir', 'the designed filter, or an adaptive method started from it (lock-step '
-                      'only; needs provenance.plant; docs/adaptive.md)'),
+    'method': (DEFAULT_METHOD, 'the designed filter, an adaptive method started from it '
+                               '(needs provenance.plant) or pi_lead (docs/adaptive.md)'),
+    'pi_lead_kp': (2.0, '[-] pi_lead: proportional gain (Silva et al. 2020: 2)'),
+    'pi_lead_ki': (95.0, '[1/s] pi_lead: integral gain (Silva et al. 2020: 95)'),
+    'pi_lead_num': ([50.8316, 8570.4], '[s, -] pi_lead: lead numerator b1, b0 of '
+                                       '(b1 s + b0) / (a1 s + a0)'),
+    'pi_lead_den': ([1.0, 8570.4], '[s, -] pi_lead: lead denominator a1, a0'),
 }
-#: Allowed values of the scheme and the method (the registries' names).
-CHOICES = {'scheme': SCHEMES.names(), 'method': METHODS.names()}
+#: The online stability monitor (rths_compensator.monitor, docs/monitor.md): key ->
+#: (default, meaning); the thresholds' defaults are MonitorSettings'.
+MONITOR_PARAMS = {
+    'monitor': ('off', 'off | warn (publish /rths/stability) | stop (also the safe stop '
+                       'through /rths/emergency_stop at a stop threshold)'),
+    'monitor_warn_delay_ms': (3.0, '[ms] monitor: tracking delay that warns'),
+    'monitor_stop_delay_ms': (5.0, '[ms] monitor: tracking delay that stops'),
+    'monitor_warn_error_pct': (25.0, '[%] monitor: relative RMS tracking error that warns'),
+    'monitor_stop_error_pct': (50.0, '[%] monitor: relative RMS tracking error that stops'),
+}
+#: Allowed values of the scheme, the method and the monitor (the registries' names).
+CHOICES = {'scheme': SCHEMES.names(), 'method': METHODS.names(),
+           'monitor': ('off', 'warn', 'stop')}
 #: The key (a mapping) that holds a file's provenance; ROS names its entries provenance.*.
 PROVENANCE = 'provenance'
 
 
 def param_schema(node_params) -> dict:
     """Return the compensator node's parameter schema: its ``node_params`` and the filter's."""
-    return node_schema(node_params, {**FILTER_PARAMS, **METHOD_PARAMS}, FILTER_RANGES, CHOICES)
+    return node_schema(node_params, {**FILTER_PARAMS, **METHOD_PARAMS, **MONITOR_PARAMS},
+                       FILTER_RANGES, CHOICES)
 
 
 def check_compensator_params(params: dict, where: str) -> None:
@@ -70,7 +88,8 @@ def check_compensator_params(params: dict, where: str) -> None:
     node's parameters (provenance as ``provenance.*`` names), node-level keys removed.
     """
     unknown = sorted(k for k in params
-                     if k not in FILTER_PARAMS and k not in METHOD_PARAMS and k != PROVENANCE
+                     if k not in FILTER_PARAMS and k not in METHOD_PARAMS
+                     and k not in MONITOR_PARAMS and k != PROVENANCE
                      and not k.startswith(PROVENANCE + '.'))
     if unknown:
         raise ValueError(f'{where}: unknown parameter(s) {", ".join(unknown)}; the compensator '

@@ -191,7 +191,7 @@ def test_converges_after_a_plant_change(setup, gain_step, name):
 
 def test_make_method_errors(setup):
     plant, design = setup
-    assert set(METHODS) == {'fir', 'rls_fir', 'ats', 'amb'}
+    assert set(METHODS) == {'fir', 'rls_fir', 'ats', 'amb', 'pi_lead'}
     with pytest.raises(ValueError, match='unknown'):
         make_method('lms', design, plant)
     with pytest.raises(ValueError, match='needs the identified plant'):

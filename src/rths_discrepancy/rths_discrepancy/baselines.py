@@ -48,6 +48,8 @@ no physical name follows from them, so its naming accuracy is 0 by
 construction (no mapping is defined).
 """
 
+import warnings
+
 import numpy as np
 
 from rths_discrepancy import effects as fx
@@ -67,6 +69,7 @@ DIFFS = ('fd', 'smoothed')
 
 
 def _differentiator(diff, d):
+    # lazy: optional dependency (pysindy)
     import pysindy as ps
     if diff == 'fd':
         return ps.FiniteDifference(order=2, d=d)
@@ -130,8 +133,7 @@ def sindy_fit(theta, target, threshold=DEFAULT_THRESHOLD, dt=1.0, names=TERMS):
     The library is passed through ``ps.IdentityLibrary`` (each column one
     candidate function) with the residual as the derivative target.
     """
-    import warnings
-
+    # lazy: optional dependency (pysindy)
     import pysindy as ps
     mdl = ps.SINDy(optimizer=ps.STLSQ(threshold=threshold),
                    feature_library=ps.IdentityLibrary())
@@ -168,8 +170,7 @@ def narx_baseline(scenario, data, degree=2, ylag=2, xlag=2, max_terms=10):
     Fitted on the first half of the record, simulated free-run (``steps_ahead=None``)
     on the second half; NRMSE = rms error / std of the measured output there.
     """
-    import warnings
-
+    # lazy: optional dependency (sysidentpy)
     from sysidentpy.basis_function import Polynomial
     from sysidentpy.model_structure_selection import FROLS
     from sysidentpy.parameter_estimation import LeastSquares

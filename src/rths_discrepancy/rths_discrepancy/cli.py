@@ -13,7 +13,12 @@
   sysidentpy on the same records (:mod:`.baselines`).
 """
 
+import json
+import os
 import sys
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 
 def _say(msg):
@@ -21,14 +26,11 @@ def _say(msg):
 
 
 def _is_bag(path):
-    import os
     return os.path.isdir(path) or str(path).lower().endswith(('.mcap', '.db3', '.bag'))
 
 
 def _read_measured(path, scenario):
     """CSV path -> validated columns; a bag directory/.mcap/.db3 is read by ``io.read_bag``."""
-    import os
-
     from rths_discrepancy import io as dio
     if _is_bag(path):
         return dio.validate(scenario, dio.read_bag(path, scenario), source=str(path))
@@ -39,22 +41,20 @@ def _read_measured(path, scenario):
 
 def _restoring_cmd(args) -> int:
     """``rths discrepancy --scenario restoring-force``: a measured specimen force."""
-    import os
-
     from rths_discrepancy import restoring
     if args.model:
         raise ValueError('--model does not apply to the restoring-force scenario: its nominal '
                          'model m a + c v + k x is fitted from the record')
-    if _is_bag(args.measured):
-        raise ValueError('the restoring-force scenario reads a CSV with the columns '
-                         f'{", ".join(restoring.COLUMNS)} (optional velocity_m_s), not a bag')
     if not os.path.exists(args.measured):
         raise OSError(f'--measured {args.measured}: no such file')
-    data = restoring.load_csv(args.measured)
+    if _is_bag(args.measured):
+        data = restoring.validate(restoring.read_bag(args.measured), source=args.measured)
+    else:
+        data = restoring.load_csv(args.measured)
     from rths_common.progress import Progress
 
     with Progress(0, 'candidate models') as bar:
-        res = restoring.run(data, out_dir=args.out, progress=lambda text: bar.write(text),
+        res = restoring.run(data, out_dir=args.out, progress=bar.note,
                             source=os.path.basename(args.measured), count=bar.report)
     print(f"effect: {res['effect']}")
     for name, par in res['parameters'].items():
@@ -73,8 +73,6 @@ def _restoring_cmd(args) -> int:
 
 def csv_cmd(args) -> int:
     """``rths discrepancy-csv``: an original data file to the restoring-force CSV contract."""
-    import os
-
     from rths_discrepancy import restoring
     if not os.path.exists(args.source):
         raise OSError(f'{args.source}: no such file')
@@ -86,9 +84,6 @@ def csv_cmd(args) -> int:
 
 def bench_real_cmd(args) -> int:
     """``rths bench discrepancy-real``: the restoring-force scenario on the real records."""
-    import json
-    import os
-
     from rths_common import datasets
     from rths_discrepancy import restoring
     data_dir = args.data or datasets.data_dir()
@@ -100,7 +95,7 @@ def bench_real_cmd(args) -> int:
 
     with Progress(len(restoring.REAL), 'real records') as bar:
         summary = restoring.run_real(data_dir, out_dir=args.reports,
-                                     progress=lambda text: bar.write(text), count=bar.report)
+                                     progress=bar.note, count=bar.report)
     tmp = f'{args.out}.tmp'
     with open(tmp, 'w') as fh:
         json.dump(summary, fh, indent=1)
@@ -123,7 +118,6 @@ def bench_real_cmd(args) -> int:
 
 
 def _io_records(paths, args, what):
-    import os
 
     from rths_common.columns import read_columns
     from rths_discrepancy import iodisc
@@ -151,7 +145,7 @@ def _io_cmd(args) -> int:
     from rths_common.progress import Progress
 
     with Progress(0, 'io discrepancy') as bar:
-        res = iodisc.run(train, test, out_dir=args.out, progress=lambda text: bar.write(text))
+        res = iodisc.run(train, test, out_dir=args.out, progress=bar.note)
     print(f"effect: {res['effect']}")
     for name, p in res['per_output'].items():
         print(f"  {name}: held-out NRMSE linear {p['nrmse_baseline']:.4f} (ARX reference "
@@ -163,8 +157,6 @@ def _io_cmd(args) -> int:
 
 def run_discrepancy_cmd(args) -> int:
     """``rths discrepancy``: run the workflow and write DIR/result.json, report.md, plots."""
-    import os
-
     if args.scenario == 'io':
         return _io_cmd(args)
     if len(args.measured) != 1:
@@ -178,17 +170,30 @@ def run_discrepancy_cmd(args) -> int:
 
     from rths_discrepancy import models
     from rths_discrepancy.workflow import run_discrepancy
-    data = _read_measured(args.measured, args.scenario)
-    model = models.load_model(args.scenario, args.model) if args.model else None
     run = None  # (numerical, bridge) parameters of an RTHS bag, for the reference re-run
     if args.scenario == 'specimen' and _is_bag(args.measured) and os.path.isdir(args.measured):
+        from rths_common import bagio, runinfo
         from rths_discrepancy import rerun
+        bridge = runinfo.section(bagio.run_info(args.measured), 'bridge')
+        if bridge and not rerun.has_table_mass(bridge):
+            from rths_numerical.specimens import specimen_of
+
+            if args.model:
+                raise ValueError(f"--model: the run's specimen {specimen_of(bridge)} is no mass "
+                                 'on the table (eq. 46); drop --model, its force is analysed '
+                                 'by the restoring-force scenario')
+            _say(f"the run's specimen {specimen_of(bridge)} is no mass on the table (eq. 46): "
+                 'its measured force is analysed by the restoring-force scenario')
+            return _restoring_cmd(args)
         try:
             run = rerun.run_parameters(args.measured, args.config)
         except ValueError as err:
             _say(f'note: {err}; the nominal model is the default valve #4 and the reference '
                  'is not re-run')
-        if run is not None and model is None:
+    data = _read_measured(args.measured, args.scenario)
+    model = models.load_model(args.scenario, args.model) if args.model else None
+    if run is not None:
+        if model is None:
             from rths_numerical.specimens import specimen_of
 
             model = rerun.run_damper_model(run[1])
@@ -199,7 +204,7 @@ def run_discrepancy_cmd(args) -> int:
 
     with Progress(0, 'candidate models') as bar:
         res = run_discrepancy(args.scenario, data, model=model, out_dir=args.out,
-                              progress=lambda text: bar.write(text), count=bar.report)
+                              progress=bar.note, count=bar.report)
     for line in res['localization']['summary']:
         print(f'where: {line}')
     print(f"effect: {res['effect']}")
@@ -224,7 +229,6 @@ def run_discrepancy_cmd(args) -> int:
 
 
 def _write_reference(cmp, out_dir):
-    import os
 
     from rths_discrepancy import rerun
     for line in rerun.summary_lines(cmp):
@@ -237,8 +241,6 @@ def _write_reference(cmp, out_dir):
 
 def reference_cmd(args) -> int:
     """``rths reference``: RTHS-vs-reference error with the nominal and an updated specimen."""
-    import os
-
     from rths_discrepancy import models, rerun
     if not os.path.isdir(args.bag):
         raise OSError(f'{args.bag}: no such bag directory')
@@ -256,9 +258,6 @@ def reference_cmd(args) -> int:
 
 def bench_discrepancy_cmd(args) -> int:
     """``rths bench discrepancy``: self-test benchmark, prints the summary, writes JSON."""
-    import json
-    import os
-
     from rths_discrepancy import selftest
     seeds = args.seeds if args.seeds is not None else (1 if args.quick else 2)
     if seeds < 1:

@@ -217,6 +217,7 @@ def _loop(name):
     if not _LOOPS:
         loops = {'play': _play_loop, 'rate': _rate_loop, 'bouc_wen': _bouc_wen_loop}
         try:  # they run once per candidate evaluation: compiled they are ~100x faster
+            # lazy: optional: tried here, refused with a clear message when missing
             import numba
             loops = {k: numba.njit(cache=True)(f) for k, f in loops.items()}
         except ImportError:  # pragma: no cover - plain Python
@@ -380,6 +381,7 @@ def apply_output_ops(scenario: str, y, effects: dict, fs: float, channel: str = 
         if 'backlash' in effects:
             out = play(out, effects['backlash'])
     if '_lag' in effects:
+        # lazy: start-up cost: SciPy (~1 s), which this module needs only here
         from scipy.signal import lfilter
         alpha = math.exp(-1.0 / (fs * effects['_lag']))
         out = lfilter([1.0 - alpha], [1.0, -alpha], out, zi=[alpha * out[0]])[0]

@@ -24,9 +24,15 @@ Set A: 14 records of one effect or none; set B: 12 records, pairs included.
 """
 
 import math
+import time
 
 import numpy as np
 from scipy import signal
+
+from rths_compensator.plants import continuous_actuator
+from rths_discrepancy import effects as fx
+from rths_discrepancy.jobs import run_with_progress
+from rths_discrepancy.workflow import run_discrepancy
 
 FS_HZ = 1000.0
 DURATION_S = 12.0
@@ -125,7 +131,6 @@ def _finish(rng, data, u, outs, effects, fs):
 
 def actuator_record(effects, seed, interpolate=False, extra_step=False, output_start=False):
     """Actuator record (time, command, measured) of the Table 1 3-pole servo with ``effects``."""
-    from rths_compensator.plants import continuous_actuator
     rng = np.random.default_rng(2000 + seed)
     fs, n = FS_HZ, int(DURATION_S * FS_HZ)
     u = _excitation(rng, n, fs, 15.0, 0.003)
@@ -199,7 +204,6 @@ SET_B = [('specimen', ()), ('specimen', ('backlash', 'sensor_bias')),
 
 def record(set_name, i):
     """Record ``i`` of set 'A' or 'B': (scenario, data, truth {name: value}, expected label)."""
-    from rths_discrepancy import effects as fx
     scenario, names = (SET_A if set_name == 'A' else SET_B)[i]
     sizes = _specimen_sizes() if scenario == 'specimen' else _actuator_sizes()
     truth = {k: sizes[k] for k in names}
@@ -217,9 +221,6 @@ def record(set_name, i):
 
 def run_one(args):
     """Run the workflow on held-out record ``args`` = (set, index); return a summary row."""
-    import time
-
-    from rths_discrepancy.workflow import run_discrepancy
     set_name, i = args
     t0 = time.perf_counter()
     scenario, data, truth, expected = record(set_name, i)
@@ -236,7 +237,6 @@ def run_sets(workers=2, progress=None):
     """Run sets A and B; return {'A': {...}, 'B': {...}} with counts and rows."""
     jobs = [('A', i) for i in range(len(SET_A))] + [('B', i) for i in range(len(SET_B))]
     say = progress or (lambda msg: None)
-    from rths_discrepancy.jobs import run_with_progress
 
     rows = run_with_progress(run_one, jobs, workers, 'held-out records', say, _line)
     rows.sort(key=lambda r: (r['set'], r['index']))

@@ -14,8 +14,11 @@ naming the file/column and the fix.
 
 import numpy as np
 
+from rths_common import bagio
 from rths_common.columns import read_columns
+from rths_common.files import atomic_open
 from rths_common.timebase import infer_rate, sampling_rate_hz
+from rths_numerical.dtm import FRAME_MASS_KG
 
 #: Required columns per scenario: (input, output channels...).
 COLUMNS = {
@@ -88,22 +91,17 @@ def read_bag(bag, scenario: str) -> dict:
     ``specimen``: ``time``, ``base_accel``, ``rel_disp`` and ``force``
     (:func:`rths_common.bagio.read_specimen`; the frame mass defaults to Table 4's).
     """
-    from rths_common import bagio
-
     if scenario == 'actuator':
         t, command, measured = bagio.read_identification(bag, loop=False)
         return {'time': t, 'command': command, 'measured': measured}
     if scenario != 'specimen':
         raise ValueError(f"scenario {scenario!r}: use 'specimen' or 'actuator'")
-    from rths_numerical.dtm import FRAME_MASS_KG
 
     return bagio.read_specimen(bag, FRAME_MASS_KG)
 
 
 def write_csv(path, data: dict, columns) -> None:
     """Write ``columns`` of ``data`` as CSV with a header row (atomic)."""
-    from rths_common.files import atomic_open
-
     arr = np.column_stack([np.asarray(data[c], float) for c in columns])
     with atomic_open(path) as handle:
         np.savetxt(handle, arr, delimiter=',', header=','.join(columns), comments='',

@@ -25,8 +25,10 @@ def write(out_dir, result, per, plots=True):
 
 
 def _plot(out_dir, name, p):
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
     d = p['_plot']
     y, b, a = d['t_test'], d['before'], d['after']
@@ -46,6 +48,19 @@ def _plot(out_dir, name, p):
     fig.savefig(os.path.join(out_dir, fname), dpi=90)
     plt.close(fig)
     return fname
+
+
+#: A free-run NRMSE above this is a simulation that diverged, not an error size.
+DIVERGED_NRMSE = 100.0
+
+
+def nrmse_cell(x):
+    """Table cell of a training NRMSE: '-' when not fitted, 'diverged' when unstable."""
+    if x is None:
+        return '-'
+    if not x <= DIVERGED_NRMSE:
+        return 'diverged (free run unstable)'
+    return f'{x:.4f}'
 
 
 def markdown(result, files):
@@ -77,8 +92,8 @@ def markdown(result, files):
                   f"{p['information_criterion_none']:.1f} |"]
         for _, c in sorted(p['candidates'].items(),
                            key=lambda kv: kv[1]['information_criterion']):
-            tn = '-' if c['training_nrmse'] is None else f"{c['training_nrmse']:.4f}"
-            lines.append(f"| {c['variant']} | {tn} | {c['information_criterion']:.1f} |")
+            lines.append(f"| {c['variant']} | {nrmse_cell(c['training_nrmse'])} | "
+                         f"{c['information_criterion']:.1f} |")
         if p['parameters']:
             lines += ['', 'Chosen block: `' + json.dumps(p['parameters'])[:400] + '`']
         if name in files:

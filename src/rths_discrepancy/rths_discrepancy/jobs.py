@@ -3,6 +3,8 @@
 Used by the self-test bench (:mod:`.selftest`) and the held-out sets (:mod:`.heldout`).
 """
 
+import multiprocessing as mp
+
 from rths_common.progress import Progress
 
 
@@ -13,7 +15,6 @@ def run_parallel(func, jobs, workers, on_row=None):
     """
     rows = []
     if workers > 1:
-        import multiprocessing as mp
         with mp.get_context('fork').Pool(workers) as pool:
             for row in pool.imap_unordered(func, jobs):
                 rows.append(row)

@@ -29,14 +29,18 @@ their parameter value; the workflow writes ``updated_model.yaml`` in the
 same layout, so it loads back with ``--model``.
 """
 
+import copy
 from dataclasses import dataclass, field
 import math
 
 import numpy as np
 from scipy import signal
+import yaml
 
 from rths_common.timebase import same_rate
+from rths_compensator.plants import continuous_actuator
 from rths_discrepancy import effects as fx
+from rths_numerical.dtm import SEED_CONFIGURATION, dtm_configuration
 
 
 @dataclass
@@ -206,7 +210,6 @@ def _loop_filter(b, a, u, load, fs):
 def default_model(scenario: str):
     """Nominal model of a scenario without ``--model``: Table 4 valve #4 or Table 1 3-pole."""
     if scenario == 'specimen':
-        from rths_numerical.dtm import SEED_CONFIGURATION, dtm_configuration
         p = dtm_configuration(SEED_CONFIGURATION)
         return SpecimenModel(p.m_d, p.c_d, p.k_d)
     if scenario == 'actuator':
@@ -241,7 +244,6 @@ def actuator_from_dict(spec: dict, where: str = 'model') -> ActuatorModel:
                              source=dict(spec), effects=eff)
     if kind == 'continuous':
         if 'table1' in spec:
-            from rths_compensator.plants import continuous_actuator
             num, den = continuous_actuator(str(spec['table1']))
         elif 'poles' in spec:
             poles = np.array([complex(p[0], p[1]) if isinstance(p, (list, tuple)) else
@@ -276,7 +278,6 @@ def model_from_dict(scenario: str, spec: dict, where: str = 'model'):
 
 def load_model(scenario: str, path):
     """Load a model YAML file (ValueError names the file and the problem)."""
-    import yaml
     with open(path) as fh:
         try:
             spec = yaml.safe_load(fh)
@@ -287,7 +288,6 @@ def load_model(scenario: str, path):
 
 def with_effects(model, effects: dict):
     """Copy of ``model`` with ``effects`` added to (overriding) its own."""
-    import copy
     new = copy.copy(model)
     new.effects = {**model.effects, **effects}
     return new

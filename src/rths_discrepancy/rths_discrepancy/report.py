@@ -8,6 +8,7 @@ import json
 import os
 
 import numpy as np
+import yaml
 
 
 def _atomic_write(path, text):
@@ -18,8 +19,10 @@ def _atomic_write(path, text):
 
 
 def _plots(out_dir, ctx, after_pred):
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
     t = np.arange(ctx.n) / ctx.fs
     te = ctx.test
@@ -114,7 +117,6 @@ def markdown(result, files) -> str:
 
 def write_outputs(out_dir, result, ctx, after_pred, plots=True):
     """Write result.json, updated_model.yaml, report.md (+ PNGs) into ``out_dir``."""
-    import yaml
     os.makedirs(out_dir, exist_ok=True)
     files = _plots(out_dir, ctx, after_pred) if plots else {}
     _atomic_write(os.path.join(out_dir, 'updated_model.yaml'),

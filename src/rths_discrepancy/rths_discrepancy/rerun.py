@@ -26,12 +26,25 @@ information lacks them (a recorder started by hand) needs the params
 directory of its launch (``--config DIR``: numerical.yaml and bridge.yaml).
 """
 
+import json
+import os
 from pathlib import Path
 
 import numpy as np
 
+from rths_common import bagio, runinfo, topics
+from rths_common.params import core_params
 from rths_discrepancy import effects as fx
 from rths_discrepancy import models
+from rths_numerical.dtm import FRAME_MASS_KG, DTMParameters
+from rths_numerical.reference import (
+    DTMSpecimen,
+    coupled_rths,
+    relative_rms_error,
+    simulate_reference,
+)
+from rths_numerical.specimens import SPECIMENS, specimen_of
+from rths_numerical.substructure import make_substructure
 
 #: Sub-steps per sample of the DTM integration when the model has a non-linear force.
 SUBSTEPS = 16
@@ -45,9 +58,6 @@ def run_parameters(bag, config=None) -> tuple:
     the run was launched with).
     ValueError names the fix when neither is available.
     """
-    from rths_common import bagio, runinfo
-    from rths_common.params import core_params
-
     info = bagio.run_info(bag)
     numerical = runinfo.section(info, 'numerical')
     bridge = runinfo.section(info, 'bridge')
@@ -63,10 +73,14 @@ def run_parameters(bag, config=None) -> tuple:
     return core_params(numerical), core_params(bridge)
 
 
+def has_table_mass(bridge: dict) -> bool:
+    """Return True if the run's ``specimen`` is a mass on the table (a DTM, eq. 46)."""
+    return SPECIMENS.entry(specimen_of(bridge), "the run's bridge parameter").table_mass \
+        is not None
+
+
 def run_damper_model(bridge: dict) -> models.SpecimenModel:
     """Nominal specimen model of a run: the mass on the table of the bridge's ``specimen``."""
-    from rths_numerical.specimens import SPECIMENS, specimen_of
-
     name = specimen_of(bridge)
     p = SPECIMENS.entry(name, "the run's bridge parameter").table_mass
     if p is None:
@@ -78,9 +92,6 @@ def run_damper_model(bridge: dict) -> models.SpecimenModel:
 
 def specimen(model: models.SpecimenModel, dt: float, frame_mass_kg=None):
     """Return a :class:`rths_numerical.reference.DTMSpecimen` simulating ``model``'s effects."""
-    from rths_numerical.dtm import FRAME_MASS_KG, DTMParameters
-    from rths_numerical.reference import DTMSpecimen
-
     loop = {k: v for k, v in model.effects.items()
             if k not in ('time_delay', 'sensor_bias', 'force_offset', 'mass_error')}
     force = fx.specimen_force(loop, model) if loop else None
@@ -100,8 +111,6 @@ def _frame_mass(bridge):
 
 def rths_floor_displacement(bag, sub) -> np.ndarray:
     """2nd-floor displacement [m] (relative to the ground) of the RTHS recorded in ``bag``."""
-    from rths_common import bagio, topics
-
     disp = bagio.step_arrays(bag, topics.INTERFACE_DISPLACEMENT, ('displacement',))
     steps = disp['step']
     n = int(steps.size)
@@ -124,10 +133,6 @@ def compare(bag, updated_model, config=None, nominal_model=None, progress=None) 
     ``nominal_model`` defaults to the run's Table 4 damper.  ``progress(done, 3)``
     follows the three simulations (nominal, updated, whole numerical).
     """
-    from rths_numerical.dtm import FRAME_MASS_KG
-    from rths_numerical.reference import coupled_rths, relative_rms_error, simulate_reference
-    from rths_numerical.substructure import make_substructure
-
     numerical, bridge = run_parameters(bag, config)
     if not isinstance(updated_model, models.SpecimenModel):
         updated_model = models.load_model('specimen', updated_model)
@@ -168,7 +173,6 @@ def compare(bag, updated_model, config=None, nominal_model=None, progress=None) 
 
 
 def _params(model):
-    from rths_numerical.dtm import DTMParameters
     return DTMParameters(model.m_d, model.c_d, model.k_d)
 
 
@@ -190,8 +194,6 @@ def summary_lines(res: dict) -> list:
 
 def write(res: dict, path) -> None:
     """Write :func:`compare`'s result (without the time series) as JSON, atomically."""
-    import json
-    import os
     data = {k: v for k, v in res.items() if not k.startswith('_')}
     tmp = f'{path}.tmp'
     with open(tmp, 'w') as fh:
@@ -201,8 +203,10 @@ def write(res: dict, path) -> None:
 
 def plot(res: dict, path) -> None:
     """Time history of the RTHS and both references and the two differences (PNG)."""
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
     s = res['_series']
     t = np.arange(s['rths'].size) * res['duration_s'] / max(s['rths'].size, 1)
@@ -221,5 +225,4 @@ def plot(res: dict, path) -> None:
     tmp = f'{path}.tmp.png'
     fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    import os
     os.replace(tmp, path)

@@ -18,11 +18,17 @@ deficit of 0.12 only one or two peaks per record reach the limit): see
 (a first-order lag of the measurement chain).
 """
 
+import time
+
 import numpy as np
 
+from rths_discrepancy import baselines, models
+from rths_discrepancy import baselines as bl
 from rths_discrepancy import effects as fx
-from rths_discrepancy import models
+from rths_discrepancy import heldout as ho
 from rths_discrepancy.jobs import run_with_progress
+from rths_discrepancy.workflow import run_discrepancy
+from rths_numerical.signals import blwn
 
 DURATION_S = 16.0
 QUICK_DURATION_S = 8.0
@@ -32,7 +38,6 @@ NOISE = 0.005
 
 def excitation(scenario, duration_s, fs, rng):
     """Return the input of a synthetic record (BLWN with 0.5 s tapers)."""
-    from rths_numerical.signals import blwn
     if scenario == 'specimen':
         return blwn(duration_s, fs, 10.0, 1.0, rng=rng, taper_s=0.5)
     return blwn(duration_s, fs, 20.0, 0.010, rng=rng, taper_s=0.5)
@@ -221,9 +226,6 @@ def run_case(args):
     baselines]]); with ``baselines`` true, pysindy and sysidentpy also run on the
     same record (:mod:`.baselines`) and the row gets a 'baselines' entry.
     """
-    import time
-
-    from rths_discrepancy.workflow import run_discrepancy
     scenario, label, hidden, strength, expected, seed = args[:6]
     duration = args[6] if len(args) > 6 else DURATION_S
     with_baselines = bool(args[7]) if len(args) > 7 else False
@@ -249,7 +251,6 @@ def run_case(args):
            'unexplained_note': res.get('unexplained_note'),
            'seconds': time.perf_counter() - t0}
     if with_baselines:
-        from rths_discrepancy import baselines
         row['baselines'] = baselines.run_baselines(scenario, data)
     return row
 
@@ -267,7 +268,6 @@ def run_bench(seeds=3, quick=False, workers=2, progress=None, baselines=False,
     ``heldout`` (default: not ``quick``): also run the two held-out sets of the
     independent simulator (:mod:`.heldout`; targets 13 of 14 and 11 of 12).
     """
-    import time
     t0 = time.perf_counter()
     duration = QUICK_DURATION_S if quick else DURATION_S
     # every seed for the rths convention, the first seed for the other conventions
@@ -311,12 +311,10 @@ def run_bench(seeds=3, quick=False, workers=2, progress=None, baselines=False,
         'rows': rows,
     }
     if baselines:
-        from rths_discrepancy import baselines as bl
         summary['baselines'] = bl.summarize(rows)
     met = (summary['correct_naming_percent'] >= 100.0 - 1e-9
            and summary['false_effects_on_controls'] == 0 and summary['median_gap_closed'] >= 0.9)
     if heldout if heldout is not None else not quick:
-        from rths_discrepancy import heldout as ho
         summary['heldout'] = ho.run_sets(workers=workers, progress=say)
         met = met and all(v['named'] >= v['target'] for v in summary['heldout'].values())
     if detect:

@@ -54,7 +54,7 @@ from scipy.signal import lfilter
 
 from rths_discrepancy import effects as fx
 from rths_discrepancy import io as dio
-from rths_discrepancy import models
+from rths_discrepancy import localize, models, report
 from rths_discrepancy import signals as sg
 
 #: Held-out gain needed to name anything, in units of the noise variance.
@@ -481,7 +481,6 @@ def run_discrepancy(scenario, data, model=None, out_dir=None, rng=None, progress
     say = progress or (lambda msg: None)
     ctx = Context(scenario, data, model)
     say(f'nominal residual computed ({ctx.n} samples at {ctx.fs:g} Hz)')
-    from rths_discrepancy import localize
     where = localize.localize(ctx, data)
     gap_tr = ctx.mse(ctx.y_nom, ctx.train) / ctx.sigma2 - 1.0
     gap_te = ctx.mse(ctx.y_nom, ctx.test) / ctx.sigma2 - 1.0
@@ -548,6 +547,5 @@ def run_discrepancy(scenario, data, model=None, out_dir=None, rng=None, progress
     say(f"effect: {decision}  NRMSE held-out {before:.4f} -> {after:.4f} "
         f'(noise {noise:.4f}), gap closed {gap_closed:.2f}')
     if out_dir is not None:
-        from rths_discrepancy import report
         report.write_outputs(out_dir, result, ctx, after_pred, plots=plots)
     return result

@@ -7,10 +7,14 @@
 
 import json
 import os
+import time
 
 from rths_common.files import atomic_open, save_figure
 
 from .dtm import SEED_CONFIGURATION, STUDY_CONFIGURATIONS, TABLE4, dtm_configuration
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 
 def _progress(label):
@@ -280,7 +284,6 @@ def cmd_study_dtm_tuning(args):
 
 def _best_step_us(step, repeats=5, n=2000):
     """Best over ``repeats`` runs of the mean time [us] of ``n`` calls of ``step()``."""
-    import time
     best = float('inf')
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -318,8 +321,6 @@ def _time_advance(model, name, dt, repeats=5, n=2000):
 
 def _advance_p50_us(sub, specimen):
     """Median [us] of the per-step ``advance`` time over a whole coupled run (and the history)."""
-    import time
-
     import numpy as np
     times = np.zeros(sub.n_steps)
     command = sub.first_displacement()
@@ -359,8 +360,6 @@ def _backend_comparison(backend, record, scale, duration_s, fs_hz):
 
 def cmd_bench_numerical(args):
     """Run ``rths bench numerical``."""
-    import time
-
     from .building import building_16dof, building_240dof, x_frequencies
     load_start = list(os.getloadavg())
     if args.backend != 'builtin':
@@ -424,8 +423,6 @@ def cmd_bench_numerical(args):
 
 def cmd_fit_mr(args):
     """Run ``rths fit-mr``: fit the Spencer et al. (1997) model to real sinusoid tests."""
-    import time
-
     import numpy as np
 
     from . import mr_fit

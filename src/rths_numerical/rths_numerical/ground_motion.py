@@ -176,6 +176,7 @@ def scale(accel, factor):
 def resample(accel, dt, fs_hz):
     """Resample ``accel`` sampled at ``dt`` [s] to ``fs_hz`` [Hz] (band-limited FFT method)."""
     # scipy.signal costs the numerical node ~0.7 s at start-up; only records are resampled
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from scipy.signal import resample as fft_resample
 
     accel = np.asarray(accel, dtype=float)

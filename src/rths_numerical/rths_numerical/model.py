@@ -29,6 +29,7 @@ import math
 
 import numpy as np
 import scipy.linalg as sla
+import yaml
 
 
 @dataclass
@@ -351,7 +352,6 @@ def model_from_dict(data, source='model'):
 
 def load_model_yaml(path):
     """Read a model YAML file (see the module docstring)."""
-    import yaml
     with open(path) as fh:
         data = yaml.safe_load(fh)
     return model_from_dict(data, source=str(path))

@@ -29,6 +29,7 @@ from dataclasses import asdict, dataclass
 import math
 
 from .reference import StrokeSpecimen, coupled_rths
+from .substructure import make_substructure
 
 
 @dataclass(frozen=True)
@@ -147,6 +148,5 @@ def simulate_mr_reference(numerical_params, voltage, params: MRParameters = SPEN
     model, record, integrator, force scale, interface frame).  Returns the
     substructure's history (``output_disp`` is the reference 2nd-floor response).
     """
-    from .substructure import make_substructure  # substructure -> specimens -> this module
     sub = make_substructure(numerical_params)
     return coupled_rths(sub, MRSpecimen(sub.dt, voltage, params))

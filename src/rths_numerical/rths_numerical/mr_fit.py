@@ -26,6 +26,7 @@ import os
 import re
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from rths_common import datasets
 
@@ -142,7 +143,6 @@ def fit(tests, start: MRParameters = None, per_cycle=1000, max_nfev=200, progres
 
     ``progress(done, 0)`` gets the number of model evaluations so far (total unknown).
     """
-    from scipy.optimize import least_squares
     if start is None:   # the paper's values, its voltage dependence spread over 0-1 A
         start = _params(np.log([getattr(SPENCER_1997, k) * (2.25 if k.endswith('b') else 1.0)
                                 for k in FIT_KEYS]))

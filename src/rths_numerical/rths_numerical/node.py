@@ -20,6 +20,7 @@ from rths_common.qos import loop_qos, run_info_qos, status_qos
 from rths_common.stepping import Driver
 from rths_common.transport import Transport
 from rths_msgs.msg import InterfaceDisplacement, LoopStatus, Measurement
+from rths_numerical.stepping import NumericalCore
 
 #: Parameters of the node itself; every other parameter goes to make_substructure().
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
@@ -38,7 +39,7 @@ class NumericalNode:
     """
 
     def __init__(self):
-        from rths_numerical.stepping import NumericalCore
+        # lazy: start-up cost: SciPy (~1 s), which this module needs only here
         from rths_numerical.substructure import make_substructure, param_schema
 
         self.node = ns.make_node('numerical', param_schema(NODE_PARAMS), NODE_PARAMS)

@@ -29,6 +29,7 @@ a spring between nodes i and j of ``-K_ij``, a spring to ground of the row sum.
 
 import ctypes
 import glob
+from importlib.metadata import version
 import importlib.util
 import os
 
@@ -81,6 +82,7 @@ def import_opensees():
         raise OSError(f'backend opensees: OpenSeesPy is not installed; {INSTALL_HINT}')
     loaded = _preload_bundled_libraries()
     try:
+        # lazy: optional: tried here, refused with a clear message when missing
         import openseespy.opensees as ops
     except (ImportError, RuntimeError, OSError) as err:
         cause = err.__cause__ or err.__context__ or err
@@ -99,7 +101,6 @@ def opensees_available():
         import_opensees()
     except OSError as err:
         return False, str(err)
-    from importlib.metadata import version
     return True, version('openseespy')
 
 
@@ -181,11 +182,10 @@ class ScriptModel:
 
 def load_model_script(path):
     """Import the user's model script at ``path``; return its ``build`` (ValueError if none)."""
-    import importlib.util as iu
     if not os.path.isfile(path):
         raise ValueError(f'parameter model = {path!r}: model script not found')
-    spec = iu.spec_from_file_location(f'rths_model_{abs(hash(path))}', path)
-    module = iu.module_from_spec(spec)
+    spec = importlib.util.spec_from_file_location(f'rths_model_{abs(hash(path))}', path)
+    module = importlib.util.module_from_spec(spec)
     try:
         spec.loader.exec_module(module)
     except Exception as err:  # the user's code: report any failure as a bad model

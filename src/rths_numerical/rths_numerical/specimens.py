@@ -30,6 +30,7 @@ from rths_common.registry import Registry
 from .dtm import FRAME_MASS_KG, SEED_CONFIGURATION, TABLE4, TABLE4_PRINTED, DTMParameters
 from .mr_damper import MRDamper, check_voltage
 from .reference import DTMSpecimen, StrokeSpecimen
+from .spring_damper import SpringDamper
 
 
 @dataclass(frozen=True)
@@ -96,6 +97,12 @@ SPECIMENS.add('mr', Specimen(
             'mr_substeps': (int, 8, '[-] RK4 sub-steps per sample of the MR damper model')},
     ranges={'mr_voltage_v': (0.0, 10.0), 'mr_substeps': (1, 4096)},
     substeps_param='mr_substeps', hysteresis=True))
+SPECIMENS.add('spring', Specimen(
+    'a linear spring-damper between the floor and the ground', interface_frame='relative',
+    device=lambda s: SpringDamper(s['spring_k_n_m'], s['spring_c_n_s_m']),
+    params={'spring_k_n_m': (float, 2.0e5, '[N/m] stiffness of the spring-damper'),
+            'spring_c_n_s_m': (float, 3.0e3, '[N s/m] damping of the spring-damper')},
+    ranges={'spring_k_n_m': (0.0, 1.0e9), 'spring_c_n_s_m': (0.0, 1.0e7)}))
 
 #: The specimen of a params file or a run that names none (the seed's).
 DEFAULT_SPECIMEN = SEED_CONFIGURATION

@@ -51,16 +51,26 @@ registry :data:`PARAMS` (key -> default and meaning with unit).  Numbers 0 for
 """
 
 import math
+import os
 from typing import Any
 
 import numpy as np
 
-from rths_common.params import LOOP_RATE_RANGE_HZ
+from rths_common.params import LOOP_RATE_RANGE_HZ, node_schema
 
+from .building import BUILDING_MASS_KG, building_16dof
 from .dtm import FRAME_MASS_KG, SEED_CONFIGURATION, TABLE4
+from .excitation import EXCITATION_PARAMS, EXCITATION_RANGES, make_excitation
 from .ground_motion import G, baseline_correct, ground_motion, integrate
 from .integrators import INTEGRATORS, make_integrator
 from .model import LinearModel, load_model_yaml, sdof_model
+from .opensees_backend import (
+    OpenSeesSubstructure,
+    ScriptModel,
+    linear_model_builder,
+    script_builder,
+)
+from .silva2020 import model_by_name
 from .stepping import BACKENDS, SteppedSubstructure
 
 FRAMES = ('absolute', 'relative')
@@ -118,9 +128,6 @@ DEFAULTS = {key: default for key, (default, _) in PARAMS.items()}
 
 def param_schema(node_params) -> dict:
     """Return the numerical node's parameter schema: its ``node_params`` and the core's."""
-    from rths_common.params import node_schema
-
-    from .excitation import EXCITATION_PARAMS, EXCITATION_RANGES
     return node_schema(node_params, {**EXCITATION_PARAMS, **PARAMS},
                        {**EXCITATION_RANGES, **RANGES})
 
@@ -274,11 +281,9 @@ def build_model(params) -> LinearModel:
         return sdof_model(_num(params, 'sdof_mass_kg'), _num(params, 'sdof_freq_hz'),
                           _num(params, 'sdof_zeta', allow_zero=True))
     if name == 'building2story':
-        from .building import BUILDING_MASS_KG, building_16dof
         mass = params.get('building_mass_kg') or BUILDING_MASS_KG
         return building_16dof(float(mass))
     if name.startswith('silva2020_case'):
-        from .silva2020 import model_by_name
         return model_by_name(name)
     if name.endswith(('.yaml', '.yml')):
         try:
@@ -295,7 +300,6 @@ def model_script_path(name: str):
     A ``.py`` path, or a name such as ``frame-steel01`` for
     ``$RTHS_ROOT/config/models/frame_steel01.py`` (the scripts shipped in config/).
     """
-    import os
     if name.endswith('.py'):
         return name
     if name in ('sdof', 'building2story', 'excitation') or name.endswith(('.yaml', '.yml')):
@@ -318,7 +322,6 @@ def make_substructure(params: dict) -> SteppedSubstructure:
     params = {k: v for k, v in dict(params).items()
               if v is not None and k not in ROS_KEYS and not k.startswith('qos_overrides')}
     if params.get('model') == 'excitation':
-        from .excitation import make_excitation
         return make_excitation(params)
     if params.get('interface_dofs') is not None and len(np.atleast_1d(
             params['interface_dofs'])) == 0:
@@ -339,7 +342,6 @@ def make_substructure(params: dict) -> SteppedSubstructure:
                          '(interface_node, interface_dof)')
     model: Any  # a LinearModel; a ScriptModel (opensees backend only) for a model script
     if script:
-        from .opensees_backend import ScriptModel, script_builder
         builder, ground_dof = script_builder(script)
         model = ScriptModel(script, gamma=1.0 if ground_dof == 1 else 0.0)
     else:
@@ -392,7 +394,6 @@ def make_substructure(params: dict) -> SteppedSubstructure:
         else _num(params, 'force_scale', allow_zero=True)
     mass = _num(params, 'specimen_mass_kg', allow_zero=True)
     if backend == 'opensees':
-        from .opensees_backend import OpenSeesSubstructure, linear_model_builder
         if not script:
             builder = linear_model_builder(model, model.interface_dofs if iface is None
                                            else iface)

@@ -24,7 +24,11 @@ import signal
 import tempfile
 import time
 
-from .store import CIRCUMSTANCE_COLUMNS
+from rths_actuator_bridge.silva2020 import SIGMA, Silva2020Params
+
+from .runner import run_study
+from .spec import check_spec
+from .store import CIRCUMSTANCE_COLUMNS, Store, schema_of
 
 #: Scale of the Imperial Valley 1979 record (gmspy, PGA 0.315 g) that gives El Centro
 #: 1940 x 0.4's PGA (0.349 g x 0.4 = 0.14 g), the benchmark's default excitation.
@@ -33,9 +37,6 @@ IMPERIAL_VALLEY_SCALE = 0.44
 
 def bench_spec(runs: int, duration_s: float, chunk: int, seed: int = 2020):
     """Return the bench's study: ``runs`` benchmark runs, half per controller."""
-    from rths_actuator_bridge.silva2020 import SIGMA, Silva2020Params
-
-    from .spec import check_spec
     nominal = Silva2020Params()
     draws = {k: {'normal': {'mean': float(getattr(nominal, k)), 'std': float(s)}}
              for k, s in SIGMA.items()}
@@ -83,8 +84,6 @@ class WorkerKiller:
 def run_bench(runs=200, workers=2, duration_s=10.0, chunk=10, work_dir=None, log=print,
               spec=None) -> dict:
     """Run the four studies (module doc) of :func:`bench_spec` or ``spec``; return the JSON."""
-    from .runner import run_study
-    from .store import Store, schema_of
     spec = spec or bench_spec(runs, duration_s, chunk)
     n = len(spec.runs())
     root = work_dir or tempfile.mkdtemp(prefix='rths-bench-study-')

@@ -6,10 +6,16 @@
 * ``rths bench rths-benchmark --draws N``: from :data:`DRAWS_VIA_RUNNER` draws (or with
   ``--scheduler``/``--workers``) the perturbed plants run through the study runner, into
   ``OUT/study``; the four nominal cases run in this process as before.  (The command is
-  ``rths_bench``'s; this module, above it, adds the two options and the route.)
+  ``rths_bench``'s; this module, above it, adds the two options and the route in
+  :func:`extend`, which ``rths`` calls after every package has registered its commands.)
 """
 
 import argparse
+import importlib
+import os
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
 #: From this many perturbed draws, ``rths bench rths-benchmark`` uses the study runner:
 #: one vectorised batch of N runs holds ~2.4 MB per run and second of record (1000
@@ -29,7 +35,7 @@ def add_cluster_arguments(p):
 
 
 def register(commands, benches):
-    """Add ``rths study run``, ``rths bench study``; route big benchmark draws to the runner."""
+    """Add ``rths study run`` and ``rths bench study``."""
     studies = _study_subcommands(commands)
     p = studies.add_parser(
         'run', help='run a study SPEC (grid, random draws or list) on a Dask cluster',
@@ -54,6 +60,10 @@ def register(commands, benches):
 
     from . import bench
     bench.register(benches)
+
+
+def extend(commands, benches):
+    """Route ``rths bench rths-benchmark``'s many draws to the runner (after every register)."""
     _route_benchmark(benches)
 
 
@@ -76,7 +86,6 @@ def _scenario_lines() -> str:
 
 
 def _summary_of(module, name) -> str:
-    import importlib
     try:
         return getattr(importlib.import_module(module), name).summary
     except ImportError as err:          # a scenario whose package is missing here
@@ -129,7 +138,8 @@ def _route_benchmark(benches):
     """Give ``rths bench rths-benchmark`` the cluster options and the runner for big N."""
     parser = benches.choices.get('rths-benchmark')
     if parser is None:
-        return
+        raise RuntimeError('rths_study.cli: rths bench rths-benchmark is not registered; '
+                           'rebuild the workspace (make setup) so that rths_bench is installed')
     add_cluster_arguments(parser)
     direct = parser.get_default('func')
     parser.set_defaults(func=lambda args: _benchmark(args, direct))
@@ -145,8 +155,8 @@ def _benchmark(args, direct) -> int:
     if args.via != 'loop' or not (args.draws >= DRAWS_VIA_RUNNER or args.scheduler
                                   or args.workers):
         return direct(args)
-    import os
 
+    # lazy: optional dependency (threadpoolctl)
     from threadpoolctl import threadpool_limits
 
     from rths_bench import rths_benchmark as rb

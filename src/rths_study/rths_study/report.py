@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .scenarios import get
+
 #: Worst runs listed per metric.
 N_WORST = 5
 _STYLE = ('body{font-family:sans-serif;max-width:64em;margin:1em auto;color:#222}'
@@ -36,7 +38,6 @@ def _group(row) -> str:
 
 
 def _float_metrics(spec) -> list:
-    from .scenarios import get
     kinds = get(spec.kind).metrics
     return [m for m in spec.metrics if kinds[m] == 'float']
 
@@ -53,7 +54,6 @@ def _stats(values) -> dict:
 
 def summarise(spec, rows: list, session: dict | None = None) -> dict:
     """Return the ``summary.json`` content of ``rows`` (the store's table as dicts)."""
-    from .scenarios import get
     ok = [r for r in rows if r['status'] == 'ok']
     groups = sorted({_group(r) for r in rows})
     out = {'study': spec.study, 'scenario': spec.kind, 'spec': spec.source,
@@ -94,8 +94,10 @@ def _best(rows, metric, group, names):
 
 # ----------------------------------------------------------------------------- plots
 def _pyplot():
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib
     matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
     return plt
 

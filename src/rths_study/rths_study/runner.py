@@ -20,11 +20,17 @@ running and leaves every finished row on disk, and rerunning the command continu
 
 import contextlib
 import datetime
+import hashlib
 import logging
 import os
 import time
 
+import yaml
+
+from rths_common.progress import Progress
+
 from . import worker as wk
+from .spec import canonical
 from .store import Store, schema_of
 
 
@@ -36,6 +42,7 @@ def connect(scheduler: str | None = None, workers: int | None = None, timeout_s:
     run is single-threaded numpy; Dask sets the BLAS threads of its workers to 1).
     Remote: waits until ``workers`` workers have joined, when given.
     """
+    # lazy: optional dependency (distributed)
     from distributed import Client, LocalCluster
     if workers is not None and workers < 1:
         raise ValueError(f'--workers must be >= 1, got {workers}')
@@ -80,9 +87,7 @@ def chunks(runs: list, size: int) -> list:
 
 
 def _task_key(study: str, chunk: list) -> str:
-    import hashlib
 
-    from .spec import canonical
     digest = hashlib.sha256(canonical([r.key for r in chunk]).encode()).hexdigest()[:16]
     return f'rths-study-{study}-{digest}'
 
@@ -110,7 +115,6 @@ def run_study(spec, out_dir, scheduler=None, workers=None, retry_failed=False,
     ``on_result(client, done, total)`` is called after each task's rows are written
     (``rths bench study`` kills a worker from there).
     """
-    from rths_common.progress import Progress
     store = Store(out_dir, schema_of(spec))
     _save_spec(spec, store.dir)
     runs = spec.runs()
@@ -156,6 +160,7 @@ def run_study(spec, out_dir, scheduler=None, workers=None, retry_failed=False,
 
 def _collect(client, spec, tasks, store, stats, bars, log, on_result):
     """Submit every task; write each one's rows as it finishes."""
+    # lazy: optional dependency (distributed)
     from distributed import as_completed
     futures = {}
     for chunk in tasks:
@@ -191,7 +196,6 @@ def _collect(client, spec, tasks, store, stats, bars, log, on_result):
 
 
 def _save_spec(spec, directory):
-    import yaml
     path = directory / 'spec.yaml'
     tmp = directory / '.spec.yaml.tmp'
     tmp.write_text(yaml.safe_dump(spec.raw, sort_keys=False))

@@ -27,7 +27,11 @@ import math
 
 import numpy as np
 
+from rths_actuator_bridge.silva2020 import FS_HZ, Silva2020Params
+from rths_bench.rths_benchmark import BENCHMARK_SCHEME
 from rths_compensator.methods import adaptive_names
+from rths_compensator.schemes import fir_schemes
+from rths_numerical.ground_motion import RECORDS as SEED_RECORDS
 
 from .scenarios import Scenario
 from .setting import Setting
@@ -38,7 +42,8 @@ PLANT_PARAMETERS = ('gain', 'a1b0', 'a2', 'b1', 'b2', 'a3', 'm_e', 'k_e', 'zeta_
 DESIGN = {'taps': Setting(int, 200, minimum=2, maximum=4096, doc='FIR taps n'),
           'fc_hz': Setting(float, 30.0, minimum=0.1, maximum=2000.0,
                            doc='passband edge of the FIR design [Hz]'),
-          'scheme': Setting(str, 'ls', choices=('ls', 'wls', 'mm'), doc='FIR design scheme'),
+          'scheme': Setting(str, BENCHMARK_SCHEME, choices=fir_schemes(),
+                            doc='FIR design scheme'),
           'epsilon': Setting(float, 0.002, minimum=0.0, doc='passband tolerance'),
           'lowpass_hz': Setting(float, 400.0, minimum=1.0, maximum=2000.0,
                                 doc='cut-off of the order-4 target low-pass [Hz]')}
@@ -53,6 +58,7 @@ def _design_options(values: dict) -> dict:
 @functools.lru_cache(maxsize=8)
 def _designed(options: tuple):
     """``(design, info)`` of the benchmark's FIR for these options (once per process)."""
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from rths_bench.rths_benchmark import identify_and_design
     return identify_and_design(log=lambda msg: None, **dict(options))
 
@@ -60,7 +66,7 @@ def _designed(options: tuple):
 @functools.lru_cache(maxsize=8)
 def _ground(record: str, scale, duration_s, data_dir):
     """Scaled record at the benchmark's 4096 Hz (read once per process)."""
-    from rths_actuator_bridge.silva2020 import FS_HZ
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from rths_bench.rths_benchmark import ground_acceleration
     _, ag = ground_acceleration(record, FS_HZ, scale, data_dir, duration_s or None)
     return ag
@@ -68,15 +74,15 @@ def _ground(record: str, scale, duration_s, data_dir):
 
 @functools.lru_cache(maxsize=16)
 def _reference(case: str, record: str, scale, duration_s, data_dir):
-    from rths_actuator_bridge.silva2020 import FS_HZ
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from rths_bench.rths_benchmark import reference_response
     return reference_response(case, _ground(record, scale, duration_s, data_dir), 1.0 / FS_HZ)
 
 
 def check_records(records, data_dir):
     """Refuse a record that cannot be read, naming ``records[i]`` and the fix."""
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from rths_bench.rths_benchmark import GMSPY_PREFIX, record_path
-    from rths_numerical.ground_motion import RECORDS as SEED_RECORDS
     for i, record in enumerate(records):
         try:
             if record.startswith(GMSPY_PREFIX):
@@ -131,7 +137,7 @@ class BenchmarkScenario(Scenario):
         return out
 
     def _batch(self, settings, runs, options):
-        from rths_actuator_bridge.silva2020 import FS_HZ, Silva2020Params
+        # lazy: start-up cost: SciPy (~1 s), which this module needs only here
         from rths_bench import rths_benchmark as rb
         dt = 1.0 / FS_HZ
         record, controller = runs[0]['record'], runs[0]['controller']
@@ -148,6 +154,7 @@ class BenchmarkScenario(Scenario):
 
 
 def _metrics(x_m, y_n, ref, dt) -> dict:
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from rths_bench import rths_benchmark as rb
     bad = rb.unstable(x_m, ref)
     if not (np.all(np.isfinite(x_m)) and np.all(np.isfinite(y_n))):
@@ -171,6 +178,7 @@ class DesignScenario(Scenario):
 
     def evaluate(self, settings, runs):
         """Identify and design for each run (about 2 s each)."""
+        # lazy: start-up cost: SciPy (~1 s), which this module needs only here
         from rths_bench.rths_benchmark import identify_and_design
         out = []
         for run in runs:

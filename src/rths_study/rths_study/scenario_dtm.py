@@ -17,6 +17,12 @@ import functools
 import math
 import os
 
+import numpy as np
+
+from rths_numerical.dtm import TABLE4, dtm_configuration
+from rths_numerical.ground_motion import RECORDS, G, baseline_correct, ground_motion
+from rths_numerical.signals import blwn
+
 from .scenarios import Scenario
 from .setting import Setting
 
@@ -26,6 +32,7 @@ BUILDINGS = ('building2story', 'building2story-240')
 
 
 def _model(name: str):
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from rths_numerical.building import building_16dof, building_240dof
     from rths_numerical.model import load_model_yaml
     if name == 'building2story':
@@ -38,6 +45,7 @@ def _model(name: str):
 @functools.lru_cache(maxsize=4)
 def _building(name: str):
     """``(ModalBuilding, building mass [kg])`` of a model (once per process)."""
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from rths_numerical.studies import ModalBuilding
     model = _model(name)
     return ModalBuilding(model), float(model.gamma @ model.M @ model.gamma)
@@ -45,21 +53,18 @@ def _building(name: str):
 
 @functools.lru_cache(maxsize=4)
 def _blwn(duration_s, fs_hz, seed):
-    from rths_numerical.ground_motion import G
-    from rths_numerical.signals import blwn
     return blwn(duration_s, fs_hz, 10.0, 1.0 * G, rng=seed)
 
 
 @functools.lru_cache(maxsize=8)
 def _record(record, scale, fs_hz):
-    from rths_numerical.ground_motion import baseline_correct, ground_motion
     ag, _, _ = baseline_correct(ground_motion(record, fs_hz, scale, None), 1.0 / fs_hz)
     return ag
 
 
 def _criteria(building, ag, dt, m_d, c_d, k_d, scale) -> dict:
-    import numpy as np
 
+    # lazy: start-up cost: SciPy (~1 s), which this module needs only here
     from rths_numerical.studies import coupled_response
     disp, acc = coupled_response(building, ag, dt, m_d, c_d, k_d, scale)
     return {'max_disp': float(np.max(np.abs(disp))), 'max_accel': float(np.max(np.abs(acc))),
@@ -132,8 +137,6 @@ class BuildingFrequencyScenario(Scenario):
 
     def check(self, spec):
         """Check building, damper and records exist and that both parameters vary."""
-        from rths_numerical.dtm import TABLE4
-        from rths_numerical.ground_motion import RECORDS
         _check_building(spec.settings['building'])
         if spec.settings['damper'] not in TABLE4:
             raise ValueError(f'scenario.damper: {spec.settings["damper"]!r} is not one of '
@@ -149,7 +152,6 @@ class BuildingFrequencyScenario(Scenario):
 
     def evaluate(self, settings, runs):
         """Return the four criteria of each (f1_hz, mass_ratio)."""
-        from rths_numerical.dtm import dtm_configuration
         building, total = _building(settings['building'])
         dtm = dtm_configuration(settings['damper'])
         fs = settings['fs_hz']

@@ -13,6 +13,9 @@ The scenarios live in their own modules and are imported only when a SPEC names 
 """
 
 import importlib
+import time
+
+import numpy as np
 
 from .setting import Setting
 
@@ -22,6 +25,7 @@ REGISTRY = {
     'design': 'rths_study.scenario_benchmark:DesignScenario',
     'dtm-tuning': 'rths_study.scenario_dtm:DtmTuningScenario',
     'building-frequency': 'rths_study.scenario_dtm:BuildingFrequencyScenario',
+    'rths-offline': 'rths_study.scenario_rths:RthsOfflineScenario',
     'cluster-check': 'rths_study.scenarios:ClusterCheckScenario',
 }
 
@@ -84,9 +88,6 @@ class ClusterCheckScenario(Scenario):
 
     def evaluate(self, settings, runs):
         """Draw and summarise; raise for ``x > fail_above``."""
-        import time
-
-        import numpy as np
         out = []
         for run in runs:
             p = run['params']

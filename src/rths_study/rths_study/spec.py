@@ -40,7 +40,10 @@ import json
 from pathlib import Path
 
 import numpy as np
+import yaml
 
+from . import scenarios
+from .scenarios import get
 from .setting import Setting, check_mapping
 
 TOP_LEVEL = ('study', 'scenario', 'parameters', 'controllers', 'records', 'metrics', 'seed',
@@ -124,7 +127,6 @@ def run_seed(seed: int, params: dict, record) -> int:
 
 def run_key(kind, settings, params, controller, record, seed) -> str:
     """Hash (hex, 24 digits) of every input of a run."""
-    from .scenarios import get
     version = get(kind).version
     return _digest({'scenario': kind, 'version': version, 'settings': settings,
                     'params': params, 'controller': controller, 'record': record,
@@ -134,7 +136,6 @@ def run_key(kind, settings, params, controller, record, seed) -> str:
 # ----------------------------------------------------------------------------- reading
 def load_spec(path) -> Spec:
     """Read and check a SPEC file (ValueError/OSError naming the file and field)."""
-    import yaml
     path = Path(path)
     if not path.is_file():
         raise OSError(f'{path}: no such SPEC file')
@@ -154,7 +155,6 @@ def check_spec(raw, source: str = 'SPEC') -> Spec:
 
 
 def _check(raw) -> Spec:
-    from . import scenarios
     if not isinstance(raw, dict):
         raise ValueError('expected a mapping with study, scenario, parameters, ...')
     unknown = sorted(set(raw) - set(TOP_LEVEL))

@@ -23,6 +23,8 @@ from pathlib import Path
 import time
 import uuid
 
+from .scenarios import get
+
 #: Columns every study has, besides its parameters and metrics.
 RUN_COLUMNS = ('key', 'index')
 INPUT_COLUMNS = ('controller', 'record')
@@ -33,9 +35,9 @@ CIRCUMSTANCE_COLUMNS = ('seconds', 'worker', 'finished')
 
 def schema_of(spec):
     """Return the Arrow schema of a study's rows (columns typed by the scenario)."""
+    # lazy: optional dependency (pyarrow)
     import pyarrow as pa
 
-    from .scenarios import get
     scenario = get(spec.kind)
     arrow = {float: pa.float64(), int: pa.int64(), str: pa.string(), bool: pa.bool_()}
     fields = [pa.field('key', pa.string()), pa.field('index', pa.int64())]
@@ -64,6 +66,7 @@ class Store:
         return sorted(self.parts.glob('part-*.parquet'))
 
     def _check_existing(self):
+        # lazy: optional dependency (pyarrow)
         import pyarrow.parquet as pq
         files = self._files()
         if files and not pq.read_schema(files[0]).equals(self.schema):
@@ -73,6 +76,7 @@ class Store:
 
     def append(self, rows: list) -> Path:
         """Write ``rows`` (dicts with every column) as one new part file; return its path."""
+        # lazy: optional dependency (pyarrow)
         import pyarrow as pa
         import pyarrow.parquet as pq
         table = pa.Table.from_pylist(rows, schema=self.schema)
@@ -84,6 +88,7 @@ class Store:
 
     def table(self):
         """Every run's last row, in SPEC order (an empty table when nothing ran yet)."""
+        # lazy: optional dependency (pyarrow)
         import pyarrow as pa
         import pyarrow.parquet as pq
         files = self._files()

@@ -10,8 +10,11 @@ environment: a least-squares fit with two threads differs in its last bits from 
 with one, and a run must give the same numbers on every worker and in a serial run.
 """
 
+import datetime
 import time
 import traceback
+
+from .scenarios import get
 
 #: Longest error text kept in a row.
 ERROR_CHARS = 2000
@@ -20,6 +23,7 @@ ERROR_CHARS = 2000
 def worker_name() -> str:
     """Return the Dask worker's name (its address), ``local`` outside a worker."""
     try:
+        # lazy: optional: tried here, refused with a clear message when missing
         from distributed import get_worker
         worker = get_worker()
     except (ImportError, ValueError):
@@ -36,7 +40,6 @@ def _error_text(err: BaseException) -> str:
 def row(run: dict, metrics: dict | None, names: list, error: str | None, seconds: float,
         worker: str) -> dict:
     """One table row of ``run`` (see :mod:`.store` for the columns)."""
-    import datetime
     out = {'key': run['key'], 'index': run['index'], **run['params'],
            'controller': run['controller'], 'record': run['record']}
     out.update({name: (metrics or {}).get(name) for name in names})
@@ -47,13 +50,13 @@ def row(run: dict, metrics: dict | None, names: list, error: str | None, seconds
 
 def evaluate_chunk(kind: str, settings: dict, runs: list, metrics: list) -> list:
     """Evaluate ``runs`` (``Run.as_dict()`` forms) of scenario ``kind``; one row per run."""
+    # lazy: optional dependency (threadpoolctl)
     from threadpoolctl import threadpool_limits
     with threadpool_limits(limits=1):
         return _evaluate(kind, settings, runs, metrics)
 
 
 def _evaluate(kind, settings, runs, metrics) -> list:
-    from .scenarios import get
     scenario = get(kind)
     worker = worker_name()
     t0 = time.perf_counter()

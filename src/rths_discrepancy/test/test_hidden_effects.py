@@ -1,0 +1,66 @@
+"""The simulated lab's hidden effects follow the conventions of the effect library.
+
+For each key of ``rths_actuator_bridge.simulated.HIDDEN_EFFECTS`` on the DTM, the
+plant's measured force must equal the frame's inertia minus the nominal DTM force
+minus the library's force of the named effect (``effects.specimen_force``), with
+the anti-alias filter off so the channels are the plant's own states.
+"""
+
+import numpy as np
+import pytest
+
+from rths_actuator_bridge.simulated import HIDDEN_EFFECTS, SimulatedPlant
+from rths_discrepancy import effects as fx
+from rths_discrepancy import models
+
+FS = 1024.0
+
+
+def _command():
+    t = np.arange(int(4 * FS)) / FS
+    return 4e-3 * np.sin(2 * np.pi * 2.7 * t) + 2e-3 * np.sin(2 * np.pi * 5.3 * t)
+
+
+@pytest.mark.parametrize('key,size', [
+    ('specimen_damping_error_n_s_m', 200.0),
+    ('specimen_stiffness_error_n_m', 4000.0),
+    ('specimen_cubic_stiffness_n_m3', 2e8),
+    ('specimen_backlash_m', 1e-3),
+    ('friction_n', 30.0),
+])
+def test_a_hidden_force_is_the_library_force(key, size):
+    scenario, name = HIDDEN_EFFECTS[key]
+    assert scenario == 'specimen'
+    plant = SimulatedPlant(specimen='valve4', daq_filter_hz=0.0, friction_v_m_s=fx.V_EPS,
+                           **{key: size})
+    y = plant.simulate(_command())
+    nominal = models.default_model('specimen')
+    f_eff = np.vectorize(fx.specimen_force({name: size}, nominal))(y['rel_disp'], y['rel_vel'])
+    expected = (plant.frame_mass * y['table_accel'] - nominal.c_d * y['rel_vel']
+                - nominal.k_d * y['rel_disp'] - f_eff)
+    assert np.max(np.abs(y['force'] - expected)) < 1e-6 * np.max(np.abs(y['force']))
+    # and the effect is there: the force differs from the nominal lab's
+    base = SimulatedPlant(specimen='valve4', daq_filter_hz=0.0).simulate(_command())
+    assert np.max(np.abs(y['force'] - base['force'])) > 1e-3 * np.max(np.abs(base['force']))
+
+
+def test_a_hidden_mass_error_is_a_heavier_moving_mass():
+    plant = SimulatedPlant(specimen='valve4', specimen_mass_error_kg=12.0)
+    assert plant._table_mass().m_d == pytest.approx(models.default_model('specimen').m_d + 12.0)
+
+
+@pytest.mark.parametrize('key,channel', [('rel_disp_bias_m', 'rel_disp'),
+                                         ('force_offset_n', 'force'),
+                                         ('displacement_bias_m', 'table_disp')])
+def test_a_hidden_sensor_offset_is_added_to_its_channel_only(key, channel):
+    size = 2.5 if key == 'force_offset_n' else 1e-3
+    base = SimulatedPlant(specimen='valve4').simulate(_command())
+    biased = SimulatedPlant(specimen='valve4', **{key: size}).simulate(_command())
+    for name, values in base.items():
+        shift = size if name == channel else 0.0
+        np.testing.assert_allclose(biased[name] - values, shift, atol=1e-12)
+
+
+def test_an_effect_the_plant_cannot_simulate_is_refused():
+    with pytest.raises(ValueError, match='no mass on the table'):
+        SimulatedPlant(specimen='none', specimen_backlash_m=1e-3)
