@@ -21,11 +21,11 @@ import os
 from pathlib import Path
 import shutil
 import signal
-import struct
 import tempfile
 import time
 
-from hypothesis import given, HealthCheck, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 import numpy as np
 import pytest
 import yaml
@@ -75,7 +75,7 @@ def _report():
 
 @contextlib.contextmanager
 def _case(name: str):
-    """A fresh directory for one case, beside a sentinel tree nobody may touch."""
+    """Give one case a fresh directory, beside a sentinel tree nobody may touch."""
     root = Path(tempfile.mkdtemp(prefix='rths-fuzz-'))
     (root / 'outside').mkdir()
     (root / 'outside' / 'recorded.txt').write_text('a recording nobody may touch\n')

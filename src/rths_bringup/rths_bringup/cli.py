@@ -89,6 +89,7 @@ class Parser(argparse.ArgumentParser):
     """An argument parser whose errors are one line: ``PROG: error: ...`` and the --help hint."""
 
     def error(self, message):
+        """Exit 2 with one line: the error and where to read the command's options."""
         self.exit(2, f'{self.prog}: error: {message} (see {self.prog} --help)\n')
 
 

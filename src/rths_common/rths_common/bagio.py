@@ -14,12 +14,21 @@ MCAP file its summary and footer).  :func:`reindex` rebuilds it from the data
 file (like ``ros2 bag reindex``), closing a cut MCAP file first, and
 :func:`open_reader` does so automatically, so a crashed run's bag stays
 readable.
+
+Damaged bags: :func:`open_reader` also closes an MCAP file cut short under a
+``metadata.yaml`` that was kept, and rebuilds a ``metadata.yaml`` that is
+truncated or not valid (the old one is kept as ``metadata.yaml.damaged``).
+Bytes damaged inside the data are found when they are read:
+:func:`read_messages` then raises :class:`BagDamaged` (a ValueError) naming
+the bag and how many messages before the damage were read, and :func:`info`
+counts the messages that can be read (``damaged`` says why the rest cannot).
 """
 
 from functools import lru_cache
 import os
 from pathlib import Path
 import sqlite3
+import struct
 import time
 
 import numpy as np
@@ -174,10 +183,18 @@ def _holds_bag_files(path: Path) -> bool:
 
 
 def run_info(bag) -> dict:
-    """Run information of a bag (``fs_hz``, ``mode``, ...): custom_data, else the side file."""
+    """Run information of a bag (``fs_hz``, ``mode``, ...): custom_data, else the side file.
+
+    A damaged ``metadata.yaml`` is rebuilt first, as :func:`open_reader` does.
+    """
     bag = bag_dir(bag)
     if (bag / 'metadata.yaml').exists():
-        custom = metadata(bag).get('custom_data')
+        try:
+            info = metadata(bag)
+        except ValueError:
+            open_reader(bag).close()    # rebuilds it (the old one kept), or BagDamaged
+            info = metadata(bag)
+        custom = info.get('custom_data')
         if custom:
             if not isinstance(custom, dict):
                 raise ValueError(f'{bag / "metadata.yaml"}: custom_data is not a mapping; '
@@ -206,8 +223,6 @@ def metadata(bag) -> dict:
     A file that is not YAML, not a mapping or lacks that key raises ValueError
     naming the file and the fix (``rths bag reindex`` rebuilds it from the data file).
     """
-    import yaml
-
     meta = bag_dir(bag) / 'metadata.yaml'
     fix = f"rebuild it with 'rths bag reindex {bag_dir(bag)}'"
     try:
@@ -295,41 +310,88 @@ def _reindex_sqlite3(bag: Path) -> Path:
                             for tid, name, msgtype, fmt, qos, digest in rows], t0, t1 or t0)
 
 
+class BagDamaged(ValueError):
+    """Data of a bag that cannot be read (the one-line message names the bag and the fix)."""
+
+
+#: What a damaged bag raises inside rosbags and the decoders it uses.
+_READ_ERRORS = (KeyError, IndexError, TypeError, AttributeError, EOFError, UnicodeDecodeError,
+                OverflowError, MemoryError, struct.error, sqlite3.DatabaseError)
+
+
+def _reader_errors():
+    # lazy: start-up cost: rosbags (~0.2 s), which this module needs only to read
+    from rosbags.rosbag2.errors import ReaderError
+    return (ReaderError, *_READ_ERRORS)
+
+
 def open_reader(bag):
-    """Open a bag for reading with rosbags, reindexing it first if a crash left no metadata."""
+    """Open a bag for reading with rosbags, repairing what a crash or damage left.
+
+    No or damaged ``metadata.yaml``, or an MCAP file without its end: closed and
+    reindexed first (module doc); BagDamaged if it still cannot be opened.
+    """
     # lazy: start-up cost: rosbags (~0.2 s), which this module needs only here
     from rosbags.rosbag2 import Reader
 
     bag = bag_dir(bag)
     if not bag.is_dir():
         raise OSError(f'bag directory {bag} does not exist')
-    if not (bag / 'metadata.yaml').exists():
-        reindex(bag)
-    metadata(bag)   # a damaged file is named here, not deep inside rosbags
-    try:
+    meta = bag / 'metadata.yaml'
+    if not meta.exists():
+        _reindex_or_refuse(bag)
+    elif bagstore.storage_of(bag) == 'mcap' and not bagstore.is_complete(bagstore.data_file(bag)):
+        _reindex_or_refuse(bag)         # cut short under a metadata.yaml that was kept
+    errors = _reader_errors()
+    for attempt in range(2):
         reader = Reader(bag)
-        reader.open()
-    except Exception as err:  # noqa: BLE001 - rosbags' own errors: name the bag and the fix
-        raise ValueError(f'bag {bag}: cannot be opened ({_first_line(err)}); if the recording '
-                         f"was cut, try 'rths bag reindex {bag}'") from None
-    return reader
+        try:
+            reader.open()
+            return reader
+        except (*errors, ValueError) as err:
+            if attempt:
+                raise BagDamaged(f'{bag}: the bag cannot be read even after rebuilding its '
+                                 f'metadata ({str(err)[:120]})') from None
+            meta.replace(meta.with_name('metadata.yaml.damaged'))
+            _reindex_or_refuse(bag)
+    raise AssertionError('unreachable')
+
+
+def _reindex_or_refuse(bag: Path) -> None:
+    """:func:`reindex`, or BagDamaged if the data file itself cannot be scanned."""
+    try:
+        reindex(bag)
+    except (*_reader_errors(), ValueError) as err:
+        raise BagDamaged(f'{bag}: its data file is damaged where its records are indexed '
+                         f'({str(err)[:120]}); no message can be read') from None
 
 
 def info(bag) -> dict:
-    """Storage, topics (type, count), total count, start time and duration of a bag."""
+    """Storage, topics (type, count), total count, start time and duration of a bag.
+
+    The counts are of the messages that can be read (every one is read): a
+    damaged bag says so in ``damaged`` (None when whole).
+    """
     reader = open_reader(bag)
     try:
-        return {
+        out = {
             'path': str(bag),
             'storage': bagstore.storage_of(bag_dir(bag)),
             'duration_s': reader.duration * 1e-9 if reader.message_count else 0.0,
             'start_time_s': reader.start_time * 1e-9 if reader.message_count else 0.0,
             'message_count': reader.message_count,
-            'topics': {c.topic: {'type': c.msgtype, 'count': c.msgcount}
-                       for c in reader.connections},
+            'topics': {c.topic: {'type': c.msgtype, 'count': 0} for c in reader.connections},
+            'damaged': None,
         }
     finally:
         reader.close()
+    try:
+        for topic, _, _ in read_messages(bag):
+            out['topics'][topic]['count'] += 1
+    except BagDamaged as err:
+        out['damaged'] = str(err)
+    out['message_count'] = sum(t['count'] for t in out['topics'].values())
+    return out
 
 
 def read_messages(bag, topic_names=None):
@@ -338,27 +400,30 @@ def read_messages(bag, topic_names=None):
     reader = open_reader(bag)
     try:
         conns = [c for c in reader.connections if topic_names is None or c.topic in topic_names]
-        for conn, timestamp, raw in _checked(bag, reader.messages(connections=conns)):
+        for conn, timestamp, raw in raw_messages(reader, bag, conns):
             try:
                 msg = store.deserialize_cdr(raw, conn.msgtype)
-            except Exception as err:  # noqa: BLE001 - a damaged message: name the bag and topic
-                raise ValueError(f'bag {bag}: a {conn.topic} message at {timestamp} ns cannot '
-                                 f'be read ({_first_line(err)}); the bag is damaged') from None
+            except (*_reader_errors(), ValueError) as err:
+                raise BagDamaged(f'{bag}: a damaged {conn.topic} message ({str(err)[:120]}); '
+                                 'the bag cannot be read past it') from None
             yield conn.topic, timestamp, msg
     finally:
         reader.close()
 
 
-def _checked(bag, messages):
-    """Yield from rosbags' message iterator; a damaged chunk raises ValueError naming the bag."""
+def raw_messages(reader, bag, connections):
+    """Yield ``reader.messages(connections=...)``; damaged data raises :class:`BagDamaged`."""
+    count = 0
+    messages = reader.messages(connections=connections)
     while True:
         try:
             item = next(messages)
         except StopIteration:
             return
-        except Exception as err:  # noqa: BLE001 - rosbags/mcap/sqlite errors of a damaged file
-            raise ValueError(f'bag {bag}: damaged data ({_first_line(err)}); '
-                             f"'rths bag repair {bag}' keeps what is readable") from None
+        except (*_reader_errors(), ValueError) as err:
+            raise BagDamaged(f'{bag}: damaged data after {count} readable message(s) '
+                             f'({str(err)[:120]}); the bag cannot be read past it') from None
+        count += 1
         yield item
 
 

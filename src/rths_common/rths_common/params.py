@@ -204,13 +204,14 @@ def add_renamed_option(parser, old: str, new: str) -> None:
 #: option): every command that has one of these options refuses a value outside its range
 #: while parsing, before it starts anything (:func:`check_option_ranges`).
 OPTION_RANGES = {
-    **{opt: Spec('[Hz] loop rate', LOOP_RATE_RANGE_HZ) for opt in ('--rate', '--fs-hz', '--fs-max')},
+    **{opt: Spec('[Hz] loop rate', LOOP_RATE_RANGE_HZ)
+       for opt in ('--rate', '--fs-hz', '--fs-max')},
     **{opt: Spec('[s] duration', (0.0, 1e6))
        for opt in ('--duration', '--duration-s', '--ident-duration', '--benchmark-duration',
                    '--record-s', '--blwn-s', '--chirp-s', '--eval-s', '--timeout',
                    '--wait-timeout')},
-    **{opt: Spec('[ms] delay', (0.0, 100_000.0)) for opt in ('--delay-ms', '--jitter-ms',
-                                                              '--one-way-ms')},
+    **{opt: Spec('[ms] delay', (0.0, 100_000.0))
+       for opt in ('--delay-ms', '--jitter-ms', '--one-way-ms')},
     '--loss-pct': Spec('[%] loss', (0.0, 100.0)),
     '--live-rate': Spec('[Hz] live view rate', (0.1, 1000.0)),
     '--fc': Spec('[Hz] cut-off', (0.0, 50_000.0)),
@@ -218,8 +219,8 @@ OPTION_RANGES = {
     '--port': Spec('[-] TCP/UDP port (0: any free one)', (0, 65535)),
     '--priority': Spec('[-] SCHED_FIFO priority', (0, 99)),
     '--rt-priority': Spec('[-] SCHED_FIFO priority (0: none)', (0, 99)),
-    **{opt: Spec('[-] ROS domain id', (0, 232)) for opt in ('--domain', '--domain-a',
-                                                           '--domain-b')},
+    **{opt: Spec('[-] ROS domain id', (0, 232))
+       for opt in ('--domain', '--domain-a', '--domain-b')},
     '--domain-id': Spec('[-] ROS domain id (-1: ROS_DOMAIN_ID)', (-1, 232)),
     '--seed': Spec('[-] random seed', (0, 2**32 - 1)),
     '--workers': Spec('[-] worker processes', (1, 256)),
@@ -244,7 +245,7 @@ def option_type(option: str, base, spec: Spec | None):
             raise argparse.ArgumentTypeError(f'invalid {base.__name__} value: {text!r}') from None
         if isinstance(value, float) and value != value or value in (float('inf'), float('-inf')):
             raise argparse.ArgumentTypeError(f'{text!r} is not a finite number')
-        if spec is not None:
+        if spec is not None and spec.range is not None:
             low, high = spec.range
             if not low <= value <= high:
                 unit = spec.description.split(']')[0][1:] if spec.description.startswith('[') \
@@ -256,7 +257,7 @@ def option_type(option: str, base, spec: Spec | None):
         return value
 
     parse.__name__ = base.__name__
-    parse.option_range = spec
+    parse.option_range = spec  # type: ignore[attr-defined]
     return parse
 
 

@@ -23,7 +23,7 @@ import numpy as np
 import rclpy
 from std_msgs.msg import Float64MultiArray, String
 
-from rths_common import gaps, topics
+from rths_common import gaps, lifeline, topics
 from rths_common import node_support as ns
 from rths_common.qos import loop_qos, status_qos
 from rths_common.stepping import Driver
@@ -245,6 +245,7 @@ def main(argv=None, prepare=None):
 
     ``prepare(shell)``, if given, is called on the constructed node before it spins.
     """
+    lifeline.bind(stop=True)        # SIGTERM (a clean stop) when its launcher dies
     rclpy.init(args=argv if argv is not None else sys.argv)
     code = 0
     try:
@@ -259,6 +260,7 @@ def main(argv=None, prepare=None):
     finally:
         if rclpy.ok():
             rclpy.shutdown()
+    lifeline.end_if_lost(code)
     return code
 
 

@@ -31,6 +31,7 @@ import textwrap
 import numpy as np
 import yaml
 
+from rths_common import yamlfile
 from rths_common.files import atomic_open
 from rths_common.params import LOOP_RATE_RANGE_HZ, node_schema
 from rths_common.timebase import format_hz, same_rate
@@ -98,14 +99,34 @@ def check_compensator_params(params: dict, where: str) -> None:
                          f"fields: move those keys under '{PROVENANCE}:' (or design it again)")
 
 
-def check_sampling_rate(params: dict, loop_fs_hz: float, where: str, loop_where: str) -> None:
-    """Refuse taps designed for another rate than the loop's (ValueError names the fix).
+#: Filter coefficients (taps + denominator) times the loop rate the compensator may cost:
+#: 1e8 multiply-adds per second, a tenth of one core at ~1 ns each with the memory traffic
+#: of a long filter (97 656 coefficients at 1024 Hz; the seed's FIR has 400).
+MAX_COEFFICIENT_RATE = 1e8
 
-    A scheme that is not designed (identity, G = 1) holds at every rate.
+
+def check_filter_cost(n_coefficients: int, fs_hz: float, where: str) -> None:
+    """Refuse a filter the loop cannot compute in its period (ValueError with the bound)."""
+    n, fs = int(n_coefficients), float(fs_hz)
+    if n * fs > MAX_COEFFICIENT_RATE:
+        most = int(MAX_COEFFICIENT_RATE // fs)
+        raise ValueError(f'{where}: {n} filter coefficients at {format_hz(fs)} Hz are '
+                         f'{n * fs:.3g} multiply-adds per second, more than the loop affords '
+                         f'({MAX_COEFFICIENT_RATE:.0e}/s: at most {most} coefficients at '
+                         f'{format_hz(fs)} Hz); design fewer taps')
+
+
+def check_sampling_rate(params: dict, loop_fs_hz: float, where: str, loop_where: str) -> None:
+    """Refuse taps designed for another rate than the loop's, or too many for its period.
+
+    (ValueError names the fix.)  A scheme that is not designed (identity, G = 1) holds at
+    every rate.
     """
     scheme = SCHEMES.get(params.get('scheme'))
     if scheme is not None and not scheme.designer:
         return
+    n = len(np.ravel(params.get('taps', [1.0]))) + len(np.ravel(params.get('denominator', [1.0])))
+    check_filter_cost(n, loop_fs_hz, where)
     fs, loop_fs_hz = float(params.get('fs_hz', FILTER_PARAMS['fs_hz'][0])), float(loop_fs_hz)
     if not same_rate(fs, loop_fs_hz):
         fs_s, loop_s = format_hz(fs), format_hz(loop_fs_hz)
@@ -187,11 +208,7 @@ def load_compensator_params(path) -> dict:
     if not os.path.isfile(path):
         raise OSError(f'{path}: compensator parameters file not found; create it with '
                       "'rths design' or use identity_params()")
-    with open(path, encoding='utf-8') as handle:
-        try:
-            doc = yaml.safe_load(handle)
-        except yaml.YAMLError as err:
-            raise ValueError(f'{path}: not valid YAML ({err})') from None
+    doc = yamlfile.load(path)
     if not isinstance(doc, dict) or 'compensator' not in doc:
         raise ValueError(f"{path}: top-level key 'compensator' missing; the file must start "
                          "with 'compensator:' then 'ros__parameters:'")
