@@ -20,9 +20,13 @@ Pieces:
   displacement [mm] (poles and zeros of the benchmark, :func:`plant_params`), its
   uncertainty draws (:func:`draw_plant_params`), ZOH at 1/fs, band-limited sensor noise;
 * coupler: :class:`rths_common.coupler.Coupler` (exact, large-rotation form both ways);
-* controllers: ``none`` (command = target) and ``decentralised_fir`` (one FIR per
+* controllers: ``none`` (command = target); ``decentralised_fir`` (one FIR per
   actuator, designed with :func:`rths_compensator.design.design_fir` on an ARX model
-  identified from a BLWN test of that actuator alone, the other held at zero).
+  identified from a BLWN test of that actuator alone, the other held at zero); ``mimo``
+  (the four transfer functions identified one actuator at a time, a 2 x 2 least-squares
+  FIR, :func:`design_mimo_fir`); ``rls_fir``, ``ats``, ``amb`` (the project's adaptive
+  methods, one per actuator, started from the decentralised identification and design,
+  :class:`DecentralisedAdaptive`).
 
 One sample k (the Simulink model's order): measured strokes -> (x, theta) by the coupler
 -> restoring forces -> numerical substructure step -> target strokes by the coupler ->
@@ -56,7 +60,9 @@ from scipy.linalg import expm, matrix_balance
 from rths_common.coupler import Coupler
 
 DATA_FILE = Path(__file__).parent / 'data' / 'marths.json'
-CONTROLLERS = ('none', 'decentralised_fir', 'mimo')
+#: Adaptive methods of the project run decentralised (one per actuator).
+ADAPTIVE = ('rls_fir', 'ats', 'amb')
+CONTROLLERS = ('none', 'decentralised_fir', 'mimo') + ADAPTIVE
 J_NAMES = tuple(f'J{i}' for i in range(1, 11))
 #: A run counts as unstable when a measured stroke leaves this multiple of the largest
 #: stroke of the reference structure's interface motion (or turns non-finite).
@@ -398,6 +404,41 @@ class DecentralisedFir:
         return {'actuators': self.info}
 
 
+class DecentralisedAdaptive:
+    """One of the project's adaptive methods per actuator and run (RoDeAC's structure).
+
+    Each actuator's method (:func:`rths_compensator.adaptive.make_method`: ``rls_fir``,
+    ``ats`` or ``amb``) starts from that actuator's identified plant and designed FIR
+    (:func:`identify_and_design`) and adapts on its own target and measured stroke, so
+    it learns the other actuator's coupling only as it shows in its own channel.  The
+    methods work in metres (their guards are set in SI).
+    """
+
+    def __init__(self, name: str, designs: list, models: list, batch: int, info: list = None):
+        """Build ``batch`` x 2 methods ``name``."""
+        from rths_compensator.adaptive import make_method
+        self.name = name
+        self.methods = [[make_method(name, designs[i], models[i]) for i in range(2)]
+                        for _ in range(batch)]
+        self.info = info or []
+        self._first = True
+
+    def step(self, target, measured):
+        """Command [mm] (batch, 2); ``measured`` answers the previous command."""
+        out = np.empty_like(target)
+        for b, pair in enumerate(self.methods):
+            for i, method in enumerate(pair):
+                prev = None if self._first else float(measured[b, i]) / 1000.0
+                out[b, i] = 1000.0 * method.step(float(target[b, i]) / 1000.0, prev)
+        self._first = False
+        return out
+
+    def describe(self) -> dict:
+        """Return the settings and each nominal-run method's final status."""
+        return {'method': self.name, 'actuators': self.info,
+                'status_nominal': [m.status.state for m in self.methods[0]]}
+
+
 def identify_and_design(cfg: dict, seed: int = 11, record_s: float = 20.0,
                         band_hz: float = 40.0, peak_mm: float = 3.0, n_taps: int = 40,
                         fc_hz: float = 20.0, epsilon: float = 0.01, lowpass_hz: float = 200.0,
@@ -410,7 +451,7 @@ def identify_and_design(cfg: dict, seed: int = 11, record_s: float = 20.0,
     squares, eq. 28) makes the identified plant times the compensator follow an order-4
     low-pass at ``lowpass_hz`` (it bounds the compensator's high-frequency gain).  The
     other actuator's coupling is left out by design: this is the decentralised scheme.
-    Returns ``(designs, info)``.
+    Returns ``(designs, info, models)`` (the ARX models, in mm).
     """
     from rths_bench.rths_benchmark import target_lowpass
     from rths_compensator.design import design_fir, predict
@@ -418,7 +459,7 @@ def identify_and_design(cfg: dict, seed: int = 11, record_s: float = 20.0,
     fs = cfg['fs_hz']['value']
     rng = np.random.default_rng(seed)
     gain, a_l = target_lowpass(4, lowpass_hz, fs)
-    designs, info = [], []
+    designs, info, models = [], [], []
     for i in range(2):
         records = [(u[:, i], y[:, i]) for u, y in
                    (_excite(cfg, i, rng, record_s, band_hz, peak_mm) for _ in range(3))]
@@ -428,6 +469,7 @@ def identify_and_design(cfg: dict, seed: int = 11, record_s: float = 20.0,
                             fc_hz, 'ls', epsilon, fs_hz=fs, zero_tol=0.98)
         pred = predict((b_model, model.a), design, fc_hz, fs)
         designs.append(design)
+        models.append(model)
         info.append({'arx': {'na': model.na, 'nb': model.nb, 'd': model.d,
                              'dc_gain': round(float(model.dc_gain()), 4)},
                      'n_taps': n_taps, 'fc_hz': fc_hz, 'epsilon': epsilon,
@@ -436,7 +478,7 @@ def identify_and_design(cfg: dict, seed: int = 11, record_s: float = 20.0,
                                    if isinstance(v, (int, float))}})
         log(f'  actuator {i + 1}: ARX na={model.na} nb={model.nb} d={model.d}, '
             f'DC gain {model.dc_gain():.3f}; FIR n={n_taps} fc={fc_hz:g} Hz')
-    return designs, info
+    return designs, info, models
 
 
 def _excite(cfg: dict, channel: int, rng, record_s: float, band_hz: float, peak_mm: float):
@@ -565,8 +607,11 @@ def make_controller(name: str, cfg: dict, batch: int, options: dict = None, log=
     if name == 'none':
         return NoController()
     if name == 'decentralised_fir':
-        designs, info = identify_and_design(cfg, log=log, **options)
+        designs, info, _ = identify_and_design(cfg, log=log, **options)
         return DecentralisedFir(designs, batch, info)
+    if name in ADAPTIVE:
+        designs, info, models = identify_and_design(cfg, log=log, **options)
+        return DecentralisedAdaptive(name, designs, models, batch, info)
     if name == 'mimo':
         taps, info = identify_mimo(cfg, log=log, **options)
         return MimoFir(taps, batch, info)
@@ -574,11 +619,12 @@ def make_controller(name: str, cfg: dict, batch: int, options: dict = None, log=
 
 
 # ----------------------------------------------------------------------------- the loop
-def run_batch(cfg: dict, ag, plant_list: list, controller, seed: int = 0) -> dict:
+def run_batch(cfg: dict, ag, plant_list: list, controller, seed: int = 0,
+              progress=None) -> dict:
     """Run the loop for every plant of ``plant_list`` under ``ag`` [m/s^2] at fs.
 
     Returns the time histories (sample, run[, channel]) the criteria need and the
-    reference's (sample[, channel]).
+    reference's (sample[, channel]); ``progress(done, total)`` is called every 1024 steps.
     """
     fs = cfg['fs_hz']['value']
     dt = 1.0 / fs
@@ -626,6 +672,8 @@ def run_batch(cfg: dict, ag, plant_list: list, controller, seed: int = 0) -> dic
         r['x'][k], r['theta'][k] = 1000.0 * u_ref[dofs['x']], -u_ref[dofs['theta']]
         r['x2'][k], r['th2'][k] = u_ref[dofs['x_2nd']], u_ref[dofs['theta_2nd']]
         r['x3'][k], r['th3'][k] = u_ref[dofs['x_3rd']], u_ref[dofs['theta_3rd']]
+        if progress and (k + 1) % 1024 == 0:
+            progress(k + 1, n)
     out['reference'] = r
     return out
 
@@ -710,8 +758,10 @@ def run_benchmark(controller: str = 'none', record: str = 'elcentro', n_draws: i
     ctrl = make_controller(controller, cfg, len(plants), options, log=log)
     log(f'maRTHS: {controller}, {record}, {len(ag)} samples at {fs:g} Hz, nominal + '
         f'{n_draws} uncertain plants')
+    from rths_common.progress import Progress
     t_loop = time.perf_counter()
-    h = run_batch(cfg, ag, plants, ctrl, seed=seed + 1)
+    with Progress(len(ag), f'maRTHS {controller} ({len(plants)} plants)', 'steps') as bar:
+        h = run_batch(cfg, ag, plants, ctrl, seed=seed + 1, progress=bar.report)
     loop_s = time.perf_counter() - t_loop
     rows = [criteria(h, i, fs) for i in range(len(plants))]
     coupler = Coupler.from_offsets(cfg['coupler']['offsets_m'])
@@ -839,7 +889,10 @@ def register(commands, benches):
     p.add_argument('--controller', default='none', choices=CONTROLLERS,
                    help='none: command = target stroke; decentralised_fir: one FIR per '
                         "actuator from the project's ARX identification (BLWN on that "
-                        'actuator alone) and least-squares FIR design')
+                        'actuator alone) and least-squares FIR design; mimo: the 2 x 2 '
+                        'plant identified one actuator at a time and a 2 x 2 '
+                        'least-squares FIR; rls_fir, ats, amb: the adaptive method per '
+                        'actuator, started from the decentralised design (docs/adaptive.md)')
     p.add_argument('--out', required=True, help='output directory')
     p.add_argument('--record', default='elcentro',
                    help='elcentro (default, x 0.4), kobe, morganhill (x 0.4, from the data '

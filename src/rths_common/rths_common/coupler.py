@@ -12,7 +12,10 @@ must impose (its axial direction assumed fixed, as in the maRTHS benchmark's cou
 * :meth:`Coupler.jacobian`: its linearisation at ``theta = 0``, the rows ``[1, -d_i sin a_i]``
   (``-d_i sin a_i`` is minus the arm's lateral offset ``y_i``);
 * :meth:`Coupler.dofs`: the inverse (strokes -> x, theta), exact for two or more actuators:
-  the least-squares solution of the linear map refined by Gauss-Newton on the exact one.
+  the least-squares solution of the linear map refined by Gauss-Newton on the exact one;
+* :meth:`Coupler.interface_forces`: the actuators' axial forces (load cells) as the force
+  and moment they apply at the node, ``J(theta)^T f`` by virtual work, with
+  ``J(theta)`` the exact map's Jacobian (rows ``[1, -d_i sin(theta + alpha_i)]``).
 
 Everything is in SI (m, rad).  A geometry that cannot resolve a rotation (all arms on the
 actuators' axis) is refused when built.
@@ -102,3 +105,13 @@ class Coupler:
                 q = q - np.array([(s2 * r0 - s1 * r1) / det, (self.n * r1 - s1 * r0) / det])
         shape = s.shape[1:]
         return q[0].reshape(shape), q[1].reshape(shape)
+
+    def interface_forces(self, forces, theta=0.0):
+        """``(F_x [N], M [N m])`` at the node of the axial ``forces`` (shape ``(n, ...)``)."""
+        f = np.asarray(forces, float)
+        if f.shape[0] != self.n:
+            raise ValueError(f'coupler: {f.shape[0]} forces given for {self.n} actuators')
+        theta = np.asarray(theta, float)
+        d = np.asarray(self.d, float).reshape((-1,) + (1,) * (f.ndim - 1))
+        a = np.asarray(self.alpha, float).reshape(d.shape)
+        return f.sum(axis=0), (-d * np.sin(theta + a) * f).sum(axis=0)

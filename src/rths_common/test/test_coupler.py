@@ -67,3 +67,22 @@ def test_bad_geometry_is_refused(d, alpha, match):
 def test_wrong_number_of_strokes_is_refused():
     with pytest.raises(ValueError, match='3 strokes given for 2'):
         MARTHS.dofs(np.zeros(3))
+
+
+def test_interface_forces_do_the_same_work_as_the_actuators():
+    # virtual work: F_x dx + M dtheta = sum f_i ds_i for a small motion at any rotation
+    f = np.array([1200.0, -300.0])
+    for theta in (0.0, 0.08):
+        fx, m = MARTHS.interface_forces(f, theta)
+        dx, dth = 1e-7, 2e-7
+        ds = MARTHS.strokes(dx, theta + dth) - MARTHS.strokes(0.0, theta)
+        assert fx * dx + m * dth == pytest.approx(float(f @ ds), rel=1e-5)
+    # equal pushes give no moment; opposite pushes only a moment of 2 * 0.127 m * f
+    assert MARTHS.interface_forces(np.array([500.0, 500.0])) == pytest.approx((1000.0, 0.0))
+    fx, m = MARTHS.interface_forces(np.array([500.0, -500.0]))
+    assert (fx, m) == pytest.approx((0.0, 2 * 0.127 * 500.0))
+
+
+def test_wrong_number_of_forces_is_refused():
+    with pytest.raises(ValueError, match='1 forces given for 2'):
+        MARTHS.interface_forces(np.zeros(1))

@@ -69,7 +69,7 @@ def read_gmspy_dat(path):
         raise ValueError(f'{path}: time column is not equally spaced (step {dt:g} s, but data '
                          f'line {row + 1} is at {t[row]:g} s); resample the record to a '
                          'constant time step')
-    return dt, col['accel']
+    return 1.0 / sampling_rate_hz(t, str(path)), col['accel']
 
 
 def read_csv_record(path):
