@@ -165,7 +165,15 @@ def load_record(name_or_path):
         raise ValueError(f'record {name_or_path!r}: not one of {", ".join(RECORDS)} and no such '
                          f'file; give a record name or the path of a record file '
                          f'({FORMATS.text(", ")})')
-    return record_format(path).read(path)
+    try:
+        return record_format(path).read(path)
+    except UnicodeDecodeError:
+        raise ValueError(f'{path}: not a text file; give a record file '
+                         f'({FORMATS.text(", ")})') from None
+    except ValueError as err:
+        if path in str(err):
+            raise
+        raise ValueError(f'{path}: {err}') from None
 
 
 def scale(accel, factor):
