@@ -804,10 +804,15 @@ def _review(bag, out, limits=None, dof=None) -> dict:
 def cmd_review(args) -> int:
     """``rths review``."""
     from rths_bringup.review import print_review
+    from rths_common import bagio
 
     bag = Path(args.bag)
     out = Path(args.out) if args.out else bag.parent
-    summary = _review(bag, out, limits_of(args), args.dof)
+    if not bagio.bag_dir(bag).is_dir():
+        raise OSError(f'bag directory {bag} does not exist')
+    limits = limits_of(args)
+    bagio.run_info(bag)   # a damaged bag is refused before anything is written
+    summary = _review(bag, out, limits, args.dof)
     print_review(summary)
     print(f'wrote {out}/report.html, {out}/summary.json, {out}/review.txt and plots')
     return 0

@@ -417,7 +417,15 @@ def read_record(name_or_path, fmt: str = '', units: str = '', dt_s: float = 0.0)
         if option not in entry.options:
             raise ValueError(f'record {path}: its format does not take {option} '
                              f'(--record-{"dt" if option == "dt_s" else option}); drop it')
-    out = entry.read(path, **given)
+    try:
+        out = entry.read(path, **given)
+    except UnicodeDecodeError:
+        raise ValueError(f'{path}: not a text file; give a record file '
+                         f'({FORMATS.text(", ")})') from None
+    except ValueError as err:
+        if path in str(err):
+            raise
+        raise ValueError(f'{path}: {err}') from None
     if isinstance(out, GroundMotion):
         return out
     dt, accel = out
