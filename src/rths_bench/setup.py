@@ -29,6 +29,7 @@ setup(
             'rths_benchmark = rths_bench.rths_benchmark',
             'bench_site = rths_bench.bench_site',
             'bench_discrepancy_v3 = rths_bench.bench_discrepancy_v3',
+            'bench_discrepancy_rths = rths_bench.bench_discrepancy_rths',
         ],
     },
 )

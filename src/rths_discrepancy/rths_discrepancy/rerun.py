@@ -192,6 +192,26 @@ def summary_lines(res: dict) -> list:
     ]
 
 
+REPORT_HEADING = '## The RTHS re-run with the updated model'
+
+
+def report_section(res: dict) -> str:
+    """Return the report.md section of :func:`compare`: RTHS-vs-reference before and after."""
+    lines = [REPORT_HEADING, '',
+             'The reference of the RTHS run (its numerical substructure coupled in lock-step to '
+             'the specimen model on a perfect actuator) re-run with the nominal and with the '
+             'updated specimen model (`rths reference BAG --specimen-model updated_model.yaml`; '
+             '`rths review BAG --specimen-model` puts it in the review). Relative RMS error of '
+             'the 2nd-floor displacement (seed Table 9 metric):', '',
+             '| reference | RTHS vs reference [%] |', '|---|---|']
+    lines += [f'| {line.split(":")[0].strip()} | {line.rsplit(":", 1)[1].strip()} |'
+              for line in summary_lines(res)[1:3]]
+    lines += ['', f"(linear whole-numerical reference, seed 6.3.4: "
+              f"{res['rths_vs_linear_whole_numerical_rel_rms_pct']:.3f} %; plot: "
+              'reference.png)', '']
+    return '\n'.join(lines)
+
+
 def write(res: dict, path) -> None:
     """Write :func:`compare`'s result (without the time series) as JSON, atomically."""
     data = {k: v for k, v in res.items() if not k.startswith('_')}
