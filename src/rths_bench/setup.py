@@ -8,6 +8,7 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test']),
+    package_data={package_name: ['data/*.json']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -28,7 +29,9 @@ setup(
             'bench_adaptive = rths_bench.bench_adaptive',
             'rths_benchmark = rths_bench.rths_benchmark',
             'bench_site = rths_bench.bench_site',
+            'bench_monitor = rths_bench.bench_monitor',
             'bench_discrepancy_v3 = rths_bench.bench_discrepancy_v3',
+            'marths = rths_bench.marths',
             'bench_discrepancy_rths = rths_bench.bench_discrepancy_rths',
         ],
     },

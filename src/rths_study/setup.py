@@ -21,8 +21,8 @@ setup(
     tests_require=['pytest'],
     entry_points={
         # `rths study run` and `rths bench study`: rths_bringup's `rths` command finds this
-        # module here (it sits below this package); its entry-point name sorts after
-        # rths_bench's `rths_benchmark`, whose command it extends (rths_study.cli).
+        # module here (it sits below this package); the options it adds to rths_bench's
+        # `rths bench rths-benchmark` go in its extend(), run after every register().
         'rths.cli': ['study = rths_study.cli'],
     },
 )

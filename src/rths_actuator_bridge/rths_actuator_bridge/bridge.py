@@ -239,9 +239,12 @@ class Bridge:
             self.backend.deactivate()
         self.supervisor.deactivate()
 
-    def emergency_stop(self, reason: str = ''):
-        """Emergency stop: the next steps brake, hold, ramp to the safe position and stop."""
-        self.supervisor.emergency_stop(reason)
+    def emergency_stop(self, reason: str = '', within_s: float | None = None):
+        """Emergency stop: the next steps brake, hold, ramp to the safe position and stop.
+
+        ``within_s``: hold and ramp take about that long (:meth:`SafetySupervisor.emergency_stop`).
+        """
+        self.supervisor.emergency_stop(reason, within_s)
 
     def step(self, step: int, command=None, realtime: bool = False) -> StepResult:
         """Run tick ``step``: write ``command`` [m] now (None: none arrived: extrapolate).

@@ -22,8 +22,8 @@ from std_msgs.msg import String, UInt64
 from rths_actuator_bridge.backend import Backend
 from rths_actuator_bridge.managed import ManagedNode
 from rths_actuator_bridge.safety import HOLD, RAMP, STOPPED, SafetyLimits
+from rths_common import lifeline, topics
 from rths_common import node_support as ns
-from rths_common import topics
 from rths_common.qos import loop_qos, run_info_qos, status_qos
 from rths_common.stepping import Driver, TickClock
 from rths_common.transport import Transport
@@ -77,7 +77,10 @@ class BridgeNode:
         if self.own['clock'] not in CLOCKS:
             raise ValueError(f"bridge node: clock {self.own['clock']!r}: use one of {CLOCKS}")
         self.bridge = Bridge()                        # configured by on_configure
-        self.fs_hz = SafetyLimits.from_params(params).fs_hz
+        limits = SafetyLimits.from_params(params)
+        self.fs_hz = limits.fs_hz
+        self.launcher_loss_stop_s = limits.launcher_loss_stop_s
+        self.launcher_lost = False
         self.finalized = False
         qos = loop_qos(self.own['mode'])
         self.pub = self.node.create_publisher(Measurement, topics.MEASUREMENT, qos)
@@ -347,6 +350,8 @@ class BridgeNode:
 
     def tick(self):
         """Tick k: write the newest command (or extrapolate: deadline miss), publish step k."""
+        if lifeline.lost():
+            self.on_launcher_lost()
         k, late_ns, skipped = self.ticks.take(time.monotonic_ns())
         if skipped:   # a stall: the skipped ticks are missing commands (safety.py's policy)
             self.bridge.supervisor.stalled(skipped, k)
@@ -433,16 +438,26 @@ class BridgeNode:
         self.controller_pub.publish(msg)
 
     # ---------------------------------------------------------------- stops
-    def start_safe_stop(self, reason: str):
-        """Trip the supervisor and drive hold/ramp/stop from a timer at the loop rate."""
+    def start_safe_stop(self, reason: str, within_s: float = None):
+        """Trip the supervisor and drive hold/ramp/stop from a timer at the loop rate.
+
+        ``within_s``: hold and ramp shortened to about that long (``Bridge.emergency_stop``).
+        """
         if self.stopped:
             return
-        self.bridge.emergency_stop(reason)
+        self.bridge.emergency_stop(reason, within_s)
         self.log.warning(f'safe stop: {reason}')
         if self.ticks is not None and self.ticks.running and not self.run_over:
             return  # the clock's ticks drive hold, ramp and stop
         if self.stop_timer is None:
             self.stop_timer = self.node.create_timer(1.0 / self.fs_hz, self._stop_tick)
+
+    def on_launcher_lost(self):
+        """Stop safely within ``launcher_loss_stop_s`` once the launcher died; then the run ends."""
+        if self.launcher_lost:
+            return
+        self.launcher_lost = True
+        self.start_safe_stop(lifeline.describe(), self.launcher_loss_stop_s)
 
     def _stop_tick(self):
         if self.stopped:
@@ -451,7 +466,12 @@ class BridgeNode:
         self.apply(self.step + 1, None, ns.now_ns())
 
     def watchdog(self):
-        """Lock-step watchdog: no command for watchdog_timeout_s once the run has started."""
+        """Lock-step watchdog: no command for watchdog_timeout_s once the run has started.
+
+        (Every 0.1 s in either mode it also looks whether the launcher died.)
+        """
+        if lifeline.lost():
+            self.on_launcher_lost()
         clock_running = self.ticks is not None and self.ticks.running
         if (not clock_running and self.last_command_t is None) or self.lockstep:
             self.scan_command_publishers()  # before and (lock-step) during the run
@@ -542,6 +562,7 @@ class BridgeNode:
 
 def main(argv=None):
     """Entry point of ``ros2 run rths_actuator_bridge bridge_node``."""
+    lifeline.bind()       # its launcher's death: a safe stop, then exit
     rclpy.init(args=argv if argv is not None else sys.argv)
     code = 0
     shell = None
@@ -557,6 +578,7 @@ def main(argv=None):
             shell.bridge.close()
         if rclpy.ok():
             rclpy.shutdown()
+    lifeline.end_if_lost(code)
     return code
 
 

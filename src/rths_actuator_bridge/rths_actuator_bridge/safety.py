@@ -56,6 +56,8 @@ The bridge enforces these rules whatever the other nodes send (issue 4):
   windows (while above a tenth of its threshold): an uncompensated RTHS loop
   with ~15 ms delay (seed section 6.1: 15.64 ms) can go unstable.
 * Emergency stop (topic or service of the node) -> :meth:`SafetySupervisor.emergency_stop`.
+  The death of the launcher supervising the run is one too, with hold and ramp
+  shortened to ``launcher_loss_stop_s`` (:mod:`rths_common.lifeline`).
 
 After any fault: HOLD (brake to standstill at ``acceleration_m_s2``, then keep
 the position for ``hold_time_s``), RAMP (move to ``safe_position_m`` within the
@@ -93,6 +95,8 @@ SAFETY_PARAMS = {
     'safe_position_m': (0.0, '[m] position the actuator ramps to after a fault'),
     'ramp_time_s': (2.0, '[s] nominal duration of the ramp to the safe position'),
     'hold_time_s': (0.25, '[s] time the position is held before ramping'),
+    'launcher_loss_stop_s': (0.3, '[s] hold + ramp of the safe stop when the launcher '
+                             'supervising the run dies (its processes must be gone within 1 s)'),
     'watchdog_steps': (10, '[steps] missing commands in a row that trip the watchdog'),
     'stall_limit_s': (0.5, '[s] longest stall of the loop itself (its clock) that resumes; a '
                       'longer one trips the watchdog'),
@@ -116,6 +120,7 @@ SAFETY_RANGES = {
     'safe_position_m': (-1.0, 1.0),
     'ramp_time_s': (0.0, 600.0),
     'hold_time_s': (0.0, 600.0),
+    'launcher_loss_stop_s': (0.0, 600.0),
     'watchdog_steps': (1, 1_000_000),
     'stall_limit_s': (0.0, 600.0),
     'max_invalid_measurements': (1, 1_000_000),
@@ -142,6 +147,7 @@ class SafetyLimits:
     safe_position_m: float = 0.0
     ramp_time_s: float = 2.0
     hold_time_s: float = 0.25
+    launcher_loss_stop_s: float = 0.3
     watchdog_steps: int = 10
     stall_limit_s: float = 0.5
     max_invalid_measurements: int = 3
@@ -255,6 +261,7 @@ class SafetySupervisor:
         self.rejoin_clean = 0              # commands passed unchanged in a row while rejoining
         self.invalid = 0
         self.hold_left = 0
+        self.within_s = None               # a stop's time budget (emergency_stop), if any
         self._win_e, self._win_f = [], []
         self._rms_prev = {'tracking': None, 'force': None}
         self._growing = {'tracking': 0, 'force': 0}
@@ -279,11 +286,32 @@ class SafetySupervisor:
             self.fault = text
         if self.state == ACTIVE:
             self.state = HOLD
-            self.hold_left = max(1, int(round(self.limits.hold_time_s * self.limits.fs_hz)))
+            self.hold_left = max(1, int(round(self._hold_s() * self.limits.fs_hz)))
 
-    def emergency_stop(self, reason: str = ''):
-        """Stop the run now: HOLD, RAMP to the safe position, STOPPED."""
+    def _hold_s(self) -> float:
+        """Hold time [s]: ``hold_time_s``, at most a quarter of a stop's ``within_s``."""
+        hold = self.limits.hold_time_s
+        return hold if self.within_s is None else min(hold, 0.25 * self.within_s)
+
+    def _ramp_s(self) -> float:
+        """Nominal ramp time [s]: ``ramp_time_s``, at most the rest of a stop's ``within_s``."""
+        ramp = self.limits.ramp_time_s
+        if self.within_s is None:
+            return ramp
+        return max(1e-6, min(ramp, self.within_s - self._hold_s()))
+
+    def emergency_stop(self, reason: str = '', within_s: float | None = None):
+        """Stop the run now: HOLD, RAMP to the safe position, STOPPED.
+
+        ``within_s``: hold and ramp are shortened to take about that long together
+        (the ramp still within the velocity and acceleration limits, so a long way
+        to the safe position takes longer); also a stop already under way.
+        """
         text = f'emergency stop: {reason}' if reason else 'emergency stop'
+        if within_s is not None:
+            self.within_s = float(within_s)
+            self.hold_left = min(self.hold_left,
+                                 max(1, int(round(self._hold_s() * self.limits.fs_hz))))
         if self.state == INACTIVE:
             self.faults.append(text)
             self.fault = self.fault or text
@@ -380,7 +408,7 @@ class SafetySupervisor:
         """One step towards the safe position within velocity/acceleration limits."""
         lim = self.limits
         v_cap = np.minimum(lim.velocity_m_s,
-                           np.maximum(np.abs(self._ramp_dist) / lim.ramp_time_s, 1e-6))
+                           np.maximum(np.abs(self._ramp_dist) / self._ramp_s(), 1e-6))
         return self._accept(self._approach(lim.safe_position_m, v_cap, lim.acceleration_m_s2))
 
     def filter(self, step: int, command=None):

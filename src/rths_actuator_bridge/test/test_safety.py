@@ -202,6 +202,33 @@ def test_emergency_stop():
     assert state == safety.HOLD and fault == 'emergency stop: operator pressed the button'
 
 
+@pytest.mark.parametrize('within_s', [None, 0.4])
+def test_a_stop_within_a_time_budget_still_ends_at_the_safe_position_within_limits(within_s):
+    # the launcher died: hold and ramp shortened to launcher_loss_stop_s (0.4 s here), against
+    # the configured 0.25 s hold and 2 s ramp of an ordinary stop
+    lim = SafetyLimits(fs_hz=FS, velocity_m_s=1.0, acceleration_m_s2=400.0, hold_time_s=0.25,
+                       ramp_time_s=2.0)
+    sup = SafetySupervisor(lim)
+    sup.activate(0.0)
+    u = _smooth(300, amp=0.01)
+    sent = [sup.filter(k, uk)[0][0] for k, uk in enumerate(u)]
+    sup.emergency_stop('the launcher (pid 1) died', within_s=within_s)
+    states = []
+    for k in range(300, 300 + int(5 * FS)):
+        out, state, _ = sup.filter(k, None)
+        sent.append(out[0])
+        states.append(state)
+        if state == safety.STOPPED:
+            break
+    assert states[-1] == safety.STOPPED and sent[-1] == lim.safe_position_m
+    _assert_within_limits(sent, lim)
+    took_s = len(states) / FS
+    if within_s is None:
+        assert took_s > 2.25
+    else:
+        assert within_s * 0.9 < took_s <= within_s + 0.01
+
+
 def test_force_limit_and_dtm_range():
     sup = SafetySupervisor(LIM)
     sup.activate(0.0)

@@ -7,7 +7,11 @@ sub-parser collection of ``rths <command>`` and ``benches`` the one of
 the exit code) with ``set_defaults``.  This package and the ones below it are
 listed in :data:`CLI_MODULES`; packages above it (the benchmarks, ``rths_bench``)
 declare theirs as ``rths.cli`` entry points in their setup.py, so that nothing
-here imports upward.
+here imports upward.  A module that adds options to another package's command
+(``rths_study`` gives ``rths bench rths-benchmark`` its cluster options) does it in
+an optional ``extend(commands, benches)``: it runs after every module's
+``register``, so it finds the command whatever order the modules load in, and it
+raises if the command is missing.
 
 Commands that can run longer than a few seconds (:data:`PROGRESS_COMMANDS` and
 every benchmark) show their progress on stderr through
@@ -87,9 +91,12 @@ def build_parser() -> argparse.ArgumentParser:
         description='Benchmarks: each prints its results and writes them to --out as JSON.')
     benches = bench.add_subparsers(dest='bench', metavar='NAME')
     benches.required = True
-    for name in cli_modules():
-        module = importlib.import_module(name)
+    modules = [importlib.import_module(name) for name in cli_modules()]
+    for module in modules:
         module.register(commands, benches)
+    for module in modules:      # options added to other packages' commands
+        if hasattr(module, 'extend'):
+            module.extend(commands, benches)
     _add_quiet(commands, benches)
     return parser
 

@@ -200,6 +200,8 @@ def print_bag_info(bag, as_json=False):
     print(f"{'topic':<32} {'type':<40} {'count':>8}")
     for topic, t in data['topics'].items():
         print(f"{topic:<32} {t['type']:<40} {t['count']:>8}")
+    if data['damaged']:
+        print(f"BAG DAMAGED: {data['damaged']}; the counts are of the readable messages")
     return data
 
 

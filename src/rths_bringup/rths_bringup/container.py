@@ -12,7 +12,8 @@ compensator wait for them) and spins the three on one executor.  In realtime
 the bridge's ticks drive that spin loop: it is the clock of the process.
 
 The run ends when the numerical node finishes (exit 0), when the bridge's
-safety supervisor stopped the actuator (exit 3), on SIGINT/SIGTERM (128 +
+safety supervisor stopped the actuator (exit 3; also after the launcher died:
+:mod:`rths_common.lifeline`), on SIGINT/SIGTERM (128 +
 the signal, after every node has flushed and saved what it keeps), or when the
 numerical node failed (exit 1); bad parameters exit 2 naming the node and its
 params file.  The last line names the node that ended the run
@@ -39,10 +40,10 @@ import sys
 
 import rclpy
 from rclpy.utilities import remove_ros_args
-import yaml
 
 from rths_actuator_bridge.node import BridgeNode
 from rths_bringup.tee import Tee, TeePublisher, enlarge_pipe
+from rths_common import lifeline, yamlfile
 from rths_common import node_support as ns
 from rths_compensator.node import CompensatorNode
 from rths_numerical.node import NumericalNode
@@ -78,9 +79,8 @@ def params_file_of(argv, node_name: str) -> str:
     """``'params file PATH: '`` of the file with a ``node_name`` section ('' if none)."""
     for path in params_files(argv):
         try:
-            with open(path) as f:
-                if node_name in (yaml.safe_load(f) or {}):
-                    return f'params file {path}: '
+            if node_name in (yamlfile.load(path) or {}):
+                return f'params file {path}: '
         except (OSError, ValueError):
             continue
     return ''
@@ -95,10 +95,9 @@ def check_sections(argv) -> None:
     known = NODE_NAMES
     for path in params_files(argv):
         try:
-            with open(path) as f:
-                doc = yaml.safe_load(f) or {}
-        except (OSError, yaml.YAMLError) as err:
-            raise ValueError(f'params file {path}: {err}') from None
+            doc = yamlfile.load(path) or {}
+        except OSError as err:
+            raise ValueError(f'params file {err}') from None
         for key in (doc if isinstance(doc, dict) else {}):
             if str(key).strip('/') not in (*known, '**'):
                 raise ValueError(f'params file {path}: section {key!r} is no node of the '
@@ -118,7 +117,8 @@ def tee_publishers(shells, fd: int, n_steps: int):
     enlarge_pipe(fd)
     tee = Tee(fd, capacity=TEE_RECORDS_PER_STEP * n_steps + TEE_SLACK_RECORDS)
     for shell in shells:
-        for attr in ('pub', 'status_pub', 'specimen_pub', 'coef_pub', 'controller_pub'):
+        for attr in ('pub', 'status_pub', 'specimen_pub', 'coef_pub', 'stability_pub',
+                     'controller_pub'):
             publisher = getattr(shell, attr, None)
             if publisher is not None:
                 setattr(shell, attr, TeePublisher(publisher, tee))
@@ -153,8 +153,11 @@ class Container:
     def done(self) -> bool:
         """Return True once the numerical node finished (or failed) or the bridge stopped.
 
-        (The bridge stopped: a safety stop, or its managed node was shut down.)
+        (The bridge stopped: a safety stop, or its managed node was shut down.)  Once
+        the launcher died, only the bridge's safe stop ends the run.
         """
+        if self.bridge.launcher_lost:
+            return self.bridge.stopped or self.bridge.finalized
         return self.numerical.finished or self.bridge.stopped or self.bridge.finalized
 
     def tune(self) -> str:
@@ -206,6 +209,7 @@ def main(argv=None, prepare=None) -> int:
     ``prepare(container)``, if given, is called once the nodes (and the recording
     tee) are set up, before the run.
     """
+    lifeline.bind()       # its launcher's death: the bridge's safe stop, exit
     argv = list(sys.argv if argv is None else argv)
     opts = parse_args(argv)
     rclpy.init(args=argv)
@@ -217,15 +221,17 @@ def main(argv=None, prepare=None) -> int:
                                            container.numerical.sub.n_steps)
         if prepare is not None:
             prepare(container)
-        return container.run()
+        code = container.run()
     except ValueError as err:
         print(f'container: error: {err}', file=sys.stderr)
-        return EXIT_BAD_PARAMS
+        code = EXIT_BAD_PARAMS
     finally:
         if container is not None:
             container.bridge.bridge.close()
         if rclpy.ok():
             rclpy.shutdown()
+    lifeline.end_if_lost(code)
+    return code
 
 
 if __name__ == '__main__':

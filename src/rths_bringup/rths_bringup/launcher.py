@@ -28,6 +28,10 @@ and supervises them:
 * if any node dies first (non-zero exit or a signal such as SIGKILL), the
   launcher stops the rest and exits non-zero, naming the node;
 * Ctrl-C / SIGTERM to the launcher stops every node cleanly;
+* if the launcher itself dies (even by SIGKILL) every child follows it
+  (:mod:`rths_common.lifeline`): the bridge ramps the actuator to its safe
+  position within ``launcher_loss_stop_s`` and exits, the recorder records that
+  and closes the bag, the numerical node and the compensator stop;
 * if the recorder died, the bag is reindexed so it stays readable;
 * if the numerical node or the compensator died, the launcher first lets the
   bridge's watchdog bring the plant to the safe state (hold, ramp, STOPPED)
@@ -68,6 +72,7 @@ import time
 import yaml
 
 from rths_bringup.preflight import check_config
+from rths_common import lifeline, yamlfile
 from rths_common.bagio import reindex
 from rths_common.progress import Progress
 
@@ -111,9 +116,9 @@ def config_param(config_dir: Path, overrides: dict, key: str, default):
         return value
     path = Path(config_dir) / 'numerical.yaml'
     try:
-        data = yaml.safe_load(path.read_text()) or {}
+        data = yamlfile.load(path) or {}
     except (OSError, ValueError):
-        return default
+        return default              # the pre-flight check names the problem
     for section in data.values():
         if isinstance(section, dict) and key in (section.get('ros__parameters') or {}):
             return section['ros__parameters'][key]
@@ -320,7 +325,7 @@ class Launcher:
     def _spawn(self, name, argv, pass_fds=()):
         child = Child(name, argv)
         env = dict(os.environ, PYTHONUNBUFFERED='1', RCUTILS_COLORIZED_OUTPUT='0',
-                   **self.node_env.get(name, {}))
+                   **lifeline.launcher_env(), **self.node_env.get(name, {}))
         argv = list(self.node_prefix.get(name, [])) + list(argv)
         child.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                       text=True, env=env, start_new_session=True,
@@ -461,7 +466,7 @@ class Launcher:
         if key in self.overrides.get('bridge', {}):
             return self.overrides['bridge'][key]
         try:
-            data = yaml.safe_load((self.config_dir / 'bridge.yaml').read_text()) or {}
+            data = yamlfile.load(self.config_dir / 'bridge.yaml') or {}
             return data['bridge']['ros__parameters'].get(key, default)
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             return default
@@ -525,7 +530,7 @@ class Launcher:
     def bridge_params(self) -> dict:
         """Return the bridge's parameters: its params file with the overrides."""
         try:
-            data = yaml.safe_load((self.config_dir / 'bridge.yaml').read_text()) or {}
+            data = yamlfile.load(self.config_dir / 'bridge.yaml') or {}
             params = dict(data['bridge']['ros__parameters'])
         except (OSError, ValueError, KeyError, TypeError):
             params = {}

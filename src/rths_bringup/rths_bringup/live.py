@@ -15,8 +15,9 @@ connect too.  What it streams:
   ``/rths/status`` per node), each decimated to ``--rate`` (default 50 Hz);
 * ``/rths/live`` (JSON), the run's status at the same rate: step, target and
   measured displacement, tracking error, force, deadline misses per node, the
-  bridge's safety state and ``run_state`` (``running``, then ``stopped`` when
-  the run ends and the server closes).
+  bridge's safety state, the stability monitor's estimates (``/rths/stability``,
+  when the compensator runs one: docs/monitor.md) and ``run_state`` (``running``,
+  then ``stopped`` when the run ends and the server closes).
 
 The layout ``foxglove/rths_live.json`` (installed under
 ``share/rths_bringup/foxglove``) plots target vs measured displacement, force,
@@ -58,6 +59,9 @@ LIVE_SCHEMA = {
         'misses_by_node': {'type': 'object'},
         'safety_state': {'type': 'integer'},
         'fault': {'type': 'string'},
+        'stability_delay_ms': {'type': 'number'},
+        'stability_error_pct': {'type': 'number'},
+        'stability_level': {'type': 'integer'},
         'run_state': {'type': 'string'},
     },
 }
@@ -96,6 +100,7 @@ class LiveState:
         self.safety_state = 0
         self.fault = ''
         self.measurement = None
+        self.stability = None
 
     def on_target(self, step: int, value: float):
         """Remember the interface displacement (channel 0) of ``step``."""
@@ -115,10 +120,18 @@ class LiveState:
         """Take the newest measurement (channel 0)."""
         self.measurement = (step, displacement, force)
 
+    def on_stability(self, row):
+        """Take the monitor's row ``[step, delay_ms, gain, error_pct, ti, level]``."""
+        if len(row) >= 6:
+            self.stability = (float(row[1]), float(row[3]), int(row[5]))
+
     def record(self, run_state: str = 'running') -> dict:
         """Return the ``/rths/live`` message (fields of :data:`LIVE_SCHEMA`)."""
         out = {'deadline_misses': sum(self.misses.values()), 'misses_by_node': dict(self.misses),
                'safety_state': self.safety_state, 'fault': self.fault, 'run_state': run_state}
+        if self.stability is not None:
+            out.update(zip(('stability_delay_ms', 'stability_error_pct', 'stability_level'),
+                           self.stability, strict=True))
         if self.measurement is not None:
             step, measured, force = self.measurement
             out.update(step=step, measured_m=measured, force_n=force)
@@ -244,6 +257,9 @@ def layout() -> dict:
         plot('measured force [N]', ('force_n', 'force')),
         plot('tracking error (target - measured) [m]', ('tracking_error_m', 'error')),
         plot('deadline misses', ('deadline_misses', 'misses (all nodes)')),
+        plot('stability monitor: delay [ms], error [%], level (1 warn, 2 stop)',
+             ('stability_delay_ms', 'delay'), ('stability_error_pct', 'error'),
+             ('stability_level', 'level')),
     ])
     return json.loads(fl.Layout(content=content).to_json())
 
@@ -373,6 +389,9 @@ class LiveView:
         self.node.create_timer(1.0 / rate_hz, self._publish_live)
 
     def _callback(self, topic):
+        # lazy: start-up cost: rclpy (~0.3 s), which this module needs only here
+        from rclpy.serialization import deserialize_message
+        from std_msgs.msg import Float64MultiArray
 
         channel, due, state = self.channels[topic], self.decimator.due, self.state
 
@@ -390,6 +409,8 @@ class LiveView:
                 node, misses, safety, fault = _status_fields(raw)
                 state.on_status(node, misses, safety, fault)
                 key = (topic, node)
+            elif topic == topics.STABILITY:   # decimated at the source: decoded typed
+                state.on_stability(deserialize_message(raw, Float64MultiArray).data)
             if due(key, time.monotonic()):
                 channel.log(raw)
         return on_message

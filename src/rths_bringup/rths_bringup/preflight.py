@@ -28,8 +28,7 @@ import math
 from pathlib import Path
 import re
 
-import yaml
-
+from rths_common import yamlfile
 from rths_common.params import NODE_KEYS, check_spec
 from rths_compensator.params import (
     check_compensator_params,
@@ -47,14 +46,7 @@ _NUMBER_WITH_UNIT = re.compile(
 def load_params_file(path, node: str) -> dict:
     """``ros__parameters`` of ``node`` in the params file ``path`` (ValueError/OSError)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding='utf-8')
-    except OSError as err:
-        raise OSError(f'{path}: cannot read the params file ({err.strerror})') from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise ValueError(f'{path}: not valid YAML ({err}); fix the syntax') from None
+    doc = yamlfile.load(path)
     section = doc.get(node) if isinstance(doc, dict) else None
     if not isinstance(section, dict) or not isinstance(section.get('ros__parameters'), dict):
         raise ValueError(f"{path}: expected '{node}:' then 'ros__parameters:' at the top; "

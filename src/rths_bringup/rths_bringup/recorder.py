@@ -24,6 +24,10 @@ stop) are subscribed to over DDS.  Nothing is lost however loaded the machine
 is: the pipe and the container's queue buffer what the writer has not taken
 yet.  On SIGINT the recorder keeps reading until the pipe ends (the container
 has exited) before it closes the bag.
+
+When the launcher dies (:mod:`rths_common.lifeline`) the recorder keeps
+recording until the bridge reports STOPPED (its safe stop is over; composed: the
+pipe ended), then closes the bag.
 """
 
 from collections import deque
@@ -36,7 +40,7 @@ import rclpy
 
 from rths_bringup.tee import TOPICS as TEED_TOPICS
 from rths_bringup.tee import read_records
-from rths_common import bagstore, topics
+from rths_common import bagstore, cdr, lifeline, topics
 from rths_common import node_support as ns
 from rths_common.bagio import BagWriter
 from rths_common.qos import recorder_qos, status_qos
@@ -45,6 +49,12 @@ from rths_common.qos import recorder_qos, status_qos
 RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s', 'storage', 'pipe_fd')
 #: Longest time between two commits of the bag [s] (what a crash can lose).
 COMMIT_PERIOD_S = 0.25
+#: After the stop request the recorder keeps taking messages this long [s] ...
+TAIL_S = 0.2
+#: ... and after its launcher died, until the bridge reports STOPPED (its safe stop is
+#: over), at most LOST_TAIL_S [s] (the run's processes are gone within 1 s).
+LOST_TAIL_S = 0.75
+_STOPPED = 3                     # rths_msgs/LoopStatus SAFETY_STOPPED
 
 
 class Recorder:
@@ -68,6 +78,7 @@ class Recorder:
         # Everything else given to the recorder (fs_hz, ...) is run information kept in the bag.
         self.run_info = {k: v for k, v in params.items() if k not in RECORDER_PARAMS}
         self.queue = deque()
+        self.bridge_stopped = False    # (after the launcher died) the bridge reported STOPPED
         self.wake = threading.Event()
         self.running = True
         self.count = 0
@@ -117,13 +128,42 @@ class Recorder:
             parts.append(ns.tune_process(0, self.cpus, 'default').replace(', gc default', ''))
         return ', '.join(parts)
 
+    def hurry(self):
+        """Launcher dead: back to nice 0 (where allowed), the bag must close within a second."""
+        for tid in (int(t) for t in os.listdir('/proc/self/task')):
+            try:
+                os.setpriority(os.PRIO_PROCESS, tid, 0)
+            except OSError:
+                return
+
     def _callback(self, topic):
         queue, now_ns = self.queue, ns.now_ns
 
         def on_message(raw: bytes):
             # only a deque append (thread-safe): the writer thread drains in batches
             queue.append((topic, now_ns(), raw))
-        return on_message
+
+        def on_status(raw: bytes):
+            queue.append((topic, now_ns(), raw))
+            if lifeline.lost() and cdr.status_state(raw) == ('bridge', _STOPPED):
+                self.bridge_stopped = True
+        return on_status if topic == topics.STATUS else on_message
+
+    def collect_tail(self, lost: bool):
+        """Take the messages still in flight after the stop request (module constants).
+
+        After the launcher died (processes layout) that is until the bridge's
+        STOPPED status arrived; composed, the statuses come through the pipe.
+        """
+        start = time.monotonic()
+        executor = ns.make_executor('events')
+        executor.add_node(self.node)
+        wait_stop = lost and self.pipe_fd < 0
+        while time.monotonic() - start < (LOST_TAIL_S if wait_stop else TAIL_S):
+            if wait_stop and self.bridge_stopped:
+                break
+            executor.spin_once(timeout_sec=0.02)
+        executor.remove_node(self.node)
 
     def _read_pipe(self):
         """Composed layout: the container's records, from the pipe until it ends."""
@@ -172,6 +212,7 @@ class Recorder:
 
 def main(argv=None):
     """Entry point of ``ros2 run rths_bringup recorder``."""
+    lifeline.bind()       # its launcher's death: record the safe stop, close
     rclpy.init(args=argv if argv is not None else sys.argv)
     try:
         rec = Recorder()
@@ -182,13 +223,10 @@ def main(argv=None):
     t0 = time.monotonic()
     # The events executor has the least per-message overhead: the recorder takes every
     # message of every node and must keep up with the loop.
-    ns.spin_until_done(rec.node, ns.make_executor('events'))
-    # Collect what is still in flight after the stop request.
-    end = time.monotonic() + 0.2
-    executor = ns.make_executor('events')
-    executor.add_node(rec.node)
-    while time.monotonic() < end:
-        executor.spin_once(timeout_sec=0.02)
+    ns.spin_until_done(rec.node, ns.make_executor('events'), lifeline.lost)
+    if lifeline.lost():
+        rec.hurry()
+    rec.collect_tail(lifeline.lost())
     if not rec.wait_for_pipe():
         print('recorder: the container did not close the recording pipe within 60 s; '
               'BAG INCOMPLETE', flush=True)
@@ -197,6 +235,7 @@ def main(argv=None):
     print(f'recorder: {count} messages written{piped} in {time.monotonic() - t0:.1f} s',
           flush=True)
     rclpy.shutdown()
+    lifeline.end_if_lost(0)
     return 0
 
 

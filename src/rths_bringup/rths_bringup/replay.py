@@ -83,7 +83,7 @@ def _replay(args) -> int:
               f'at x{args.rate_scale:g}', flush=True)
         t0_bag = t0_wall = None
         bar = Progress(sum(c.msgcount for c in conns), 'replay', 'messages')
-        for conn, stamp, raw in reader.messages(connections=conns):
+        for conn, stamp, raw in bagio.raw_messages(reader, args.bag, conns):
             bar.advance()
             if t0_bag is None:
                 t0_bag, t0_wall = stamp, time.monotonic()

@@ -9,6 +9,8 @@ import base64
 import html
 from pathlib import Path
 
+from rths_bringup.realtime import realtime_text
+
 #: The review's plots, in page order, with their captions.
 PLOTS = {
     'time_history.png': '2nd-floor displacement: RTHS, whole-numerical reference and '
@@ -92,6 +94,40 @@ def tables(s: dict) -> str:
     return out
 
 
+def realtime_table(s: dict) -> str:
+    """Return the real-time figures of a realtime run against its limits ("" in lock-step)."""
+    if 'realtime_ok' not in s:
+        return ''
+    lim = s['realtime_limits']
+    rows = (('late or missed ticks [%]', f"{s['late_or_missed_pct']:.3f}",
+             f"{lim['late_or_missed_pct']:g}"),
+            ('clock overruns', f"{s['clock_overruns']} ({s['stalled_ticks']} ticks skipped)",
+             '-'),
+            ('worst period [ms]', f"{s['worst_period_ms']:.3f}", f"{lim['worst_period_ms']:g}"),
+            ('behind real time [s]', f"{s['behind_s']:.3f}", f"{lim['behind_s']:g}"),
+            ('verdict', 'real time' if s['realtime_ok'] else 'NOT REAL TIME', ''))
+    return _table('Real time', ('', 'this run', 'limit'), rows)
+
+
+def notes(s: dict) -> list:
+    """Return the lines after the tables: real time, a cut-short run, faults, repairs."""
+    lines = []
+    if 'realtime_ok' in s:
+        lines.append(realtime_text(s))
+    if s.get('cut_short'):
+        fs = s['fs_hz']
+        lines.append(f"CUT SHORT: the run stopped after {s['recorded_steps']} of its "
+                     f"{s['planned_steps']} steps ({s['recorded_steps'] / fs:.2f} of "
+                     f"{s['planned_steps'] / fs:.2f} s); the review covers "
+                     f"{s['steps']} steps")
+    if s.get('safety_faults'):
+        lines.append('safety faults: ' + '; '.join(s['safety_faults']))
+    for topic, rec in s.get('recording', {}).items():
+        lines.append(f"recording of {topic}: {rec['resent']} re-sent step(s) dropped, "
+                     f"{rec['filled']} step(s) missing from the bag filled linearly")
+    return lines
+
+
 def _figure(name: str, data: bytes, caption: str) -> str:
     uri = 'data:image/png;base64,' + base64.b64encode(data).decode('ascii')
     return (f'<figure><img alt="{html.escape(name)}" src="{uri}">'
@@ -106,6 +142,8 @@ def render(summary: dict, images: dict) -> str:
     title = (f"{what}, specimen {specimen_title(s)}, {s['mode']}, "
              f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)")
     misses = f"deadline misses: {s['deadline_misses']} ({s['deadline_miss_pct']:.3f} %)"
+    extra = ''.join(f'<p>{html.escape(line)}</p>\n' for line in notes(s)
+                    if not line.startswith('safety faults'))
     faults = ''.join(f'<li>{html.escape(f)}</li>' for f in s.get('safety_faults', []))
     figures = ''.join(_figure(name, data, PLOTS.get(name, name)) for name, data in images.items())
     comp = s.get('compensator') or {}
@@ -113,7 +151,7 @@ def render(summary: dict, images: dict) -> str:
     return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
             f'<title>{html.escape(title)}</title><style>{_STYLE}</style></head>\n<body>\n'
             f'<h1>{html.escape(title)}</h1>\n<p>compensator: {html.escape(scheme) or "-"}</p>\n'
-            + tables(s) + f'<p>{html.escape(misses)}</p>\n'
+            + tables(s) + realtime_table(s) + f'<p>{html.escape(misses)}</p>\n' + extra
             + (f'<p>safety faults:</p><ul>{faults}</ul>\n' if faults else '')
             + figures + '</body></html>\n')
 

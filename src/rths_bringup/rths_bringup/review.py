@@ -1,4 +1,13 @@
-"""Review of a recorded run, rebuilt from its bag alone."""
+"""Review of a recorded run, rebuilt from its bag alone.
+
+A realtime run recorded over DDS (processes layout) may hold a step twice (the
+numerical node re-sends step 0 until the loop runs) or lack a few (the
+recorder subscribes best-effort): :func:`aligned_steps` drops identical re-sends
+and fills short gaps, and the review says how many. A run stopped before the
+end of its record (a safety stop, a killed launcher) is reviewed up to where it
+stopped and said to be cut short; a realtime run's timing is judged by
+:mod:`rths_bringup.realtime`.
+"""
 
 import json
 from pathlib import Path
@@ -8,7 +17,8 @@ from scipy import signal
 from scipy.signal import coherence
 
 from rths_actuator_bridge.bridge import DEFAULT_BACKEND, backend_class
-from rths_bringup.report_html import row_label, specimen_title, write_report
+from rths_bringup.realtime import realtime_figures
+from rths_bringup.report_html import notes, row_label, specimen_title, write_report
 from rths_common import bagio, runinfo, topics
 from rths_common.params import core_params
 from rths_compensator.indicators import frf_h1, relative_rms_pct
@@ -50,25 +60,93 @@ def step_check(steps) -> dict:
 
 
 def read_loop(bag) -> dict:
-    """Per-topic step indices and arrays of a bag: ``{topic: {'step': [...], field: [[...]]}}``."""
+    """Per-topic step indices and arrays of a bag: ``{topic: {'step': [...], field: [[...]]}}``.
+
+    ``status``: per node its steps, timings, deadline misses, safety states, stamps
+    and its faults (each once, ``step K: text`` of the first step reporting it).
+    """
     data = {t: {'step': [], 'values': []} for t in STEP_TOPICS}
     status = {}
     for topic, _, msg in bagio.read_messages(bag, list(STEP_TOPICS) + [topics.STATUS]):
         if topic == topics.STATUS:
             s = status.setdefault(msg.node, {'step': [], 'compute_us': [], 'latency_us': [],
-                                             'misses': 0, 'safety_state': [], 'faults': []})
+                                             'misses': 0, 'safety_state': [], 'faults': [],
+                                             'stamp_ns': [], 'missed': []})
             s['step'].append(msg.step)
+            s['stamp_ns'].append(msg.header.stamp.sec * 1_000_000_000
+                                 + msg.header.stamp.nanosec)
+            s['missed'].append(bool(msg.deadline_missed))
             s['compute_us'].append(msg.compute_us)
             s['latency_us'].append(msg.latency_us)
             s['misses'] = max(s['misses'], msg.deadline_misses)
             s['safety_state'].append(msg.safety_state)
-            if msg.fault:
+            if msg.fault and msg.fault != s.get('last_fault'):   # each fault once, first step
                 s['faults'].append(f'step {msg.step}: {msg.fault}')
+                s['last_fault'] = msg.fault
             continue
         field, _ = STEP_TOPICS[topic]
         data[topic]['step'].append(msg.step)
         data[topic]['values'].append(np.asarray(getattr(msg, field), dtype=float))
     return {'steps': data, 'status': status}
+
+
+#: Recording gaps :func:`aligned_steps` fills: at most this share of a topic's steps, and
+#: no single gap longer than MAX_GAP_S (a lost burst longer than that refuses the review).
+MAX_FILLED_PCT = 1.0
+MAX_GAP_S = 0.05
+
+
+def aligned_steps(data: dict, fields, fs_hz: float, where: str) -> tuple:
+    """Make a topic's ``step_arrays`` whole: row i is step i, from step 0 to the last.
+
+    A step recorded more than once with the same values is a re-send: the
+    copies are dropped. A step missing from the recording is filled linearly
+    from its neighbours when the gaps stay within ``MAX_FILLED_PCT`` of the steps
+    and ``MAX_GAP_S`` each. Returns ``(arrays, {'resent': n, 'filled': n})``;
+    ValueError (naming ``where``) for conflicting copies or larger gaps.
+    """
+    steps = np.asarray(data['step'], dtype=np.int64)
+    if steps.size == 0:
+        raise ValueError(f'{where}: no messages recorded')
+    last = int(steps.max())
+    out, seen = {}, np.zeros(last + 1, dtype=bool)
+    order = np.argsort(steps, kind='stable')
+    first = np.ones(steps.size, dtype=bool)
+    first[order[1:]] = steps[order[1:]] != steps[order[:-1]]
+    for f in fields:
+        values = np.asarray(data[f], dtype=float)
+        table = np.full((last + 1, values.shape[1]), np.nan)
+        table[steps[first]] = values[first]
+        copies = values[~first]
+        if not np.array_equal(copies, table[steps[~first]], equal_nan=True):
+            k = int(steps[~first][0])
+            raise ValueError(f'{where}: step {k} was recorded twice with different values; '
+                             'two publishers on one topic? the run cannot be aligned')
+        out[f] = table
+    seen[steps] = True
+    missing = np.flatnonzero(~seen)
+    longest = _longest_run(missing)
+    if missing.size and (100.0 * missing.size / seen.size > MAX_FILLED_PCT
+                         or longest > MAX_GAP_S * fs_hz or missing[0] == 0):
+        raise ValueError(f'{where}: {missing.size} missing and {int((~first).sum())} '
+                         f'duplicated steps (longest gap {longest} steps); the recording lost '
+                         'more than can be filled (see the recorder log), so the run cannot '
+                         'be aligned')
+    if missing.size:
+        known = np.flatnonzero(seen)
+        for f in fields:
+            for col in out[f].T:            # a view: filled in place
+                col[missing] = np.interp(missing, known, col[known])
+    return out, {'resent': int((~first).sum()), 'filled': int(missing.size)}
+
+
+def _longest_run(index) -> int:
+    """Length of the longest run of consecutive integers in sorted ``index``."""
+    if index.size == 0:
+        return 0
+    breaks = np.flatnonzero(np.diff(index) != 1)
+    bounds = np.r_[-1, breaks, index.size - 1]
+    return int(np.max(np.diff(bounds)))
 
 
 def _pct(values, q):
@@ -181,20 +259,19 @@ def _numerical_params(info: dict) -> dict:
 def _tracking(bag, fs):
     """Return desired, applied (shifted by the delay line), measured up to a safety trip.
 
-    Also the measurement arrays, the bridge's status and the step count ``n``.
-    ValueError if the bag holds under 2 s or lost messages.
+    Also the measurement arrays, the bridge's status, the step count ``n``, the
+    bridge ticks recorded and the repairs of the recording (:func:`aligned_steps`).
+    ValueError if the bag holds under 2 s before its end or a safety stop, or lost
+    more messages than can be filled.
     """
-    disp = bagio.step_arrays(bag, topics.INTERFACE_DISPLACEMENT, ('displacement',))
-    meas = bagio.step_arrays(bag, topics.MEASUREMENT, ('applied', 'displacement', 'force'))
-    n = int(min(disp['step'].size, meas['step'].size))
-    if n < 2 * fs:
-        raise ValueError(f'{bag}: only {n} steps recorded; the review needs at least 2 s')
-    for topic, data in ((topics.INTERFACE_DISPLACEMENT, disp), (topics.MEASUREMENT, meas)):
-        check = step_check(data['step'])
-        if check['gaps'] or check['duplicates'] or not check['in_order']:
-            raise ValueError(f'{bag}: {topic} has {check["gaps"]} missing and '
-                             f'{check["duplicates"]} duplicated steps; the recording lost '
-                             'messages (see the recorder log), so the run cannot be aligned')
+    recording, series = {}, {}
+    for topic, fields in ((topics.INTERFACE_DISPLACEMENT, ('displacement',)),
+                          (topics.MEASUREMENT, ('applied', 'displacement', 'force'))):
+        series[topic], recording[topic] = aligned_steps(
+            bagio.step_arrays(bag, topic, fields), fields, fs, f'{bag}: {topic}')
+    disp, meas = series[topics.INTERFACE_DISPLACEMENT], series[topics.MEASUREMENT]
+    recorded = len(meas['force'])                   # bridge ticks in the bag
+    n = int(min(len(disp['displacement']), recorded))
     desired = disp['displacement'][:n, 0]
     applied = meas['applied'][:, 0]
     shift = bagio.delay_steps(bag)  # the command of step k was written at tick k + D
@@ -209,7 +286,10 @@ def _tracking(bag, fs):
     if not ok.all():
         n = int(np.argmin(ok))
         desired, applied, measured = desired[:n], applied[:n], measured[:n]
-    return desired, applied, measured, meas, status, n
+    if n < 2 * fs:
+        raise ValueError(f'{bag}: only {n} steps recorded before the end or a safety stop; '
+                         'the review needs at least 2 s')
+    return desired, applied, measured, meas, status, n, recorded, recording
 
 
 def table5_of(desired, applied, measured, fs) -> dict:
@@ -228,7 +308,7 @@ def table5_of(desired, applied, measured, fs) -> dict:
 REVIEW_STAGES = 4
 
 
-def review_rths(bag, out_dir, progress=None, specimen_model=None) -> dict:
+def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None) -> dict:
     """Tables 5-9 of an RTHS bag: JSON summary, text report, PNG plots and ``report.html``.
 
     ``specimen_model``: an updated specimen model (``updated_model.yaml`` of ``rths
@@ -239,7 +319,8 @@ def review_rths(bag, out_dir, progress=None, specimen_model=None) -> dict:
 
     ``report.html`` (:mod:`rths_bringup.report_html`) holds the tables and every
     plot in one self-contained file.  ``progress(done, 4)`` follows the stages: bag
-    read, references simulated, plots drawn, report written.
+    read, references simulated, plots drawn, report written.  ``limits``: the
+    real-time limits a realtime run is judged by (:mod:`rths_bringup.realtime`).
     """
     stage = progress or (lambda done, total: None)
 
@@ -260,7 +341,9 @@ def review_rths(bag, out_dir, progress=None, specimen_model=None) -> dict:
     if sub.iface != [model.output_dof]:
         raise ValueError('the review needs the output DOF to be the interface DOF')
 
-    desired, applied, measured, meas, status, n = _tracking(bag, fs)
+    desired, applied, measured, meas, status, n, recorded, recording = _tracking(bag, fs)
+    timing = bridge_realtime(status, sub.n_steps, fs, limits) if (
+        info.get('mode') == 'realtime') else None
     stage(1, REVIEW_STAGES)
 
     table5 = table5_of(desired, applied, measured, fs)
@@ -273,27 +356,9 @@ def review_rths(bag, out_dir, progress=None, specimen_model=None) -> dict:
     external = '' if remote else external_controller(bridge)
     if remote:   # a remote site: no model of its specimen (compared with the bare building)
         name, bridge = 'remote', dict(bridge, specimen='none')
-    uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
-                    if isinstance(model, LinearModel) else None)
-    backend = numerical.get('backend', 'builtin')
-    specimen = None if external else SPECIMENS.entry(specimen_of(bridge),
-                                                     f'{bag}: bridge parameter specimen')
-    if specimen is None:   # no model of the lab's specimen: no reference to compare with
-        if uncontrolled is None:
-            uncontrolled, _ = offline_references(numerical, dict(bridge, specimen='none'), dt)
-        reference = None
-    elif specimen.device is not None or backend != 'builtin':
-        # a device specimen or an OpenSees model: the same substructure, offline, with the
-        # same specimen model on a perfect actuator (and without it for the uncontrolled one)
-        uncontrolled, reference = offline_references(numerical, bridge, dt)
-    elif specimen.table_mass is not None:
-        reference = simulate_reference(model, sub.ag, dt, damper=specimen.table_mass,
-                                       n_dtm=sub.force_scale,
-                                       frame_mass_kg=specimen.frame_mass_kg,
-                                       integrator=numerical.get('integrator', 'cr'),
-                                       uncontrolled=uncontrolled)
-    else:
-        reference = None
+    uncontrolled, reference, specimen = references(numerical, bridge, sub, dt,
+                                                   specimen_known=not external,
+                                                   where=f'{bag}: bridge parameter specimen')
     reference_model = 'nominal specimen model (the run\'s specimen, linear)'
     if specimen_model is not None:
         reference, reference_model = _updated_reference(bag, specimen, specimen_model)
@@ -302,8 +367,6 @@ def review_rths(bag, out_dir, progress=None, specimen_model=None) -> dict:
     else:
         ref_disp = reference['disp'][:n] if reference else uncontrolled['disp'][:n]
     stage(2, REVIEW_STAGES)
-    unc = uncontrolled['metrics']
-    max_d, rms_d = float(np.max(np.abs(floor2))), float(np.sqrt(np.mean(floor2 ** 2)))
     bridge_steps = max(len(status.get('step', [])), 1)
     summary = {
         'record': numerical.get('record'), 'scale': numerical.get('scale'),
@@ -314,24 +377,20 @@ def review_rths(bag, out_dir, progress=None, specimen_model=None) -> dict:
         'compensator': compensator,
         'numerical_backend': numerical.get('backend', 'builtin'),
         'numerical_model': getattr(model, 'name', str(numerical.get('model'))),
-        'residual_drift_m': residual_drift(floor2, fs),
-        'reference_residual_drift_m': _or_none(ref_disp, lambda r: residual_drift(r, fs)),
         **table5,
-        'max_disp_2nd_m': max_d, 'rms_disp_2nd_m': rms_d,
-        'uncontrolled_max_disp_2nd_m': unc['max_disp_m'],
-        'uncontrolled_rms_disp_2nd_m': unc['rms_disp_m'],
-        'reduction_max_pct': 100 * (1 - max_d / unc['max_disp_m']),
-        'reduction_rms_pct': 100 * (1 - rms_d / unc['rms_disp_m']),
-        'reference_max_disp_2nd_m': _or_none(ref_disp, lambda r: float(np.max(np.abs(r)))),
-        'reference_rms_disp_2nd_m': _or_none(ref_disp,
-                                             lambda r: float(np.sqrt(np.mean(r ** 2)))),
-        'rths_vs_reference_rel_rms_pct': _or_none(ref_disp,
-                                                  lambda r: relative_rms_error(floor2, r)),
+        **response_metrics(floor2, ref_disp, uncontrolled['metrics'], fs),
         'reference_model': reference_model if ref_disp is not None else None,
         'deadline_misses': int(status.get('misses', 0)),
         'deadline_miss_pct': 100.0 * status.get('misses', 0) / bridge_steps,
         'safety_faults': status.get('faults', []),
+        'planned_steps': int(sub.n_steps),
+        'recorded_steps': recorded,
+        'cut_short': recorded < sub.n_steps,
+        'recording': {topic: rec for topic, rec in recording.items()
+                      if rec['resent'] or rec['filled']},
     }
+    if timing is not None:
+        summary.update({key: timing[key] for key in REALTIME_KEYS})
     counts = controller_counts(bag)
     if counts is not None:
         summary['controller'] = counts
@@ -358,6 +417,83 @@ def review_rths(bag, out_dir, progress=None, specimen_model=None) -> dict:
     return summary
 
 
+def bridge_realtime(status: dict, n_steps: int, fs_hz: float, limits=None) -> dict:
+    """Real-time figures (:mod:`rths_bringup.realtime`) of the bridge's ticks of the run.
+
+    ``status``: the bridge's entry of :func:`read_loop`.  Only the ticks of the run
+    before any safety stop count (not those of its hold and ramp, which run without
+    commands, nor those after the last step).
+    """
+    states = status.get('safety_state', [])
+    in_run = [i for i, k in enumerate(status.get('step', [])) if k < n_steps]
+    tripped = [i for i in in_run if states[i] != 0]
+    if tripped:
+        in_run = [i for i in in_run if i < tripped[0]]
+    return realtime_figures([status['stamp_ns'][i] for i in in_run],
+                            [status['missed'][i] for i in in_run], fs_hz, limits)
+
+
+#: The real-time keys of a realtime run's summary.json.
+REALTIME_KEYS = ('late_or_missed_pct', 'missed_ticks', 'clock_overruns', 'stalled_ticks',
+                 'worst_period_ms', 'behind_s', 'realtime_ok', 'realtime_limits')
+
+
+def references(numerical, bridge, sub, dt, specimen_known=True, where='bridge specimen'):
+    """``(uncontrolled, reference, specimen)`` responses of a run's substructure ``sub``.
+
+    ``uncontrolled``: the building without the specimen; ``reference``: the whole-numerical
+    RTHS (the same substructure with the specimen model on a perfect actuator), None where
+    there is no model of the specimen (``specimen_known`` False: a lab's own controller; a
+    bare table).  Both are dicts with ``disp`` and ``metrics``.
+    """
+    model = sub.model
+    uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
+                    if isinstance(model, LinearModel) else None)
+    backend = numerical.get('backend', 'builtin')
+    specimen = SPECIMENS.entry(specimen_of(bridge), where) if specimen_known else None
+    if specimen is None:   # no model of the lab's specimen: no reference to compare with
+        if uncontrolled is None:
+            uncontrolled, _ = offline_references(numerical, dict(bridge, specimen='none'), dt)
+        reference = None
+    elif specimen.device is not None or backend != 'builtin':
+        # a device specimen or an OpenSees model: the same substructure, offline, with the
+        # same specimen model on a perfect actuator (and without it for the uncontrolled one)
+        uncontrolled, reference = offline_references(numerical, bridge, dt)
+    elif specimen.table_mass is not None:
+        reference = simulate_reference(model, sub.ag, dt, damper=specimen.table_mass,
+                                       n_dtm=sub.force_scale,
+                                       frame_mass_kg=specimen.frame_mass_kg,
+                                       integrator=numerical.get('integrator', 'cr'),
+                                       uncontrolled=uncontrolled)
+    else:
+        reference = None
+    return uncontrolled, reference, specimen
+
+
+def response_metrics(floor2, ref_disp, uncontrolled: dict, fs) -> dict:
+    """Tables 6-9: the 2nd floor's response, its reductions and its error to the reference.
+
+    ``floor2``: the RTHS 2nd-floor displacement relative to the ground [m];
+    ``ref_disp``: the reference's (None: no reference); ``uncontrolled``: the
+    uncontrolled building's ``metrics`` (``max_disp_m``, ``rms_disp_m``).
+    """
+    max_d, rms_d = float(np.max(np.abs(floor2))), float(np.sqrt(np.mean(floor2 ** 2)))
+    return {
+        'residual_drift_m': residual_drift(floor2, fs),
+        'reference_residual_drift_m': _or_none(ref_disp, lambda r: residual_drift(r, fs)),
+        'max_disp_2nd_m': max_d, 'rms_disp_2nd_m': rms_d,
+        'uncontrolled_max_disp_2nd_m': uncontrolled['max_disp_m'],
+        'uncontrolled_rms_disp_2nd_m': uncontrolled['rms_disp_m'],
+        'reduction_max_pct': 100 * (1 - max_d / uncontrolled['max_disp_m']),
+        'reduction_rms_pct': 100 * (1 - rms_d / uncontrolled['rms_disp_m']),
+        'reference_max_disp_2nd_m': _or_none(ref_disp, lambda r: float(np.max(np.abs(r)))),
+        'reference_rms_disp_2nd_m': _or_none(ref_disp,
+                                             lambda r: float(np.sqrt(np.mean(r ** 2)))),
+        'rths_vs_reference_rel_rms_pct': _or_none(ref_disp,
+                                                  lambda r: relative_rms_error(floor2, r)),
+    }
+
+
 def _or_none(value, f):
     return None if value is None else f(value)
 
@@ -368,7 +504,7 @@ def review_site(bag, out_dir, info, fs, stage) -> dict:
     Tables 6-9 need the numerical model, which ran in the client (OpenSees,
     OpenFresco): the bag holds none, so they are left out rather than guessed.
     """
-    desired, applied, measured, meas, status, n = _tracking(bag, fs)
+    desired, applied, measured, meas, status, n, recorded, recording = _tracking(bag, fs)
     stage(1, REVIEW_STAGES)
     bridge = runinfo.section(info, 'bridge')
     summary = {
@@ -382,6 +518,8 @@ def review_site(bag, out_dir, info, fs, stage) -> dict:
         'deadline_miss_pct': 100.0 * status.get('misses', 0)
         / max(len(status.get('step', [])), 1),
         'safety_faults': status.get('faults', []),
+        'recording': {topic: rec for topic, rec in recording.items()
+                      if rec['resent'] or rec['filled']},
         'site_events': [f.split(': ', 1)[1] for f in  # drop the 'step 0: ' prefix
                         read_loop(bag)['status'].get('site', {}).get('faults', [])],
     }
@@ -473,8 +611,7 @@ def review_text(s: dict) -> str:
     ]
     if s.get('controller'):
         lines.append(controller_text(s['controller']))
-    if s['safety_faults']:
-        lines.append('safety faults: ' + '; '.join(s['safety_faults']))
+    lines += notes(s)
     return '\n'.join(lines) + '\n'
 
 

@@ -142,6 +142,7 @@ def register(commands, benches):
     p.add_argument('--no-compensation', action='store_true',
                    help='skip steps 1-2 and run with identity taps (shows the uncompensated '
                         'error and, where the loop goes unstable, the safe abort)')
+    add_limit_arguments(p)
     from rths_bringup import live
     live.add_arguments(p)
     p.epilog = ('Exit codes: 0 the run completed and was reviewed; 3 the bridge\'s safety '
@@ -162,7 +163,33 @@ def register(commands, benches):
                    help='Table 9 against the reference with this specimen model (the '
                         'updated_model.yaml of rths discrepancy --scenario specimen) instead '
                         "of the run's nominal specimen; the review names the model it used")
+    add_limit_arguments(p)
     p.set_defaults(func=cmd_review)
+
+
+def add_limit_arguments(p):
+    """Add the real-time limits a realtime run is judged by (realtime_ok in summary.json)."""
+    from rths_bringup.realtime import REALTIME_LIMITS as lim
+
+    g = p.add_argument_group('real-time limits (realtime mode: beyond any of them the summary '
+                             'says realtime_ok false and the review NOT REAL TIME)')
+    g.add_argument('--max-late-pct', type=float, default=lim['late_or_missed_pct'],
+                   help='largest share of ticks late or missed: deadline misses plus ticks '
+                        'skipped by clock stalls [%%] (default %(default)g)')
+    g.add_argument('--max-period-ms', type=float, default=lim['worst_period_ms'],
+                   help='longest time between two ticks of the bridge\'s clock [ms] '
+                        '(default %(default)g)')
+    g.add_argument('--max-behind-s', type=float, default=lim['behind_s'],
+                   help='longest total time the run fell behind real time [s] '
+                        '(default %(default)g)')
+
+
+def limits_of(args) -> dict:
+    """Return the real-time limits of ``rths run`` / ``rths review`` (checked)."""
+    from rths_bringup.realtime import check_limits
+
+    return check_limits({'late_or_missed_pct': args.max_late_pct,
+                         'worst_period_ms': args.max_period_ms, 'behind_s': args.max_behind_s})
 
 
 def _say(text):
@@ -333,6 +360,9 @@ def safety_stop_text(s: dict) -> str:
     ]
     if len(s.get('safety_faults', [])) > 1:
         lines.append('  further faults: ' + '; '.join(s['safety_faults'][1:]))
+    if 'realtime_ok' in s:
+        from rths_bringup.realtime import realtime_text
+        lines.append('  ' + realtime_text(s))
     if s.get('controller'):
         lines.append('  ' + controller_text(s['controller']))
     return '\n'.join(lines) + '\n'
@@ -463,6 +493,7 @@ def _run(args) -> int:
     from rths_bringup.cli import main as rths_main
     from rths_bringup.review import print_review
 
+    limits = limits_of(args)
     if not args.force_scale > 0:
         raise ValueError(f'--force-scale must be > 0 (DTMs the one in the lab stands for), '
                          f'got {args.force_scale}')
@@ -561,11 +592,11 @@ def _run(args) -> int:
                          history=rths_dir / 'numerical_history.npz', storage=args.storage,
                          live=args.live, layout=args.layout)
     if stop is not None:
-        return _report_safety_stop(stop, numerical, out, rths_dir / 'bag')
+        return _report_safety_stop(stop, numerical, out, rths_dir / 'bag', limits)
 
     # 4: review
     _say('step 4: review')
-    summary = _review(rths_dir / 'bag', out, args.specimen_model)
+    summary = _review(rths_dir / 'bag', out, limits, args.specimen_model)
     summary['adaptive'] = args.adaptive
     (out / 'summary.json').write_text(json.dumps(summary, indent=2))
     print_review(summary)
@@ -575,13 +606,19 @@ def _run(args) -> int:
     return 0
 
 
-def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path) -> int:
+def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
+                        limits=None) -> int:
     """Write and print the summary of an RTHS run the bridge stopped; return EXIT_SAFETY_STOP."""
+    from rths_bringup.review import REALTIME_KEYS, bridge_realtime, read_loop
     from rths_common.params import core_params
     from rths_numerical.substructure import make_substructure
 
     stop['planned_steps'] = int(make_substructure(core_params(numerical)).n_steps)
     stop['bag'] = str(bag)
+    if stop.get('mode') == 'realtime':
+        timing = bridge_realtime(read_loop(bag)['status'].get('bridge', {}),
+                                 stop['planned_steps'], stop['fs_hz'], limits)
+        stop.update({key: timing[key] for key in REALTIME_KEYS})
     _say('step 4: no review (tables 5-9): the bridge stopped the run')
     (out / 'summary.json').write_text(json.dumps(stop, indent=2))
     text = safety_stop_text(stop)
@@ -592,7 +629,7 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path) -> in
     return EXIT_SAFETY_STOP
 
 
-def _review(bag, out, specimen_model=None) -> dict:
+def _review(bag, out, limits=None, specimen_model=None) -> dict:
     """Run :func:`rths_bringup.review.review_rths` with a progress line over its stages."""
     from rths_bringup.review import REVIEW_STAGES, review_rths
     from rths_common.progress import Progress
@@ -600,7 +637,8 @@ def _review(bag, out, specimen_model=None) -> dict:
     if specimen_model is not None and not Path(specimen_model).is_file():
         raise OSError(f'--specimen-model {specimen_model}: no such file')
     with Progress(REVIEW_STAGES, 'review', 'stages') as bar:
-        return review_rths(bag, out, progress=bar.report, specimen_model=specimen_model)
+        return review_rths(bag, out, progress=bar.report, limits=limits,
+                           specimen_model=specimen_model)
 
 
 def cmd_review(args) -> int:
@@ -609,7 +647,7 @@ def cmd_review(args) -> int:
 
     bag = Path(args.bag)
     out = Path(args.out) if args.out else bag.parent
-    summary = _review(bag, out, args.specimen_model)
+    summary = _review(bag, out, limits_of(args), args.specimen_model)
     print_review(summary)
     print(f'wrote {out}/report.html, {out}/summary.json, {out}/review.txt and plots')
     return 0

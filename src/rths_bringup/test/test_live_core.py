@@ -35,6 +35,16 @@ def test_live_record_pairs_target_and_measurement_by_step():
     assert len(state.targets) == 8
 
 
+def test_live_record_carries_the_stability_monitor_row():
+    state = live.LiveState(fs_hz=1024.0)
+    assert 'stability_level' not in state.record()
+    state.on_stability([640.0, 4.2, 0.97, 31.0, 0.1, 1.0])   # step delay gain error ti level
+    rec = state.record()
+    assert (rec['stability_delay_ms'], rec['stability_error_pct'], rec['stability_level']) == \
+        (4.2, 31.0, 1)
+    assert set(rec) <= set(live.LIVE_SCHEMA['properties'])
+
+
 def test_status_fields_parse_the_lean_cdr():
     raw = cdr.pack_status(123, 'bridge', 77, missed=True, misses=9, safety_state=2,
                           fault='ramp: watchdog')
@@ -57,6 +67,7 @@ def test_shipped_layout_is_the_generated_one_and_plots_the_four_quantities():
     layout = json.loads(shipped.read_text())
     assert layout == live.layout()      # regenerate: python -c 'from rths_bringup import live...'
     text = json.dumps(layout)
-    for field in ('target_m', 'measured_m', 'force_n', 'tracking_error_m', 'deadline_misses'):
+    for field in ('target_m', 'measured_m', 'force_n', 'tracking_error_m', 'deadline_misses',
+                  'stability_delay_ms', 'stability_error_pct', 'stability_level'):
         assert f'/rths/live.{field}' in text
         assert field in live.LIVE_SCHEMA['properties']

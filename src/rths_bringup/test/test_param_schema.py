@@ -241,3 +241,21 @@ def test_preflight_refuses_a_value_outside_its_range(tmp_path):
     with pytest.raises(ValueError, match=r'bridge.yaml: bridge: parameter rt_priority = 120 is '
                                          r'outside its range \[-1, 99\] \[-\]'):
         check_config(config)
+
+
+@pytest.mark.parametrize('text, words', [
+    ('numerical:\n  ros__parameters:\n    fs_hz: [1024\n', 'not valid YAML at line 4'),
+    ('numerical:\n  ros__parameters:\n    fs_hz: 1024.0\n    mode: realtime\n'
+     '    fs_hz: 512.0\n', "key 'fs_hz' is given twice (lines 3 and 5)"),
+])
+def test_rths_launch_refuses_a_broken_or_doubled_numerical_yaml(tmp_path, text, words):
+    # 'rths launch' read numerical.yaml for the timing mode before the pre-flight check and
+    # ended in a YAMLError traceback; a key given twice silently took the last value
+    from rths_bringup.commands import launch
+
+    config = _config_copy(tmp_path)
+    (config / 'numerical.yaml').write_text(text)
+    with pytest.raises(ValueError) as err:
+        launch(config, duration=1.0)
+    assert str(err.value).startswith(f'{config / "numerical.yaml"}: ')
+    assert words in str(err.value) and '\n' not in str(err.value)

@@ -14,12 +14,21 @@ MCAP file its summary and footer).  :func:`reindex` rebuilds it from the data
 file (like ``ros2 bag reindex``), closing a cut MCAP file first, and
 :func:`open_reader` does so automatically, so a crashed run's bag stays
 readable.
+
+Damaged bags: :func:`open_reader` also closes an MCAP file cut short under a
+``metadata.yaml`` that was kept, and rebuilds a ``metadata.yaml`` that is
+truncated or not valid (the old one is kept as ``metadata.yaml.damaged``).
+Bytes damaged inside the data are found when they are read:
+:func:`read_messages` then raises :class:`BagDamaged` (a ValueError) naming
+the bag and how many messages before the damage were read, and :func:`info`
+counts the messages that can be read (``damaged`` says why the rest cannot).
 """
 
 from functools import lru_cache
 import os
 from pathlib import Path
 import sqlite3
+import struct
 import time
 
 import numpy as np
@@ -254,36 +263,88 @@ def _reindex_sqlite3(bag: Path) -> Path:
                             for tid, name, msgtype, fmt, qos, digest in rows], t0, t1 or t0)
 
 
+class BagDamaged(ValueError):
+    """Data of a bag that cannot be read (the one-line message names the bag and the fix)."""
+
+
+#: What a damaged bag raises inside rosbags and the decoders it uses.
+_READ_ERRORS = (KeyError, IndexError, EOFError, UnicodeDecodeError, OverflowError,
+                MemoryError, struct.error)
+
+
+def _reader_errors():
+    # lazy: start-up cost: rosbags (~0.2 s), which this module needs only to read
+    from rosbags.rosbag2.errors import ReaderError
+    return (ReaderError, *_READ_ERRORS)
+
+
 def open_reader(bag):
-    """Open a bag for reading with rosbags, reindexing it first if a crash left no metadata."""
+    """Open a bag for reading with rosbags, repairing what a crash or damage left.
+
+    No or damaged ``metadata.yaml``, or an MCAP file without its end: closed and
+    reindexed first (module doc); BagDamaged if it still cannot be opened.
+    """
     # lazy: start-up cost: rosbags (~0.2 s), which this module needs only here
     from rosbags.rosbag2 import Reader
 
     bag = bag_dir(bag)
     if not bag.is_dir():
         raise OSError(f'bag directory {bag} does not exist')
-    if not (bag / 'metadata.yaml').exists():
+    meta = bag / 'metadata.yaml'
+    if not meta.exists():
+        _reindex_or_refuse(bag)
+    elif bagstore.storage_of(bag) == 'mcap' and not bagstore.is_complete(bagstore.data_file(bag)):
+        _reindex_or_refuse(bag)         # cut short under a metadata.yaml that was kept
+    errors = _reader_errors()
+    for attempt in range(2):
+        reader = Reader(bag)
+        try:
+            reader.open()
+            return reader
+        except (*errors, ValueError) as err:
+            if attempt:
+                raise BagDamaged(f'{bag}: the bag cannot be read even after rebuilding its '
+                                 f'metadata ({str(err)[:120]})') from None
+            meta.replace(meta.with_name('metadata.yaml.damaged'))
+            _reindex_or_refuse(bag)
+    raise AssertionError('unreachable')
+
+
+def _reindex_or_refuse(bag: Path) -> None:
+    """:func:`reindex`, or BagDamaged if the data file itself cannot be scanned."""
+    try:
         reindex(bag)
-    reader = Reader(bag)
-    reader.open()
-    return reader
+    except (*_reader_errors(), ValueError) as err:
+        raise BagDamaged(f'{bag}: its data file is damaged where its records are indexed '
+                         f'({str(err)[:120]}); no message can be read') from None
 
 
 def info(bag) -> dict:
-    """Storage, topics (type, count), total count, start time and duration of a bag."""
+    """Storage, topics (type, count), total count, start time and duration of a bag.
+
+    The counts are of the messages that can be read (every one is read): a
+    damaged bag says so in ``damaged`` (None when whole).
+    """
     reader = open_reader(bag)
     try:
-        return {
+        out = {
             'path': str(bag),
             'storage': bagstore.storage_of(bag_dir(bag)),
             'duration_s': reader.duration * 1e-9 if reader.message_count else 0.0,
             'start_time_s': reader.start_time * 1e-9 if reader.message_count else 0.0,
             'message_count': reader.message_count,
-            'topics': {c.topic: {'type': c.msgtype, 'count': c.msgcount}
-                       for c in reader.connections},
+            'topics': {c.topic: {'type': c.msgtype, 'count': 0} for c in reader.connections},
+            'damaged': None,
         }
     finally:
         reader.close()
+    try:
+        for topic, _, _ in read_messages(bag):
+            out['topics'][topic]['count'] += 1
+    except BagDamaged as err:
+        out['damaged'] = str(err)
+    out['message_count'] = sum(t['count'] for t in out['topics'].values())
+    return out
 
 
 def read_messages(bag, topic_names=None):
@@ -292,10 +353,31 @@ def read_messages(bag, topic_names=None):
     reader = open_reader(bag)
     try:
         conns = [c for c in reader.connections if topic_names is None or c.topic in topic_names]
-        for conn, timestamp, raw in reader.messages(connections=conns):
-            yield conn.topic, timestamp, store.deserialize_cdr(raw, conn.msgtype)
+        for conn, timestamp, raw in raw_messages(reader, bag, conns):
+            try:
+                msg = store.deserialize_cdr(raw, conn.msgtype)
+            except (*_reader_errors(), ValueError) as err:
+                raise BagDamaged(f'{bag}: a damaged {conn.topic} message ({str(err)[:120]}); '
+                                 'the bag cannot be read past it') from None
+            yield conn.topic, timestamp, msg
     finally:
         reader.close()
+
+
+def raw_messages(reader, bag, connections):
+    """Yield ``reader.messages(connections=...)``; damaged data raises :class:`BagDamaged`."""
+    count = 0
+    messages = reader.messages(connections=connections)
+    while True:
+        try:
+            item = next(messages)
+        except StopIteration:
+            return
+        except (*_reader_errors(), ValueError) as err:
+            raise BagDamaged(f'{bag}: damaged data after {count} readable message(s) '
+                             f'({str(err)[:120]}); the bag cannot be read past it') from None
+        count += 1
+        yield item
 
 
 def read_topic(bag, topic: str) -> list:

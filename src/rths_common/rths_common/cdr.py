@@ -169,3 +169,15 @@ def pack_status(stamp_ns: int, node: str, step: int, period_us=0.0, compute_us=0
     buf += _STATUS_TAIL.pack(int(misses), int(safety_state))
     _string(buf, fault)
     return bytes(buf)
+
+
+def status_state(data: bytes) -> tuple:
+    """``(node, safety_state)`` of the CDR of an ``rths_msgs/LoopStatus``."""
+    r = _Reader(data)
+    r.unpack(_TIME)
+    r.string()                                  # header.frame_id
+    node = r.string()
+    r.align(8)
+    r.unpack(_STATUS_NUMBERS)
+    r.align(8)
+    return node, r.unpack(_STATUS_TAIL)[1]

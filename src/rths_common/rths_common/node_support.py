@@ -24,6 +24,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from rths_common import lifeline
 from rths_common.params import check_spec
 from rths_msgs.msg import LoopStatus
 
@@ -399,8 +400,13 @@ def flush(publishers, timeout_s: float = 2.0) -> bool:
 
     Call before a node exits: a process that ends with unacknowledged samples
     takes them (and its transient-local history) with it, so a lagging
-    recorder would lose the last steps of a run.
+    recorder would lose the last steps of a run.  Once the launcher died the
+    wait is at most ``lifeline.LOST_FLUSH_S``: the readers that died with it
+    never answer, and the run's processes must be gone within a second.
     """
+    if lifeline.lost():
+        timeout_s = min(timeout_s, lifeline.LOST_FLUSH_S)
+
     ok = True
     for pub in publishers:
         ok = pub.wait_for_all_acked(Duration(nanoseconds=int(timeout_s * 1e9))) and ok
@@ -423,6 +429,9 @@ def wait_for_readers(node, publisher, wanted: int, timeout_s: float = 60.0) -> N
         return
     t_end = time.monotonic() + timeout_s
     while publisher.get_subscription_count() < wanted:
+        if lifeline.lost():
+            raise ValueError(f'{node.get_name()}: {lifeline.describe()} before the graph '
+                             'connected')
         if time.monotonic() > t_end:
             raise ValueError(f'{node.get_name()}: only {publisher.get_subscription_count()} of '
                              f'{wanted} reader(s) of {publisher.topic_name} matched within '

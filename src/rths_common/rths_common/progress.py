@@ -188,6 +188,11 @@ class Progress:
             stream.write(text + '\n')
             stream.flush()
 
+    def note(self, text: str):
+        """Print a step's progress message as :meth:`write` does, unless progress is off."""
+        if self.mode != 'off':
+            self.write(text)
+
     def close(self):
         """Draw the state of the last update and end the line.
 

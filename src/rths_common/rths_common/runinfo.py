@@ -9,8 +9,11 @@ Values are strings in the bag; :func:`section` parses them back with YAML.
 
 import datetime
 from pathlib import Path
+from typing import Any
 
 import yaml
+
+from rths_common import yamlfile
 
 #: Parameters that are not worth keeping in run information (long arrays, node plumbing).
 SKIP = {'taps', 'denominator', 'history_out', 'executor', 'wait_for_subscribers'}
@@ -21,10 +24,7 @@ def load_params(path, node: str) -> dict:
     path = Path(path)
     if not path.is_file():
         raise OSError(f'params file {path} not found')
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as err:
-        raise ValueError(f'{path}: not valid YAML ({err})') from None
+    doc: Any = yamlfile.load(path)
     try:
         params = doc[node]['ros__parameters']
     except (TypeError, KeyError):

@@ -22,6 +22,9 @@ SPECIMEN = '/rths/specimen'
 
 #: compensator node -> recorder: adaptive coefficients, decimated (std_msgs/msg/Float64MultiArray)
 COMPENSATOR_COEFFICIENTS = '/rths/compensator_coefficients'
+#: The stability monitor's estimates [step, delay_ms, gain, error_pct, ti, level]
+#: (rths_compensator.monitor; level 0 ok, 1 warn, 2 stop).
+STABILITY = '/rths/stability'
 
 #: actuator bridge -> recorder: counts of an external servo controller's replies
 #: (rths_msgs/msg/ControllerStatus)
@@ -35,5 +38,6 @@ LOOP_TOPICS = {
     SPECIMEN: 'rths_msgs/msg/Specimen',
     EMERGENCY_STOP: 'std_msgs/msg/String',
     COMPENSATOR_COEFFICIENTS: 'std_msgs/msg/Float64MultiArray',
+    STABILITY: 'std_msgs/msg/Float64MultiArray',
     CONTROLLER: 'rths_msgs/msg/ControllerStatus',
 }

@@ -81,6 +81,7 @@ def test_status_matches_rclpy(node, fault, missed):
     raw = cdr.pack_status(STAMP_NS, node, 99, 976.5, 12.25, -1.0, missed, 4, 2, fault)
     assert len(raw) == len(serialize_message(msg))
     assert deserialize_message(raw, LoopStatus) == msg
+    assert cdr.status_state(serialize_message(msg)) == (node, 2)
 
 
 def test_big_endian_is_refused():

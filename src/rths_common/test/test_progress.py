@@ -114,6 +114,18 @@ def test_other_output_goes_around_the_terminal_line():
                               '[launch] node started\n\r' + drawn)
 
 
+def test_step_notes_are_silenced_with_progress(monkeypatch):
+    out = io.StringIO()
+    progress.Progress(0, 'io', stream=out).note('linear baseline: decimation 4')
+    assert out.getvalue() == 'linear baseline: decimation 4\n'
+    monkeypatch.setenv('RTHS_PROGRESS', '0')           # --quiet
+    out = io.StringIO()
+    bar = progress.Progress(0, 'io', stream=out)
+    bar.note('linear baseline: decimation 4')
+    bar.write('a result line')
+    assert out.getvalue() == 'a result line\n'
+
+
 def test_track_counts_the_items():
     out = io.StringIO()
     clock = _Clock()

@@ -149,9 +149,13 @@ def cmd_identify(args) -> int:
         fs = sampling_rate_hz(t, args.bag)
     else:
         t, u, y, fs = _read_run(args, args.csv)
+    from .causality import check_causality
+    lag = check_causality(u, y, fs, str(args.bag or args.csv))
+    _log(f'identify: the measured signal lags the command by {lag * 1e3:.2f} ms')
     records = split_records(t, u, y, args.record_s)
     if args.val_csv:
         tv, uv, yv, fsv = _read_run(args, args.val_csv)
+        check_causality(uv, yv, fsv, args.val_csv)
         if not same_rate(fsv, fs):
             raise ValueError(f'{args.val_csv}: sampling rate {format_hz(fsv)} Hz differs '
                              f'from {format_hz(fs)} Hz of the identification run; record '
@@ -224,6 +228,9 @@ def cmd_design(args) -> int:
         if not args.scheme:
             raise ValueError(f'give --scheme ({", ".join(designed())}) or --auto --bandwidth HZ')
         scheme = SCHEMES.entry(args.scheme, '--scheme')
+        if scheme.fir:
+            from .params import check_filter_cost
+            check_filter_cost(args.taps, plant.fs_hz, f'--taps {args.taps}')
         given = dict(vars(args), epsilon=eps, zero_tol=zero_tol)
         opts = {key: given[OPTION_ARGS[key]] for key in scheme.options if key in OPTION_ARGS}
         opts.update(_options(args.option, scheme.options))

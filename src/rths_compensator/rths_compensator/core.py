@@ -47,6 +47,7 @@ class CompensatorCore:
         self.policy = GapPolicy(DISPLACEMENT_ORDER)
         self.measured: dict = {}   # adaptive: step -> (measured displacement, applied)
         self.pending: tuple | None = None   # adaptive: (k, x) waiting for measurement k - 1
+        self.last_target: np.ndarray | None = None   # the last step's interface displacement
 
     @property
     def next_step(self) -> int:
@@ -84,6 +85,7 @@ class CompensatorCore:
         if self.adaptive:
             return self._adaptive_step(k, x)
         x, rows = self.policy.admit(k, x)
+        self.last_target = x
         filt = self.filter
         if filt is None:
             filt = self.filter = self._build(max(x.size, 1))
@@ -99,7 +101,7 @@ class CompensatorCore:
         if k != self.next_step:
             raise StaleStep(f'adaptive compensator: step {k} is not the expected step '
                             f'{self.next_step} (adaptive methods run in lock-step)')
-        x = np.asarray(x, dtype=float)
+        x = self.last_target = np.asarray(x, dtype=float)
         if k > 0 and (k - 1) not in self.measured:
             self.pending = (k, x)
             return None
@@ -115,6 +117,7 @@ class CompensatorCore:
 
     def _adaptive_realtime(self, k, x):
         x, rows = self.policy.admit(k, x)
+        self.last_target = x
         filt = self.filter
         if filt is None or len(filt.methods) != max(x.size, 1):
             filt = self.filter = self._build(max(x.size, 1))

@@ -39,6 +39,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from scipy import linalg, signal
 import yaml
 
+from rths_common import yamlfile
 from rths_common.files import atomic_open
 from rths_common.timebase import sampling_rate_hz
 
@@ -147,12 +148,7 @@ def load_plant(path) -> ArxModel:
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise OSError(f"{path}: plant file not found; create it with 'rths identify'")
-    with open(path, encoding='utf-8') as handle:
-        try:
-            data = yaml.safe_load(handle)
-        except yaml.YAMLError as err:
-            raise ValueError(f'{path}: not valid YAML ({err})') from None
-    return ArxModel.from_dict(data, where=path)
+    return ArxModel.from_dict(yamlfile.load(path), where=path)
 
 
 def _plain(value):

@@ -10,6 +10,10 @@ Parameter ``method`` (fir | rls_fir | ats | amb | pi_lead, lock-step or realtime
 adaptive method started from the designed taps, or the reference PI + lead feedback
 controller; these also subscribe ``/rths/measurement`` and publish
 ``/rths/compensator_coefficients`` (docs/adaptive.md).
+
+Parameter ``monitor`` (off | warn | stop): the online stability monitor
+(:mod:`rths_compensator.monitor`) on ``/rths/stability``; ``stop`` also stops the test
+through the bridge's supervisor (``/rths/emergency_stop``) at its stop threshold.
 """
 
 import sys
@@ -17,14 +21,15 @@ import time
 
 import numpy as np
 import rclpy
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, String
 
-from rths_common import gaps, topics
+from rths_common import gaps, lifeline, topics
 from rths_common import node_support as ns
 from rths_common.qos import loop_qos, status_qos
 from rths_common.stepping import Driver
 from rths_common.transport import Transport
 from rths_compensator.core import CompensatorCore
+from rths_compensator.monitor import STOP, StabilityMonitor, settings_from_params
 from rths_compensator.params import (
     check_compensator_params,
     check_sampling_rate,
@@ -75,6 +80,9 @@ class CompensatorNode:
         self.adaptive = self.core.adaptive
         if self.adaptive:
             self._setup_adaptive()
+        self.monitor_mode = str(self.params.get('monitor') or 'off')
+        if self.monitor_mode != 'off':
+            self._setup_monitor()
         self.pub = self.node.create_publisher(Command, topics.COMMAND, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
         self.sender = ''  # this node's writer gid, in frame_id: the bridge checks the sender
@@ -119,9 +127,55 @@ class CompensatorNode:
         self.node.create_subscription(Measurement, topics.MEASUREMENT, self.on_measurement,
                                       loop_qos(self.own['mode']), raw=not self.lockstep)
 
+    def _setup_monitor(self):
+        """Online stability monitor (docs/monitor.md): /rths/stability, safe stop at a stop."""
+        self.monitor_settings = settings_from_params(self.params)
+        self.monitor_settings.check()
+        self.monitors = []
+        self.targets = {}
+        self.monitor_stopped = False
+        self.stability_pub = self.node.create_publisher(Float64MultiArray, topics.STABILITY,
+                                                        status_qos())
+        self.estop_pub = self.node.create_publisher(String, topics.EMERGENCY_STOP, status_qos())
+        if not self.adaptive:
+            self.io_meas = Transport(Measurement, ('applied', 'displacement'),
+                                     not self.lockstep)
+            self.node.create_subscription(Measurement, topics.MEASUREMENT,
+                                          self.on_measurement, loop_qos(self.own['mode']),
+                                          raw=not self.lockstep)
+
+    def _monitor_step(self, step: int, displacement):
+        """Feed the monitor target/measured of ``step``; publish; stop the test at a stop."""
+        target = self.targets.pop(step, None)
+        if target is None:
+            return
+        if not self.monitors:
+            fs = float(self.params['fs_hz'])
+            self.monitors = [StabilityMonitor(fs, self.monitor_settings)
+                             for _ in range(len(target))]
+        pairs = zip(self.monitors, target, displacement, strict=False)
+        states = [m.step(t, y) for m, t, y in pairs]
+        worst = max(states, key=lambda st: st.level)
+        stop = worst.level == STOP
+        every = max(int(self.own['coefficients_every']), 1)
+        if step % every == 0 or stop:
+            self.stability_pub.publish(Float64MultiArray(data=[
+                float(step), worst.delay_ms, worst.gain, worst.error_pct, worst.ti,
+                float(worst.level)]))
+        if stop and not self.monitor_stopped:
+            self.monitor_stopped = True
+            self.log.error(f'stability monitor: stop at step {step}: {worst.reason}')
+            if self.monitor_mode == 'stop':
+                reason = f'stability monitor: {worst.reason}'
+                self.estop_pub.publish(String(data=reason))
+
     def on_measurement(self, msg):
         """Keep measurement k for the command of step k + 1 (lock-step: run it if it waits)."""
         _, step, (applied, displacement) = self.io_meas.decode(msg)
+        if self.monitor_mode != 'off':
+            self._monitor_step(step, displacement)
+        if not self.adaptive:
+            return
         result = self.core.measure(step, displacement, applied)
         if result is not None:
             self.publish(result, *self.pending)
@@ -159,6 +213,9 @@ class CompensatorNode:
     def publish(self, result, t_in: int, stamp_ns: int, t0: int):
         """Publish the command of ``result`` and the step's status."""
         step = result.step
+        if self.monitor_mode != 'off':   # the target of this step, for the monitor
+            self.targets[step] = self.core.last_target
+            self.targets.pop(step - 256, None)
         if self.adaptive:
             every = max(int(self.own['coefficients_every']), 1)
             if step % every == 0:
@@ -178,7 +235,8 @@ class CompensatorNode:
 
     def finish_run(self):
         """After spinning: flush what was published and log the count."""
-        ns.flush([self.pub, self.status_pub] + ([self.coef_pub] if self.adaptive else []))
+        ns.flush([self.pub, self.status_pub] + ([self.coef_pub] if self.adaptive else [])
+                 + ([self.stability_pub] if self.monitor_mode != 'off' else []))
         self.log.info(f'compensator: {self.expected} steps, {self.rejected} rejected')
 
 
@@ -187,6 +245,7 @@ def main(argv=None, prepare=None):
 
     ``prepare(shell)``, if given, is called on the constructed node before it spins.
     """
+    lifeline.bind(stop=True)        # SIGTERM (a clean stop) when its launcher dies
     rclpy.init(args=argv if argv is not None else sys.argv)
     code = 0
     try:
@@ -201,6 +260,7 @@ def main(argv=None, prepare=None):
     finally:
         if rclpy.ok():
             rclpy.shutdown()
+    lifeline.end_if_lost(code)
     return code
 
 

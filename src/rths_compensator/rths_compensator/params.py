@@ -31,6 +31,7 @@ import textwrap
 import numpy as np
 import yaml
 
+from rths_common import yamlfile
 from rths_common.files import atomic_open
 from rths_common.params import LOOP_RATE_RANGE_HZ, node_schema
 from rths_common.timebase import format_hz, same_rate
@@ -58,15 +59,27 @@ METHOD_PARAMS = {
                                        '(b1 s + b0) / (a1 s + a0)'),
     'pi_lead_den': ([1.0, 8570.4], '[s, -] pi_lead: lead denominator a1, a0'),
 }
-#: Allowed values of the scheme and the method (the registries' names).
-CHOICES = {'scheme': SCHEMES.names(), 'method': METHODS.names()}
+#: The online stability monitor (rths_compensator.monitor, docs/monitor.md): key ->
+#: (default, meaning); the thresholds' defaults are MonitorSettings'.
+MONITOR_PARAMS = {
+    'monitor': ('off', 'off | warn (publish /rths/stability) | stop (also the safe stop '
+                       'through /rths/emergency_stop at a stop threshold)'),
+    'monitor_warn_delay_ms': (3.0, '[ms] monitor: tracking delay that warns'),
+    'monitor_stop_delay_ms': (5.0, '[ms] monitor: tracking delay that stops'),
+    'monitor_warn_error_pct': (25.0, '[%] monitor: relative RMS tracking error that warns'),
+    'monitor_stop_error_pct': (50.0, '[%] monitor: relative RMS tracking error that stops'),
+}
+#: Allowed values of the scheme, the method and the monitor (the registries' names).
+CHOICES = {'scheme': SCHEMES.names(), 'method': METHODS.names(),
+           'monitor': ('off', 'warn', 'stop')}
 #: The key (a mapping) that holds a file's provenance; ROS names its entries provenance.*.
 PROVENANCE = 'provenance'
 
 
 def param_schema(node_params) -> dict:
     """Return the compensator node's parameter schema: its ``node_params`` and the filter's."""
-    return node_schema(node_params, {**FILTER_PARAMS, **METHOD_PARAMS}, FILTER_RANGES, CHOICES)
+    return node_schema(node_params, {**FILTER_PARAMS, **METHOD_PARAMS, **MONITOR_PARAMS},
+                       FILTER_RANGES, CHOICES)
 
 
 def check_compensator_params(params: dict, where: str) -> None:
@@ -76,7 +89,8 @@ def check_compensator_params(params: dict, where: str) -> None:
     node's parameters (provenance as ``provenance.*`` names), node-level keys removed.
     """
     unknown = sorted(k for k in params
-                     if k not in FILTER_PARAMS and k not in METHOD_PARAMS and k != PROVENANCE
+                     if k not in FILTER_PARAMS and k not in METHOD_PARAMS
+                     and k not in MONITOR_PARAMS and k != PROVENANCE
                      and not k.startswith(PROVENANCE + '.'))
     if unknown:
         raise ValueError(f'{where}: unknown parameter(s) {", ".join(unknown)}; the compensator '
@@ -85,14 +99,34 @@ def check_compensator_params(params: dict, where: str) -> None:
                          f"fields: move those keys under '{PROVENANCE}:' (or design it again)")
 
 
-def check_sampling_rate(params: dict, loop_fs_hz: float, where: str, loop_where: str) -> None:
-    """Refuse taps designed for another rate than the loop's (ValueError names the fix).
+#: Filter coefficients (taps + denominator) times the loop rate the compensator may cost:
+#: 1e8 multiply-adds per second, a tenth of one core at ~1 ns each with the memory traffic
+#: of a long filter (97 656 coefficients at 1024 Hz; the seed's FIR has 400).
+MAX_COEFFICIENT_RATE = 1e8
 
-    A scheme that is not designed (identity, G = 1) holds at every rate.
+
+def check_filter_cost(n_coefficients: int, fs_hz: float, where: str) -> None:
+    """Refuse a filter the loop cannot compute in its period (ValueError with the bound)."""
+    n, fs = int(n_coefficients), float(fs_hz)
+    if n * fs > MAX_COEFFICIENT_RATE:
+        most = int(MAX_COEFFICIENT_RATE // fs)
+        raise ValueError(f'{where}: {n} filter coefficients at {format_hz(fs)} Hz are '
+                         f'{n * fs:.3g} multiply-adds per second, more than the loop affords '
+                         f'({MAX_COEFFICIENT_RATE:.0e}/s: at most {most} coefficients at '
+                         f'{format_hz(fs)} Hz); design fewer taps')
+
+
+def check_sampling_rate(params: dict, loop_fs_hz: float, where: str, loop_where: str) -> None:
+    """Refuse taps designed for another rate than the loop's, or too many for its period.
+
+    (ValueError names the fix.)  A scheme that is not designed (identity, G = 1) holds at
+    every rate.
     """
     scheme = SCHEMES.get(params.get('scheme'))
     if scheme is not None and not scheme.designer:
         return
+    n = len(np.ravel(params.get('taps', [1.0]))) + len(np.ravel(params.get('denominator', [1.0])))
+    check_filter_cost(n, loop_fs_hz, where)
     fs, loop_fs_hz = float(params.get('fs_hz', FILTER_PARAMS['fs_hz'][0])), float(loop_fs_hz)
     if not same_rate(fs, loop_fs_hz):
         fs_s, loop_s = format_hz(fs), format_hz(loop_fs_hz)
@@ -174,11 +208,7 @@ def load_compensator_params(path) -> dict:
     if not os.path.isfile(path):
         raise OSError(f'{path}: compensator parameters file not found; create it with '
                       "'rths design' or use identity_params()")
-    with open(path, encoding='utf-8') as handle:
-        try:
-            doc = yaml.safe_load(handle)
-        except yaml.YAMLError as err:
-            raise ValueError(f'{path}: not valid YAML ({err})') from None
+    doc = yamlfile.load(path)
     if not isinstance(doc, dict) or 'compensator' not in doc:
         raise ValueError(f"{path}: top-level key 'compensator' missing; the file must start "
                          "with 'compensator:' then 'ros__parameters:'")

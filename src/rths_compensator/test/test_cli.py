@@ -1,6 +1,7 @@
 """The rths identify / design / compensate / unstable-zeros commands, end to end (tiny sizes)."""
 
 import argparse
+import time
 
 import numpy as np
 import pytest
@@ -215,3 +216,37 @@ def test_design_and_launch_take_a_rate_to_its_printed_digits(tmp_path, run_csv):
     check_sampling_rate({'fs_hz': 1024.000524}, 1024.0, 'c.yaml', 'loop')
     with pytest.raises(ValueError, match='designed for 1024.01 Hz but the loop runs at 1024 Hz'):
         check_sampling_rate({'fs_hz': 1024.01}, 1024.0, 'c.yaml', 'loop')
+
+
+def test_identify_refuses_command_and_measured_swapped(tmp_path, run_csv):
+    # the swapped record fit as well and gave the inverse plant without a word
+    from rths_compensator.causality import response_lag_s
+    cols = read_columns(run_csv[0], ('time', 'command', 'measured'))
+    assert response_lag_s(cols['command'], cols['measured'], FS) > 0
+    swapped = tmp_path / 'swapped.csv'
+    np.savetxt(swapped, np.column_stack([cols['time'], cols['measured'], cols['command']]),
+               delimiter=',', header='time,command,measured', comments='', fmt='%.12g')
+    with pytest.raises(ValueError, match=r'swapped.csv: the measured signal leads the command '
+                                         r'by [\d.]+ ms .* the columns look swapped'):
+        _run(['identify', '--csv', str(swapped), '--out', str(tmp_path / 'plant.yaml'),
+              '--na-max', '2', '--nb-max', '2'])
+    assert not (tmp_path / 'plant.yaml').exists()
+
+
+def test_more_taps_than_the_loop_can_compute_are_refused_up_front(tmp_path, run_csv):
+    # 200 000 taps were accepted, and a 2 000 000-tap loop hung 135 s before failing
+    from rths_compensator.params import MAX_COEFFICIENT_RATE, check_sampling_rate
+    plant_path = tmp_path / 'plant.yaml'
+    _run(['identify', '--csv', str(run_csv[0]), '--out', str(plant_path),
+          '--na-max', '2', '--nb-max', '2'])
+    t0 = time.monotonic()
+    with pytest.raises(ValueError, match=r'--taps 1000000: 1000000 filter coefficients at 256 Hz '
+                                         r'are 2.56e\+08 multiply-adds .*; design fewer taps'):
+        _run(['design', '--plant', str(plant_path), '--scheme', 'ls', '--taps', '1000000',
+              '--fc', '20', '--out', str(tmp_path / 'c.yaml')])
+    assert time.monotonic() - t0 < 5.0 and not (tmp_path / 'c.yaml').exists()
+    most = int(MAX_COEFFICIENT_RATE // 1024.0)
+    params = {'scheme': 'ls', 'fs_hz': 1024.0, 'denominator': [1.0]}
+    check_sampling_rate(dict(params, taps=[0.0] * (most - 1)), 1024.0, 'c.yaml', 'loop')
+    with pytest.raises(ValueError, match=f'at most {most} coefficients at 1024 Hz'):
+        check_sampling_rate(dict(params, taps=[0.0] * 200_000), 1024.0, 'c.yaml', 'loop')

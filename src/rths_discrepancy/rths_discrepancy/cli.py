@@ -54,7 +54,7 @@ def _restoring_cmd(args) -> int:
     from rths_common.progress import Progress
 
     with Progress(0, 'candidate models') as bar:
-        res = restoring.run(data, out_dir=args.out, progress=lambda text: bar.write(text),
+        res = restoring.run(data, out_dir=args.out, progress=bar.note,
                             source=os.path.basename(args.measured), count=bar.report)
     print(f"effect: {res['effect']}")
     for name, par in res['parameters'].items():
@@ -95,7 +95,7 @@ def bench_real_cmd(args) -> int:
 
     with Progress(len(restoring.REAL), 'real records') as bar:
         summary = restoring.run_real(data_dir, out_dir=args.reports,
-                                     progress=lambda text: bar.write(text), count=bar.report)
+                                     progress=bar.note, count=bar.report)
     tmp = f'{args.out}.tmp'
     with open(tmp, 'w') as fh:
         json.dump(summary, fh, indent=1)
@@ -145,7 +145,7 @@ def _io_cmd(args) -> int:
     from rths_common.progress import Progress
 
     with Progress(0, 'io discrepancy') as bar:
-        res = iodisc.run(train, test, out_dir=args.out, progress=lambda text: bar.write(text))
+        res = iodisc.run(train, test, out_dir=args.out, progress=bar.note)
     print(f"effect: {res['effect']}")
     for name, p in res['per_output'].items():
         print(f"  {name}: held-out NRMSE linear {p['nrmse_baseline']:.4f} (ARX reference "
@@ -204,7 +204,7 @@ def run_discrepancy_cmd(args) -> int:
 
     with Progress(0, 'candidate models') as bar:
         res = run_discrepancy(args.scenario, data, model=model, out_dir=args.out,
-                              progress=lambda text: bar.write(text), count=bar.report)
+                              progress=bar.note, count=bar.report)
     for line in res['localization']['summary']:
         print(f'where: {line}')
     print(f"effect: {res['effect']}")

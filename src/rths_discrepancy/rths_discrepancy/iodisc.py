@@ -35,12 +35,13 @@ import math
 import time
 
 import numpy as np
-from scipy import signal
+from scipy import optimize, signal
 
 from rths_common.timebase import same_rate, sampling_rate_hz
 from rths_compensator.identification import ArxModel, _regression
 from rths_discrepancy import effects as fx
 from rths_discrepancy import ioreport, linear
+from rths_discrepancy import signals as sg
 
 TRAIN_FRACTION = 0.6
 MIN_REL_GAIN = 0.05
@@ -145,25 +146,37 @@ def _plateau(y, top):
     return edge
 
 
-def saturation(base, train_y):
-    """Hard limit at the plateau(s) of the measured training output (None if none)."""
-    y = np.concatenate(train_y)
+def saturation(base, train):
+    """Hard limit at the plateau(s) of the measured training output (None if none).
+
+    The linear part is refitted off the plateaus (:func:`linear.refit_where`): samples
+    on a plateau carry no information on the dynamics below it, and a linear model
+    fitted through them under-predicts where the limit holds.
+    """
+    y = np.concatenate([r['yj'] for r in train])
     hi, lo = _plateau(y, True), _plateau(y, False)
     if hi is None and lo is None:
         return None
     lim_lo = -np.inf if lo is None else lo
     lim_hi = np.inf if hi is None else hi
-    return Candidate('saturation', lambda u, s: np.clip(base.simulate(u), lim_lo, lim_hi),
+    span = float(np.ptp(y))
+    keep = [(r['yj'] < lim_hi - 0.005 * span) & (r['yj'] > lim_lo + 0.005 * span) for r in train]
+    lin = linear.refit_where(base, [(r['u'], r['yj']) for r in train], keep)
+    cand = Candidate('saturation', lambda u, s: np.clip(lin.simulate(u), lim_lo, lim_hi),
                      int(hi is not None) + int(lo is not None),
-                     {'upper_limit': hi, 'lower_limit': lo})
+                     {'upper_limit': hi, 'lower_limit': lo,
+                      'linear_part': lin.describe()})
+    cand.linear = lin
+    return cand
 
 
 def static_output(base, train, limits=None):
     """Cubic polynomial of the linear model's output (Wiener), least squares on training.
 
-    With ``limits`` (a saturation candidate) the polynomial is fitted where the
-    measured output is off its plateaus and the result is clipped: the soft and the
-    hard nonlinearity together.
+    With ``limits`` (a saturation candidate) the polynomial starts from the fit where
+    the measured output is off its plateaus and is then refined on every sample through
+    the clip (least squares of ``y - clip(p(y_lin))``: a plateau sample the polynomial
+    does not reach pulls it up): the soft and the hard nonlinearity together.
     """
     lin = np.concatenate([base.simulate(r['u']) for r in train])
     y = np.concatenate([r['yj'] for r in train])
@@ -171,7 +184,11 @@ def static_output(base, train, limits=None):
     span = float(np.ptp(y))
     keep = (y < hi - 0.005 * span) & (y > lo + 0.005 * span)
     c, s = float(np.mean(lin)), float(np.std(lin)) or 1.0
-    coef = np.polyfit((lin[keep] - c) / s, y[keep], 3)
+    z = (lin - c) / s
+    coef = np.polyfit(z[keep], y[keep], 3)
+    if limits is not None:
+        coef = optimize.least_squares(lambda k: np.clip(np.polyval(k, z), lo, hi) - y,
+                                      coef).x
 
     def predict(u, lev):
         return np.clip(np.polyval(coef, (base.simulate(u) - c) / s), lo, hi)
@@ -207,10 +224,7 @@ def amplitude_dependent(base, train):
         ph, t = _lpv_design(a, b, na, nb, d, r['level'] / ref - 1.0)
         rows.append(ph)
         tg.append(t)
-    mat = np.vstack(rows)
-    scale = np.std(mat, axis=0)
-    scale[scale == 0] = 1.0
-    theta = np.linalg.lstsq(mat / scale, np.concatenate(tg), rcond=None)[0] / scale
+    theta = linear.least_squares(np.vstack(rows), np.concatenate(tg))
     k = na + nb
 
     def model_at(lev):
@@ -328,7 +342,7 @@ def _sim_loop():
         return out
 
     try:
-        # lazy: optional: tried here, refused with a clear message when missing
+        # lazy: optional: numba compiles the loop; plain Python without it
         import numba
         run = numba.njit(cache=True)(run)
     except ImportError:  # pragma: no cover - plain Python
@@ -341,7 +355,11 @@ _KIND = {'cubic_stiffness': 0, 'hysteresis': 1, 'backlash': 2, 'coulomb_friction
 
 
 def _ode_loop():
-    """Free-run ``m x'' + c x' + k x + theta g = u`` (semi-implicit Euler, 8 sub-steps)."""
+    """Free-run ``m x'' + c x' + k x + theta g = u`` (semi-implicit Euler, 8 sub-steps).
+
+    ``out[t]`` is the state at sample ``t``; between samples the input is interpolated
+    linearly (a band-limited record is neither held nor delayed).
+    """
     if 'ode' in _SIM:
         return _SIM['ode']
 
@@ -351,8 +369,12 @@ def _ode_loop():
         z = 0.0
         sub = 8
         h = dt / sub
-        for t in range(u.size):
-            for _ in range(sub):
+        n = u.size
+        for t in range(n):
+            out[t] = x
+            u1 = u[t + 1] if t + 1 < n else u[t]
+            for j in range(sub):
+                uj = u[t] + (u1 - u[t]) * (j + 0.5) / sub
                 if kind == 0:
                     g = x * x * x
                 elif kind == 1:
@@ -361,7 +383,7 @@ def _ode_loop():
                     g = (x - p) if x > p else ((x + p) if x < -p else 0.0)
                 else:
                     g = math.tanh(v / p)
-                acc = (u[t] - c * v - k * x - theta * g) / m
+                acc = (uj - c * v - k * x - theta * g) / m
                 v += h * acc
                 dx = h * v
                 x += dx
@@ -376,11 +398,10 @@ def _ode_loop():
                         z = s - (s - z) * math.exp(-step)
                 if not (abs(x) < 1e300):
                     x = np.nan
-            out[t] = x
         return out
 
     try:
-        # lazy: optional: tried here, refused with a clear message when missing
+        # lazy: optional: numba compiles the loop; plain Python without it
         import numba
         run = numba.njit(cache=True)(run)
     except ImportError:  # pragma: no cover - plain Python
@@ -404,7 +425,7 @@ def restoring_term(base, train, name, p):
     cols, tg = [], []
     for r in train:
         x = (r['yj'] - base.y0) / ysc
-        st = linear.spectral_states(x, fs, fc)
+        st = sg.spectral_states(x, fs, fc)
         g = {'cubic_stiffness': st['x'] ** 3, 'hysteresis': fx.bouc_wen(st['x'], p or 1.0),
              'backlash': fx.deadzone(st['x'], p or 0.0),
              'coulomb_friction': np.tanh(st['v'] / (p or 1.0) / fs)}[name]
@@ -412,10 +433,7 @@ def restoring_term(base, train, name, p):
         keep = slice(int(0.02 * n), n - int(0.02 * n))
         cols.append(np.column_stack([st['a'], st['v'], st['x'], g])[keep])
         tg.append((r['u'] - base.u0)[keep])
-    mat = np.vstack(cols)
-    scale = np.std(mat, axis=0)
-    scale[scale == 0] = 1.0
-    m, c, k, theta = np.linalg.lstsq(mat / scale, np.concatenate(tg), rcond=None)[0] / scale
+    m, c, k, theta = linear.least_squares(np.vstack(cols), np.concatenate(tg))
     if not (m > 0 and k > 0):
         raise ValueError('the output does not read as a displacement (m or k not positive)')
     run = _ode_loop()
@@ -436,6 +454,118 @@ def restoring_term(base, train, name, p):
     return cand
 
 
+def _bouc_wen_loop():
+    """Free-run ``m x'' + c x' + k x + theta w = u``, ``dw = dx (1 - (a1 + a2 sgn(dx w)) |w|)``.
+
+    The Bouc-Wen law with exponent 1 (``a1 = beta delta``, ``a2 = beta gamma`` of the
+    usual ``z = alpha w``): saturating (a1, a2 > 0), stiffening or any loop between.
+    Same sampling as :func:`_ode_loop`.
+    """
+    if 'bw' in _SIM:
+        return _SIM['bw']
+
+    def run(m, c, k, theta, a1, a2, u, dt, out):
+        x = 0.0
+        v = 0.0
+        w = 0.0
+        sub = 8
+        h = dt / sub
+        n = u.size
+        for t in range(n):
+            out[t] = x
+            u1 = u[t + 1] if t + 1 < n else u[t]
+            for j in range(sub):
+                uj = u[t] + (u1 - u[t]) * (j + 0.5) / sub
+                v += h * (uj - c * v - k * x - theta * w) / m
+                dx = h * v
+                x += dx
+                s = 1.0 if dx * w > 0.0 else -1.0
+                w += dx * (1.0 - (a1 + a2 * s) * abs(w))
+            if not (abs(x) < 1e100 and abs(w) < 1e100):
+                x = np.nan
+                w = 0.0
+        return out
+
+    try:
+        # lazy: optional: numba compiles the loop; plain Python without it
+        import numba
+        run = numba.njit(cache=True)(run)
+    except ImportError:  # pragma: no cover - plain Python
+        pass
+    _SIM['bw'] = run
+    return run
+
+
+def hysteresis_output_error(base, train):
+    """Bouc-Wen restoring force in the state, every parameter by output (simulation) error.
+
+    ``m y'' + c y' + k y + theta w = u`` with the law of :func:`_bouc_wen_loop`.  The
+    start is the equation-error ``m, c, k`` of the output read as a displacement
+    (spectral states), the stiffness split evenly between ``k`` and ``theta`` and a
+    linear ``w`` (``a1 = a2 = 0``); then Levenberg-Marquardt-type least squares on the
+    free-run error over the training records (``y`` on its own spread, so the law is
+    scale-free).  Without the direction term (``a2 = 0``) ``w(y)`` is a nonlinear
+    spring, not a loop: the block is offered only where ``a2`` lowers the information
+    criterion of the training fit.
+    """
+    m0, c0, k0 = _linear_restoring(base, train)
+    ysc = float(np.std(np.concatenate([r['yj'] for r in train])))
+    us = [np.ascontiguousarray(r['u'] - base.u0) for r in train]
+    ys = [(r['yj'] - base.y0) / ysc for r in train]
+    run = _bouc_wen_loop()
+    dt = 1.0 / base.fs
+
+    def sim(q, u):
+        m, c, k = np.exp(q[:3])
+        return run(m, c, k, q[3], q[4], q[5], u, dt, np.empty_like(u))
+
+    def resid(q):
+        e = np.concatenate([sim(q, u) - y for u, y in zip(us, ys, strict=True)])
+        return np.nan_to_num(e, nan=10.0, posinf=10.0, neginf=-10.0)
+
+    q0 = np.r_[np.log([m0 * ysc, c0 * ysc, 0.5 * k0 * ysc]), 0.5 * k0 * ysc, 0.0, 0.0]
+    fit = optimize.least_squares(resid, q0, x_scale='jac', max_nfev=200)
+    q = fit.x
+    if not np.all(np.isfinite(sim(q, us[0]))):
+        raise ValueError('the Bouc-Wen fit diverged')
+    # a loop needs its direction term a2: without it w(y) is a nonlinear spring
+    spring = optimize.least_squares(lambda p: resid(np.r_[p, 0.0]), q[:5], x_scale='jac',
+                                    max_nfev=100)
+    n = sum(u.size for u in us)
+    if n * math.log(max(2 * fit.cost, 1e-300) / max(2 * spring.cost, 1e-300)) + math.log(n) >= 0:
+        raise ValueError('no loop: the law fits as well without its hysteretic (direction) '
+                         'term, a nonlinear spring')
+
+    def predict(u, lev):
+        return base.y0 + ysc * sim(q, np.ascontiguousarray(np.asarray(u, float) - base.u0))
+    m, c, k = np.exp(q[:3]) / ysc
+    cand = Candidate('hysteresis', predict, 6, {
+        'law': "m y'' + c y' + k y + theta w = u, dw = dy (1 - (a1 + a2 sgn(dy w)) |w|)",
+        'fit': 'output error (free-run simulation)', 'm': m, 'c': c, 'k': k,
+        'theta': float(q[3]) / ysc, 'a1': float(q[4]) / ysc, 'a2': float(q[5]) / ysc,
+        'unit': 'a1, a2 per output unit; m, c, k, theta input units per output unit'})
+    cand.key = 'hysteresis/bouc-wen-output-error'
+    cand.block = 'restoring force in the state'
+    return cand
+
+
+def _linear_restoring(base, train):
+    """Equation-error ``m, c, k`` of ``m y'' + c y' + k y = u`` (output read as a displacement)."""
+    fs = base.fs
+    fc = min(0.4 * fs, 1.25 * linear.band_edge(np.concatenate([r['u'] for r in train]), fs))
+    cols, tg = [], []
+    for r in train:
+        st = sg.spectral_states(r['yj'] - base.y0, fs, fc)
+        n = r['u'].size
+        keep = slice(int(0.02 * n), n - int(0.02 * n))
+        cols.append(np.column_stack([st['a'], st['v'], st['x']])[keep])
+        tg.append((r['u'] - base.u0)[keep])
+    m, c, k = linear.least_squares(np.vstack(cols), np.concatenate(tg))
+    if not (m > 0 and c > 0 and k > 0):
+        raise ValueError('the output does not read as a displacement (m, c or k not positive)')
+    return m, c, k
+
+
 def state_term(base, train, name, p):
     """Fit ``A y = B u + C g(y)`` with ``A`` of the baseline, ``B, C`` by least squares."""
     arx, q = base.arx, base.q
@@ -451,10 +581,7 @@ def state_term(base, train, name, p):
         reg += [signal.lfilter(np.r_[np.zeros(i), 1.0], arx.a, g) for i in range(1, NC + 1)]
         cols.append(np.column_stack(reg))
         tg.append(y)
-    mat = np.vstack(cols)
-    scale = np.std(mat, axis=0)
-    scale[scale == 0] = 1.0
-    theta = np.linalg.lstsq(mat / scale, np.concatenate(tg), rcond=None)[0] / scale
+    theta = linear.least_squares(np.vstack(cols), np.concatenate(tg))
     b, c = theta[:nb], theta[nb:]
     run = _sim_loop()
 
@@ -504,12 +631,12 @@ def candidates(base, fit, progress=None):
     """Every block of the library fitted on ``fit`` records (one output)."""
     say = progress or (lambda text: None)
     out, failed = [], {}
-    c = saturation(base, [r['yj'] for r in fit])
+    c = saturation(base, fit)
     if c is not None:
         out.append(c)
         lim = (c.params['lower_limit'], c.params['upper_limit'])
-        out.append(static_output(base, fit, (-np.inf if lim[0] is None else lim[0],
-                                             np.inf if lim[1] is None else lim[1])))
+        out.append(static_output(c.linear, fit, (-np.inf if lim[0] is None else lim[0],
+                                                 np.inf if lim[1] is None else lim[1])))
     out.append(static_output(base, fit))
     c = amplitude_dependent(base, fit)
     if c is not None:
@@ -521,6 +648,10 @@ def candidates(base, fit, progress=None):
                     out.append(make(base, fit, name, p))
                 except (ValueError, np.linalg.LinAlgError) as err:
                     failed.setdefault(f'{name} ({make.__name__})', str(err))
+    try:
+        out.append(hysteresis_output_error(base, fit))
+    except (ValueError, np.linalg.LinAlgError) as err:
+        failed['hysteresis (output error)'] = str(err)
     for key, err in failed.items():
         say(f'{key}: not fitted ({err})')
     return out
@@ -573,8 +704,9 @@ def run_output(train, test, j, progress=None):
     scores = {}
     for c in cands:
         mse = _mse(c, train)
-        key = c.name if c.name not in SHAPES else f'{c.name}@{c.shape:g}'
-        key += '/restoring' if getattr(c, 'block', '') else ''
+        key = getattr(c, 'key', None) or (c.name if c.name not in SHAPES else
+                                          f'{c.name}@{c.shape:g}')
+        key += '/restoring' if getattr(c, 'block', '') and not hasattr(c, 'key') else ''
         scores[key] = {'mse': mse, 'cand': c,
                        'ic': n_tr * math.log(mse) + c.n_params * math.log(n_tr)
                        if math.isfinite(mse) and mse > 0 else math.inf}

@@ -50,6 +50,19 @@ def _plot(out_dir, name, p):
     return fname
 
 
+#: A free-run NRMSE above this is a simulation that diverged, not an error size.
+DIVERGED_NRMSE = 100.0
+
+
+def nrmse_cell(x):
+    """Table cell of a training NRMSE: '-' when not fitted, 'diverged' when unstable."""
+    if x is None:
+        return '-'
+    if not x <= DIVERGED_NRMSE:
+        return 'diverged (free run unstable)'
+    return f'{x:.4f}'
+
+
 def markdown(result, files):
     """Return report.md of an io run."""
     lines = ['# Discrepancy report (input-output)', '',
@@ -79,8 +92,8 @@ def markdown(result, files):
                   f"{p['information_criterion_none']:.1f} |"]
         for _, c in sorted(p['candidates'].items(),
                            key=lambda kv: kv[1]['information_criterion']):
-            tn = '-' if c['training_nrmse'] is None else f"{c['training_nrmse']:.4f}"
-            lines.append(f"| {c['variant']} | {tn} | {c['information_criterion']:.1f} |")
+            lines.append(f"| {c['variant']} | {nrmse_cell(c['training_nrmse'])} | "
+                         f"{c['information_criterion']:.1f} |")
         if p['parameters']:
             lines += ['', 'Chosen block: `' + json.dumps(p['parameters'])[:400] + '`']
         if name in files:

@@ -22,13 +22,7 @@ criterion below is relative to the record's own band, spread and length):
   at the record's own rate (BIC, simulation error): reported beside the baseline so
   that a bad baseline cannot pass as a discrepancy.
 
-Derivatives (restoring force).  :func:`spectral_derivative` differentiates in the
-frequency domain (exact for a band-limited signal: no central-difference gain loss
-near the band edge).  A periodic record is differentiated over its whole periods;
-any other record after removing the straight line through its end points (so its
-periodic extension is continuous) and with a raised-cosine low-pass from ``fc`` to
-``1.25 fc`` -- the stated smoothing differentiator; its end effects stay in the
-first and last few per cent, which the scenarios leave out of every fit.
+Derivatives (spectral differentiation, the period of a record) live in :mod:`.signals`.
 """
 
 import dataclasses
@@ -185,55 +179,58 @@ def arx_reference(records, fs):
     return LinearModel(arx, 1, fs, u0, y0, 'arx-reference')
 
 
-# ---------------------------------------------------------------- derivatives
+def least_squares(mat, target):
+    """Least-squares solution of ``mat theta = target`` on unit-scaled columns (``lstsq``)."""
+    mat = np.asarray(mat, float)
+    scale = np.std(mat, axis=0)
+    scale[scale == 0] = 1.0
+    return np.linalg.lstsq(mat / scale, target, rcond=None)[0] / scale
 
-def period(u, min_periods=2, tol=1e-3):
-    """Return the samples per period of a periodic record ``u`` (None if it does not repeat).
 
-    A period P is accepted when the record holds at least ``min_periods`` of them and
-    ``u[k + P] - u[k]`` is below ``tol`` of the spread of ``u`` in rms.
+def _masked_fit(records, keep, na, nb, d, fs, a_filter):
+    """ARX of orders (na, nb, d) on the rows whose output and lagged outputs ``keep`` marks."""
+    phis, tgs = [], []
+    for (u, y), k in zip(records, keep, strict=True):
+        phi, tg = idf._regression(signal.lfilter([1.0], a_filter, u),
+                                  signal.lfilter([1.0], a_filter, y), na, nb, d)
+        rows = np.arange(y.size - tg.size, y.size)
+        ok = np.lib.stride_tricks.sliding_window_view(k, na + 1)[rows - na].all(axis=1)
+        phis.append(phi[ok][:, list(range(na)) + list(range(na + d, na + d + nb))])
+        tgs.append(tg[ok])
+    theta = least_squares(np.vstack(phis), np.concatenate(tgs))
+    return idf.ArxModel(a=np.r_[1.0, theta[:na]], b=theta[na:], d=d, fs_hz=fs)
+
+
+def refit_where(base, records, keep, iterations=4):
+    """Refit ``base``'s orders on the samples ``keep`` marks (e.g. off a saturation plateau).
+
+    ``records`` [(u, y), ...] at the base's rate and ``keep`` one boolean array per
+    record.  An output on a plateau says nothing about the linear dynamics: a row of
+    the regression is used only if the output it predicts and its lagged outputs are
+    kept.  Equation error first, then Steiglitz-McBride iterations; the iterate
+    simulating the kept samples best is returned as a :class:`LinearModel`.
     """
-    u = np.asarray(u, float) - np.mean(u)
-    n = u.size
-    if n < 8 or np.std(u) == 0:
-        return None
-    spec = np.fft.rfft(u, 2 * n)
-    ac = np.fft.irfft(np.abs(spec) ** 2)[:n // min_periods + 1]
-    ac /= ac[0]
-    lags = np.flatnonzero((ac[1:-1] > ac[:-2]) & (ac[1:-1] >= ac[2:]) & (ac[1:-1] > 0.5)) + 1
-    for p in lags:
-        if p >= 4 and np.sqrt(np.mean((u[p:] - u[:-p]) ** 2)) < tol * np.std(u):
-            return int(p)
-    return None
+    q, arx = base.q, base.arx
+    dec = [(_down(u - base.u0, q), _down(y - base.y0, q)) for u, y in records]
+    kd = [_down(np.asarray(k, float), q) > 0.99 for k in keep]
 
+    def err(m):
+        lm = LinearModel(m, q, base.fs, base.u0, base.y0, 'off-plateau')
+        e = [(y - lm.simulate(u))[k] for (u, y), k in zip(records, keep, strict=True)]
+        return float(np.mean(np.concatenate(e) ** 2))
 
-def spectral_derivative(y, fs, order=1, fc=None):
-    """``order``-th time derivative of ``y`` by spectral differentiation (see module doc).
-
-    ``fc`` [Hz] (None: no low-pass) is the edge of the raised-cosine taper that
-    ends at ``1.25 fc``.
-    """
-    y = np.asarray(y, float)
-    n = y.size
-    t = np.arange(n)
-    line = y[0] + (y[-1] - y[0]) * t / max(n - 1, 1)
-    r = y - line
-    f = np.fft.rfftfreq(n, 1.0 / fs)
-    h = (2j * np.pi * f) ** order
-    if n % 2 == 0 and order % 2 == 1:
-        h[-1] = 0.0     # the Nyquist line has no defined odd derivative
-    if fc is not None:
-        w = np.clip((f - fc) / (0.25 * fc), 0.0, 1.0)
-        h = h * 0.5 * (1 + np.cos(np.pi * w))
-    d = np.fft.irfft(np.fft.rfft(r) * h, n)
-    if order == 0:
-        d += line
-    elif order == 1:
-        d += (y[-1] - y[0]) * fs / max(n - 1, 1)
-    return d
-
-
-def spectral_states(x, fs, fc):
-    """Displacement, velocity, acceleration of ``x`` band-limited to ``fc`` (spectral)."""
-    return {'x': spectral_derivative(x, fs, 0, fc), 'v': spectral_derivative(x, fs, 1, fc),
-            'a': spectral_derivative(x, fs, 2, fc)}
+    best, best_err, a = None, np.inf, np.array([1.0])
+    for _ in range(iterations + 1):
+        try:
+            m = _masked_fit(dec, kd, arx.na, arx.nb, arx.d, base.fs / q, a)
+        except (ValueError, np.linalg.LinAlgError):
+            break
+        if not m.is_stable():
+            break
+        e = err(m)
+        if e < best_err:
+            best, best_err = m, e
+        a = m.a
+    if best is None:
+        return base
+    return LinearModel(best, q, base.fs, base.u0, base.y0, 'off-plateau')

@@ -35,8 +35,8 @@ import math
 
 import numpy as np
 from scipy import signal
-import yaml
 
+from rths_common import yamlfile
 from rths_common.timebase import same_rate
 from rths_compensator.plants import continuous_actuator
 from rths_discrepancy import effects as fx
@@ -278,12 +278,7 @@ def model_from_dict(scenario: str, spec: dict, where: str = 'model'):
 
 def load_model(scenario: str, path):
     """Load a model YAML file (ValueError names the file and the problem)."""
-    with open(path) as fh:
-        try:
-            spec = yaml.safe_load(fh)
-        except yaml.YAMLError as err:
-            raise ValueError(f'{path}: not valid YAML ({err})') from None
-    return model_from_dict(scenario, spec, where=str(path))
+    return model_from_dict(scenario, yamlfile.load(path), where=str(path))
 
 
 def with_effects(model, effects: dict):

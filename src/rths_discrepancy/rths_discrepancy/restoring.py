@@ -5,12 +5,24 @@ units as long as they are consistent -- a record in volts works, the workflow
 assumes no magnitudes): ``time_s``, ``displacement_m``, ``force_N`` and
 optionally ``velocity_m_s``.
 
-States.  A stated smoothing differentiator: the displacement (and a given
-velocity) go through a zero-phase 4th-order Butterworth low-pass at
-``fc = 4 f99(force)`` (``f99`` the frequency below which 99 % of a signal's
-power lies: the states must carry the force's band), within
-[10 f99(displacement), 0.2 fs], then central differences, low-passed again
-(velocity from the displacement unless given; acceleration from the velocity).
+States.  Scale-free and fitted to the record's band (``f99`` the frequency below
+which 99 % of a signal's power lies; the states must carry the force's band):
+``fc = 4 f99(force)`` within [10 f99(displacement), ``FC_MAX`` fs].  The
+differentiator (:data:`DIFFERENTIATORS`, reported in result.json):
+
+* ``spectral, whole periods`` -- displacement and force repeat (a periodic
+  multisine, a sine test; :func:`signals.period` to within ``PERIOD_TOL`` of their
+  spread): the record is cut to its whole periods and differentiated in the
+  frequency domain, tapered from ``fc`` to ``1.25 fc``;
+* ``spectral, smoothing`` -- any other record whose band reaches past
+  ``CENTRAL_MAX`` fs (a broadband excitation, where central differences lose gain:
+  24 % at fs / 5): the stated smoothing differentiator of :mod:`.signals` (end
+  line removed, raised-cosine low-pass from ``fc`` to ``1.25 fc``);
+* ``butterworth, central differences`` -- slow records (band below
+  ``CENTRAL_MAX`` fs, the loss under 1.6 %): a zero-phase 4th-order Butterworth
+  low-pass at ``fc``, central differences, low-passed again.
+
+Velocity from the displacement unless given (a given velocity is smoothed alike).
 The measured force is *not* filtered: every NRMSE is on the force as recorded.
 
 Models, all linear in their amplitudes (least squares) with at most one shape
@@ -22,7 +34,10 @@ parameter each (a grid and a bounded search, relative to the data's own scales):
     stribeck               + (F_c + (F_s - F_c) exp(-(v / v_s)^2)) tanh(v / v_eps)
     force_offset           + F_0 (load-cell bias)
     cubic_stiffness        + k3 x^3
-    backlash               + k_b dz(x, b) (a spring engaging after a clearance b)
+    backlash               + k_b dz(x, b) + F_b tanh(z' / v_eps), a clearance (play)
+                             of half-width b: a spring engaging beyond it, friction
+                             through it (z = play(x, b), its far side: no force while
+                             the clearance is crossed after each reversal)
     hysteresis             + alpha z, Bouc-Wen with beta = gamma = 1/2, n = 1:
                              dz = dx / x_y (1 - |z| (1 + sign(dx z)) / 2)   (x_y searched)
     time_delay             the model's force lags its states by tau (|tau| beyond
@@ -46,7 +61,8 @@ the white-noise floor and ``PAIR_REL_GAIN`` of the nominal model's (a pair with
 as many parameters as the single, e.g. Coulomb friction + offset against
 asymmetric friction, needs only the lower criterion).  Below ``MIN_REL_GAIN``
 of the nominal's error the answer is ``none``; if the winner leaves more than
-``UNEXPLAINED_LEFT`` of it, ``unexplained``.
+``UNEXPLAINED_LEFT`` of the nominal's error above the white-noise floor (read in
+the residual's spectrum above the states' band), ``unexplained``.
 
 Equivalent decompositions (:data:`EQUIVALENT`).  Asymmetric friction is
 ``F_c tanh(v / v_eps) + F_0 |tanh(v / v_eps)|`` with ``F_c = (F_p + F_n) / 2``
@@ -75,6 +91,7 @@ from scipy.io import loadmat
 from rths_common import bagio, topics
 from rths_common.columns import read_columns, read_header
 from rths_discrepancy import effects as fx
+from rths_discrepancy import reversals
 from rths_discrepancy import signals as sg
 from rths_discrepancy.io import write_csv as write_columns
 from rths_discrepancy.report import _atomic_write
@@ -90,7 +107,7 @@ PARAMS = {
     'stribeck': (('F_c', 'N'), ('F_s_minus_F_c', 'N'), ('v_s', 'm/s')),
     'force_offset': (('F_0', 'N'),),
     'cubic_stiffness': (('k3', 'N/m^3'),),
-    'backlash': (('k_b', 'N/m'), ('b', 'm')),
+    'backlash': (('k_b', 'N/m'), ('F_b', 'N'), ('b', 'm')),
     'hysteresis': (('alpha', 'N'), ('x_y', 'm')),
     'time_delay': (('tau', 's'),),
 }
@@ -197,13 +214,49 @@ def convert(kind, src):
 
 # ---------------------------------------------------------------- states
 
-def smooth_states(data):
-    """x, v, a and the low-pass cut-off fc (the smoothing differentiator of the module doc)."""
+#: Highest cut-off of the states, as a fraction of the rate (the taper ends at 1.25 x it).
+FC_MAX = 0.4
+#: Central differences only while the band stays below this fraction of the rate.
+CENTRAL_MAX = 0.05
+#: A record is periodic when it repeats to within this fraction of its spread (rms).
+PERIOD_TOL = 0.05
+DIFFERENTIATORS = ('spectral, whole periods', 'spectral, smoothing',
+                   'butterworth, central differences')
+
+
+def record_period(data):
+    """Return the samples per period shared by displacement and force (None unless both repeat)."""
+    p = sg.period(data['displacement_m'], tol=PERIOD_TOL)
+    if p is None or sg.period(data['force_N'], tol=PERIOD_TOL) != p:
+        return None
+    return p
+
+
+def whole_periods(data):
+    """Return ``data`` cut to its whole periods (as is if it does not repeat) and the period."""
+    p = record_period(data)
+    if p is None:
+        return data, None
+    n = (data['force_N'].size // p) * p
+    cut = {k: (v[:n] if isinstance(v, np.ndarray) else v) for k, v in data.items()}
+    return cut, p
+
+
+def smooth_states(data, periodic=False):
+    """x, v, a and the differentiator's cut-off fc and name (see the module doc)."""
     fs = data['fs']
     x_raw = data['displacement_m']
     f99 = max(sg.band_edge(x_raw, fs, 0.99), 10.0 * fs / x_raw.size)
     f99_force = sg.band_edge(data['force_N'], fs, 0.99)
-    fc = float(np.clip(4.0 * f99_force, 10.0 * f99, 0.2 * fs))
+    fc = float(np.clip(4.0 * f99_force, 10.0 * f99, FC_MAX * fs))
+    out = {'fc': fc, 'f99': f99, 'f99_force': f99_force}
+    if periodic or fc > CENTRAL_MAX * fs:
+        out['method'] = DIFFERENTIATORS[0 if periodic else 1]
+        out.update(sg.spectral_states(x_raw, fs, fc, periodic))
+        if 'velocity_m_s' in data:
+            out['v'] = sg.spectral_derivative(data['velocity_m_s'], fs, 0, fc, periodic)
+            out['a'] = sg.spectral_derivative(data['velocity_m_s'], fs, 1, fc, periodic)
+        return out
     sos = signal.butter(4, fc, fs=fs, output='sos')
 
     def lp(y):
@@ -212,17 +265,19 @@ def smooth_states(data):
     x = lp(x_raw)
     v = lp(data['velocity_m_s']) if 'velocity_m_s' in data else lp(np.gradient(x, 1.0 / fs))
     a = lp(np.gradient(v, 1.0 / fs))
-    return {'x': x, 'v': v, 'a': a, 'fc': fc, 'f99': f99, 'f99_force': f99_force}
+    out.update(x=x, v=v, a=a, method=DIFFERENTIATORS[2])
+    return out
 
 
 class Fit:
     """Shared data of the candidate fits: states, force, masks, scales."""
 
     def __init__(self, data):
+        data, self.period = whole_periods(data)
         self.fs = data['fs']
         self.t = data['time_s']
         self.f = data['force_N']
-        self.st = smooth_states(data)
+        self.st = smooth_states(data, periodic=self.period is not None)
         self.n = self.f.size
         n_tr = int(TRAIN_FRACTION * self.n)
         self.train = np.zeros(self.n, bool)
@@ -236,6 +291,8 @@ class Fit:
         self.f_dom = float(f[1 + int(np.argmax(spec[1:]))])
         self.max_delay = max(0.1 / self.f_dom, 3.0 / self.fs)
         self.align_max = ALIGN_SAMPLES / self.fs
+        # white noise is read above the states' band (fs / 4 for slow records)
+        self.noise_from = min(max(0.25 * self.fs, 1.25 * self.st['fc']), 0.45 * self.fs)
         self._bw = {}
 
     def shape_bounds(self, name):
@@ -266,7 +323,10 @@ class Fit:
             return [xc ** 3]
         if name == 'backlash':
             xc = x - np.mean(x)
-            return [np.sign(xc) * np.maximum(np.abs(xc) - p, 0.0)]
+            z = fx.play(x, p)           # the far side of the clearance
+            vz = np.gradient(z, 1.0 / self.fs)
+            return [np.sign(xc) * np.maximum(np.abs(xc) - p, 0.0),
+                    np.tanh(vz / (1e-2 * self.scales['v']))]
         if name == 'hysteresis':
             key = (round(p, 15), id(st))
             if key not in self._bw:
@@ -426,6 +486,10 @@ def select(fit, progress=None, count=None):
         if count:
             count(len(cands), len(todo))
     say(f'fitted {len(cands)} candidates')
+    unseen = [k for k, c in cands.items()
+              if 'backlash' in c['names'] and not clearance_seen(fit, c)]
+    for k in unseen:
+        del cands[k]
     n_te = int(fit.test.sum())
 
     def ic(c):
@@ -439,8 +503,8 @@ def select(fit, progress=None, count=None):
     best1 = min(singles, key=lambda k: ics[k])
     best2 = min(pairs, key=lambda k: ics[k])
     choice = best1
-    # excess over the white-noise floor (periodogram above fs/4 of the nominal residual)
-    floor = sg.noise_variance(fit.f - nominal['pred'], fit.fs)
+    # excess over the white-noise floor (periodogram of the nominal residual above the band)
+    floor = sg.noise_variance(fit.f - nominal['pred'], fit.fs, fit.noise_from)
     e1 = cands[best1]['mse_test'] - floor
     e2 = cands[best2]['mse_test'] - floor
     more = cands[best2]['p'] > cands[best1]['p']
@@ -449,15 +513,61 @@ def select(fit, progress=None, count=None):
         choice = best2
     choice, equivalence = _prefer_decomposition(fit, cands, choice, PAIR_REL_GAIN * (m0 - floor))
     ics = {k: ic(c) for k, c in cands.items()}
+    choice, play = _play_or_loop(fit, cands, choice, ics, ic_none)
     mc = cands[choice]['mse_test']
     if ics[choice] >= ic_none or m0 - mc < MIN_REL_GAIN * m0:
         decision = 'none'
-    elif mc > UNEXPLAINED_LEFT * m0:
+    elif mc - floor > UNEXPLAINED_LEFT * (m0 - floor):
         decision = 'unexplained'
     else:
         decision = choice
     return {'decision': decision, 'choice': choice, 'nominal': nominal, 'cands': cands,
-            'ic': ics, 'ic_none': ic_none, 'equivalence': equivalence}
+            'ic': ics, 'ic_none': ic_none, 'equivalence': equivalence, 'play_or_loop': play,
+            'clearance_not_seen': unseen}
+
+
+def clearance_seen(fit, cand):
+    """Tell whether the clearance ``cand`` fits shows in the record (see :mod:`.reversals`).
+
+    A clearance of half-width ``b`` crossed after each reversal leaves a near-zero-force
+    stretch at least ``b`` wide that does not grow with the amplitude.  Where the record
+    shows none, a small ``b`` is only another reading of Coulomb friction (and of an
+    offset, through the spring's centre): the candidate is not offered.
+    """
+    ev = play_evidence(fit, cand)
+    width, growth = ev.get('plateau_width_median'), ev.get('growth')
+    return bool(width is not None and width >= cand['shapes']['backlash']
+                and (growth is None or growth < reversals.MAX_GROWTH))
+
+
+def play_evidence(fit, cand):
+    """Play-versus-loop evidence (:mod:`.reversals`) on the force ``cand``'s m, c, k leave."""
+    th = {par: v for (g, par), v in zip(cand['labels'], cand['theta'], strict=True)
+          if g == 'nominal'}
+    st = fit.st
+    r = fit.f - (th['m'] * st['a'] + th['c'] * st['v'] + th['k'] * st['x'])
+    return reversals.evidence(st['x'], r)
+
+
+def _play_or_loop(fit, cands, choice, ics, ic_none):
+    """Name backlash, not hysteresis, where the record shows play after its reversals.
+
+    Read on the choice's own m, c, k when it holds hysteresis or backlash; a choice
+    holding hysteresis on a record that shows play is replaced by the same effects
+    with backlash in its place (if that candidate beats the nominal).  Returns
+    (choice, evidence or None).
+    """
+    names = cands[choice]['names']
+    if not {'hysteresis', 'backlash'} & set(names):
+        return choice, None
+    ev = play_evidence(fit, cands[choice])
+    ev['read_on'] = choice
+    if 'hysteresis' in names and ev['play']:
+        alt = label([n for n in names if n != 'hysteresis'] + ['backlash'])
+        if alt in cands and ics[alt] < ic_none:
+            ev['replaced'] = {choice: alt}
+            return alt, ev
+    return choice, ev
 
 
 def label(names):
@@ -534,8 +644,9 @@ def run(data, out_dir=None, progress=None, plots=True, source=None, count=None):
         data = validate(data)
     say = progress or (lambda msg: None)
     fit = Fit(data)
-    say(f"restoring force: {fit.n} samples at {fit.fs:g} Hz; smoothing differentiator "
-        f"cut-off {fit.st['fc']:.3g} Hz; training {TRAIN_FRACTION:.0%}, held out the rest")
+    say(f"restoring force: {fit.n} samples at {fit.fs:g} Hz; states by "
+        f"{fit.st['method']} (cut-off {fit.st['fc']:.3g} Hz); training {TRAIN_FRACTION:.0%}, "
+        'held out the rest')
     sel = select(fit, progress=say, count=count)
     nom = sel['nominal']
     win = sel['cands'][sel['choice']]
@@ -544,7 +655,8 @@ def run(data, out_dir=None, progress=None, plots=True, source=None, count=None):
     te = fit.test
     before = sg.nrmse(fit.f, nom['pred'], te)
     aft = sg.nrmse(fit.f, after['pred'], te)
-    noise = math.sqrt(sg.noise_variance(fit.f - after['pred'], fit.fs)) / float(np.std(fit.f[te]))
+    noise = math.sqrt(sg.noise_variance(fit.f - after['pred'], fit.fs, fit.noise_from))
+    noise /= float(np.std(fit.f[te]))
     den = before ** 2 - noise ** 2
     model = {par: float(v) for (g, par), v in zip(after['labels'], after['theta'], strict=True)
              if g == 'nominal'}
@@ -573,9 +685,11 @@ def run(data, out_dir=None, progress=None, plots=True, source=None, count=None):
         'information_criterion_none': sel['ic_none'],
         'held_out_evidence': _defence(fit, sel),
         'equivalence': sel['equivalence'],
+        'play_or_loop': sel['play_or_loop'],
+        'clearance_not_seen': sel['clearance_not_seen'],
         'equivalent_reading': other_reading(_params(win)) if named else {},
         'smoothing_differentiator': {
-            'filter': 'zero-phase 4th-order Butterworth low-pass, central differences',
+            'method': fit.st['method'], 'period_samples': fit.period,
             'cutoff_hz': fit.st['fc'], 'displacement_band_99_hz': fit.st['f99'],
             'force_band_99_hz': fit.st['f99_force'],
             'velocity': 'measured (smoothed)' if 'velocity_m_s' in data else 'differentiated'},
@@ -663,6 +777,18 @@ def markdown(result, files):
                      f"samples): held-out mean square error difference "
                      f"{eq['heldout_mse_difference']:.4g} against the margin {eq['margin']:.4g}; "
                      f'the record {verdict}')
+    pl = result.get('play_or_loop')
+    if pl and pl.get('plateau_fraction') is not None:
+        growth = 'n/a' if pl['growth'] is None else f"{pl['growth']:.2f}"
+        frac = 100 * pl['plateau_fraction']
+        swap = ''
+        if pl.get('replaced'):
+            (was, now), = pl['replaced'].items()
+            swap = f'; `{now}` named in place of `{was}`'
+        lines.append(f"- after each reversal ({pl['half_cycles']} half-cycles, read on "
+                     f"`{pl['read_on']}`): {pl['reading']} (median {frac:.0f} % of the "
+                     f"transition near zero force; width growth with amplitude {growth})"
+                     + swap)
     mp = result['model_parameters']
     lines += [f"- model: m = {mp['m']:.5g} kg, c = {mp['c']:.5g} N s/m, k = {mp['k']:.5g} N/m",
               '', f"Alignment (nuisance, not an effect): {result['alignment_samples']:+.2f} "

@@ -29,7 +29,8 @@ import math
 
 import numpy as np
 import scipy.linalg as sla
-import yaml
+
+from rths_common import yamlfile
 
 
 @dataclass
@@ -352,6 +353,4 @@ def model_from_dict(data, source='model'):
 
 def load_model_yaml(path):
     """Read a model YAML file (see the module docstring)."""
-    with open(path) as fh:
-        data = yaml.safe_load(fh)
-    return model_from_dict(data, source=str(path))
+    return model_from_dict(yamlfile.load(path), source=str(path))

@@ -14,7 +14,7 @@ import numpy as np
 import rclpy
 from std_msgs.msg import UInt64
 
-from rths_common import gaps, topics
+from rths_common import gaps, lifeline, topics
 from rths_common import node_support as ns
 from rths_common.qos import loop_qos, run_info_qos, status_qos
 from rths_common.stepping import Driver
@@ -250,6 +250,7 @@ def main(argv=None, prepare=None):
 
     ``prepare(shell)``, if given, is called on the constructed node before it spins.
     """
+    lifeline.bind(stop=True)        # SIGTERM (a clean stop) when its launcher dies
     rclpy.init(args=argv if argv is not None else sys.argv)
     code = 0
     try:
@@ -265,6 +266,7 @@ def main(argv=None, prepare=None):
     finally:
         if rclpy.ok():
             rclpy.shutdown()
+    lifeline.end_if_lost(code)
     return code
 
 

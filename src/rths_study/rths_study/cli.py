@@ -6,7 +6,8 @@
 * ``rths bench rths-benchmark --draws N``: from :data:`DRAWS_VIA_RUNNER` draws (or with
   ``--scheduler``/``--workers``) the perturbed plants run through the study runner, into
   ``OUT/study``; the four nominal cases run in this process as before.  (The command is
-  ``rths_bench``'s; this module, above it, adds the two options and the route.)
+  ``rths_bench``'s; this module, above it, adds the two options and the route in
+  :func:`extend`, which ``rths`` calls after every package has registered its commands.)
 """
 
 import argparse
@@ -34,7 +35,7 @@ def add_cluster_arguments(p):
 
 
 def register(commands, benches):
-    """Add ``rths study run``, ``rths bench study``; route big benchmark draws to the runner."""
+    """Add ``rths study run`` and ``rths bench study``."""
     studies = _study_subcommands(commands)
     p = studies.add_parser(
         'run', help='run a study SPEC (grid, random draws or list) on a Dask cluster',
@@ -59,6 +60,10 @@ def register(commands, benches):
 
     from . import bench
     bench.register(benches)
+
+
+def extend(commands, benches):
+    """Route ``rths bench rths-benchmark``'s many draws to the runner (after every register)."""
     _route_benchmark(benches)
 
 
@@ -133,7 +138,8 @@ def _route_benchmark(benches):
     """Give ``rths bench rths-benchmark`` the cluster options and the runner for big N."""
     parser = benches.choices.get('rths-benchmark')
     if parser is None:
-        return
+        raise RuntimeError('rths_study.cli: rths bench rths-benchmark is not registered; '
+                           'rebuild the workspace (make setup) so that rths_bench is installed')
     add_cluster_arguments(parser)
     direct = parser.get_default('func')
     parser.set_defaults(func=lambda args: _benchmark(args, direct))

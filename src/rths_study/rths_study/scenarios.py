@@ -25,6 +25,7 @@ REGISTRY = {
     'design': 'rths_study.scenario_benchmark:DesignScenario',
     'dtm-tuning': 'rths_study.scenario_dtm:DtmTuningScenario',
     'building-frequency': 'rths_study.scenario_dtm:BuildingFrequencyScenario',
+    'rths-offline': 'rths_study.scenario_rths:RthsOfflineScenario',
     'cluster-check': 'rths_study.scenarios:ClusterCheckScenario',
 }
 

@@ -44,3 +44,31 @@ def test_help_names_the_scenarios_and_the_cluster_options():
     for word in ('benchmark', 'dtm-tuning', 'building-frequency', 'design', '--scheduler',
                  '--workers', 'cluster-check'):
         assert word in text
+
+
+def test_the_benchmark_gets_its_cluster_options_whatever_order_the_modules_load_in(
+        monkeypatch):
+    from rths_bringup import cli
+    modules = cli.cli_modules()
+    assert 'rths_study.cli' in modules and 'rths_bench.rths_benchmark' in modules
+    plugins = [m for m in modules if m not in cli.CLI_MODULES]   # the entry points'
+    for order in (modules, list(cli.CLI_MODULES) + plugins[::-1]):
+        monkeypatch.setattr(cli, 'cli_modules', lambda order=order: list(order))
+        bench = next(a for a in cli.build_parser()._actions
+                     if a.dest == 'command').choices['bench']
+        benches = next(a for a in bench._actions if a.dest == 'bench').choices
+        text = benches['rths-benchmark'].format_help()
+        assert '--scheduler' in text and '--workers' in text and 'study runner' in text
+
+
+def test_a_missing_benchmark_command_is_an_error_not_a_silent_skip():
+    import argparse
+
+    from rths_study import cli
+    benches = argparse.ArgumentParser().add_subparsers()
+    try:
+        cli.extend(None, benches)
+    except RuntimeError as err:
+        assert 'rths bench rths-benchmark' in str(err)
+    else:
+        raise AssertionError('extend() passed without the command it extends')

@@ -1,0 +1,64 @@
+"""Reading the YAML files a lab writes (params files, models, plants): exactly, or refused.
+
+Plain ``yaml.safe_load`` takes the last of two equal keys without a word (a
+``stroke_m`` given twice in bridge.yaml runs on the second) and raises a
+``YAMLError`` that is no ``ValueError``, so callers that catch bad input let
+it through as a traceback.  :func:`load` and :func:`loads` refuse a key given
+twice in one mapping and turn every YAML error into a one-line ``ValueError``
+naming the file, the line and the fix.
+"""
+
+from pathlib import Path
+
+import yaml
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that refuses a key given twice in one mapping."""
+
+
+def _mapping(loader, node, deep=False):
+    seen: dict = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        line = key_node.start_mark.line + 1
+        try:
+            first = seen.setdefault(key, line)
+        except TypeError:                     # an unhashable key: the base class says so
+            break
+        if first != line:
+            raise yaml.constructor.ConstructorError(
+                None, None, f'key {key!r} is given twice (lines {first} and {line}); keep one',
+                key_node.start_mark)
+    return loader.construct_mapping(node, deep)
+
+
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _mapping)
+
+
+def loads(text: str, where) -> object:
+    """Parse YAML ``text`` read from ``where``; ValueError names ``where``, the line and the fix."""
+    try:
+        return yaml.load(text, Loader=_Loader)   # noqa: S506 (a SafeLoader)
+    except yaml.YAMLError as err:
+        raise ValueError(f'{where}: {describe(err)}') from None
+
+
+def load(path) -> object:
+    """Parse the YAML file ``path`` (:func:`loads`); OSError if it cannot be read."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding='utf-8')
+    except (OSError, UnicodeDecodeError) as err:
+        raise OSError(f'{path}: cannot read the file ({getattr(err, "strerror", err)})') from None
+    return loads(text, path)
+
+
+def describe(err: yaml.YAMLError) -> str:
+    """Return one line for a YAML error: where in the file, what, and the fix."""
+    mark = getattr(err, 'problem_mark', None)
+    problem = getattr(err, 'problem', None) or str(err)
+    if problem.startswith('key ') and 'given twice' in problem:
+        return problem
+    where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark is not None else ''
+    return f'not valid YAML{where}: {problem}; fix the syntax'
