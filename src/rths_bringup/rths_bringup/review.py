@@ -131,8 +131,9 @@ def aligned_steps(data: dict, fields, fs_hz: float, where: str) -> tuple:
                          or longest > MAX_GAP_S * fs_hz or missing[0] == 0):
         raise ValueError(f'{where}: {missing.size} missing and {int((~first).sum())} '
                          f'duplicated steps (longest gap {longest} steps); the recording lost '
-                         'more than can be filled (see the recorder log), so the run cannot '
-                         'be aligned')
+                         'more than can be filled, so the run cannot be aligned (a recorder '
+                         'subscribed over DDS fell behind the loop on a loaded machine; the '
+                         'composed layout records through a pipe and loses nothing)')
     if missing.size:
         known = np.flatnonzero(seen)
         for f in fields:
