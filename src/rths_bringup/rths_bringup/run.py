@@ -167,6 +167,10 @@ def register(commands, benches):
     p.add_argument('--plant', default=None,
                    help='skip steps 1-2 and design from this identified plant.yaml (or an '
                         'updated_model.yaml of rths discrepancy --scenario actuator)')
+    p.add_argument('--specimen-model', default=None, metavar='MODEL.yaml',
+                   help="step 4's Table 9 against the reference with this specimen model "
+                        '(the updated_model.yaml of rths discrepancy --scenario specimen) '
+                        "instead of the specimen's nominal one; the review names it")
     p.add_argument('--adaptive', default=METHOD_DEFAULT, choices=METHODS.names(),
                    help=f'compensation method of the RTHS run (default {METHOD_DEFAULT}: the '
                         f'designed FIR; {", ".join(adaptive_names())} adapt on line from it; '
@@ -197,6 +201,10 @@ def register(commands, benches):
     p.add_argument('--dof', default=None,
                    help="the DOF tables 6-9 report: a name of the model's DOFs or a number from 1 "
                         "(default: the model's output DOF); every DOF is listed anyway")
+    p.add_argument('--specimen-model', default=None, metavar='MODEL.yaml',
+                   help='Table 9 against the reference with this specimen model (the '
+                        'updated_model.yaml of rths discrepancy --scenario specimen) instead '
+                        "of the run's nominal specimen; the review names the model it used")
     add_limit_arguments(p)
     p.set_defaults(func=cmd_review)
 
@@ -575,6 +583,8 @@ def _run(args) -> int:
     if remote:   # a remote site: its own specimen, actuator and compensator
         args.no_compensation = True
     model_param = _model_param(args.model, config)   # bad names fail before the long phases
+    if args.specimen_model is not None and not Path(args.specimen_model).is_file():
+        raise OSError(f'--specimen-model {args.specimen_model}: no such file')
     if args.numerical == 'opensees':
         from rths_numerical.opensees_backend import import_opensees
         import_opensees()
@@ -654,7 +664,7 @@ def _run(args) -> int:
 
     # 4: review
     _say('step 4: review')
-    summary = _review(rths_dir / 'bag', out, limits, args.output_dof)
+    summary = _review(rths_dir / 'bag', out, limits, args.specimen_model, args.output_dof)
     summary['adaptive'] = args.adaptive
     summary.setdefault('run_settings', {k: v for k, v in settings.items()
                                         if k != 'record_summary'})
@@ -792,13 +802,16 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
     return EXIT_SAFETY_STOP
 
 
-def _review(bag, out, limits=None, dof=None) -> dict:
+def _review(bag, out, limits=None, specimen_model=None, dof=None) -> dict:
     """Run :func:`rths_bringup.review.review_rths` with a progress line over its stages."""
     from rths_bringup.review import REVIEW_STAGES, review_rths
     from rths_common.progress import Progress
 
+    if specimen_model is not None and not Path(specimen_model).is_file():
+        raise OSError(f'--specimen-model {specimen_model}: no such file')
     with Progress(REVIEW_STAGES, 'review', 'stages') as bar:
-        return review_rths(bag, out, progress=bar.report, limits=limits, dof=dof)
+        return review_rths(bag, out, progress=bar.report, limits=limits,
+                           specimen_model=specimen_model, dof=dof)
 
 
 def cmd_review(args) -> int:
@@ -812,7 +825,7 @@ def cmd_review(args) -> int:
         raise OSError(f'bag directory {bag} does not exist')
     limits = limits_of(args)
     bagio.run_info(bag)   # a damaged bag is refused before anything is written
-    summary = _review(bag, out, limits, args.dof)
+    summary = _review(bag, out, limits, args.specimen_model, args.dof)
     print_review(summary)
     print(f'wrote {out}/report.html, {out}/summary.json, {out}/review.txt and plots')
     return 0

@@ -81,7 +81,7 @@ class BagWriter:
     rosbags message objects.
     """
 
-    def __init__(self, path, topic_types=None, commit_period_s: float = 0.25, run_info=None,
+    def __init__(self, path, topic_types=None, commit_period_s: float = 0.1, run_info=None,
                  storage: str = bagstore.DEFAULT_STORAGE):
         # lazy: start-up cost: rosbags (~0.2 s), which this module needs only here
         from rosbags.interfaces import Connection
