@@ -31,7 +31,9 @@ setup(
             'bench_site = rths_bench.bench_site',
             'bench_monitor = rths_bench.bench_monitor',
             'bench_discrepancy_v3 = rths_bench.bench_discrepancy_v3',
+            'bench_identification = rths_bench.bench_identification',
             'marths = rths_bench.marths',
+            'bench_discrepancy_rths = rths_bench.bench_discrepancy_rths',
         ],
     },
 )

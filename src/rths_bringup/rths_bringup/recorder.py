@@ -6,9 +6,10 @@ The bag is MCAP (``-p storage:=sqlite3`` for the older sqlite3 storage).
 
 Subscriptions take the serialized (CDR) bytes (``raw=True``), so recording
 costs no deserialization; a writer thread drains a queue into the bag in
-batches (every ``batch_s``, default 0.05 s; the callbacks only append to the
-queue) and commits at least every 0.25 s (checked after each batch), so a
-crash of any process loses at most that much plus one batch.  This node never
+batches (every ``batch_s``, default 0.05 s, at most MAX_BATCH_S; the callbacks
+only append to the queue) and commits after each batch once COMMIT_PERIOD_S has
+passed, so a SIGKILL of the recorder loses at most the last 0.1 s (one batch
+plus one commit period).  This node never
 sits in the 1 kHz path of the loop.
 
 Realtime mode: the recorder must not take the loop's CPU.  Its threads stay
@@ -47,8 +48,11 @@ from rths_common.qos import recorder_qos, status_qos
 
 #: Recorder parameters that are not run information (everything else is kept in the bag).
 RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s', 'storage', 'pipe_fd')
-#: Longest time between two commits of the bag [s] (what a crash can lose).
-COMMIT_PERIOD_S = 0.25
+#: Shortest time between two commits of the bag [s]; a crash loses at most this
+#: plus one batch (MAX_BATCH_S): 0.1 s.
+COMMIT_PERIOD_S = 0.05
+#: Longest batch of the writer thread [s] (the ``batch_s`` parameter's upper bound).
+MAX_BATCH_S = 0.05
 #: After the stop request the recorder keeps taking messages this long [s] ...
 TAIL_S = 0.2
 #: ... and after its launcher died, until the bridge reports STOPPED (its safe stop is
@@ -72,8 +76,9 @@ class Recorder:
         self.cpus = str(params.get('cpus', '') or '')
         self.batch_s = float(params.get('batch_s', 0.05))
         self.storage = str(params.get('storage', '') or bagstore.DEFAULT_STORAGE)
-        if not 0 < self.batch_s <= 0.25:
-            raise ValueError(f"parameter 'batch_s' = {self.batch_s} must lie in (0, 0.25] s "
+        if not 0 < self.batch_s <= MAX_BATCH_S:
+            raise ValueError(f"parameter 'batch_s' = {self.batch_s} must lie in "
+                             f"(0, {MAX_BATCH_S:g}] s "
                              '(the writer drains the queue this often)')
         # Everything else given to the recorder (fs_hz, ...) is run information kept in the bag.
         self.run_info = {k: v for k, v in params.items() if k not in RECORDER_PARAMS}

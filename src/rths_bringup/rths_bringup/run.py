@@ -36,7 +36,7 @@ from rths_common.params import add_renamed_option, renamed
 from rths_compensator.methods import DEFAULT as METHOD_DEFAULT
 from rths_compensator.methods import METHODS, adaptive_names
 from rths_compensator.params import PROVENANCE, identity_params
-from rths_compensator.schemes import DEFAULT_SCHEME, designed
+from rths_compensator.schemes import DEFAULT_SCHEME, DESIGN_DEFAULTS, designed
 from rths_numerical.specimens import (
     DEFAULT_SPECIMEN,
     SPECIMENS,
@@ -121,13 +121,33 @@ def register(commands, benches):
                    help='simulated seconds of the RTHS run (default 0: the whole record)')
     p.add_argument('--scheme', default=DEFAULT_SCHEME, choices=designed(),
                    help=f'compensator scheme (default {DEFAULT_SCHEME}; rths design --help)')
-    p.add_argument('--fc', type=float, default=10.0, help='FIR cut-off [Hz] (default 10)')
-    p.add_argument('--taps', type=int, default=400, help='FIR taps n (default 400)')
+    p.add_argument('--fc', type=float, default=DESIGN_DEFAULTS['fc_hz'],
+                   help=f'FIR cut-off [Hz] (default {DESIGN_DEFAULTS["fc_hz"]:g}, as rths design)')
+    p.add_argument('--taps', type=int, default=DESIGN_DEFAULTS['n_taps'],
+                   help=f'FIR taps n (default {DESIGN_DEFAULTS["n_taps"]}, as rths design)')
+    p.add_argument('--ident-na-max', type=int, default=None,
+                   help='identification: largest na (default: rths identify\'s)')
+    p.add_argument('--ident-nb-max', type=int, default=None,
+                   help='identification: largest nb (default: rths identify\'s)')
+    p.add_argument('--ident-d-min', type=int, default=None,
+                   help='identification: smallest dead time [samples] (default: estimated from '
+                        'the run and searched around)')
+    p.add_argument('--ident-d-max', type=int, default=None,
+                   help='identification: largest dead time [samples] (default: estimated)')
+    p.add_argument('--ident-method', default='oe', choices=('oe', 'arx-grid'),
+                   help='identification method (default oe; rths identify --help)')
+    p.add_argument('--accept-poor-fit', action='store_true',
+                   help='run the RTHS even when the identified plant\'s validation fit is poor '
+                        '(default: stop before it)')
     p.add_argument('--ident-duration', type=float, default=40.0,
                    help='identification run length [s] (default 40: 4 records of 10 s)')
     p.add_argument('--plant', default=None,
                    help='skip steps 1-2 and design from this identified plant.yaml (or an '
                         'updated_model.yaml of rths discrepancy --scenario actuator)')
+    p.add_argument('--specimen-model', default=None, metavar='MODEL.yaml',
+                   help="step 4's Table 9 against the reference with this specimen model "
+                        '(the updated_model.yaml of rths discrepancy --scenario specimen) '
+                        "instead of the specimen's nominal one; the review names it")
     p.add_argument('--adaptive', default=METHOD_DEFAULT, choices=METHODS.names(),
                    help=f'compensation method of the RTHS run (default {METHOD_DEFAULT}: the '
                         f'designed FIR; {", ".join(adaptive_names())} adapt on line from it; '
@@ -155,6 +175,10 @@ def register(commands, benches):
     p.add_argument('bag', help='bag directory of an RTHS run')
     p.add_argument('--out', default=None, help='directory for summary.json, review.txt and '
                    'plots (default: beside the bag)')
+    p.add_argument('--specimen-model', default=None, metavar='MODEL.yaml',
+                   help='Table 9 against the reference with this specimen model (the '
+                        'updated_model.yaml of rths discrepancy --scenario specimen) instead '
+                        "of the run's nominal specimen; the review names the model it used")
     add_limit_arguments(p)
     p.set_defaults(func=cmd_review)
 
@@ -468,6 +492,34 @@ def _model_param(model: str, config: Path) -> str:
     return str(script.resolve())
 
 
+def _identify_args(args) -> list:
+    """Return the ``rths identify`` options of ``rths run``'s identification choices."""
+    out = ['--method', args.ident_method]
+    for flag, value in (('--na-max', args.ident_na_max), ('--nb-max', args.ident_nb_max),
+                        ('--d-min', args.ident_d_min), ('--d-max', args.ident_d_max)):
+        if value is not None:
+            out += [flag, str(value)]
+    return out
+
+
+def _check_fit(plant, accept: bool) -> None:
+    """Stop before the RTHS phase when the identified plant's validation fit is poor."""
+    import yaml
+
+    from rths_compensator.estimation import is_poor_fit, poor_fit_text
+    doc = yaml.safe_load(Path(plant).read_text()) or {}
+    validation = (doc.get('selection') or {}).get('validation')
+    if not validation or not is_poor_fit(validation):
+        return
+    text = poor_fit_text(validation)
+    if accept:
+        _say(f'WARNING: {text} (--accept-poor-fit: running the RTHS anyway)')
+        return
+    raise RuntimeError(f'identified plant {plant}: {text}; the RTHS was not started, so the '
+                       'specimen was not driven (see the fit plot beside it; '
+                       '--accept-poor-fit runs it anyway)')
+
+
 def cmd_run(args) -> int:
     """``rths run``."""
     from rths_bringup import live
@@ -502,6 +554,8 @@ def _run(args) -> int:
     if remote:   # a remote site: its own specimen, actuator and compensator
         args.no_compensation = True
     model_param = _model_param(args.model, config)   # bad names fail before the long phases
+    if args.specimen_model is not None and not Path(args.specimen_model).is_file():
+        raise OSError(f'--specimen-model {args.specimen_model}: no such file')
     if args.numerical == 'opensees':
         from rths_numerical.opensees_backend import import_opensees
         import_opensees()
@@ -533,14 +587,16 @@ def _run(args) -> int:
                 raise RuntimeError(f'the identification run ended in the bridge\'s safety stop '
                                    f'({stop["safety_stop"]}); check the excitation against the '
                                    f'limits in {config / "bridge.yaml"}')
-            _say('step 2: ARX identification (rths identify)')
-            code = rths_main(['identify', '--bag', str(ident / 'bag'), '--out', str(plant)])
+            _say('step 2: identification (rths identify)')
+            code = rths_main(['identify', '--bag', str(ident / 'bag'), '--out', str(plant)]
+                             + _identify_args(args))
             if code:
                 raise RuntimeError('identification failed')
+            _check_fit(plant, args.accept_poor_fit)
         _say(f'step 2: design {args.scheme} n={args.taps} fc={args.fc} Hz (rths design)')
         code = rths_main(['design', '--plant', str(plant), '--scheme', args.scheme,
                           '--taps', str(args.taps), '--fc', str(args.fc),
-                          '--out', str(comp_file)])
+                          '--limits', str(config / 'bridge.yaml'), '--out', str(comp_file)])
         if code:
             raise RuntimeError('compensator design failed')
         _say(f'compensator written to {comp_file} (install it as the lab\'s taps with '
@@ -586,7 +642,7 @@ def _run(args) -> int:
 
     # 4: review
     _say('step 4: review')
-    summary = _review(rths_dir / 'bag', out, limits)
+    summary = _review(rths_dir / 'bag', out, limits, args.specimen_model)
     summary['adaptive'] = args.adaptive
     (out / 'summary.json').write_text(json.dumps(summary, indent=2))
     print_review(summary)
@@ -619,22 +675,30 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
     return EXIT_SAFETY_STOP
 
 
-def _review(bag, out, limits=None) -> dict:
+def _review(bag, out, limits=None, specimen_model=None) -> dict:
     """Run :func:`rths_bringup.review.review_rths` with a progress line over its stages."""
     from rths_bringup.review import REVIEW_STAGES, review_rths
     from rths_common.progress import Progress
 
+    if specimen_model is not None and not Path(specimen_model).is_file():
+        raise OSError(f'--specimen-model {specimen_model}: no such file')
     with Progress(REVIEW_STAGES, 'review', 'stages') as bar:
-        return review_rths(bag, out, progress=bar.report, limits=limits)
+        return review_rths(bag, out, progress=bar.report, limits=limits,
+                           specimen_model=specimen_model)
 
 
 def cmd_review(args) -> int:
     """``rths review``."""
     from rths_bringup.review import print_review
+    from rths_common import bagio
 
     bag = Path(args.bag)
     out = Path(args.out) if args.out else bag.parent
-    summary = _review(bag, out, limits_of(args))
+    if not bagio.bag_dir(bag).is_dir():
+        raise OSError(f'bag directory {bag} does not exist')
+    limits = limits_of(args)
+    bagio.run_info(bag)   # a damaged bag is refused before anything is written
+    summary = _review(bag, out, limits, args.specimen_model)
     print_review(summary)
     print(f'wrote {out}/report.html, {out}/summary.json, {out}/review.txt and plots')
     return 0

@@ -69,7 +69,7 @@ def read_gmspy_dat(path):
         raise ValueError(f'{path}: time column is not equally spaced (step {dt:g} s, but data '
                          f'line {row + 1} is at {t[row]:g} s); resample the record to a '
                          'constant time step')
-    return dt, col['accel']
+    return 1.0 / sampling_rate_hz(t, str(path)), col['accel']
 
 
 def read_csv_record(path):
@@ -165,7 +165,15 @@ def load_record(name_or_path):
         raise ValueError(f'record {name_or_path!r}: not one of {", ".join(RECORDS)} and no such '
                          f'file; give a record name or the path of a record file '
                          f'({FORMATS.text(", ")})')
-    return record_format(path).read(path)
+    try:
+        return record_format(path).read(path)
+    except UnicodeDecodeError:
+        raise ValueError(f'{path}: not a text file; give a record file '
+                         f'({FORMATS.text(", ")})') from None
+    except ValueError as err:
+        if path in str(err):
+            raise
+        raise ValueError(f'{path}: {err}') from None
 
 
 def scale(accel, factor):
