@@ -33,6 +33,7 @@ setup(
             'bench_discrepancy_v3 = rths_bench.bench_discrepancy_v3',
             'bench_identification = rths_bench.bench_identification',
             'marths = rths_bench.marths',
+            'bench_discrepancy_rths = rths_bench.bench_discrepancy_rths',
         ],
     },
 )

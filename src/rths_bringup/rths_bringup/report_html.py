@@ -79,6 +79,8 @@ def tables(s: dict) -> str:
                   ((f"{s['delay_ms_after']:.3f}",
                     f'{error:.2f}' if error is not None else
                     'none: no model of the external controller\'s specimen'),))
+    if s.get('reference_model'):
+        out += f"<p>reference: {html.escape(s['reference_model'])}</p>\n"
     c = s.get('controller')
     if c:
         out += _table(f"Servo controller {c['address']} (protocol version "

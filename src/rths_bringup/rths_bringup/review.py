@@ -319,8 +319,14 @@ def table5_of(desired, applied, measured, fs) -> dict:
 REVIEW_STAGES = 4
 
 
-def review_rths(bag, out_dir, progress=None, limits=None) -> dict:
+def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None) -> dict:
     """Tables 5-9 of an RTHS bag: JSON summary, text report, PNG plots and ``report.html``.
+
+    ``specimen_model``: an updated specimen model (``updated_model.yaml`` of ``rths
+    discrepancy --scenario specimen``) for the Table 9 reference instead of the run's
+    nominal specimen: the same substructure coupled in lock-step to that model on a
+    perfect actuator (:func:`rths_discrepancy.rerun.compare`); the summary names it
+    (``reference_model``).  Refused for a run whose specimen is no mass on the table.
 
     ``report.html`` (:mod:`rths_bringup.report_html`) holds the tables and every
     plot in one self-contained file.  ``progress(done, 4)`` follows the stages: bag
@@ -364,6 +370,9 @@ def review_rths(bag, out_dir, progress=None, limits=None) -> dict:
     uncontrolled, reference, specimen = references(numerical, bridge, sub, dt,
                                                    specimen_known=not external,
                                                    where=f'{bag}: bridge parameter specimen')
+    reference_model = 'nominal specimen model (the run\'s specimen, linear)'
+    if specimen_model is not None:
+        reference, reference_model = _updated_reference(bag, specimen, specimen_model)
     if external:
         ref_disp = None
     else:
@@ -381,6 +390,7 @@ def review_rths(bag, out_dir, progress=None, limits=None) -> dict:
         'numerical_model': getattr(model, 'name', str(numerical.get('model'))),
         **table5,
         **response_metrics(floor2, ref_disp, uncontrolled['metrics'], fs),
+        'reference_model': reference_model if ref_disp is not None else None,
         'deadline_misses': int(status.get('misses', 0)),
         'deadline_miss_pct': 100.0 * status.get('misses', 0) / bridge_steps,
         'safety_faults': status.get('faults', []),
@@ -538,6 +548,21 @@ def review_site(bag, out_dir, info, fs, stage) -> dict:
     return summary
 
 
+def _updated_reference(bag, specimen, path):
+    """Return ``(reference, label)``: the lock-step reference with the specimen model ``path``."""
+    # lazy: start-up cost: the discrepancy package (SciPy optimisers), needed only here
+    from rths_discrepancy import models, rerun
+
+    if specimen is None or specimen.table_mass is None:
+        raise ValueError(f'--specimen-model {path}: the run\'s specimen is no mass on the '
+                         'table; an updated DTM model does not apply to it')
+    updated = models.load_model('specimen', path)
+    cmp = rerun.compare(bag, updated, nominal_model=updated)
+    effects = ', '.join(f'{k} {v:.4g}' for k, v in updated.effects.items()) or 'no effects'
+    return ({'disp': cmp['_series']['updated']},
+            f'updated specimen model {path} ({effects}; lock-step reference, perfect actuator)')
+
+
 def _site_text(s: dict) -> str:
     lines = [
         f"Site review (rths site): backend {s['backend']}, "
@@ -588,7 +613,7 @@ def review_text(s: dict) -> str:
         + (' (here the uncontrolled building: a remote specimen has no model here)'
            if s['specimen'] == 'remote' else ''),
         (f"  actuator time delay {s['delay_ms_after']:.3f} ms, relative RMS error "
-         f"{s['rths_vs_reference_rel_rms_pct']:.2f} %"
+         f"{s['rths_vs_reference_rel_rms_pct']:.2f} %\n  reference: {s.get('reference_model')}"
          if s['rths_vs_reference_rel_rms_pct'] is not None else
          f"  none: the specimen is an {EXTERNAL} (the review has no model of it); actuator "
          f"time delay {s['delay_ms_after']:.3f} ms"),

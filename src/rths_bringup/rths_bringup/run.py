@@ -144,6 +144,10 @@ def register(commands, benches):
     p.add_argument('--plant', default=None,
                    help='skip steps 1-2 and design from this identified plant.yaml (or an '
                         'updated_model.yaml of rths discrepancy --scenario actuator)')
+    p.add_argument('--specimen-model', default=None, metavar='MODEL.yaml',
+                   help="step 4's Table 9 against the reference with this specimen model "
+                        '(the updated_model.yaml of rths discrepancy --scenario specimen) '
+                        "instead of the specimen's nominal one; the review names it")
     p.add_argument('--adaptive', default=METHOD_DEFAULT, choices=METHODS.names(),
                    help=f'compensation method of the RTHS run (default {METHOD_DEFAULT}: the '
                         f'designed FIR; {", ".join(adaptive_names())} adapt on line from it; '
@@ -171,6 +175,10 @@ def register(commands, benches):
     p.add_argument('bag', help='bag directory of an RTHS run')
     p.add_argument('--out', default=None, help='directory for summary.json, review.txt and '
                    'plots (default: beside the bag)')
+    p.add_argument('--specimen-model', default=None, metavar='MODEL.yaml',
+                   help='Table 9 against the reference with this specimen model (the '
+                        'updated_model.yaml of rths discrepancy --scenario specimen) instead '
+                        "of the run's nominal specimen; the review names the model it used")
     add_limit_arguments(p)
     p.set_defaults(func=cmd_review)
 
@@ -546,6 +554,8 @@ def _run(args) -> int:
     if remote:   # a remote site: its own specimen, actuator and compensator
         args.no_compensation = True
     model_param = _model_param(args.model, config)   # bad names fail before the long phases
+    if args.specimen_model is not None and not Path(args.specimen_model).is_file():
+        raise OSError(f'--specimen-model {args.specimen_model}: no such file')
     if args.numerical == 'opensees':
         from rths_numerical.opensees_backend import import_opensees
         import_opensees()
@@ -632,7 +642,7 @@ def _run(args) -> int:
 
     # 4: review
     _say('step 4: review')
-    summary = _review(rths_dir / 'bag', out, limits)
+    summary = _review(rths_dir / 'bag', out, limits, args.specimen_model)
     summary['adaptive'] = args.adaptive
     (out / 'summary.json').write_text(json.dumps(summary, indent=2))
     print_review(summary)
@@ -665,13 +675,16 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
     return EXIT_SAFETY_STOP
 
 
-def _review(bag, out, limits=None) -> dict:
+def _review(bag, out, limits=None, specimen_model=None) -> dict:
     """Run :func:`rths_bringup.review.review_rths` with a progress line over its stages."""
     from rths_bringup.review import REVIEW_STAGES, review_rths
     from rths_common.progress import Progress
 
+    if specimen_model is not None and not Path(specimen_model).is_file():
+        raise OSError(f'--specimen-model {specimen_model}: no such file')
     with Progress(REVIEW_STAGES, 'review', 'stages') as bar:
-        return review_rths(bag, out, progress=bar.report, limits=limits)
+        return review_rths(bag, out, progress=bar.report, limits=limits,
+                           specimen_model=specimen_model)
 
 
 def cmd_review(args) -> int:
@@ -685,7 +698,7 @@ def cmd_review(args) -> int:
         raise OSError(f'bag directory {bag} does not exist')
     limits = limits_of(args)
     bagio.run_info(bag)   # a damaged bag is refused before anything is written
-    summary = _review(bag, out, limits)
+    summary = _review(bag, out, limits, args.specimen_model)
     print_review(summary)
     print(f'wrote {out}/report.html, {out}/summary.json, {out}/review.txt and plots')
     return 0
