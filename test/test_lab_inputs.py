@@ -5,7 +5,8 @@ The building (3 storeys, written here) and the record (band-limited noise at 200
 reference is independent of rths's code: the building plus the seed's DTM (valve4,
 Table 4; frame mass 250 lb, seed 6.2) on a perfect actuator, its equations written
 out below and solved by scipy.signal.lsim on the record as written.  The same run's
-bag is then reviewed again after the model, record and config files are deleted.
+bag is then reviewed again (and replayed) after the model, record and config files are
+deleted.
 """
 
 import json
@@ -137,3 +138,6 @@ def test_a_labs_building_and_csv_record_match_an_independent_reference(tmp_path)
     summary.pop('run_settings')
     summary.pop('adaptive')
     assert again == summary
+    replayed = rths('replay', bag, '--rate-scale', 1000, '--topics', '/rths/run_inputs',
+                    '/rths/response', timeout=120).stdout
+    assert 'replaying' in replayed and '/rths/run_inputs' in replayed
