@@ -28,6 +28,12 @@ test: $(TEST_NEEDS)  ## build and run every test through colcon test (installs O
 docs: setup  ## regenerate docs/cli.md and docs/benchmarks.md (from argparse), docs/performance.md (from docs/bench/*.json), the packages' module tables
 	@source env.sh && python -m rths_bench.refdocs --write
 
+fuzz: setup  ## the long fuzz campaign: FUZZ_EXAMPLES (10000) cases per parser; counts to docs/fuzz.json
+	@source env.sh && rm -f docs/fuzz.json && RTHS_FUZZ_EXAMPLES=$${FUZZ_EXAMPLES:-10000} \
+	  RTHS_FUZZ_REPORT=$(CURDIR)/docs/fuzz.json nice -n 10 python -m pytest -q -p no:cacheprovider \
+	  test/test_fuzz_inputs.py src/rths_bringup/test/test_cli_validation.py && \
+	  echo "make fuzz: counts in docs/fuzz.json"
+
 lint: setup  ## ruff and flake8 over src/ and test/ (ruff.toml, ament_lint.ini), mypy on rths_common and the step cores (mypy.ini)
 	@source env.sh && ruff check src test && flake8 --config ament_lint.ini src test && \
 	  mypy --config-file mypy.ini -p rths_common -p rths_numerical.substructure \
@@ -50,4 +56,4 @@ clean:  ## remove build products (keeps .venv)
 distclean: clean  ## remove build products and the venv
 	rm -rf .venv
 
-.PHONY: help setup setup-opensees demo test docs lint clean distclean
+.PHONY: help setup setup-opensees demo test docs fuzz lint clean distclean

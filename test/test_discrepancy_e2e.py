@@ -86,3 +86,14 @@ def test_workflow_names_lab_dtm_friction_and_updated_reference_matches_rths(tmp_
     ref2 = json.loads((tmp_path / 'ref' / 'reference.json').read_text())
     assert abs(ref2['rths_vs_updated_reference_rel_rms_pct'] - after) < 1e-9 * max(after, 1)
     assert 'nominal specimen model' in again.stdout
+
+    # the discrepancy report shows the re-run; the review takes the updated model and says so
+    report = (out / 'report.md').read_text()
+    assert '## The RTHS re-run with the updated model' in report
+    assert f'{after:.3f} %' in report and f'{before:.3f} %' in report
+    rths('review', bag, '--specimen-model', out / 'updated_model.yaml', '--out',
+         tmp_path / 'review', timeout=300)
+    summary = json.loads((tmp_path / 'review' / 'summary.json').read_text())
+    assert abs(summary['rths_vs_reference_rel_rms_pct'] - after) < 1e-9 * max(after, 1)
+    assert str(out / 'updated_model.yaml') in summary['reference_model']
+    assert 'coulomb_friction' in (tmp_path / 'review' / 'review.txt').read_text()

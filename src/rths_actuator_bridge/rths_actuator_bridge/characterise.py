@@ -34,7 +34,7 @@ import os
 
 import numpy as np
 
-from rths_common.bagio import read_specimen
+from rths_common.bagio import read_specimen, sampling_rate
 from rths_common.columns import read_columns
 from rths_common.files import atomic_open
 from rths_common.timebase import sampling_rate_hz
@@ -294,11 +294,13 @@ def write_csv(path, record: DTMRecord, force=None):
 
 
 def read_bag(path):
-    """Return the DTM record (table acceleration, relative displacement) of a rosbag2 run bag."""
+    """Return the DTM record (table acceleration, relative displacement) of a rosbag2 run bag.
+
+    The rate is the run's ``fs_hz`` (its steps are the time base), not one read from times.
+    """
     spec = read_specimen(path, FRAME_MASS_KG)
-    t = np.asarray(spec['time'], float)
     return DTMRecord(np.asarray(spec['base_accel'], float), np.asarray(spec['rel_disp'], float),
-                     1.0 / np.mean(np.diff(t)), str(path))
+                     sampling_rate(path), str(path))
 
 
 # --------------------------------------------------------------------- simulated tests

@@ -77,7 +77,9 @@ mass on the table: ``specimen_damping_error_n_s_m`` (c_d + dc), ``specimen_stiff
 (k_d + dk), ``specimen_mass_error_kg`` (m_d + dm), and the forces on the moving mass
 ``friction_n`` (above), ``specimen_cubic_stiffness_n_m3`` (k3 x^3) and ``specimen_backlash_m``
 (``k_d (dz(x, b) - x)``, a clearance +-b before the spring engages), integrated with the
-friction's sub-steps; on the sensors: ``rel_disp_bias_m`` (the DTM displacement sensor),
+friction's sub-steps, and, outside the library (the control of a test that must end in
+``unexplained``), ``specimen_quadratic_damping_n_s2_m2`` (c2 v|v|); on the sensors:
+``rel_disp_bias_m`` (the DTM displacement sensor),
 ``force_offset_n`` (the load cells) and ``displacement_bias_m`` (the actuator's displacement
 sensor); in the command path the bridge's ``command_delay_steps``.
 
@@ -142,6 +144,7 @@ class PlantConfig:
     specimen_mass_error_kg: float = 0.0
     specimen_cubic_stiffness_n_m3: float = 0.0
     specimen_backlash_m: float = 0.0
+    specimen_quadratic_damping_n_s2_m2: float = 0.0
     rel_disp_bias_m: float = 0.0
     force_offset_n: float = 0.0
     displacement_bias_m: float = 0.0
@@ -181,6 +184,9 @@ SIM_PARAMS = {
                                       'DTM moving mass'),
     'specimen_backlash_m': (float, 0.0, '[m] hidden: clearance +-b before the DTM spring '
                             'engages'),
+    'specimen_quadratic_damping_n_s2_m2': (float, 0.0, '[N s^2/m^2] hidden, outside the effect '
+                                           'library: quadratic damping c2 v|v| on the DTM '
+                                           'moving mass'),
     'rel_disp_bias_m': (float, 0.0, '[m] hidden: offset of the DTM relative-displacement sensor'),
     'force_offset_n': (float, 0.0, '[N] hidden: offset of the load cells'),
     'displacement_bias_m': (float, 0.0, "[m] hidden: offset of the actuator's displacement "
@@ -201,6 +207,7 @@ HIDDEN_EFFECTS = {
     'force_offset_n': ('specimen', 'force_offset'),
     'displacement_bias_m': ('actuator', 'sensor_bias'),
     'command_delay_steps': ('actuator', 'time_delay'),
+    'specimen_quadratic_damping_n_s2_m2': ('specimen', None),   # outside the library
 }
 #: Ranges of the rates, counts and specimen settings of :data:`SIM_PARAMS` (inclusive).
 SIM_RANGES = {
@@ -214,6 +221,7 @@ SIM_RANGES = {
     'specimen_mass_error_kg': (-1.0e4, 1.0e4),
     'specimen_cubic_stiffness_n_m3': (-1.0e13, 1.0e13),
     'specimen_backlash_m': (0.0, 0.1),
+    'specimen_quadratic_damping_n_s2_m2': (-1.0e7, 1.0e7),
     'rel_disp_bias_m': (-0.254, 0.254),
     'force_offset_n': (-1.0e5, 1.0e5),
     'displacement_bias_m': (-0.254, 0.254),
@@ -262,7 +270,7 @@ def plant_config(params: dict) -> PlantConfig:
         raise ValueError("parameters 'friction_substeps' must be >= 1 and 'friction_v_m_s' > 0")
     for key in ('specimen_damping_error_n_s_m', 'specimen_stiffness_error_n_m',
                 'specimen_mass_error_kg', 'specimen_cubic_stiffness_n_m3', 'rel_disp_bias_m',
-                'force_offset_n', 'displacement_bias_m'):
+                'force_offset_n', 'displacement_bias_m', 'specimen_quadratic_damping_n_s2_m2'):
         if not math.isfinite(getattr(cfg, key)):
             raise ValueError(f'parameter {key!r} = {getattr(cfg, key)} must be finite')
     if not (math.isnan(cfg.frame_mass_kg) or cfg.frame_mass_kg >= 0):
@@ -310,9 +318,10 @@ class SimulatedPlant:
         cfg = self.config
         self.dt = 1.0 / cfg.fs_hz
         self.specimen = SPECIMENS.entry(cfg.specimen, "parameter 'specimen'")
-        self.dtm = self.specimen.table_mass   # the mass on the table (eq. 46), or None
-        self.frame_mass = (self.specimen.frame_mass_kg if math.isnan(cfg.frame_mass_kg)
-                           else cfg.frame_mass_kg)
+        # the mass on the table (eq. 46), or None
+        self.dtm = self.specimen.mass_on_table(cfg.specimen_settings)
+        self.frame_mass = (self.specimen.frame_mass(cfg.specimen_settings)
+                           if math.isnan(cfg.frame_mass_kg) else cfg.frame_mass_kg)
         self.arx = None
         self._scales = dict.fromkeys(RETUNE_KEYS, 1.0)
         self._noiseless = (cfg.adc_bits <= 0 and cfg.displacement_noise_m <= 0
@@ -338,13 +347,15 @@ class SimulatedPlant:
         on_mass = [k for k in ('friction_n', 'specimen_damping_error_n_s_m',
                                'specimen_stiffness_error_n_m', 'specimen_mass_error_kg',
                                'specimen_cubic_stiffness_n_m3', 'specimen_backlash_m',
-                               'rel_disp_bias_m') if getattr(cfg, k)]
+                               'specimen_quadratic_damping_n_s2_m2', 'rel_disp_bias_m')
+                   if getattr(cfg, k)]
         if on_mass and self.dtm is None:
             raise ValueError(f"parameter(s) {', '.join(on_mass)}: specimen {cfg.specimen} has "
                              'no mass on the table; set them to 0')
         if self.arx is not None and self._nonlinear:
             raise ValueError("parameters friction_n / specimen_cubic_stiffness_n_m3 / "
-                             "specimen_backlash_m need the continuous actuator model "
+                             "specimen_backlash_m / specimen_quadratic_damping_n_s2_m2 need "
+                             "the continuous actuator model "
                              "(actuator_model '3pole' or '4pole'), not an ARX plant.yaml")
 
     def _table_mass(self) -> DTMParameters:
@@ -531,13 +542,15 @@ class SimulatedPlant:
         """Return True if a force on the moving mass needs the sub-stepped integration."""
         cfg = self.config
         return self.dtm is not None and (cfg.friction_n > 0 or cfg.specimen_backlash_m > 0
-                                         or cfg.specimen_cubic_stiffness_n_m3 != 0)
+                                         or cfg.specimen_cubic_stiffness_n_m3 != 0
+                                         or cfg.specimen_quadratic_damping_n_s2_m2 != 0)
 
     def _friction(self, rel_disp: float, rel_vel: float) -> float:
-        """Force [N] on the moving mass: friction, the hidden cubic spring and clearance."""
+        """Return the force [N] on the moving mass: friction and the hidden nonlinear forces."""
         cfg = self.config
         f = cfg.friction_n * math.tanh(rel_vel / cfg.friction_v_m_s)
         f += cfg.specimen_cubic_stiffness_n_m3 * rel_disp ** 3
+        f += cfg.specimen_quadratic_damping_n_s2_m2 * rel_vel * abs(rel_vel)
         if cfg.specimen_backlash_m > 0:
             dz = math.copysign(max(abs(rel_disp) - cfg.specimen_backlash_m, 0.0), rel_disp)
             f += self._table_mass().k_d * (dz - rel_disp)

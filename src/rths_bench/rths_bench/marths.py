@@ -57,7 +57,13 @@ import numpy as np
 from scipy import signal
 from scipy.linalg import expm, matrix_balance
 
+from rths_bench.rths_benchmark import DATA_ENV, ground_acceleration, target_lowpass
 from rths_common.coupler import Coupler
+from rths_common.progress import Progress
+from rths_compensator.adaptive import make_method
+from rths_compensator.design import design_fir, predict
+from rths_compensator.identification import identify
+from rths_numerical.signals import blwn
 
 DATA_FILE = Path(__file__).parent / 'data' / 'marths.json'
 #: Adaptive methods of the project run decentralised (one per actuator).
@@ -416,7 +422,6 @@ class DecentralisedAdaptive:
 
     def __init__(self, name: str, designs: list, models: list, batch: int, info: list = None):
         """Build ``batch`` x 2 methods ``name``."""
-        from rths_compensator.adaptive import make_method
         self.name = name
         self.methods = [[make_method(name, designs[i], models[i]) for i in range(2)]
                         for _ in range(batch)]
@@ -453,9 +458,6 @@ def identify_and_design(cfg: dict, seed: int = 11, record_s: float = 20.0,
     other actuator's coupling is left out by design: this is the decentralised scheme.
     Returns ``(designs, info, models)`` (the ARX models, in mm).
     """
-    from rths_bench.rths_benchmark import target_lowpass
-    from rths_compensator.design import design_fir, predict
-    from rths_compensator.identification import identify
     fs = cfg['fs_hz']['value']
     rng = np.random.default_rng(seed)
     gain, a_l = target_lowpass(4, lowpass_hz, fs)
@@ -483,7 +485,6 @@ def identify_and_design(cfg: dict, seed: int = 11, record_s: float = 20.0,
 
 def _excite(cfg: dict, channel: int, rng, record_s: float, band_hz: float, peak_mm: float):
     """Command actuator ``channel`` alone with BLWN; return ``(u, y)`` (samples x 2) [mm]."""
-    from rths_numerical.signals import blwn
     fs = cfg['fs_hz']['value']
     noise = math.sqrt(cfg['channels']['noise_power'] * fs)
     u = np.zeros((int(record_s * fs), 2))
@@ -527,7 +528,6 @@ def design_mimo_fir(freq_resp, fs_hz: float, n_taps: int, fc_hz: float, lowpass_
     above; ``|G|`` above ``fc_hz`` weighs ``gain_weight`` (it bounds the high-frequency
     gain, which the RTHS loop feeds back through the specimen's inertia).
     """
-    from rths_bench.rths_benchmark import target_lowpass
     f = np.linspace(0.0, fs_hz / 2, 513)
     z1 = np.exp(-2j * np.pi * f / fs_hz)
     p = freq_resp(f)
@@ -562,7 +562,6 @@ def identify_mimo(cfg: dict, seed: int = 11, record_s: float = 20.0, band_hz: fl
     the cross-coupling is reported as the ratio of the off-diagonal to the diagonal DC
     gains.  Returns ``(taps, info)``.
     """
-    from rths_compensator.identification import identify
     fs = cfg['fs_hz']['value']
     rng = np.random.default_rng(seed)
     tests = [[_excite(cfg, j, rng, record_s, band_hz, peak_mm) for _ in range(3)]
@@ -745,7 +744,6 @@ def run_benchmark(controller: str = 'none', record: str = 'elcentro', n_draws: i
     ``options``: identification and design settings of the controller
     (:func:`make_controller`).
     """
-    from rths_bench.rths_benchmark import ground_acceleration
     t0, c0 = time.perf_counter(), time.process_time()
     cfg = cfg or load_config()
     fs = cfg['fs_hz']['value']
@@ -758,7 +756,6 @@ def run_benchmark(controller: str = 'none', record: str = 'elcentro', n_draws: i
     ctrl = make_controller(controller, cfg, len(plants), options, log=log)
     log(f'maRTHS: {controller}, {record}, {len(ag)} samples at {fs:g} Hz, nominal + '
         f'{n_draws} uncertain plants')
-    from rths_common.progress import Progress
     t_loop = time.perf_counter()
     with Progress(len(ag), f'maRTHS {controller} ({len(plants)} plants)', 'steps') as bar:
         h = run_batch(cfg, ag, plants, ctrl, seed=seed + 1, progress=bar.report)
@@ -811,6 +808,7 @@ def table_markdown(summary: dict) -> str:
 
 def make_plots(summary: dict, directory: str) -> list:
     """Plot target and measured strokes of both actuators (nominal plant)."""
+    # lazy: matplotlib costs ~0.5 s at start-up and only the plot needs it
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
@@ -874,7 +872,6 @@ def _cmd(args) -> int:
 
 def register(commands, benches):
     """Add ``rths bench marths``."""
-    from rths_bench.rths_benchmark import DATA_ENV
     p = benches.add_parser(
         'marths',
         help='the multi-axial RTHS benchmark (maRTHS, two actuators): J1-J10 of a controller',

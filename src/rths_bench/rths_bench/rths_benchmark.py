@@ -505,11 +505,14 @@ def write_at2(path: str, t, acc) -> str:
 
 
 def graph_params(case: str, design, record_at2: str, scale: float, seed: int = 1,
-                 duration_s: float = 0.0) -> dict:
+                 duration_s: float = 0.0, controller: str = 'fir', plant_yaml: str = '') -> dict:
     """Params of the three nodes for one case (``numerical``, ``compensator``, ``bridge``).
 
     The specimen force is relative (``interface_frame: relative``, no specimen ground
-    term: the model's influence vector carries the reference masses).
+    term: the model's influence vector carries the reference masses).  ``controller``
+    is the compensator node's method: ``example`` runs as ``pi_lead`` (the paper's PI +
+    phase lead, its default gains), the adaptive methods start from ``design`` and need
+    ``plant_yaml`` (:func:`write_method_plant`).
     """
     from rths_actuator_bridge.silva2020 import BRIDGE_PARAMS, FS_HZ
     numerical = {'model': f'silva2020_case{case}', 'integrator': 'cr', 'fs_hz': FS_HZ,
@@ -518,8 +521,27 @@ def graph_params(case: str, design, record_at2: str, scale: float, seed: int = 1
     compensator = {'scheme': design.scheme, 'fs_hz': FS_HZ,
                    'taps': [float(v) for v in design.taps],
                    'denominator': [float(v) for v in design.denominator]}
+    if controller == 'example':
+        compensator['method'] = 'pi_lead'
+    elif controller != 'fir':
+        compensator.update(method=controller, provenance={'plant': str(plant_yaml)})
     bridge = dict(BRIDGE_PARAMS, backend=DEFAULT_BACKEND, seed=int(seed), **GRAPH_SAFETY)
     return {'numerical': numerical, 'compensator': compensator, 'bridge': bridge}
+
+
+def write_method_plant(controller: str, info: dict, fs_hz: float, path: str) -> str:
+    """Write the plant.yaml the compensator node's adaptive ``controller`` starts from.
+
+    The same plant as :func:`make_controller`'s: ``rls_fir`` the FIR's design plant
+    ``P / L``, ``ats`` and ``amb`` the identified ARX model P.
+    """
+    from rths_compensator.design import plant_polynomials
+    from rths_compensator.identification import ArxModel, save_plant
+    design_plant, identified = plants_of(info, fs_hz)
+    if controller == 'rls_fir':
+        b, a, d, _ = plant_polynomials(design_plant, fs_hz)
+        identified = ArxModel(a=a, b=b, d=d, fs_hz=fs_hz)
+    return save_plant(path, identified, {'source': f'rths bench rths-benchmark ({controller})'})
 
 
 def run_cores(params: dict) -> dict:
@@ -537,18 +559,30 @@ def run_cores(params: dict) -> dict:
             'ag': hist['ground_accel'], 'safety_state': out['safety_state']}
 
 
-def launch_graph(params: dict, out_dir: str, log=_log) -> dict:
-    """Run one case through the ROS 2 node graph in lock-step (:func:`.commands.launch`).
+#: Realtime graph runs: SCHED_FIFO priority of the bridge (the other nodes one less), the
+#: bridge watchdog's consecutive misses (~10 ms at 4096 Hz: a VM stall of a few ms must not
+#: stop the run), seconds of the platform floor measured before each case.
+RT_PRIORITY, RT_WATCHDOG_STEPS, RT_FLOOR_S = 80, 41, 5.0
+
+
+def launch_graph(params: dict, out_dir: str, log=_log, mode: str = 'lockstep') -> dict:
+    """Run one case through the ROS 2 node graph (:class:`.launcher.Launcher`, composed).
 
     Writes the three params files under ``out_dir/config`` (the repository's config files
     with ``params`` on top), records ``out_dir/bag`` and the numerical node's history;
-    returns the same arrays as :func:`run_cores`.
+    returns the same arrays as :func:`run_cores`.  ``mode='realtime'``: the nodes run on
+    their clocks (SCHED_FIFO, the composed layout) after a platform floor measurement,
+    and the result also holds ``realtime`` (:func:`realtime_figures`).
     """
-    from rths_bringup.commands import default_config_dir, launch
+    from rths_bringup.commands import default_config_dir, run_info_of
+    from rths_bringup.launcher import Launcher
     from rths_bringup.run import NODE_FILES
     from rths_common import bagio, runinfo, topics
 
-    from .bench_loop import domain_id
+    from .bench_loop import domain_id, platform_floor
+    if mode not in ('lockstep', 'realtime'):
+        raise ValueError(f'--mode {mode!r}: use lockstep or realtime')
+    realtime = mode == 'realtime'
     os.environ['ROS_DOMAIN_ID'] = str(domain_id(-1))   # a private DDS domain for the nodes
     out = Path(out_dir)
     base = default_config_dir()
@@ -560,63 +594,133 @@ def launch_graph(params: dict, out_dir: str, log=_log) -> dict:
                        if k in ('mode', 'executor', 'remote_graph')}
         if node == 'compensator':
             section = {k: v for k, v in section.items() if k in ('executor',)}
-        section.update(params[node], mode='lockstep')
+        section.update(params[node], mode=mode)
+        if realtime:
+            section.update(executor='events', gc='freeze',
+                           rt_priority=RT_PRIORITY - (node != 'bridge'))
+            if node == 'bridge':
+                section['watchdog_steps'] = RT_WATCHDOG_STEPS
         runinfo.write_params(cfg / fname, node, section)
     history = (out / 'numerical_history.npz').resolve()
-    log(f'  launching the node graph (lock-step) with {cfg}, bag {out / "bag"}')
-    code = launch(cfg, bag=out / 'bag', timeout=7200.0,
-                  overrides={'numerical': {'history_out': str(history)}},
-                  progress_label=f'{out.name} graph run')
-    if code != 0:
+    timing = {name: (out / f'{name}_timing.npz').resolve() for name in ('bridge', 'numerical')}
+    overrides = {'numerical': {'history_out': str(history)}}
+    floor = None
+    if realtime:
+        for name, path in timing.items():
+            overrides.setdefault(name, {})['timing_out'] = str(path)
+        floor = platform_floor(params['bridge']['fs_hz'], RT_FLOOR_S, RT_PRIORITY)
+    overrides['recorder'] = run_info_of(cfg, overrides)   # the bag carries the run's params
+    log(f'  launching the node graph ({mode}) with {cfg}, bag {out / "bag"}')
+    launcher = Launcher(cfg, bag=out / 'bag', overrides=overrides, timeout_s=7200.0,
+                        layout='composed' if realtime else None,
+                        progress_label=f'{out.name} graph run')
+    code = launcher.run()
+    if code != 0 and not (realtime and timing['bridge'].exists() and history.exists()):
         raise RuntimeError(f'the node graph run failed (launcher exit {code}); see {out}')
     hist = np.load(history)
     meas = bagio.step_arrays(out / 'bag', topics.MEASUREMENT, ('displacement',))
     x_m = np.full(len(hist['displacements']), np.nan)
-    x_m[meas['step']] = meas['displacement'][:, 0]
-    return {'x_m': x_m, 'y_n': hist['displacements'], 'ag': hist['ground_accel']}
+    inside = meas['step'] < x_m.size
+    x_m[meas['step'][inside]] = meas['displacement'][inside, 0]
+    res = {'x_m': x_m, 'y_n': hist['displacements'], 'ag': hist['ground_accel']}
+    if realtime:
+        res['realtime'] = realtime_figures(timing, launcher, out / 'bag', floor,
+                                           params['bridge']['fs_hz'], code)
+    return res
+
+
+def realtime_figures(timing: dict, launcher, bag, floor: dict, rate_hz: float, code: int):
+    """Return one realtime run's ``realtime`` record (bench_loop's analysis, step costs).
+
+    ``step_us_p99_by_node`` (and p50) is each node's ``compute_us`` of its statuses: the
+    compensator's is the method's step cost in the node.
+    """
+    from rths_common import bagio, topics
+
+    from .bench_loop import analyse
+    r = analyse(timing['bridge'], timing['numerical'], launcher.cpu_samples, bag, rate_hz)
+    cost = {}
+    for _, msg in bagio.read_topic(bag, topics.STATUS):
+        cost.setdefault(msg.node, []).append(msg.compute_us)
+    pct = {q: {node: round(float(np.percentile(v, q)), 1) for node, v in sorted(cost.items())}
+           for q in (50, 99)}
+    return {'rate_hz': float(rate_hz), 'deadline_miss_pct': r['deadline_miss_pct'],
+            'late_or_missed_pct': r['late_or_missed_pct'],
+            'floor_late_pct': floor['late_gt_period_pct'] if floor else None,
+            'latency_us_p99': r['latency_us_p99'], 'step_us_p99_by_node': pct[99],
+            'recorder_loss': r['bag']['recorder_loss'], 'step_us_p50_by_node': pct[50],
+            'steps': r['steps'], 'deadline_misses': r['deadline_misses'],
+            'stalled_ticks': r['stalled_ticks'], 'cpu_pct': r.get('cpu_pct'),
+            'run_completed': code == 0, 'floor': floor,
+            'load_average_1min': round(os.getloadavg()[0], 2)}
 
 
 def run_graph_benchmark(via: str = 'cores', record: str = 'elcentro', data_dir: str = None,
                         out_dir: str = '.', cases=CASES, duration_s: float = None,
-                        seed: int = 2020, fir_options: dict = None, log=_log) -> dict:
-    """Run ``fir`` through the node cores or the node graph (``via``) for the nominal cases.
+                        seed: int = 2020, fir_options: dict = None, log=_log,
+                        controller: str = 'fir', mode: str = 'lockstep') -> dict:
+    """Run ``controller`` through the node cores or the node graph (``via``), nominal cases.
 
     The compensator is identified and designed in the graph's timing (the measurement
-    of step k at the end of the sample that held command k).  ``via='graph'`` also runs
-    the cores and records the largest difference (the lock-step graph must equal them).
+    of step k at the end of the sample that held command k).  ``via='graph'`` in
+    lock-step also runs the cores and records the largest difference (the lock-step
+    graph must equal them); in realtime (``mode``) each case's summary gains
+    ``realtime`` (:func:`realtime_figures`) and ``summary['realtime']`` the worst case.
     """
     from rths_actuator_bridge.silva2020 import FS_HZ
     if via not in ('cores', 'graph'):
         raise ValueError(f'--via {via!r}: use loop, cores or graph')
+    if mode == 'realtime' and via != 'graph':
+        raise ValueError('--mode realtime runs through the node graph: add --via graph')
+    if controller not in ('example', 'fir') + ADAPTIVE_CONTROLLERS:
+        raise ValueError(f'--controller {controller!r} unknown; use example, fir, '
+                         f'{", ".join(ADAPTIVE_CONTROLLERS)}')
     dt = 1.0 / FS_HZ
     t0, c0 = time.perf_counter(), time.process_time()
     t_rec, acc, scale = load_record(record, data_dir)
     os.makedirs(out_dir, exist_ok=True)
     at2 = write_at2(os.path.join(out_dir, 'record.AT2'), t_rec, acc)
-    log(f'rths-benchmark via {via}: controller fir, record {record}, cases {", ".join(cases)}')
+    log(f'rths-benchmark via {via} ({mode}): controller {controller}, record {record}, cases '
+        f'{", ".join(cases)}')
     design, info = identify_and_design(log=log, timing='graph', **(fir_options or {}))
-    summary = {'controller': 'fir', 'cases': {},
+    plant_yaml = ''
+    if controller in ADAPTIVE_CONTROLLERS:
+        plant_yaml = write_method_plant(controller, info, FS_HZ,
+                                        os.path.join(out_dir, 'plant.yaml'))
+    summary = {'controller': controller, 'cases': {},
                'perturbed': {'n': 0, 'J1_max': None, 'J2_max': None, 'J3_max': None,
                              'unstable': 0}}
-    diffs, extra = {}, {'cases': list(cases), 'refs': {}, 'out': {'x_m': [], 'y_n': []}}
+    diffs, rt = {}, {}
+    extra = {'cases': list(cases), 'refs': {}, 'out': {'x_m': [], 'y_n': []}}
     for c in cases:
         t1 = time.perf_counter()
-        params = graph_params(c, design, at2, scale, seed, duration_s or 0.0)
-        res = run_cores(params)
+        params = graph_params(c, design, at2, scale, seed, duration_s or 0.0, controller,
+                              plant_yaml)
+        res = run_cores(params) if mode == 'lockstep' else None
         if via == 'graph':
-            graph = launch_graph(params, os.path.join(out_dir, f'graph_case{c}'), log)
-            diffs[c] = float(max(np.nanmax(np.abs(graph['x_m'] - res['x_m'])),
-                                 np.max(np.abs(graph['y_n'] - res['y_n']))))
+            graph = launch_graph(params, os.path.join(out_dir, f'graph_case{c}'), log, mode)
+            if res is not None:
+                diffs[c] = float(max(np.nanmax(np.abs(graph['x_m'] - res['x_m'])),
+                                     np.max(np.abs(graph['y_n'] - res['y_n']))))
             res = graph
         ref = reference_response(c, res['ag'], dt)
         summary['cases'][c] = criteria(res['x_m'], res['y_n'], ref, dt)
+        if 'realtime' in res:
+            rt[c] = res['realtime']
+            log(f"  case {c} realtime: late or missed {rt[c]['late_or_missed_pct']} % (floor "
+                f"{rt[c]['floor_late_pct']} %), latency p99 {rt[c]['latency_us_p99']} us, "
+                f"step p99 by node {rt[c]['step_us_p99_by_node']} us, recorder loss "
+                f"{rt[c]['recorder_loss']}")
         extra['refs'][c] = ref
         extra['out']['x_m'].append(res['x_m'])
         extra['out']['y_n'].append(res['y_n'])
         log(f"  case {c}: {len(res['x_m'])} steps in {time.perf_counter() - t1:.1f} s: "
             + ', '.join(f'{k} {v}' for k, v in summary['cases'][c].items()))
     extra['t'] = np.arange(len(extra['out']['x_m'][0])) * dt
-    summary['settings'] = {'via': via, 'record': record, 'scale': scale,
+    if rt:
+        summary['realtime'] = worst_realtime(rt)
+        summary['realtime_by_case'] = rt
+    summary['settings'] = {'via': via, 'mode': mode, 'record': record, 'scale': scale,
                            'duration_s': float(extra['t'][-1]), 'fs_hz': FS_HZ, 'seed': seed,
                            'controller': info, 'total_s': round(time.perf_counter() - t0, 2),
                            'cpu_s': round(time.process_time() - c0, 2),
@@ -626,6 +730,31 @@ def run_graph_benchmark(via: str = 'cores', record: str = 'elcentro', data_dir: 
     summary['draws'] = []
     summary['_extra'] = extra
     return summary
+
+
+def worst_realtime(by_case: dict) -> dict:
+    """Return the realtime record over the cases: the worst of each figure, losses summed."""
+    rows = list(by_case.values())
+
+    def worst(key):
+        vals = [r[key] for r in rows if r[key] is not None]
+        return max(vals) if vals else None
+
+    nodes = sorted({n for r in rows for n in r['step_us_p99_by_node']})
+    loss = {}
+    for r in rows:
+        for topic, n in r['recorder_loss'].items():
+            loss[topic] = loss.get(topic, 0) + int(n)
+    return {'rate_hz': rows[0]['rate_hz'], 'deadline_miss_pct': worst('deadline_miss_pct'),
+            'late_or_missed_pct': worst('late_or_missed_pct'),
+            'floor_late_pct': worst('floor_late_pct'), 'latency_us_p99': worst('latency_us_p99'),
+            'step_us_p99_by_node': {n: max(r['step_us_p99_by_node'].get(n, 0.0) for r in rows)
+                                    for n in nodes},
+            'recorder_loss': loss,
+            'step_us_p50_by_node': {n: max(r['step_us_p50_by_node'].get(n, 0.0) for r in rows)
+                                    for n in nodes},
+            'completed': all(r['run_completed'] for r in rows),
+            'cases': len(rows)}
 
 
 # ----------------------------------------------------------------------------- criteria
@@ -901,9 +1030,12 @@ def make_plots(summary: dict, directory: str) -> list:
 def write_outputs(summary: dict, directory: str, plots: bool = True) -> list:
     """Write ``summary.json`` (issue 13 layout), ``details.json``, ``table.md`` and plots."""
     os.makedirs(directory, exist_ok=True)
-    data = {k: summary[k] for k in ('controller', 'cases', 'perturbed')}
+    data = {k: summary[k] for k in ('controller', 'cases', 'perturbed', 'realtime')
+            if k in summary}
     details = {'settings': summary['settings'], 'command': summary.get('command', {}),
                'draws': summary['draws']}
+    if 'realtime_by_case' in summary:
+        details['realtime_by_case'] = summary['realtime_by_case']
     if summary['controller'] == 'example' and summary['settings']['record'] == 'elcentro':
         details['published_comparison'] = comparison(summary)
     files = [os.path.join(directory, name) for name in ('summary.json', 'details.json',
@@ -937,20 +1069,17 @@ def fir_options(args) -> dict:
 
 def _cmd(args) -> int:
     fir = fir_options(args)
+    if args.via == 'loop' and args.mode != 'lockstep':
+        raise ValueError('--mode realtime runs through the node graph: add --via graph')
     if args.via == 'loop':
         summary = run_benchmark(args.controller, args.record, args.draws, args.seed,
                                 args.duration or None, args.data_dir, fir,
                                 parse_cases(args.cases))
-    elif args.controller != 'fir':
-        raise ValueError(f'--via {args.via} runs the feed-forward fir controller only: the '
-                         'example controller needs the measured displacement in the '
-                         'compensator, which the compensator node does not receive; the '
-                         'adaptive ones run with --via loop (in the graph: rths run '
-                         '--adaptive)')
     else:
         summary = run_graph_benchmark(args.via, args.record, args.data_dir, args.out,
                                       parse_cases(args.cases), args.duration or None,
-                                      args.seed, fir)
+                                      args.seed, fir, controller=args.controller,
+                                      mode=args.mode)
     return print_outputs(summary, args)
 
 
@@ -1006,7 +1135,13 @@ def register(commands, benches):
                    help='loop (default): the vectorised benchmark loop (benchmark timing, all '
                         'draws); cores: fir through the node cores (offline_rths, the '
                         "project's timing, nominal cases); graph: fir through the ROS 2 node "
-                        'graph in lock-step (slow: ~350 steps/s here; use --duration), '
-                        'checked against the cores')
+                        'graph (lock-step: slow, ~350 steps/s here, use --duration; '
+                        'checked against the cores)')
+    p.add_argument('--mode', default='lockstep', choices=('lockstep', 'realtime'),
+                   help='with --via graph: lockstep (default) or realtime: the composed graph '
+                        'on its clocks at the benchmark rate (4096 Hz, SCHED_FIFO), a platform '
+                        'floor before each case; summary.json gains realtime {rate_hz, '
+                        'deadline_miss_pct, late_or_missed_pct, floor_late_pct, '
+                        'latency_us_p99, step_us_p99_by_node, recorder_loss}')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
     p.set_defaults(func=_cmd)

@@ -20,6 +20,7 @@ CFG = mr.load_config()
 
 def test_config_cites_the_benchmark_files():
     assert 'eb0f21bae8a0dd7100a1620db995b4ff22b70465' in CFG['_source']
+    assert 'MIT License, Copyright (c) 2024 Fermandois Research Lab' in CFG['_licence']
     for key in ('reference', 'physical_ideal', 'physical_frame', 'coupler', 'plant',
                 'channels'):
         assert CFG[key]['file'], key

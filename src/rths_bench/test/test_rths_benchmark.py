@@ -86,7 +86,53 @@ def test_graph_params_build_the_node_cores(tmp_path, capsys):
     lab = Bridge()
     lab.configure(params['bridge'])
     assert lab.backend.plant.n_states == 5
-    # the feedback example controller cannot run through the nodes: a clear error
-    assert main(['bench', 'rths-benchmark', '--controller', 'example', '--via', 'cores',
-                 '--out', str(tmp_path / 'x')]) == 2
-    assert 'fir controller only' in capsys.readouterr().err
+    # realtime runs through the graph only: a clear error
+    assert main(['bench', 'rths-benchmark', '--mode', 'realtime', '--out',
+                 str(tmp_path / 'x')]) == 2
+    assert 'add --via graph' in capsys.readouterr().err
+
+
+@pytest.fixture(scope='module')
+def designed():
+    """One short identification and FIR design of the benchmark's plant (lab procedure)."""
+    return rb.identify_and_design(attempts=1, record_s=5.0, log=lambda _: None)
+
+
+@pytest.mark.parametrize('controller', ['example', 'rls_fir', 'ats'])
+def test_graph_params_run_every_controller_in_the_compensator_core(tmp_path, controller,
+                                                                   designed):
+    """The benchmark's controllers as compensator-node methods, on the benchmark's plant."""
+    from rths_actuator_bridge.silva2020 import FS_HZ
+    from rths_compensator.core import CompensatorCore
+
+    design, info = designed
+    plant = rb.write_method_plant(controller, info, FS_HZ, str(tmp_path / 'plant.yaml'))
+    params = rb.graph_params('1', design, 'r.AT2', 0.4, controller=controller,
+                             plant_yaml=plant if controller != 'example' else '')
+    comp = params['compensator']
+    assert comp['method'] == ('pi_lead' if controller == 'example' else controller)
+    core = CompensatorCore(comp)                     # the node's core builds the method
+    assert core.adaptive
+    if controller == 'rls_fir':                      # its plant is the FIR's design plant
+        from rths_compensator.adaptive import split_fir
+        from rths_compensator.identification import load_plant
+        h, a_star, _ = split_fir(design, load_plant(plant))   # the taps are A* h exactly
+        assert np.allclose(np.convolve(a_star, h), design.taps, atol=1e-9)
+
+
+def test_worst_realtime_over_cases_takes_the_worst_and_sums_losses():
+    row = {'rate_hz': 4096.0, 'deadline_miss_pct': 0.1, 'late_or_missed_pct': 0.15,
+           'floor_late_pct': 0.1, 'latency_us_p99': 80.0, 'run_completed': True,
+           'step_us_p99_by_node': {'bridge': 40.0, 'compensator': 20.0},
+           'step_us_p50_by_node': {'bridge': 10.0, 'compensator': 5.0},
+           'recorder_loss': {'/rths/command': 0, '/rths/measurement': 1}}
+    other = dict(row, late_or_missed_pct=0.3, latency_us_p99=60.0, run_completed=False,
+                 step_us_p99_by_node={'bridge': 30.0, 'compensator': 50.0})
+    rt = rb.worst_realtime({'1': row, '2': other})
+    assert list(rt)[:7] == ['rate_hz', 'deadline_miss_pct', 'late_or_missed_pct',
+                            'floor_late_pct', 'latency_us_p99', 'step_us_p99_by_node',
+                            'recorder_loss']
+    assert rt['late_or_missed_pct'] == 0.3 and rt['latency_us_p99'] == 80.0
+    assert rt['step_us_p99_by_node'] == {'bridge': 40.0, 'compensator': 50.0}
+    assert rt['recorder_loss'] == {'/rths/command': 0, '/rths/measurement': 2}
+    assert rt['completed'] is False and rt['cases'] == 2

@@ -17,6 +17,11 @@ Commands that can run longer than a few seconds (:data:`PROGRESS_COMMANDS` and
 every benchmark) show their progress on stderr through
 :mod:`rths_common.progress` and take ``--quiet``.
 
+Every int/float option is checked while parsing: a non-finite value, or one
+outside its range in :data:`rths_common.params.OPTION_RANGES` (the loop rate's
+is :data:`rths_common.params.LOOP_RATE_RANGE_HZ`), is refused with exit code 2
+before the command starts.
+
 Errors the user can fix (bad input file, missing column, out-of-range value)
 are raised as ``ValueError`` or ``OSError`` with a message that names the
 file/field and the fix; they are printed without a traceback and the command
@@ -74,9 +79,27 @@ def _add_quiet(commands, benches):
             add_quiet_argument(parser)
 
 
+def error_line(err) -> str:
+    """Return the message of a user error on one line, as ``rths`` prints it."""
+    return ' '.join(str(err).split())
+
+
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line: ``PROG: error: ...`` and the --help hint."""
+
+    def error(self, message):
+        """Exit 2 with one line: the error and where to read the command's options."""
+        self.exit(2, f'{self.prog}: error: {message} (see {self.prog} --help)\n')
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """Create the full ``rths`` argument parser from every package's cli module."""
-    parser = argparse.ArgumentParser(
+    """Create the full ``rths`` argument parser from every package's cli module.
+
+    Every numeric option is refused outside its range (``OPTION_RANGES``) and when not
+    finite while parsing, so no command starts on a value it would refuse later.
+    """
+    from rths_common.params import check_option_ranges
+    parser = Parser(
         prog='rths',
         description='Real-time hybrid simulation (RTHS) on ROS 2: run the node graph, '
                     'identify and compensate the actuator, simulate the building, review runs.',
@@ -97,6 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
         if hasattr(module, 'extend'):
             module.extend(commands, benches)
     _add_quiet(commands, benches)
+    check_option_ranges(parser)
     return parser
 
 
@@ -111,7 +135,7 @@ def main(argv=None) -> int:
     except (ValueError, OSError) as err:
         if os.environ.get('RTHS_DEBUG'):
             raise
-        print(f'rths {args.command}: error: {err}', file=sys.stderr)
+        print(f'rths {args.command}: error: {error_line(err)}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f'rths {args.command}: interrupted', file=sys.stderr)

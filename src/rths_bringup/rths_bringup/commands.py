@@ -80,6 +80,9 @@ def add_launch_args(p):
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                    help='bag storage (default mcap, as ros2 bag since Iron; sqlite3 for older '
                         'tools)')
+    p.add_argument('--mode', choices=('lockstep', 'realtime'), default=None,
+                   help='timing mode of every node (default: the mode the params files give, '
+                        'which must agree; mixed modes are refused before anything starts)')
     p.add_argument('--timeout', type=float, default=600.0,
                    help='wall-clock limit [s] after which the run is stopped as failed '
                         '(default 600)')
@@ -105,7 +108,7 @@ def run_info_of(config, overrides) -> dict:
 
 
 def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, storage=None,
-           live=False, layout=None, progress_label='run'):
+           live=False, layout=None, progress_label='run', mode=None):
     """Run the graph; return the launcher's exit code.
 
     With a bag, the run's parameters (the three params files with the
@@ -116,6 +119,9 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, stora
 
     config = Path(config) if config else default_config_dir()
     overrides = overrides or {}
+    if mode is not None:            # one switch for every node (the recorder's QoS follows)
+        for node in ('numerical', 'compensator', 'bridge'):
+            overrides.setdefault(node, {})['mode'] = mode
     if duration is not None:
         if not duration > 0:
             raise ValueError(f'--duration must be > 0 s, got {duration}')
@@ -142,7 +148,7 @@ def cmd_launch(args) -> int:
     fs = live_rate_of(args.config) if args.live else 0.0
     with live.session(args, fs_hz=fs):
         code = launch(args.config, args.duration, args.bag, args.timeout, storage=args.storage,
-                      live=args.live, layout=args.layout)
+                      live=args.live, layout=args.layout, mode=getattr(args, 'mode', None))
     if args.bag and Path(args.bag).exists():
         from rths_bringup.review import loop_summary
         print_bag_info(args.bag)

@@ -42,11 +42,16 @@ and supervises them:
   (:mod:`rths_bringup.preflight`): a bad one raises ValueError naming file,
   field and fix, and nothing is written;
 * ``node_env`` / ``node_prefix`` give a node its own environment (ROS domain,
-  discovery) and command prefix (``ip netns exec HOST``): distributed runs.
+  discovery) and command prefix (``ip netns exec HOST``): distributed runs;
+* every run is isolated (:mod:`rths_bringup.isolation`): it holds its ROS domain
+  (``ROS_DOMAIN_ID``, else a free one) while it runs, refusing to start when
+  another run holds it, and gives every node a fresh run identity (``run_id``).
 
 Timing mode: ``mode`` None (the default) takes the numerical node's ``mode``
 from the config (or its override), so the recorder subscribes with matching
-QoS; an explicit ``mode`` is also passed to every node as an override.
+QoS; an explicit ``mode`` is also passed to every node as an override, and a
+node whose file gives none runs in the run's mode.  Nodes whose modes still
+differ are refused by the pre-flight check (``preflight.check_modes``).
 The numerical node logs ``progress: step K of N`` every simulated second; the
 launcher turns those lines into the run's progress (:mod:`rths_common.progress`,
 on stderr, labelled ``progress_label``) instead of echoing them.
@@ -71,6 +76,7 @@ import time
 
 import yaml
 
+from rths_bringup import isolation
 from rths_bringup.preflight import check_config
 from rths_common import lifeline, yamlfile
 from rths_common.bagio import reindex
@@ -109,16 +115,18 @@ def executable(package: str, name: str) -> Path:
     return path
 
 
-def config_param(config_dir: Path, overrides: dict, key: str, default):
-    """Return the numerical node's ``key``: its override, else its params file, else ``default``."""
-    value = overrides.get(OWNER, {}).get(key)
+def config_param(config_dir: Path, overrides: dict, key: str, default, node: str = OWNER):
+    """Return ``node``'s ``key``: its override, else its params file, else ``default``."""
+    value = overrides.get(node, {}).get(key)
     if value not in (None, ''):
         return value
-    path = Path(config_dir) / 'numerical.yaml'
+    path = Path(config_dir) / f'{node}.yaml'
     try:
         data = yamlfile.load(path) or {}
     except (OSError, ValueError):
         return default              # the pre-flight check names the problem
+    if not isinstance(data, dict):
+        return default
     for section in data.values():
         if isinstance(section, dict) and key in (section.get('ros__parameters') or {}):
             return section['ros__parameters'][key]
@@ -210,6 +218,9 @@ class Launcher:
             for name, *_ in NODES:
                 self.overrides.setdefault(name, {})['mode'] = mode
         self.mode = mode or config_mode(self.config_dir, self.overrides)
+        for name, *_ in NODES:      # a node whose file gives no mode runs in the run's mode
+            if config_param(self.config_dir, self.overrides, 'mode', None, name) is None:
+                self.overrides.setdefault(name, {})['mode'] = self.mode
         loop_rate_override(self.config_dir, self.overrides)
         if layout is None:
             layout = ('composed' if self.mode == 'realtime' and not self.node_env
@@ -360,7 +371,21 @@ class Launcher:
     def run(self) -> int:
         """Run the graph until the owner finishes, a node dies or a signal arrives."""
         if self.preflight:  # every params file checked before anything starts or is written
-            check_config(self.config_dir)
+            check_config(self.config_dir, self.overrides)
+        with isolation.reserved(self.describe()) as domain:
+            self.run_id = isolation.new_run_id()
+            for name in (*(n[0] for n in NODES), RECORDER[0]):
+                self.overrides.setdefault(name, {})['run_id'] = self.run_id
+            how = ('a free domain taken for this run' if domain.picked else 'ROS_DOMAIN_ID')
+            self.say(f'ROS domain {domain.domain} ({how}), run identity {self.run_id}')
+            return self._run()
+
+    def describe(self) -> str:
+        """Return how this run is named to another run that finds its domain taken."""
+        where = f', bag {self.bag.resolve()}' if self.bag else ''
+        return f'rths launch --config {self.config_dir.resolve()}{where}'
+
+    def _run(self) -> int:
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         failed = None
         try:

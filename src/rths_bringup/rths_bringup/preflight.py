@@ -98,7 +98,9 @@ def check_compensator(path) -> dict:
     """Validate ``compensator.yaml`` (known keys, taps, denominator, fs_hz)."""
     params = load_params_file(path, 'compensator')
     check_compensator_params({k: v for k, v in params.items() if k not in NODE_KEYS}, str(path))
-    return _wrap(path, 'compensator', load_compensator_params, path)
+    loaded = _wrap(path, 'compensator', load_compensator_params, path)
+    # the node's own keys (mode, executor, ...) count for check_modes
+    return {**loaded, **{k: v for k, v in params.items() if k in NODE_KEYS}}
 
 
 def check_rates(config_dir, numerical: dict, compensator: dict) -> None:
@@ -109,6 +111,39 @@ def check_rates(config_dir, numerical: dict, compensator: dict) -> None:
     loop_fs = numerical.get('fs_hz', DEFAULTS['fs_hz'])
     check_sampling_rate(compensator, loop_fs, str(Path(config_dir) / 'compensator.yaml'),
                         'fs_hz of numerical.yaml')
+
+
+#: Timing modes a node knows, and the one it takes when its file gives none.
+MODES = ('lockstep', 'realtime')
+DEFAULT_MODE = 'lockstep'
+
+
+def check_modes(config_dir, params: dict, overrides: dict) -> str:
+    """Refuse a graph whose nodes would run in different timing modes; return the mode.
+
+    A node in realtime and another in lock-step never exchange a step (the graph idles
+    until the timeout), so a mixed graph is refused before anything starts.
+    """
+    modes = {}
+    for node in ('numerical', 'compensator', 'bridge'):
+        over = (overrides.get(node) or {}).get('mode')
+        if over not in (None, ''):
+            modes[node] = (str(over), 'override')
+        elif 'mode' in params.get(node, {}):
+            modes[node] = (str(params[node]['mode']), f'{node}.yaml')
+        else:
+            modes[node] = (DEFAULT_MODE, f'{node}.yaml has none: the default')
+    for node, (mode, where) in modes.items():
+        if mode not in MODES:
+            raise ValueError(f'{Path(config_dir) / (node + ".yaml")}: field mode = {mode!r} '
+                             f'({where}); use lockstep or realtime')
+    if len({m for m, _ in modes.values()}) > 1:
+        listed = ', '.join(f'{n} {m} ({w})' for n, (m, w) in modes.items())
+        raise ValueError(f'{config_dir}: the nodes would run in different timing modes '
+                         f'({listed}); they would never exchange a step. Set one for all with '
+                         'rths launch --mode lockstep|realtime, or write the same mode in '
+                         'every file')
+    return modes['numerical'][0]
 
 
 def check_bridge(path) -> dict:
@@ -131,8 +166,12 @@ CHECKS = (('bridge.yaml', check_bridge), ('compensator.yaml', check_compensator)
           ('numerical.yaml', check_numerical))
 
 
-def check_config(config_dir) -> None:
-    """Check every params file of ``config_dir`` (ValueError/OSError on the first bad one)."""
+def check_config(config_dir, overrides: dict = None) -> None:
+    """Check every params file of ``config_dir`` (ValueError/OSError on the first bad one).
+
+    ``overrides`` ({node: {key: value}}, as the launcher applies them) count for the
+    timing-mode check (:func:`check_modes`).
+    """
     config_dir = Path(config_dir)
     checked = {}
     for name, check in CHECKS:
@@ -141,6 +180,8 @@ def check_config(config_dir) -> None:
             raise OSError(f'params file {path} not found; give --config a directory holding '
                           f'{", ".join(n for n, _ in CHECKS)}')
         checked[name] = check(path)
+    check_modes(config_dir, {n.removesuffix('.yaml'): p for n, p in checked.items()},
+                overrides or {})
     check_rates(config_dir, checked['numerical.yaml'], checked['compensator.yaml'])
     for name, params in checked.items():
         check_ranges(config_dir / name, name.removesuffix('.yaml'), params)

@@ -6,10 +6,16 @@ The bag is MCAP (``-p storage:=sqlite3`` for the older sqlite3 storage).
 
 Subscriptions take the serialized (CDR) bytes (``raw=True``), so recording
 costs no deserialization; a writer thread drains a queue into the bag in
-batches (every ``batch_s``, default 0.05 s; the callbacks only append to the
-queue) and commits at least every 0.25 s (checked after each batch), so a
-crash of any process loses at most that much plus one batch.  This node never
+batches (every ``batch_s``, default 0.05 s, at most MAX_BATCH_S; the callbacks
+only append to the queue) and commits after each batch once COMMIT_PERIOD_S has
+passed, so a SIGKILL of the recorder loses at most the last 0.1 s (one batch
+plus one commit period).  This node never
 sits in the 1 kHz path of the loop.
+
+Run identity (``run_id``, from the launcher): a stamped loop message of another
+run (its ``header.frame_id``, :mod:`rths_common.transport`) is not recorded; the
+recorder counts them and says so at the end.  A recorder started without one (by
+hand, beside ``rths replay``) records every run's messages.
 
 Realtime mode: the recorder must not take the loop's CPU.  Its threads stay
 at normal (SCHED_OTHER) scheduling with a positive nice value (``nice``,
@@ -44,11 +50,18 @@ from rths_common.bagio import BagWriter
 from rths_common.qos import recorder_qos, status_qos
 from rths_common.tee import TOPICS as TEED_TOPICS
 from rths_common.tee import read_records
+from rths_common.transport import split_frame
 
 #: Recorder parameters that are not run information (everything else is kept in the bag).
 RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s', 'storage', 'pipe_fd')
-#: Longest time between two commits of the bag [s] (what a crash can lose).
-COMMIT_PERIOD_S = 0.25
+#: Recorded topics whose messages carry a header (and so the run identity).
+STAMPED = (topics.INTERFACE_DISPLACEMENT, topics.COMMAND, topics.MEASUREMENT, topics.STATUS,
+           topics.SPECIMEN, topics.CONTROLLER)
+#: Shortest time between two commits of the bag [s]; a crash loses at most this
+#: plus one batch (MAX_BATCH_S): 0.1 s.
+COMMIT_PERIOD_S = 0.05
+#: Longest batch of the writer thread [s] (the ``batch_s`` parameter's upper bound).
+MAX_BATCH_S = 0.05
 #: After the stop request the recorder keeps taking messages this long [s] ...
 TAIL_S = 0.2
 #: ... and after its launcher died, until the bridge reports STOPPED (its safe stop is
@@ -72,8 +85,9 @@ class Recorder:
         self.cpus = str(params.get('cpus', '') or '')
         self.batch_s = float(params.get('batch_s', 0.05))
         self.storage = str(params.get('storage', '') or bagstore.DEFAULT_STORAGE)
-        if not 0 < self.batch_s <= 0.25:
-            raise ValueError(f"parameter 'batch_s' = {self.batch_s} must lie in (0, 0.25] s "
+        if not 0 < self.batch_s <= MAX_BATCH_S:
+            raise ValueError(f"parameter 'batch_s' = {self.batch_s} must lie in "
+                             f"(0, {MAX_BATCH_S:g}] s "
                              '(the writer drains the queue this often)')
         # Everything else given to the recorder (fs_hz, ...) is run information kept in the bag.
         self.run_info = {k: v for k, v in params.items() if k not in RECORDER_PARAMS}
@@ -82,6 +96,8 @@ class Recorder:
         self.wake = threading.Event()
         self.running = True
         self.count = 0
+        self.run_id = str(params.get('run_id', '') or '')
+        self.foreign = 0
         # sqlite objects must stay in the thread that made them: the writer thread opens the bag.
         opened = threading.Event()
         self.open_error = None
@@ -101,7 +117,8 @@ class Recorder:
         for topic, msgtype in topics.LOOP_TOPICS.items():
             if topic in teed and topic != topics.EMERGENCY_STOP:
                 continue   # the container's tee brings every one of these
-            qos = (status_qos() if topic in (topics.STATUS, topics.SPECIMEN, topics.CONTROLLER)
+            qos = (status_qos() if topic in (topics.STATUS, topics.SPECIMEN, topics.CONTROLLER,
+                                             topics.RUN_INPUTS, topics.RESPONSE)
                    else recorder_qos(mode))
             self.node.create_subscription(ns.message_class(msgtype), topic,
                                           self._callback(topic), qos, raw=True)
@@ -138,12 +155,23 @@ class Recorder:
 
     def _callback(self, topic):
         queue, now_ns = self.queue, ns.now_ns
+        # a stamped topic carries the run identity; a recorder without one takes every run's
+        run_id = self.run_id if topic in STAMPED else ''
+
+        def ours(raw: bytes) -> bool:
+            if run_id and split_frame(cdr.sender_of(raw))[0] != run_id:
+                self.foreign += 1      # another run's message: not this run's record
+                return False
+            return True
 
         def on_message(raw: bytes):
             # only a deque append (thread-safe): the writer thread drains in batches
-            queue.append((topic, now_ns(), raw))
+            if ours(raw):
+                queue.append((topic, now_ns(), raw))
 
         def on_status(raw: bytes):
+            if not ours(raw):
+                return
             queue.append((topic, now_ns(), raw))
             if lifeline.lost() and cdr.status_state(raw) == ('bridge', _STOPPED):
                 self.bridge_stopped = True
@@ -232,8 +260,9 @@ def main(argv=None):
               'BAG INCOMPLETE', flush=True)
     count = rec.close()
     piped = f' ({rec.piped} from the container)' if rec.pipe_fd >= 0 else ''
-    print(f'recorder: {count} messages written{piped} in {time.monotonic() - t0:.1f} s',
-          flush=True)
+    foreign = f'; {rec.foreign} of another run not recorded' if rec.foreign else ''
+    print(f'recorder: {count} messages written{piped} in {time.monotonic() - t0:.1f} s'
+          f'{foreign}', flush=True)
     rclpy.shutdown()
     lifeline.end_if_lost(0)
     return 0

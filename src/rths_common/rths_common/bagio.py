@@ -81,7 +81,7 @@ class BagWriter:
     rosbags message objects.
     """
 
-    def __init__(self, path, topic_types=None, commit_period_s: float = 0.25, run_info=None,
+    def __init__(self, path, topic_types=None, commit_period_s: float = 0.1, run_info=None,
                  storage: str = bagstore.DEFAULT_STORAGE):
         # lazy: start-up cost: rosbags (~0.2 s), which this module needs only here
         from rosbags.interfaces import Connection
@@ -183,15 +183,62 @@ def _holds_bag_files(path: Path) -> bool:
 
 
 def run_info(bag) -> dict:
-    """Run information of a bag (``fs_hz``, ``mode``, ...): custom_data, else the side file."""
+    """Run information of a bag (``fs_hz``, ``mode``, ...): custom_data, else the side file.
+
+    A damaged ``metadata.yaml`` is rebuilt first, as :func:`open_reader` does.
+    """
     bag = bag_dir(bag)
-    meta = bag / 'metadata.yaml'
-    if meta.exists():
-        info = yaml.safe_load(meta.read_text())['rosbag2_bagfile_information']
-        if info.get('custom_data'):
-            return dict(info['custom_data'])
+    if (bag / 'metadata.yaml').exists():
+        try:
+            info = metadata(bag)
+        except ValueError:
+            open_reader(bag).close()    # rebuilds it (the old one kept), or BagDamaged
+            info = metadata(bag)
+        custom = info.get('custom_data')
+        if custom:
+            if not isinstance(custom, dict):
+                raise ValueError(f'{bag / "metadata.yaml"}: custom_data is not a mapping; '
+                                 "rebuild the file with 'rths bag reindex'")
+            return dict(custom)
     side = bag / RUN_INFO_FILE
-    return yaml.safe_load(side.read_text()) if side.exists() else {}
+    if not side.exists():
+        return {}
+    try:
+        data = yaml.safe_load(side.read_text())
+    except yaml.YAMLError as err:
+        raise ValueError(f'{side}: not valid YAML ({_first_line(err)})') from None
+    if data is not None and not isinstance(data, dict):
+        raise ValueError(f'{side}: must be a mapping of run information, '
+                         f'got {type(data).__name__}')
+    return data or {}
+
+
+def _first_line(err) -> str:
+    return str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+
+
+def metadata(bag) -> dict:
+    """Return ``rosbag2_bagfile_information`` of a bag's metadata.yaml, checked to be a mapping.
+
+    A file that is not YAML, not a mapping or lacks that key raises ValueError
+    naming the file and the fix (``rths bag reindex`` rebuilds it from the data file).
+    """
+    meta = bag_dir(bag) / 'metadata.yaml'
+    fix = f"rebuild it with 'rths bag reindex {bag_dir(bag)}'"
+    try:
+        data = yaml.safe_load(meta.read_text())
+    except yaml.YAMLError as err:
+        raise ValueError(f'{meta}: not valid YAML ({_first_line(err)}); {fix}') from None
+    except UnicodeDecodeError:
+        raise ValueError(f'{meta}: not a text file; {fix}') from None
+    if not isinstance(data, dict):
+        raise ValueError(f'{meta}: must be a mapping with rosbag2_bagfile_information, got '
+                         f'{type(data).__name__}; {fix}')
+    info = data.get('rosbag2_bagfile_information')
+    if not isinstance(info, dict):
+        raise ValueError(f'{meta}: rosbag2_bagfile_information is missing or not a mapping; '
+                         f'{fix}')
+    return info
 
 
 def reindex(bag) -> Path:
@@ -268,8 +315,8 @@ class BagDamaged(ValueError):
 
 
 #: What a damaged bag raises inside rosbags and the decoders it uses.
-_READ_ERRORS = (KeyError, IndexError, EOFError, UnicodeDecodeError, OverflowError,
-                MemoryError, struct.error)
+_READ_ERRORS = (KeyError, IndexError, TypeError, AttributeError, EOFError, UnicodeDecodeError,
+                OverflowError, MemoryError, struct.error, sqlite3.DatabaseError)
 
 
 def _reader_errors():

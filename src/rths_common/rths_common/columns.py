@@ -40,7 +40,13 @@ UNITS = {
     'v': 1.0, 'a': 1.0, 'hz': 1.0,
 }
 
+#: Units a lab's displacement and time columns may be given in (``rths identify`` options).
+LENGTH_UNITS = ('m', 'mm', 'in')
+TIME_UNITS = ('s', 'ms')
+
 _HEADER = re.compile(r'^\s*(?P<name>[^\[\]]*?)\s*(\[(?P<unit>[^\]]*)\])?\s*$')
+#: A unit in parentheses, as DAQ software writes it (``Disp (mm)``): taken only when known.
+_PAREN_UNIT = re.compile(r'^\s*(?P<name>.*?)\s*\((?P<unit>[^()]*)\)\s*$')
 
 
 def unit_factor(unit: str, where: str) -> float:
@@ -53,7 +59,14 @@ def unit_factor(unit: str, where: str) -> float:
 
 
 def _name_unit(cell: str):
-    """Split a header cell ``name [unit]`` into ``(name, unit or None)``."""
+    """Split a header cell ``name [unit]`` or ``name (unit)`` into ``(name, unit or None)``.
+
+    A parenthesised tail counts as a unit only if it is one of :data:`UNITS`
+    (``Disp (mm)``); otherwise it stays part of the name (``force (cell 1)``).
+    """
+    paren = _PAREN_UNIT.match(cell)
+    if paren and paren.group('unit').strip().lower().replace(' ', '') in UNITS:
+        return paren.group('name'), paren.group('unit').strip()
     match = _HEADER.match(cell)
     if match is None:
         return cell.strip(), None
@@ -105,7 +118,7 @@ def _delimiter(lines, delimiter):
 
 def read_columns(path, columns, *, units=None, keep_nan: bool = False, min_rows: int = 2,
                  contract: str = '', delimiter=None, skip_lines: int = 0,
-                 require_units: bool = False) -> dict:
+                 require_units: bool = False, report: dict | None = None) -> dict:
     """Read ``columns`` of a column text file; return ``{column: float array in SI}``.
 
     ``columns``: names (need a header row) or 0-based indices, or a mapping
@@ -115,7 +128,8 @@ def read_columns(path, columns, *, units=None, keep_nan: bool = False, min_rows:
     any non-finite value is refused.  ``contract`` is what the user should write (for the
     errors; default: the asked names).  ``min_rows``: fewest data rows.
     ``skip_lines``: leading lines to pass over (a fixed preamble); ``require_units``:
-    refuse a column whose unit neither ``units`` nor the header gives.
+    refuse a column whose unit neither ``units`` nor the header gives.  ``report``, a
+    dict, receives ``{output name: (column as in the file, unit applied, where from)}``.
     """
     path = os.fspath(path)
     if columns is None:
@@ -160,6 +174,11 @@ def read_columns(path, columns, *, units=None, keep_nan: bool = False, min_rows:
             raise ValueError(f'{where} has no unit; write it in the header in brackets, e.g. '
                              f'{wanted[name]} [m/s^2] or {wanted[name]} [g]')
         out[name] = data[:, j] * unit_factor(unit or '', where)
+        if report is not None:
+            source = ('option' if (units or {}).get(name) is not None else
+                      'header' if unit else 'none given: SI')
+            column = header[i] if i < len(header) else f'#{i}'
+            report[name] = (column, unit or '', source)
     return out
 
 

@@ -44,6 +44,8 @@ NODE_KEYS = {
     'gc': 'auto | default | freeze | disable: the Python garbage collector (auto: freeze '
           'in realtime mode)',
     'coefficients_every': '[steps] adaptive compensator: publish its coefficients every N steps',
+    'run_id': "the run's identity (the launcher gives one per run): messages of another "
+              'run are ignored',
     'loop_fs_hz': '[Hz] the loop rate (fs_hz of numerical.yaml and bridge.yaml; rths launch '
                   'passes it): the taps must be designed for it',
 }
@@ -198,3 +200,83 @@ def add_renamed_option(parser, old: str, new: str) -> None:
             setattr(namespace, target.dest, values)
 
     parser.add_argument(old, action=Renamed, help=argparse.SUPPRESS, metavar=target.metavar)
+
+
+#: Ranges of the ``rths`` command-line options (by option string, inclusive; ints for an integer
+#: option): every command that has one of these options refuses a value outside its range
+#: while parsing, before it starts anything (:func:`check_option_ranges`).
+OPTION_RANGES = {
+    **{opt: Spec('[Hz] loop rate', LOOP_RATE_RANGE_HZ)
+       for opt in ('--rate', '--fs-hz', '--fs-max')},
+    **{opt: Spec('[s] duration', (0.0, 1e6))
+       for opt in ('--duration', '--duration-s', '--ident-duration', '--benchmark-duration',
+                   '--record-s', '--blwn-s', '--chirp-s', '--eval-s', '--timeout',
+                   '--wait-timeout')},
+    **{opt: Spec('[ms] delay', (0.0, 100_000.0))
+       for opt in ('--delay-ms', '--jitter-ms', '--one-way-ms')},
+    '--loss-pct': Spec('[%] loss', (0.0, 100.0)),
+    '--live-rate': Spec('[Hz] live view rate', (0.1, 1000.0)),
+    '--fc': Spec('[Hz] cut-off', (0.0, 50_000.0)),
+    '--taps': Spec('[-] FIR taps', (1, 100_000)),
+    '--port': Spec('[-] TCP/UDP port (0: any free one)', (0, 65535)),
+    '--priority': Spec('[-] SCHED_FIFO priority', (0, 99)),
+    '--rt-priority': Spec('[-] SCHED_FIFO priority (0: none)', (0, 99)),
+    **{opt: Spec('[-] ROS domain id', (0, 232))
+       for opt in ('--domain', '--domain-a', '--domain-b')},
+    '--domain-id': Spec('[-] ROS domain id (-1: ROS_DOMAIN_ID)', (-1, 232)),
+    '--seed': Spec('[-] random seed', (0, 2**32 - 1)),
+    '--workers': Spec('[-] worker processes', (1, 256)),
+    **{opt: Spec('[-] count', (1, 1_000_000))
+       for opt in ('--draws', '--n-fn', '--n-zeta', '--n-freq', '--n-ratio', '--n-dtm',
+                   '--status-every', '--watchdog-steps', '--max-nfev', '--n-correction')},
+    '--force-scale': Spec('[-] specimens the one in the lab stands for', (0.0, 1e6)),
+    '--scale': Spec('[-] ground-motion scale', (0.0, 1000.0)),
+    '--record-dt': Spec('[s] time step of a single-column record (0: not given)', (0.0, 1e3)),
+}
+
+
+def option_type(option: str, base, spec: Spec | None):
+    """Return an argparse ``type`` that parses ``base`` and refuses a value outside ``spec``.
+
+    A float option without a range still refuses nan and inf. The error names the
+    option, the range with its unit and what the option is.
+    """
+    def parse(text):
+        try:
+            value = base(text)
+        except (TypeError, ValueError):
+            raise argparse.ArgumentTypeError(f'invalid {base.__name__} value: {text!r}') from None
+        if isinstance(value, float) and value != value or value in (float('inf'), float('-inf')):
+            raise argparse.ArgumentTypeError(f'{text!r} is not a finite number')
+        if spec is not None and spec.range is not None:
+            low, high = spec.range
+            if not low <= value <= high:
+                unit = spec.description.split(']')[0][1:] if spec.description.startswith('[') \
+                    else ''
+                what = spec.description.split('] ', 1)[-1]
+                raise argparse.ArgumentTypeError(
+                    f'{text} is outside the supported range [{_num(low)}, {_num(high)}]'
+                    f'{" " + unit if unit and unit != "-" else ""} ({what})')
+        return value
+
+    parse.__name__ = base.__name__
+    parse.option_range = spec  # type: ignore[attr-defined]
+    return parse
+
+
+def check_option_ranges(parser, ranges: dict | None = None) -> None:
+    """Give every int/float option of ``parser`` and its sub-parsers a checked ``type``.
+
+    ``ranges`` (default :data:`OPTION_RANGES`) maps an option string to its Spec.
+    """
+    ranges = OPTION_RANGES if ranges is None else ranges
+    parsers = [parser]
+    while parsers:
+        current = parsers.pop()
+        for action in current._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                parsers += list(action.choices.values())
+            elif action.type in (int, float):
+                spec = next((ranges[o] for o in action.option_strings if o in ranges), None)
+                option = action.option_strings[0] if action.option_strings else action.dest
+                action.type = option_type(option, action.type, spec)

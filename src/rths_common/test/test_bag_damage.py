@@ -65,3 +65,13 @@ def test_a_truncated_metadata_yaml_is_rebuilt_and_the_old_one_kept(bag):
     meta.write_text(text[:len(text) // 2])
     assert _steps(bag) == list(range(N))
     assert (bag / 'metadata.yaml.damaged').read_text() == text[:len(text) // 2]
+
+
+@pytest.mark.parametrize('text', ['- a\n- b\n', '{rosbag2_bagfile_information: 3}\n', ': : :\n'])
+def test_run_info_of_a_metadata_yaml_that_is_not_a_mapping_is_rebuilt(tmp_path, text):
+    path = tmp_path / 'bag'
+    with bagio.BagWriter(path, topics.LOOP_TOPICS, run_info={'fs_hz': 1024.0}) as writer:
+        writer.write(topics.MEASUREMENT, 1, cdr.pack_step_arrays(1, 0, [0.0], [0.0], [0.0]))
+    (path / 'metadata.yaml').write_text(text)
+    assert float(bagio.run_info(path)['fs_hz']) == 1024.0
+    assert (path / 'metadata.yaml.damaged').read_text() == text

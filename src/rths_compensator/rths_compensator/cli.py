@@ -10,7 +10,7 @@
 import os
 import sys
 
-from rths_common.columns import read_columns
+from rths_common.columns import LENGTH_UNITS, TIME_UNITS, read_columns
 
 from .schemes import SCHEMES, designed
 
@@ -22,7 +22,8 @@ DESIGN_RESULTS = ('a_tilde', 'model', 'q', 'solver', 'auto_score', 'bandwidth_hz
 #: Design option -> the ``rths design`` argument that gives it (``--option KEY=VALUE`` gives
 #: any other option a scheme names).
 OPTION_ARGS = {'n_taps': 'taps', 'fc_hz': 'fc', 'epsilon': 'epsilon', 'zero_tol': 'zero_tol',
-               'alpha': 'alpha', 'poles': 'mff_model', 'delay_ms': 'delay_ms', 'band_hz': 'band'}
+               'gain_weight': 'gain_weight', 'alpha': 'alpha', 'poles': 'mff_model',
+               'delay_ms': 'delay_ms', 'band_hz': 'band'}
 
 
 def _log(msg):
@@ -32,45 +33,95 @@ def _log(msg):
 def register(commands, benches):
     """Add this package's ``rths <command>`` and ``rths bench <name>`` parsers."""
     p = commands.add_parser(
-        'identify', help='identify the actuator plant (ARX grid + BIC selection) -> plant.yaml',
-        description='Fit ARX models na, nb = 1..29 (eq. 26-27, least squares) to a recorded '
-                    'identification run, score them on validation records by MSE/FIT/AIC/BIC '
-                    '(eq. 37-40) and write the most frequent winner of --criterion to --out. '
-                    'The run (CSV columns time [s], command [m], measured [m]; sampling rate '
-                    'read from time) is cut into --record-s records; the first third trains, '
-                    'the rest validates (or give --val-csv). Prints the selection summary.')
+        'identify', help='identify the actuator plant from a recorded run -> plant.yaml',
+        description='Identify the actuator (command -> measured displacement) from one recorded '
+                    'run, at its own uniform rate. Default (--method oe): the dead time is '
+                    'estimated from the data and searched around; ARX models na <= --na-max, '
+                    'nb <= --nb-max fitted on the first part of the run are refined by output '
+                    'error (not biased by measurement noise) and the order is chosen on the '
+                    'held-out last part (--validation-fraction) by BIC of the simulation '
+                    'error. Prints, saves (plant.yaml) and plots (--plot) the validation fit: '
+                    'simulation NRMSE and the model\'s frequency response beside the record\'s '
+                    'with its uncertainty; warns when the choice sits at a grid edge or the '
+                    'fit is poor. --method arx-grid is the seed\'s ARX grid with a BIC '
+                    'histogram over --record-s records (section 4.3.1.2).')
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument('--csv', help='identification run as CSV (time, command, measured)')
     src.add_argument('--bag', help='identification run as a rosbag2 bag directory')
-    p.add_argument('--val-csv', help='separate validation run (CSV); default: split --csv')
+    p.add_argument('--val-csv', help='arx-grid: separate validation run (CSV); default: split')
+    p.add_argument('--columns', default='time,command,measured', metavar='TIME,COMMAND,MEASURED',
+                   help='CSV: the time, command and measured-displacement columns, by header '
+                        'name or 0-based index (default time,command,measured), e.g. '
+                        '"Time,Cmd,Disp" or 0,1,2')
+    p.add_argument('--time-unit', choices=TIME_UNITS, default=None,
+                   help='CSV: unit of the time column (default: from the header, e.g. '
+                        '"Time (ms)" or "time [s]", else s)')
+    p.add_argument('--length-unit', choices=LENGTH_UNITS, default=None,
+                   help='CSV: unit of the command and measured columns (default: from the '
+                        'header, e.g. "Cmd (mm)", else m)')
     p.add_argument('--out', required=True, help='plant file to write (YAML)')
-    p.add_argument('--record-s', type=float, default=10.0, help='record length [s] (10)')
-    p.add_argument('--na-max', type=int, default=29, help='largest na (29)')
-    p.add_argument('--nb-max', type=int, default=29, help='largest nb (29)')
-    p.add_argument('--d-max', type=int, default=0, help='largest dead time d [samples] (0)')
+    p.add_argument('--method', default='oe', choices=('oe', 'arx-grid'),
+                   help='oe (default): dead time from the data, output-error refinement, '
+                        'order on the held-out part; arx-grid: the seed\'s ARX grid')
+    p.add_argument('--na-max', type=int, default=None, help='largest na (oe 6, arx-grid 29)')
+    p.add_argument('--nb-max', type=int, default=None, help='largest nb (oe 8, arx-grid 29)')
+    p.add_argument('--d-min', type=int, default=None,
+                   help='smallest dead time d [samples] (default: searched around the '
+                        'estimate)')
+    p.add_argument('--d-max', type=int, default=None,
+                   help='largest dead time d [samples] (default: searched around the '
+                        'estimate; arx-grid 0)')
+    p.add_argument('--max-delay-ms', type=float, default=100.0,
+                   help='oe: longest dead time the estimate considers [ms] (100)')
+    p.add_argument('--validation-fraction', type=float, default=1.0 / 3.0,
+                   help='oe: last fraction of the run held out for the order choice and the '
+                        'validation fit (1/3)')
+    p.add_argument('--plot', default=None,
+                   help='oe: PNG of the validation fit (default: beside --out, *_fit.png)')
+    p.add_argument('--no-plot', action='store_true', help='oe: do not draw the plot')
+    p.add_argument('--record-s', type=float, default=10.0,
+                   help='arx-grid: record length [s] (10)')
     p.add_argument('--criterion', default='bic', choices=('mse', 'fit', 'aic', 'bic'),
-                   help='selection criterion (bic, as the seed)')
+                   help='arx-grid: selection criterion (bic, as the seed)')
     p.add_argument('--error', default='simulation', choices=('simulation', 'prediction'),
-                   help='validation error: simulated output (default) or one-step prediction')
+                   help='arx-grid: validation error, simulated output (default) or one-step '
+                        'prediction')
     p.set_defaults(func=cmd_identify)
 
+    from .schemes import DESIGN_DEFAULTS as DD
     p = commands.add_parser(
         'design', help='design a delay compensator from plant.yaml -> ROS 2 parameters file',
-        description='Design a compensator scheme for the plant and write the compensator node '
-                    'parameters (taps, denominator, provenance, predicted delay and gain '
-                    'error). Refuses (exit 2, nothing written) unstable, non-finite or '
-                    'constraint-violating designs. With --auto --bandwidth HZ it searches '
-                    'scheme, n and fc and explains its choice. Schemes: '
+        description='Design the FIR compensator (ls, wls, mm; eq. 28-36) or a comparison '
+                    'compensator (inverse eq. 2, mff eq. 4, npz eq. 8, zpetc eq. 12, zmetc '
+                    'eq. 14) for the plant and write the compensator node parameters. '
+                    f'Defaults (also rths run\'s): {DD["scheme"]}, n={DD["n_taps"]}, '
+                    f'fc={DD["fc_hz"]:g} Hz, epsilon={DD["epsilon"]}, gain weight '
+                    f'{DD["gain_weight"]:g}. Prints and records the predictions: the '
+                    'compensator alone (gain peak, high-frequency gain, command for a unit step '
+                    'and for the record), the compensated loop on the model and on the '
+                    'record\'s held-out part. Refuses (exit 2, nothing written) unstable, '
+                    'non-finite or constraint-violating designs, and designs whose command for '
+                    'the record\'s motion in the design band would exceed the actuator\'s '
+                    'stroke, velocity or acceleration limits (--limits; --force writes it '
+                    'anyway). With --auto --bandwidth HZ it searches scheme, n and fc. '
+                    'Schemes: '
                     + '; '.join(f'{n}: {s.summary}' for n, s in SCHEMES.items() if s.designer))
     p.add_argument('--plant', required=True,
                    help='plant file from rths identify, or the updated_model.yaml of rths '
                         'discrepancy --scenario actuator (its time_delay and linear loop '
                         'loads folded into the ARX; other effects refused)')
-    p.add_argument('--scheme', choices=designed(), help='compensator scheme')
-    p.add_argument('--taps', type=int, default=100, help='FIR length n of H (100)')
-    p.add_argument('--fc', type=float, default=64.0, help='FIR passband edge fc [Hz] (64)')
+    p.add_argument('--scheme', default=None, choices=designed(),
+                   help=f'compensator scheme ({DD["scheme"]})')
+    p.add_argument('--taps', type=int, default=DD['n_taps'],
+                   help=f'FIR length n of H ({DD["n_taps"]})')
+    p.add_argument('--fc', type=float, default=DD['fc_hz'],
+                   help=f'FIR passband edge fc [Hz] ({DD["fc_hz"]:g})')
     p.add_argument('--epsilon', type=float, default=None,
-                   help='FIR passband tolerance on |T_com - 1| (0.002)')
+                   help=f'FIR passband tolerance on |T_com - 1| ({DD["epsilon"]})')
+    p.add_argument('--gain-weight', type=float, default=None,
+                   help='ls/wls: weight of the compensator\'s own gain |G|^2 above fc '
+                        f'({DD["gain_weight"]:g}; 0: the seed\'s objective, T_com -> 1 over '
+                        'the whole band)')
     p.add_argument('--zero-tol', type=float, default=None,
                    help='FIR (also --auto): zeros of the plant numerator with modulus >= this '
                         'count as unstable (B-*, eq. 7) and are not cancelled by the '
@@ -87,6 +138,12 @@ def register(commands, benches):
                    help='a design option of the scheme that has no flag of its own (repeatable)')
     p.add_argument('--auto', action='store_true', help='search scheme, n, fc (needs --bandwidth)')
     p.add_argument('--bandwidth', type=float, help='operating bandwidth [Hz] for --auto')
+    p.add_argument('--limits', default=None,
+                   help='bridge params file whose stroke_m, velocity_m_s, acceleration_m_s2 '
+                        'bound the command (default: config/bridge.yaml of the repo)')
+    p.add_argument('--force', action='store_true',
+                   help='write a design that exceeds the limits (the bridge\'s supervisor '
+                        'still stops any command beyond them)')
     p.add_argument('--out', required=True, help='parameters file to write (YAML)')
     p.set_defaults(func=cmd_design)
 
@@ -127,31 +184,161 @@ def register(commands, benches):
     p.set_defaults(func=cmd_bench_compensators)
 
 
-def _read_run(args, path):
-    from rths_common.timebase import infer_rate
+def _column_spec(args) -> tuple:
+    """``(columns, units)`` of --columns/--time-unit/--length-unit for the column reader."""
+    cells = [c.strip() for c in str(getattr(args, 'columns', None)
+                                    or 'time,command,measured').split(',')]
+    if len(cells) != 3 or not all(cells):
+        raise ValueError(f'--columns {args.columns!r}: give three columns, time, command and '
+                         'measured, by name or 0-based index, e.g. "Time,Cmd,Disp" or 0,1,2')
+    names = ('time', 'command', 'measured')
+    columns = {n: int(c) if c.isdigit() else c for n, c in zip(names, cells, strict=True)}
+    units = {}
+    if getattr(args, 'time_unit', None):
+        units['time'] = args.time_unit
+    if getattr(args, 'length_unit', None):
+        units.update(command=args.length_unit, measured=args.length_unit)
+    return columns, units
 
-    cols = read_columns(path, ('time', 'command', 'measured'))
+
+def read_run(path, columns=None, units=None):
+    """``(t, u, y, rate, report)`` of a CSV run in SI; ``report`` names columns and units."""
+    from rths_common.timebase import infer_rate
+    columns = columns or {n: n for n in ('time', 'command', 'measured')}
+    report = {}
+    cols = read_columns(path, columns, units=units or None, report=report,
+                        contract='time, command and measured displacement (--columns)')
     rate = infer_rate(cols['time'], path)
+    return cols['time'], cols['command'], cols['measured'], rate, report
+
+
+def _read_run(args, path):
+    columns, units = _column_spec(args)
+    t, u, y, rate, report = read_run(path, columns, units)
     _log(f'{path}: sampling rate {rate}')
-    return cols['time'], cols['command'], cols['measured'], rate.fs_hz
+    _log(f'{path}: ' + '; '.join(f'{n} = column {c!r} in {unit or "SI"} ({src})'
+                                 for n, (c, unit, src) in report.items()))
+    if rate.fs_hz < 100.0:
+        _log(f'WARNING: {path}: {rate.fs_hz:.6g} Hz is low for an actuator record; if the time '
+             'column is in milliseconds give --time-unit ms (or write "Time (ms)" in the header)')
+    return t, u, y, rate.fs_hz
+
+
+def _read_source(args):
+    """``(t, u, y, fs, record)`` of --bag or --csv; ``record`` says how to read it again."""
+    from rths_common.bagio import read_identification
+    from rths_common.timebase import sampling_rate_hz
+    if args.bag:
+        t, u, y = read_identification(args.bag)
+        fs = sampling_rate_hz(t, args.bag)
+        _check_causality(u, y, fs, args.bag)
+        return t, u, y, fs, {'kind': 'bag', 'path': os.path.abspath(args.bag)}
+    t, u, y, fs = _read_run(args, args.csv)
+    _check_causality(u, y, fs, args.csv)
+    columns, units = _column_spec(args)
+    return t, u, y, fs, {'kind': 'csv', 'path': os.path.abspath(args.csv),
+                         'columns': columns, 'units': units}
+
+
+def _check_causality(u, y, fs, where):
+    """Refuse a record whose measured signal leads the command (columns swapped)."""
+    from .causality import check_causality
+    lag = check_causality(u, y, fs, str(where))
+    _log(f'identify: the measured signal lags the command by {lag * 1e3:.2f} ms')
+
+
+def read_record(record: dict):
+    """``(u, y, fs)`` of the identification record a plant.yaml names (ValueError if gone)."""
+    import os
+
+    from rths_common.bagio import read_identification
+    from rths_common.timebase import sampling_rate_hz
+    path = record.get('path', '')
+    if not os.path.exists(path):
+        raise OSError(f'{path}: identification record not found')
+    if record.get('kind') == 'bag':
+        t, u, y = read_identification(path)
+        return u, y, sampling_rate_hz(t, path)
+    t, u, y, rate, _ = read_run(path, record.get('columns'), record.get('units'))
+    return u, y, rate.fs_hz
 
 
 def cmd_identify(args) -> int:
     """``rths identify``."""
-    from rths_common.bagio import read_identification
-    from rths_common.timebase import format_hz, same_rate, sampling_rate_hz
-
     from ._blas import limit_blas_threads
-    from .identification import identify, save_plant, split_records
     limit_blas_threads(1)
-    if args.bag:
-        t, u, y = read_identification(args.bag)
-        fs = sampling_rate_hz(t, args.bag)
-    else:
-        t, u, y, fs = _read_run(args, args.csv)
+    if args.method == 'arx-grid':
+        return _identify_arx_grid(args)
+    if args.val_csv:
+        raise ValueError('--val-csv belongs to --method arx-grid; the default method holds out '
+                         'the last --validation-fraction of the run')
+    from rths_common.progress import Progress
+    from rths_common.timebase import format_hz
+
+    from .estimation import IdentOptions, identify_record
+    from .identification import save_plant
+    t, u, y, fs, record = _read_source(args)
+    opts = IdentOptions(max_delay_s=args.max_delay_ms * 1e-3,
+                        validation_fraction=args.validation_fraction,
+                        d_min=args.d_min, d_max=args.d_max)
+    for name in ('na_max', 'nb_max'):
+        value = getattr(args, name)
+        if value is not None:
+            if value < 1:
+                raise ValueError(f'--{name.replace("_", "-")} must be >= 1, got {value}')
+            setattr(opts, name, value)
+    n_val = int(round(u.size * args.validation_fraction))
+    _log(f'identify: fs = {format_hz(fs)} Hz, {u.size} samples ({u.size / fs:.4g} s); the last '
+         f'{n_val / fs:.4g} s are held out for validation')
+    with Progress(0, 'identify: models') as bar:
+        ident = identify_record(u, y, fs, opts, progress=bar.report, log=_log)
+    info = dict(ident.info, source=record['path'])
+    record['split'] = int(ident.info['split'])
+    info['record'] = record
+    model = ident.model
+    save_plant(args.out, model, info)
+    print(identification_text(ident))
+    if not args.no_plot:
+        from .estimation import plot_identification
+        plot = args.plot or _beside(args.out, '_fit.png')
+        plot_identification(ident, plot, title=f'{record["path"]}')
+        print(f'wrote {plot}')
+    print(f'wrote {args.out}')
+    return 0
+
+
+def _beside(path, suffix):
+    import os
+    stem, _ = os.path.splitext(str(path))
+    return stem + suffix
+
+
+def identification_text(ident) -> str:
+    """Return the printed summary of an identification (choice, fit, warnings)."""
+    m, info = ident.model, ident.info
+    val = info['validation']
+    lines = [
+        f'chosen: na={m.na} nb={m.nb} d={m.d} ({1e3 * m.d / m.fs_hz:.2f} ms dead time), '
+        f'{"stable" if m.is_stable() else "UNSTABLE"}, DC gain {m.dc_gain():.4f} '
+        f'({info["method"]}, {info["criterion"]})',
+        f'validation fit on the held-out {val["n_validation"] / m.fs_hz:.4g} s: simulation '
+        f'NRMSE {val["nrmse_pct"]:.3f} % (in band 0-{info["band_hz"]:.3g} Hz: '
+        f'{val["nrmse_band_pct"]:.3f} %); frequency response at most {val["frf_error_sigma"]:.1f} '
+        f'standard deviations from the record\'s, {val["frf_error_pct"]:.2f} % beyond its '
+        '+-2 std band',
+        '  candidates: ' + '; '.join(info['candidates'][:4]),
+    ]
+    lines += [f'WARNING: {w}' for w in ident.warnings]
+    return '\n'.join(lines)
+
+
+def _identify_arx_grid(args) -> int:
+    """``rths identify --method arx-grid``: the seed's grid and BIC histogram."""
+    from rths_common.timebase import format_hz, same_rate
+
     from .causality import check_causality
-    lag = check_causality(u, y, fs, str(args.bag or args.csv))
-    _log(f'identify: the measured signal lags the command by {lag * 1e3:.2f} ms')
+    from .identification import identify, save_plant, split_records
+    t, u, y, fs, record = _read_source(args)
     records = split_records(t, u, y, args.record_s)
     if args.val_csv:
         tv, uv, yv, fsv = _read_run(args, args.val_csv)
@@ -164,15 +351,20 @@ def cmd_identify(args) -> int:
     else:
         k = max(1, len(records) // 3)
         train, val = records[:k], records[k:]
+    na_max, nb_max = args.na_max or 29, args.nb_max or 29
+    d_max = args.d_max or 0
+    if args.d_min:
+        raise ValueError('--d-min belongs to the default method; arx-grid searches 0..--d-max')
     _log(f'identify: fs = {format_hz(fs)} Hz, {len(train)} training and {len(val)} validation '
-         f'records of {args.record_s} s; grid {args.na_max} x {args.nb_max} x {args.d_max + 1}')
+         f'records of {args.record_s} s; grid {na_max} x {nb_max} x {d_max + 1}')
     from rths_common.progress import Progress
 
     with Progress(0, 'identify: ARX models') as bar:
-        model, info, _ = identify(train, val, fs, args.na_max, args.nb_max, args.d_max,
+        model, info, _ = identify(train, val, fs, na_max, nb_max, d_max,
                                   args.criterion, args.error, progress=bar.report)
         bar.update(bar.total)                         # (the grid reports every 100 models)
-    info['source'] = str(args.bag or args.csv)
+    info['source'] = record['path']
+    info['record'] = record
     save_plant(args.out, model, info)
     print(f'selected ({args.criterion}): na={model.na} nb={model.nb} d={model.d}, '
           f'stable={model.is_stable()}, DC gain {model.dc_gain():.4f}')
@@ -184,77 +376,168 @@ def cmd_identify(args) -> int:
 
 def cmd_design(args) -> int:
     """``rths design``."""
-    import numpy as np
-
     from . import design as dsg
     from ._blas import limit_blas_threads
     from .identification import load_plant
-    from .params import write_compensator_params
     limit_blas_threads(1)
     plant = load_plant(args.plant)
     _snap_plant_rate(plant, args.plant)
-    eps = dsg.DEFAULT_EPSILON if args.epsilon is None else args.epsilon
     zero_tol = 1.0 if args.zero_tol is None else args.zero_tol
     if not 0 < zero_tol <= 1:
         raise ValueError(f'--zero-tol must lie in (0, 1], got {zero_tol}')
-    if (args.zero_tol is not None and not args.auto and args.scheme
-            and not SCHEMES.entry(args.scheme).fir):
+    scheme = args.scheme or dsg.DESIGN_DEFAULTS['scheme']
+    if args.zero_tol is not None and not args.auto and not SCHEMES.entry(scheme).fir:
         raise ValueError(f'--zero-tol applies to the FIR schemes ({", ".join(dsg.FIR_SCHEMES)}) '
-                         f'and --auto, not to --scheme {args.scheme}; drop it')
+                         f'and --auto, not to --scheme {scheme}; drop it')
+    if args.gain_weight is not None and (
+            args.auto or 'gain_weight' not in SCHEMES.entry(scheme).options):
+        raise ValueError('--gain-weight applies to the least-squares FIR schemes (ls, wls); '
+                         'drop it')
     if args.auto:
-        if not args.bandwidth:
-            raise ValueError('--auto needs --bandwidth HZ (the operating bandwidth)')
-        _log(f'design --auto: searching for 0-{args.bandwidth} Hz')
-        from rths_common.progress import Progress
-
-        with Progress(0, 'design --auto', 'candidates') as bar:
-            comp, table = dsg.auto_design(plant, args.bandwidth, epsilon=eps,
-                                          zero_tol=zero_tol, progress=bar.report)
-        band = args.bandwidth
-        print('score = |delay| [ms] + gain error [dB] + 0.1 x max(0, high-pass gain above the '
-              'band - 6 dB) + 1e-4 x coefficients (lower is better); top candidates:')
-        for row in table[:8]:
-            if row['error']:
-                continue
-            print(f"  {row['scheme']:6s} n={row['n_taps']!s:>4} fc={row['fc_hz']!s:>6} "
-                  f"score {row['score']:.3f}: delay {row['delay_ms']:+.3f} ms, gain error "
-                  f"{row['gain_error_db']:.3f} dB, high-pass {row['highpass_gain_db']:.1f} dB, "
-                  f"{row['n_coefficients']} coefficients")
-        top = table[0]
-        print(f"chose {top['scheme']} n={top['n_taps']} fc={top['fc_hz']}: lowest score; its "
-              f"predicted delay over 0-{band} Hz is {top['delay_ms']:+.3f} ms and gain error "
-              f"{top['gain_error_db']:.3f} dB")
+        comp, band = _design_auto(args, plant, zero_tol)
     else:
-        if not args.scheme:
-            raise ValueError(f'give --scheme ({", ".join(designed())}) or --auto --bandwidth HZ')
-        scheme = SCHEMES.entry(args.scheme, '--scheme')
-        if scheme.fir:
-            from .params import check_filter_cost
-            check_filter_cost(args.taps, plant.fs_hz, f'--taps {args.taps}')
-        given = dict(vars(args), epsilon=eps, zero_tol=zero_tol)
-        opts = {key: given[OPTION_ARGS[key]] for key in scheme.options if key in OPTION_ARGS}
-        opts.update(_options(args.option, scheme.options))
-        band = args.fc if scheme.fir else args.band
-        comp = dsg.design(plant, args.scheme, **opts)
-    pred = dsg.predict(plant, comp, band)
-    if not all(np.isfinite(v) for v in pred.values()):
+        comp, band = _design_one(args, plant, scheme, zero_tol)
+    return _assess_and_write(args, plant, comp, band)
+
+
+def _design_auto(args, plant, zero_tol):
+    from . import design as dsg
+    if not args.bandwidth:
+        raise ValueError('--auto needs --bandwidth HZ (the operating bandwidth)')
+    eps = dsg.DEFAULT_EPSILON if args.epsilon is None else args.epsilon
+    _log(f'design --auto: searching for 0-{args.bandwidth} Hz')
+    from rths_common.progress import Progress
+
+    with Progress(0, 'design --auto', 'candidates') as bar:
+        comp, table = dsg.auto_design(plant, args.bandwidth, epsilon=eps, zero_tol=zero_tol,
+                                      progress=bar.report)
+    band = args.bandwidth
+    print('score = |delay| [ms] + gain error [dB] + 0.1 x max(0, loop gain |P G| above the '
+          'band - 6 dB) + 1e-4 x coefficients (lower is better); top candidates:')
+    for row in table[:8]:
+        if row['error']:
+            continue
+        print(f"  {row['scheme']:6s} n={row['n_taps']!s:>4} fc={row['fc_hz']!s:>6} "
+              f"score {row['score']:.3f}: delay {row['delay_ms']:+.3f} ms, gain error "
+              f"{row['gain_error_db']:.3f} dB, loop gain above the band "
+              f"{row['highpass_gain_db']:.1f} dB, {row['n_coefficients']} coefficients")
+    top = table[0]
+    print(f"chose {top['scheme']} n={top['n_taps']} fc={top['fc_hz']}: lowest score")
+    return comp, band
+
+
+def _design_one(args, plant, scheme, zero_tol):
+    """Design ``scheme`` from its registry entry: the defaults, then the flags, then --option."""
+    from . import design as dsg
+    entry = SCHEMES.entry(scheme, '--scheme')
+    given = dict(vars(args), zero_tol=zero_tol)
+    opts = {key: given[OPTION_ARGS[key]] for key in entry.options
+            if key in OPTION_ARGS and given[OPTION_ARGS[key]] is not None}
+    opts.update(_options(args.option, entry.options))
+    if entry.fir:
+        from .params import check_filter_cost
+        check_filter_cost(args.taps, plant.fs_hz, f'--taps {args.taps}')
+        return dsg.design_default(plant, scheme=scheme, **opts), args.fc
+    return dsg.design(plant, scheme, **opts), args.band
+
+
+def _limits(args):
+    """Return the limits of --limits, else of the repo's config/bridge.yaml (None if absent)."""
+    from .assessment import DesignLimits
+    path = args.limits
+    if path is None:
+        root = os.environ.get('RTHS_ROOT')
+        path = os.path.join(root, 'config', 'bridge.yaml') if root else None
+        if path is None or not os.path.isfile(path):
+            return None
+    return DesignLimits.from_bridge_params(path)
+
+
+def _plant_record(plant_path):
+    """``(u, y, split, note)`` of the identification record named in plant.yaml, if readable."""
+    import yaml
+    with open(plant_path, encoding='utf-8') as handle:
+        doc = yaml.safe_load(handle) or {}
+    record = (doc.get('selection') or {}).get('record')
+    if not record:
+        return None, None, None, 'the plant file names no identification record'
+    try:
+        u, y, _ = read_record(record)
+    except (OSError, ValueError) as err:
+        return None, None, None, f'the identification record is not readable ({err})'
+    split = int(record.get('split') or (2 * u.size) // 3)
+    return u, y, split, f'record {record["path"]}'
+
+
+def _assess_and_write(args, plant, comp, band) -> int:
+    import numpy as np
+
+    from .assessment import assess
+    from .params import write_compensator_params
+    limits = _limits(args)
+    u, y, split, note = _plant_record(args.plant)
+    record = (u, y, split) if u is not None else None
+    pred, violations, ref_text = assess(plant, comp, band, record, limits)
+    if not all(np.isfinite(v) for v in pred.values() if isinstance(v, float)):
         raise ValueError(f'{comp.scheme} design has non-finite predicted indicators; refused')
+    print(design_text(comp, band, pred, ref_text, note))
+    if limits is None:
+        print('limits: no bridge params file (--limits); the command was not checked')
+    if violations and u is None and not args.force:
+        print('WARNING: without the identification record the reference amplitude is assumed; '
+              'the design is written, check it: ' + '; '.join(violations))
+        violations = []
+    if violations and not args.force:
+        raise ValueError('design refused: ' + '; '.join(violations) + '. Fix: lower --fc, '
+                         'fewer --taps, a larger --gain-weight or a looser --epsilon (or '
+                         '--force to write it; the bridge still stops such a command)')
+    for line in violations:
+        print(f'WARNING (--force): {line}')
     prov = {'plant': os.path.abspath(args.plant), 'n_coefficients': int(comp.taps.size),
             'predicted_band_hz': float(band),
             'predicted_delay_ms': pred['delay_ms'],
             'predicted_gain_error_db': pred['gain_error_db'],
-            'predicted_highpass_gain_db': pred['highpass_gain_db']}
+            'predicted_loop_gain_above_band_db': pred['loop_gain_above_band_db'],
+            'compensator_gain_peak_db': pred['gain_peak_db'],
+            'compensator_gain_peak_hz': pred['gain_peak_hz'],
+            'compensator_hf_gain_db': pred['hf_gain_db'],
+            'step_command_peak': pred['step_command_peak'],
+            'reference': ref_text,
+            'reference_command_ratio': pred['reference_command_ratio'],
+            'record_tracking_pct': pred.get('record_tracking_pct'),
+            'limits': limits.source if limits else None,
+            'limits_exceeded': '; '.join(violations)}
     for key in SCHEMES.entry(comp.scheme).options + DESIGN_RESULTS:
         if key in comp.info:
             prov[key] = comp.info[key]
     write_compensator_params(args.out, comp.taps, comp.denominator, comp.fs_hz, comp.scheme,
                              prov)
-    print(f'{comp.scheme}: {comp.taps.size} taps, denominator order '
-          f'{comp.denominator.size - 1}; predicted over 0-{band:g} Hz: delay '
-          f'{pred["delay_ms"]:+.3f} ms, gain error {pred["gain_error_db"]:.3f} dB, '
-          f'high-pass gain above {pred["highpass_gain_db"]:.1f} dB')
     print(f'wrote {args.out}')
     return 0
+
+
+def design_text(comp, band, pred, ref_text, record_note) -> str:
+    """Return the printed predictions of a design."""
+    lines = [
+        f'{comp.scheme}: {comp.taps.size} taps, denominator order {comp.denominator.size - 1}',
+        f'  compensator alone: gain peak {pred["gain_peak_db"]:.1f} dB at '
+        f'{pred["gain_peak_hz"]:.3g} Hz, gain at Nyquist {pred["hf_gain_db"]:.1f} dB; command '
+        f'for a unit step peaks at {pred["step_command_peak"]:.3g}; for the reference '
+        f'({ref_text}) at {pred["reference_command_ratio"]:.3g} x its peak '
+        f'({1e3 * pred["reference_command_peak_m"]:.3g} mm, '
+        f'{pred["reference_command_velocity_m_s"]:.3g} m/s, '
+        f'{pred["reference_command_acceleration_m_s2"]:.3g} m/s^2)',
+        f'  loop P G on the model over 0-{band:g} Hz: delay {pred["delay_ms"]:+.3f} ms, gain '
+        f'error {pred["gain_error_db"]:.3f} dB; loop gain above the band up to '
+        f'{pred["loop_gain_above_band_db"]:.1f} dB',
+    ]
+    if pred.get('record_tracking_pct') is not None:
+        lines.append(f'  loop on the record\'s held-out part (its own impulse response, '
+                     f'{pred["record_memory_s"]:.2g} s, no model): predicted tracking error '
+                     f'{pred["record_tracking_pct"]:.3f} % for the reference')
+    else:
+        lines.append(f'  loop on the record: not predicted ({record_note})')
+    return '\n'.join(lines)
 
 
 def _options(pairs, allowed) -> dict:

@@ -57,14 +57,32 @@ from scipy import linalg, optimize, signal
 from .identification import ArxModel, factor_zeros
 from .indicators import time_delay_ms
 from .plants import actuator_poles
-from .schemes import SCHEMES, auto_schemes, designed, fir_schemes
+from .schemes import DESIGN_DEFAULTS, SCHEMES, auto_schemes, designed, fir_schemes
 
 #: The FIR schemes and every designed scheme, from the registry (:mod:`.schemes`).
 FIR_SCHEMES = fir_schemes()
 ALL_SCHEMES = designed()
 
 #: Default passband tolerance epsilon on |T_com - 1| (eq. 35-36); the seed gives no value.
-DEFAULT_EPSILON = 0.002
+DEFAULT_EPSILON = DESIGN_DEFAULTS['epsilon']
+
+
+def default_grid(fs_hz: float) -> int:
+    """Frequency points 0..Nyquist of the default LS/WLS design: at most 1 Hz apart."""
+    return max(513, int(np.ceil(fs_hz / 2.0)) + 1)
+
+
+def design_default(plant, **overrides) -> 'Design':
+    """Design with :data:`DESIGN_DEFAULTS` (``overrides`` replace single entries)."""
+    opts = dict(DESIGN_DEFAULTS, **overrides)
+    scheme = opts.pop('scheme')
+    fs = plant_polynomials(plant, opts.pop('fs_hz', None))[3]
+    if 'gain_weight' in SCHEMES.entry(scheme).options:      # the least-squares schemes
+        opts.setdefault('n_grid', default_grid(fs))
+    else:
+        opts.pop('gain_weight', None)
+    return design_fir(plant, fs_hz=None if isinstance(plant, ArxModel) else fs,
+                      scheme=scheme, **opts)
 
 
 @dataclasses.dataclass
@@ -161,11 +179,26 @@ def _linprog_free(c, a_ub, b_ub, a_eq, b_eq, method='highs'):
     return None, res.status
 
 
-def _infeasible_msg(plant, scheme, n_taps, fc_hz, epsilon, fs, n_grid, n_sides):
-    eps_min = min_passband_error(plant, n_taps, fc_hz, fs, n_grid, n_sides)
-    return (f'{scheme} n={n_taps} fc={fc_hz} Hz: passband tolerance epsilon={epsilon} is '
-            f'infeasible (smallest achievable ~{eps_min / np.cos(np.pi / n_sides):.4g}); '
-            'raise --epsilon, add taps or lower --fc')
+def _infeasible_msg(plant, scheme, n_taps, fc_hz, epsilon, fs, n_grid, n_sides,
+                    zero_tol=1.0):
+    """Why a design with passband tolerance ``epsilon`` failed, and what to change.
+
+    The smallest achievable passband error (an LP on the same factorisation and the same
+    passband points) tells a tolerance that no filter of this length meets from one the
+    solver failed on numerically (an ill-conditioned problem: too many taps for the band).
+    """
+    try:
+        eps_min = min_passband_error(plant, n_taps, fc_hz, fs, n_grid, n_sides, zero_tol)
+        eps_min /= np.cos(np.pi / n_sides)
+    except ValueError:
+        eps_min = float('nan')
+    head = f'{scheme} n={n_taps} fc={fc_hz} Hz, epsilon={epsilon}: '
+    if np.isfinite(eps_min) and eps_min < epsilon:
+        return (head + f'the passband tolerance is achievable (smallest ~{eps_min:.3g}) but '
+                'the constrained solver failed numerically: the problem is ill-conditioned; '
+                'use fewer taps (--taps), a lower --fc, or --scheme mm')
+    return (head + f'infeasible: no {n_taps}-tap filter gets the passband error below '
+            f'~{eps_min:.3g}; raise --epsilon above it, add taps or lower --fc')
 
 
 #: HiGHS options of the warm-started MM solves: Devex dual edge weights (measured 1.7x less
@@ -396,19 +429,35 @@ def _most_violated(excess, tol, local_max=True):
     return mask
 
 
+def _with_gain_rows(a_ls, rhs, stop, a_star, b_plus, c, n_taps, freqs, fs, weight):
+    """Append ``weight |G(f)|^2`` (target 0) at the stopband points to the LS problem in g.
+
+    ``G(f) = A*(f)/B+*(f) . H(f)`` with ``h = g / c`` is linear in g.  The seed's objective
+    drives ``T_com`` to 1 over the whole band, so above the passband ``G`` tends to the
+    plant's inverse, whose gain grows without bound towards Nyquist (81 dB for the Table 1
+    3-pole model at 1024 Hz, n = 400, fc = 10 Hz); a small weight on the compensator's own
+    gain there keeps it bounded (49 dB at 1e-6) at almost no cost in the passband.
+    """
+    _, ab = signal.freqz(a_star, b_plus, worN=freqs[stop], fs=fs)
+    gm = (ab / c)[:, None] * np.exp(-1j * np.outer(2 * np.pi * freqs[stop] / fs,
+                                                   np.arange(n_taps)))
+    ws = np.sqrt(weight)
+    return (np.vstack([a_ls, ws * np.real(gm), ws * np.imag(gm)]),
+            np.r_[rhs, np.zeros(2 * gm.shape[0])])
+
+
 def min_passband_error(plant, n_taps: int, fc_hz: float, fs_hz: float = None,
-                       n_grid: int = 513, n_sides: int = 16) -> float:
+                       n_grid: int = 513, n_sides: int = 16, zero_tol: float = 1.0) -> float:
     """Smallest achievable ``max |T_com - 1|`` over the passband with unit DC gain (an LP).
 
     The FIR design with tolerance epsilon is feasible iff epsilon exceeds this value
     (up to the polygon factor ``1/cos(pi/S)``).
     """
     b_star, _, d, fs = plant_polynomials(plant, fs_hz)
-    _, b_minus = factor_zeros(b_star)
+    _, b_minus = factor_zeros(b_star, zero_tol)
     bmu = b_minus / np.sum(b_minus)
-    freqs = _freq_grid(fs, n_grid)
-    pb = freqs <= fc_hz
-    m = _fir_matrix(bmu, d, n_taps, freqs[pb], fs)
+    f_pass = np.linspace(0.0, fc_hz, max(8, int(np.ceil(fc_hz / (fs / 4096))) + 1))
+    m = _fir_matrix(bmu, d, n_taps, f_pass, fs)
     rot = _polygon(n_sides)
     rows = (rot[:, None, None] * m[None]).reshape(-1, n_taps)
     c0 = np.tile(np.real(rot)[:, None], (1, m.shape[0])).ravel()
@@ -423,7 +472,8 @@ def min_passband_error(plant, n_taps: int, fc_hz: float, fs_hz: float = None,
 def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls',
                epsilon: float = DEFAULT_EPSILON, fs_hz: float = None, n_grid: int = None,
                passband_weight: float = 1000.0, n_sides: int = 16,
-               zero_tol: float = 1.0, lp_method: str = 'highs') -> Design:
+               zero_tol: float = 1.0, lp_method: str = 'highs',
+               gain_weight: float = 0.0) -> Design:
     """Design the FIR compensator ``G = A*/B+* . H`` (eq. 28) by LS, WLS or MM (eq. 32-36).
 
     ``plant`` is an :class:`ArxModel` or ``(b, a)`` in z^-1 (with ``fs_hz``).  ``n_taps`` is
@@ -432,7 +482,9 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
     from 0 to Nyquist (default 513 for LS/WLS, 257 for MM), ``zero_tol`` the modulus from
     which a zero counts as unstable (goes to B-*; below 1 it also keeps lightly damped
     zeros out of the denominator B+*), ``lp_method`` the HiGHS variant for MM ('highs':
-    warm-started re-solves; 'highs-ds' or 'highs-ipm': a fresh linprog per cut round).
+    warm-started re-solves; 'highs-ds' or 'highs-ipm': a fresh linprog per cut round),
+    ``gain_weight`` (LS/WLS) the weight of the compensator's own gain ``|G|^2`` above fc
+    (:func:`_with_gain_rows`; 0: the seed's objective).
     Raises ValueError if the constraints cannot be met (the message gives the smallest
     feasible epsilon).
     """
@@ -450,6 +502,8 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
     if not 0 < zero_tol <= 1:
         raise ValueError(f'--zero-tol must lie in (0, 1], got {zero_tol} (1: only zeros on or '
                          'outside the unit circle count as unstable)')
+    if not gain_weight >= 0:
+        raise ValueError(f'gain weight must be >= 0, got {gain_weight}')
     t0 = time.perf_counter()
     b_plus, b_minus = factor_zeros(b_star, zero_tol)
     c = float(np.sum(b_minus))
@@ -478,6 +532,9 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
         sw = np.sqrt(w)[:, None]
         a_ls = np.vstack([sw * np.real(m), sw * np.imag(m)])
         rhs = np.r_[np.sqrt(w), np.zeros(n_grid)]
+        if gain_weight > 0:
+            a_ls, rhs = _with_gain_rows(a_ls, rhs, ~pb, a_star, b_plus, c, n_taps, freqs, fs,
+                                        gain_weight)
         g0, z = _null_space_of_ones(n_taps)
         az = a_ls @ z
         r0 = rhs - a_ls @ g0
@@ -508,12 +565,8 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
                 try:
                     y = _lsi(qr, r0, g_in, h_in)
                 except ValueError:
-                    eps_min = min_passband_error(plant, n_taps, fc_hz, fs, n_grid, n_sides)
-                    raise ValueError(
-                        f'{scheme} n={n_taps} fc={fc_hz} Hz: passband tolerance '
-                        f'epsilon={epsilon} is infeasible (smallest achievable '
-                        f'~{eps_min / np.cos(np.pi / n_sides):.4g}); raise --epsilon, add taps '
-                        'or lower --fc') from None
+                    raise ValueError(_infeasible_msg(plant, scheme, n_taps, fc_hz, epsilon,
+                                                     fs, n_grid, n_sides, zero_tol)) from None
                 g = g0 + z @ y
             solver = ('inequality-constrained least squares (LSI -> LDP -> NNLS, '
                       f'{int(active.sum())} active passband points)')
@@ -521,7 +574,7 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
         g, solver = _minimax_lp(m, mp, bound_eps=epsilon, lp_method=lp_method,
                                 infeasible=lambda: _infeasible_msg(
                                     plant, scheme, n_taps, fc_hz, epsilon, fs, n_grid,
-                                    n_sides))
+                                    n_sides, zero_tol))
     h = g / c
     taps = np.convolve(a_star, h)
     design_s = time.perf_counter() - t0
@@ -537,8 +590,9 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
         'dead_time': int(d),
     }
     if info['passband_max_error'] > epsilon * (1 + 1e-6) or info['dc_gain_error'] > 1e-8:
-        raise ValueError(f'{scheme} n={n_taps} fc={fc_hz} Hz violates its constraints '
-                         f'(passband error {info["passband_max_error"]:.3g} > {epsilon})')
+        raise ValueError(_infeasible_msg(plant, scheme, n_taps, fc_hz, epsilon, fs, n_grid,
+                                         n_sides, zero_tol)
+                         + f' (the solution reached {info["passband_max_error"]:.3g})')
     return Design(scheme, taps, np.asarray(b_plus, dtype=float), fs, info).check()
 
 

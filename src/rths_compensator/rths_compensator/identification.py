@@ -148,7 +148,12 @@ def load_plant(path) -> ArxModel:
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise OSError(f"{path}: plant file not found; create it with 'rths identify'")
-    return ArxModel.from_dict(yamlfile.load(path), where=path)
+    try:
+        return ArxModel.from_dict(yamlfile.load(path), where=path)
+    except ValueError as err:
+        if path in str(err):
+            raise
+        raise ValueError(f'{path}: {err}') from None
 
 
 def _plain(value):

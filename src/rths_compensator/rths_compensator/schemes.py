@@ -20,6 +20,8 @@ from rths_common.registry import Registry
 
 #: Options every FIR scheme takes (``rths design --taps --fc --epsilon --zero-tol``).
 FIR_OPTIONS = ('n_taps', 'fc_hz', 'epsilon', 'zero_tol')
+#: The least-squares FIR schemes also weigh the compensator's own gain (``--gain-weight``).
+LS_OPTIONS = FIR_OPTIONS + ('gain_weight',)
 
 
 class Scheme(NamedTuple):
@@ -42,9 +44,9 @@ class Scheme(NamedTuple):
 #: Scheme name -> entry (the allowed values of the compensator's ``scheme``).
 SCHEMES = Registry('compensator scheme', 'scheme', {
     'ls': Scheme('FIR by least squares (eq. 28-31)', 'rths_compensator.design:design_ls',
-                 FIR_OPTIONS, fir=True, auto=True),
+                 LS_OPTIONS, fir=True, auto=True),
     'wls': Scheme('FIR by weighted least squares (eq. 32; the seed\'s choice)',
-                  'rths_compensator.design:design_wls', FIR_OPTIONS, fir=True, auto=True),
+                  'rths_compensator.design:design_wls', LS_OPTIONS, fir=True, auto=True),
     'mm': Scheme('FIR by minimax, a linear programme (eq. 33-36)',
                  'rths_compensator.design:design_mm', FIR_OPTIONS, fir=True, auto=True),
     'inverse': Scheme('inverse compensation of a pure delay (eq. 1-2)',
@@ -60,6 +62,13 @@ SCHEMES = Registry('compensator scheme', 'scheme', {
 
 #: The scheme of seed section 6.1 (rths run's default).
 DEFAULT_SCHEME = 'wls'
+
+#: The design defaults of ``rths design`` and ``rths run`` (their one definition): the
+#: seed's RTHS compensator (section 6.1: WLS, n = 400, fc = 10 Hz; epsilon, the passband
+#: tolerance of eq. 35-36, has no value in the seed) with a small weight on the
+#: compensator's own gain above the passband (``design._with_gain_rows``).
+DESIGN_DEFAULTS = {'scheme': DEFAULT_SCHEME, 'n_taps': 400, 'fc_hz': 10.0, 'epsilon': 0.002,
+                   'gain_weight': 1e-6, 'zero_tol': 1.0}
 
 
 def designed() -> tuple:

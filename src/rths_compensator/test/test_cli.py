@@ -140,7 +140,8 @@ def test_design_zero_tol_reproduces_design_fir_and_is_recorded(tmp_path, damped_
     assert p_tol['provenance']['zero_tol'] == BENCH_ZERO_TOL
     assert _max_pole(p_plain['denominator']) == pytest.approx(0.995, abs=1e-6)
     assert _max_pole(p_tol['denominator']) < BENCH_ZERO_TOL
-    ref = dsg.design_fir(model, 50, 32.0, 'wls', 0.01, zero_tol=BENCH_ZERO_TOL)
+    ref = dsg.design_default(model, scheme='wls', n_taps=50, fc_hz=32.0, epsilon=0.01,
+                             zero_tol=BENCH_ZERO_TOL)
     np.testing.assert_allclose(p_tol['taps'], ref.taps, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(p_tol['denominator'], ref.denominator, rtol=1e-9)
 
@@ -216,6 +217,103 @@ def test_design_and_launch_take_a_rate_to_its_printed_digits(tmp_path, run_csv):
     check_sampling_rate({'fs_hz': 1024.000524}, 1024.0, 'c.yaml', 'loop')
     with pytest.raises(ValueError, match='designed for 1024.01 Hz but the loop runs at 1024 Hz'):
         check_sampling_rate({'fs_hz': 1024.01}, 1024.0, 'c.yaml', 'loop')
+
+
+@pytest.fixture(scope='module')
+def lab_csv(tmp_path_factory):
+    """Return a DAQ-like run: 2000 Hz, 9 ms actuator delay, 0.5 % sensor noise (synthetic)."""
+    from rths_compensator._blas import limit_blas_threads
+    from rths_compensator.plants import actuator_poles
+    from rths_compensator.synthetic import SyntheticActuator, identification_record
+    limit_blas_threads(1)
+    act = SyntheticActuator(actuator_poles('3pole'), 9e-3, 2000.0)
+    t, u, y = identification_record(act, 30.0, 40.0, 0.005, 0.5, np.random.default_rng(8))
+    path = tmp_path_factory.mktemp('lab') / 'lab.csv'
+    np.savetxt(path, np.column_stack([t, u, y]), delimiter=',',
+               header='time,command,measured', comments='', fmt='%.10g')
+    plant = path.parent / 'plant.yaml'
+    assert _run(['identify', '--csv', str(path), '--out', str(plant)]) == 0
+    return path, plant, act
+
+
+def test_identify_defaults_print_save_and_plot_the_fit(lab_csv, capsys):
+    import yaml
+    _, plant, act = lab_csv
+    doc = yaml.safe_load(plant.read_text())
+    val = doc['selection']['validation']
+    assert 0.4 < val['nrmse_pct'] < 0.7
+    assert doc['selection']['record']['kind'] == 'csv'
+    assert (plant.parent / 'plant_fit.png').stat().st_size > 10000
+    assert abs(doc['d'] - act.model().d) <= 4
+
+
+def test_design_defaults_predict_and_stay_within_limits(lab_csv, tmp_path, capsys):
+    from rths_compensator.synthetic import tracking, tracking_signals
+    _, plant, act = lab_csv
+    out = tmp_path / 'c.yaml'
+    assert _run(['design', '--plant', str(plant), '--out', str(out)]) == 0
+    text = capsys.readouterr().out
+    assert 'compensator alone: gain peak' in text and 'loop on the record' in text
+    params = load_compensator_params(out)
+    prov = params['provenance']
+    assert params['scheme'] == 'wls' and prov['n_taps'] == 400 and prov['fc_hz'] == 10.0
+    assert prov['limits_exceeded'] == ''
+    true_pct = tracking(act, params['taps'], params['denominator'],
+                        tracking_signals(2000.0)['noise'])['tracking_pct']
+    assert true_pct < 0.5
+    # predicted from the record's held-out part alone, without the model, for the reference
+    # (the record's motion in 0-10 Hz): within 0.2 % of the true actuator's tracking of it
+    from rths_common.columns import read_columns
+    from rths_compensator.assessment import reference_signal
+    measured = read_columns(lab_csv[0], ('measured',))['measured']
+    reference, _ = reference_signal(2000.0, 10.0, measured)
+    true_ref = tracking(act, params['taps'], params['denominator'], reference)['tracking_pct']
+    assert prov['record_tracking_pct'] == pytest.approx(true_ref, abs=0.2)
+
+
+def test_design_beyond_the_limits_is_refused_unless_forced(lab_csv, tmp_path):
+    _, plant, _ = lab_csv
+    out = tmp_path / 'c.yaml'
+    # fc beyond the record's 40 Hz excitation, the seed's objective: a 127 dB compensator
+    argv = ['design', '--plant', str(plant), '--scheme', 'wls', '--fc', '60', '--taps',
+            '400', '--epsilon', '0.05', '--gain-weight', '0', '--out', str(out)]
+    with pytest.raises(ValueError, match='design refused: the command for the reference'):
+        _run(argv)
+    assert not out.exists()
+    assert _run(argv + ['--force']) == 0
+    assert load_compensator_params(out)['provenance']['limits_exceeded']
+
+
+def test_identify_reads_a_daq_file_by_column_names_and_units(lab_csv, tmp_path, capsys):
+    """The lab's own CSV: ``Time (ms), Cmd (mm), Disp (mm)``, its columns named on the line."""
+    import yaml
+
+    from rths_common.columns import read_columns
+    cols = read_columns(lab_csv[0], ('time', 'command', 'measured'))
+    daq = tmp_path / 'daq.csv'
+    np.savetxt(daq, np.column_stack([cols['time'] * 1e3, cols['command'] * 1e3,
+                                     cols['measured'] * 1e3])[:30000],
+               delimiter=',', header='Time (ms),Cmd (mm),Disp (mm)', comments='', fmt='%.9g')
+    plant = tmp_path / 'plant.yaml'
+    with pytest.raises(ValueError, match='missing column.*--columns'):
+        _run(['identify', '--csv', str(daq), '--out', str(plant)])
+    assert _run(['identify', '--csv', str(daq), '--out', str(plant), '--no-plot',
+                 '--columns', 'Time,Cmd,Disp', '--na-max', '3', '--nb-max', '4']) == 0
+    err = capsys.readouterr().err
+    assert "time = column 'Time' in ms (header)" in err
+    assert "measured = column 'Disp' in mm (header)" in err
+    doc = yaml.safe_load(plant.read_text())
+    assert doc['fs_hz'] == 2000.0 and abs(doc['b'][0] + sum(doc['b'][1:])) < 1.0
+    assert doc['selection']['record']['columns'] == {'time': 'Time', 'command': 'Cmd',
+                                                     'measured': 'Disp'}
+    # by index, units from the options (a header-less file)
+    bare = tmp_path / 'bare.csv'
+    np.savetxt(bare, np.loadtxt(daq, delimiter=',', skiprows=1), delimiter=',', fmt='%.9g')
+    assert _run(['identify', '--csv', str(bare), '--out', str(plant), '--no-plot',
+                 '--columns', '0,1,2', '--time-unit', 'ms', '--length-unit', 'mm',
+                 '--na-max', '3', '--nb-max', '4']) == 0
+    assert "time = column '#0' in ms (option)" in capsys.readouterr().err
+    assert yaml.safe_load(plant.read_text())['fs_hz'] == 2000.0
 
 
 def test_identify_refuses_command_and_measured_swapped(tmp_path, run_csv):

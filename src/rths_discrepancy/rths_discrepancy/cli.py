@@ -236,6 +236,12 @@ def _write_reference(cmp, out_dir):
     os.makedirs(out_dir, exist_ok=True)
     rerun.write(cmp, os.path.join(out_dir, 'reference.json'))
     rerun.plot(cmp, os.path.join(out_dir, 'reference.png'))
+    report = os.path.join(out_dir, 'report.md')
+    if os.path.isfile(report):
+        with open(report, encoding='utf-8') as fh:
+            text = fh.read().split(rerun.REPORT_HEADING)[0].rstrip('\n')
+        from rths_discrepancy.report import _atomic_write
+        _atomic_write(report, text + '\n\n' + rerun.report_section(cmp))
     print(f'wrote {out_dir}/reference.json and reference.png')
 
 

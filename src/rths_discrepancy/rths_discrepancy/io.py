@@ -86,13 +86,15 @@ def load_csv(path, scenario: str) -> dict:
 def read_bag(bag, scenario: str) -> dict:
     """Return the columns of ``scenario`` from an rths run bag (not yet validated).
 
-    ``actuator``: ``time``, ``command`` (what the bridge wrote), ``measured``
-    (the actuator alone: applied and measured at the same tick).
+    ``actuator``: ``time``, ``command`` and ``measured``: the plant as the loop sees it
+    (the command of step k and the displacement measured at step k), as ``rths identify``
+    reads it, so an identified plant.yaml is its nominal model and a delay in the
+    bridge's command path (``command_delay_steps``) is the loop's ``time_delay``.
     ``specimen``: ``time``, ``base_accel``, ``rel_disp`` and ``force``
     (:func:`rths_common.bagio.read_specimen`; the frame mass defaults to Table 4's).
     """
     if scenario == 'actuator':
-        t, command, measured = bagio.read_identification(bag, loop=False)
+        t, command, measured = bagio.read_identification(bag, loop=True)
         return {'time': t, 'command': command, 'measured': measured}
     if scenario != 'specimen':
         raise ValueError(f"scenario {scenario!r}: use 'specimen' or 'actuator'")

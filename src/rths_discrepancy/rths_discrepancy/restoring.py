@@ -90,6 +90,7 @@ from scipy.io import loadmat
 
 from rths_common import bagio, topics
 from rths_common.columns import read_columns, read_header
+from rths_common.timebase import sampling_rate_hz
 from rths_discrepancy import effects as fx
 from rths_discrepancy import reversals
 from rths_discrepancy import signals as sg
@@ -125,7 +126,7 @@ EQUIVALENT = {'asymmetric_friction': ('coulomb_friction', 'force_offset')}
 # ---------------------------------------------------------------- input
 
 def validate(data, source='data'):
-    """Check the restoring-force columns; return float arrays (+ 'fs')."""
+    """Check the restoring-force columns; return float arrays and 'fs' (rths_common.timebase)."""
     missing = [c for c in COLUMNS if c not in data]
     if missing:
         raise ValueError(f'{source}: missing column(s) {", ".join(missing)}; the restoring-force '
@@ -143,18 +144,10 @@ def validate(data, source='data'):
     if n < MIN_SAMPLES:
         raise ValueError(f'{source}: only {n} rows; the restoring-force scenario needs at least '
                          f'{MIN_SAMPLES} (a training and a later held-out part)')
-    dt = np.diff(out['time_s'])
-    if np.any(dt <= 0):
-        i = int(np.argmax(dt <= 0))
-        raise ValueError(f'{source}: column time_s is not increasing at row {i + 1}')
-    step = float(np.median(dt))
-    if np.max(np.abs(dt - step)) > 1e-3 * step:
-        i = int(np.argmax(np.abs(dt - step)))
-        raise ValueError(f'{source}: column time_s is not uniformly sampled (step {dt[i]:g} s at '
-                         f'row {i + 1}, median {step:g} s); resample to a uniform rate first')
     if np.std(out['displacement_m']) == 0 or np.std(out['force_N']) == 0:
         raise ValueError(f'{source}: displacement_m or force_N is constant; nothing to fit')
-    out['fs'] = 1.0 / step
+    # increasing and uniform within the printing; the rate the printed times imply
+    out['fs'] = sampling_rate_hz(out['time_s'], source)
     return out
 
 

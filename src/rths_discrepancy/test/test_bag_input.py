@@ -5,7 +5,8 @@ recorder writes a run: ``/rths/measurement`` messages (``applied`` = what the
 bridge wrote to the actuator, ``displacement`` = measured) and run information
 from :func:`rths_common.runinfo.flatten` (``fs_hz``, the bridge's
 ``command_delay_steps``).  The record is the self-test's Table 1 3-pole
-actuator with a hidden stiffness error, at 512 Hz.
+actuator with a hidden stiffness error, at 512 Hz, as the loop sees it: the
+command of step k is applied D steps later by the bridge's delay line.
 """
 
 import json
@@ -17,14 +18,14 @@ from rths_discrepancy import effects as fx
 from rths_discrepancy import selftest
 
 FS_HZ = 512.0
-#: Bridge delay line of the run: the actuator columns must NOT be shifted by it.
+#: Bridge delay line of the run: the actuator columns are the loop's, shifted by it.
 DELAY_STEPS = 3
 DURATION_S = 8.0
 
 
 @pytest.fixture(scope='module')
 def actuator_bag(tmp_path_factory):
-    """(bag path, record, truth): the record's last step applied nothing (empty ``applied``)."""
+    """(bag path, record, truth): the run's last step applied nothing (empty ``applied``)."""
     from rths_common import bagio, runinfo, topics
 
     data, truth = selftest.make_record('actuator', ['stiffness_error'], 3,
@@ -38,14 +39,16 @@ def actuator_bag(tmp_path_factory):
     bag = tmp_path_factory.mktemp('actuator') / 'bag'
     n = data['time'].size
     with bagio.BagWriter(bag, run_info=info) as writer:
-        for k in range(n + 1):
+        for k in range(n + DELAY_STEPS + 1):
             t_ns = int(round(k * 1e9 / FS_HZ))
-            last = k == n  # the bridge's final step: nothing applied, nothing to pair
+            last = k == n + DELAY_STEPS  # the bridge's final step: nothing applied
+            applied = [] if last else [data['command'][k - DELAY_STEPS] if k >= DELAY_STEPS
+                                       else 0.0]
             msg = meas(header=header(stamp=stamp(sec=t_ns // 10**9, nanosec=t_ns % 10**9),
                                      frame_id=''),
                        step=k,
-                       applied=np.array([] if last else [data['command'][k]]),
-                       displacement=np.array([0.0 if last else data['measured'][k]]),
+                       applied=np.array(applied),
+                       displacement=np.array([data['measured'][k] if k < n else 0.0]),
                        force=np.array([0.0]))
             writer.write_msg(topics.MEASUREMENT, t_ns, msg)
     return bag, data, truth
@@ -57,12 +60,12 @@ def test_read_bag_actuator_columns(actuator_bag):
     bag, data, _ = actuator_bag
     got = read_bag(bag, 'actuator')
     assert sorted(got) == ['command', 'measured', 'time']
-    # the step without an applied command is dropped; time is step / fs_hz of the run info
+    # the steps whose command was never applied are dropped; time is step / fs_hz
     assert got['time'].size == data['time'].size
     np.testing.assert_allclose(got['time'], np.arange(data['time'].size) / FS_HZ, rtol=0,
                                atol=1e-12)
-    # the actuator itself: command and measurement of the same tick, not shifted by the
-    # bridge's delay line (DELAY_STEPS) as the loop identification is
+    # the loop's plant, as rths identify reads it: the command of step k (applied at tick
+    # k + DELAY_STEPS by the bridge's delay line) and the displacement measured at step k
     np.testing.assert_array_equal(got['command'], data['command'])
     np.testing.assert_array_equal(got['measured'], data['measured'])
 

@@ -189,3 +189,17 @@ def test_real_emps_names_friction_with_offset():
     assert {'coulomb_friction', 'asymmetric_friction'} & set(res['parameters'])
     assert res['nrmse_after'] <= 0.05
     assert restoring.emps_comparison(res)['within_10_percent']
+
+
+def test_the_rate_is_the_one_the_printed_times_imply():
+    """A time column stored in single precision (as DATA_EMPS.mat's t) gives 1000 Hz exactly.
+
+    The median step of such a column gives 1000.016 Hz (EMPS); the rate comes from
+    rths_common.timebase like every other time-column reader.
+    """
+    t = (np.arange(24841) / 1000.0).astype(np.float32)
+    x = np.sin(2 * np.pi * 0.5 * t.astype(float))
+    data = restoring.validate({'time_s': t, 'displacement_m': x, 'force_N': 3.0 * x})
+    assert data['fs'] == 1000.0
+    path = require_data('emps') / 'DATA_EMPS.mat'
+    assert restoring.validate(restoring.convert('emps', path))['fs'] == 1000.0

@@ -5,6 +5,7 @@
 * ``rths bench numerical``: step times of the integrators and the dtm-tuning run time.
 """
 
+import functools
 import json
 import os
 import time
@@ -127,8 +128,12 @@ def _surface_plot(path, x, y, surfaces, xlabel, ylabel, title):
     _save_fig(fig, path)
 
 
-def cmd_study_building_frequency(args):
-    """Run ``rths study building-frequency``."""
+def cmd_study_building_frequency(args, surfaces=None):
+    """Run ``rths study building-frequency``.
+
+    ``surfaces(damper, f1_hz, mass_ratios)``: the criteria computed elsewhere (the study
+    runner, which ``rths_study`` plugs in here); default: this process.
+    """
     import numpy as np
 
     from .ground_motion import baseline_correct, ground_motion
@@ -141,8 +146,10 @@ def cmd_study_building_frequency(args):
     os.makedirs(args.out, exist_ok=True)
     result = {}
     for damper in args.dampers:
+        grid = None if surfaces is None else functools.partial(surfaces, damper)
         res = building_frequency_study(model, ag, 1 / fs, f1, mu, damper,
-                                       progress=_progress(f'building-frequency {damper}'))
+                                       progress=_progress(f'building-frequency {damper}'),
+                                       surfaces=grid)
         result[damper] = {c: res[c] for c in CRITERIA}
         best = {}
         for c in CRITERIA:
@@ -174,8 +181,11 @@ def cmd_study_building_frequency(args):
 
 
 def run_dtm_tuning(n_fn=100, n_zeta=30, duration_s=60.0, fs_hz=256.0, seed=0, mass_ratio=0.01,
-                   f1_hz=2.81, progress=None):
-    """Seed 7.2 study on the 16-DOF building with BLWN 0-10 Hz, 1 g peak; return the result."""
+                   f1_hz=2.81, progress=None, surfaces=None):
+    """Seed 7.2 study on the 16-DOF building with BLWN 0-10 Hz, 1 g peak; return the result.
+
+    ``surfaces(fn_hz, zetas)``: the criteria computed elsewhere (:func:`dtm_tuning_study`).
+    """
     import numpy as np
 
     from .building import building_16dof
@@ -184,7 +194,8 @@ def run_dtm_tuning(n_fn=100, n_zeta=30, duration_s=60.0, fs_hz=256.0, seed=0, ma
     from .studies import dtm_tuning_study
     ag = blwn(duration_s, fs_hz, 10.0, 1.0 * G, rng=seed)
     return dtm_tuning_study(building_16dof(), ag, 1 / fs_hz, np.linspace(0.1, 10.0, n_fn),
-                            np.linspace(0.005, 0.15, n_zeta), mass_ratio, f1_hz, progress)
+                            np.linspace(0.005, 0.15, n_zeta), mass_ratio, f1_hz, progress,
+                            surfaces)
 
 
 def cmd_study_model_reduction(args):
@@ -254,13 +265,13 @@ def cmd_study_model_reduction(args):
     return 0
 
 
-def cmd_study_dtm_tuning(args):
-    """Run ``rths study dtm-tuning``."""
+def cmd_study_dtm_tuning(args, surfaces=None):
+    """Run ``rths study dtm-tuning``; ``surfaces``: see :func:`run_dtm_tuning`."""
     from .studies import CRITERIA
     if args.n_fn < 2 or args.n_zeta < 2:
         raise ValueError('--n-fn and --n-zeta must be >= 2')
     res = run_dtm_tuning(args.n_fn, args.n_zeta, args.duration_s, args.fs_hz, args.seed,
-                         args.mass_ratio, args.f1_hz, _progress('dtm-tuning'))
+                         args.mass_ratio, args.f1_hz, _progress('dtm-tuning'), surfaces)
     seed_optima = {'max_disp': (1.7, 0.06), 'max_accel': (1.8, 0.02), 'rms_disp': (1.8, 0.04),
                    'rms_accel': (1.8, 0.04)}
     print(f'building f1 = {args.f1_hz} Hz, mass ratio {args.mass_ratio} '

@@ -140,16 +140,22 @@ def _criteria(disp, acc):
 
 
 def building_frequency_study(model: LinearModel, ag, dt, f1_hz, mass_ratios,
-                             damper=SEED_CONFIGURATION, progress=None):
+                             damper=SEED_CONFIGURATION, progress=None, surfaces=None):
     """Seed 7.1: criteria on the grid (f1 of the building) x (DTM mass / building mass).
 
     Returns ``{criterion: array (len(f1_hz), len(mass_ratios))}`` plus the axes.
+    ``surfaces(f1_hz, mass_ratios)``, when given, computes the criteria instead of the
+    loop here (the study runner: ``rths_study``), the same numbers to rounding.
     """
     building = ModalBuilding(model)
     dtm = damper if isinstance(damper, DTMParameters) else dtm_configuration(damper)
     total = float(model.gamma @ model.M @ model.gamma)
     f1_hz = np.asarray(f1_hz, dtype=float)
     mass_ratios = np.asarray(mass_ratios, dtype=float)
+    if surfaces is not None:
+        out = {c: np.asarray(v, dtype=float) for c, v in surfaces(f1_hz, mass_ratios).items()}
+        out.update(f1_hz=f1_hz, mass_ratios=mass_ratios, building_mass_kg=total)
+        return out
     out = {c: np.zeros((f1_hz.size, mass_ratios.size)) for c in CRITERIA}
     factor = mass_ratios * total / dtm.m_d
     for i, f1 in enumerate(f1_hz):
@@ -165,22 +171,30 @@ def building_frequency_study(model: LinearModel, ag, dt, f1_hz, mass_ratios,
 
 
 def dtm_tuning_study(model: LinearModel, ag, dt, fn_hz, zetas, mass_ratio=0.01, f1_hz=2.81,
-                     progress=None):
-    """Seed 7.2: criteria on the grid (DTM f_n) x (DTM zeta) for a building with ``f1_hz``."""
+                     progress=None, surfaces=None):
+    """Seed 7.2: criteria on the grid (DTM f_n) x (DTM zeta) for a building with ``f1_hz``.
+
+    ``surfaces(fn_hz, zetas)``, when given, computes the criteria instead of the loop
+    here (the study runner: ``rths_study``), the same numbers to rounding.
+    """
     building = ModalBuilding(model)
     total = float(model.gamma @ model.M @ model.gamma)
     m_d = mass_ratio * total
     fn_hz = np.asarray(fn_hz, dtype=float)
     zetas = np.asarray(zetas, dtype=float)
     s = f1_hz / building.f1
-    out = {c: np.zeros((fn_hz.size, zetas.size)) for c in CRITERIA}
-    for i, fn in enumerate(fn_hz):
-        w = 2 * math.pi * fn
-        disp, acc = coupled_response(building, ag, dt, m_d, 2 * zetas * m_d * w, m_d * w * w, s)
-        for c, v in _criteria(disp, acc).items():
-            out[c][i] = v
-        if progress:
-            progress(i + 1, fn_hz.size)
+    if surfaces is not None:
+        out = {c: np.asarray(v, dtype=float) for c, v in surfaces(fn_hz, zetas).items()}
+    else:
+        out = {c: np.zeros((fn_hz.size, zetas.size)) for c in CRITERIA}
+        for i, fn in enumerate(fn_hz):
+            w = 2 * math.pi * fn
+            disp, acc = coupled_response(building, ag, dt, m_d, 2 * zetas * m_d * w,
+                                         m_d * w * w, s)
+            for c, v in _criteria(disp, acc).items():
+                out[c][i] = v
+            if progress:
+                progress(i + 1, fn_hz.size)
     unc_d, unc_a = coupled_response(building, ag, dt, 0.0, 0.0, 1.0, s)
     out['uncontrolled'] = {c: float(v) for c, v in _criteria(unc_d, unc_a).items()}
     optima = {}

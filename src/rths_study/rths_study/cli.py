@@ -11,6 +11,7 @@
 """
 
 import argparse
+import functools
 import importlib
 import os
 
@@ -63,8 +64,77 @@ def register(commands, benches):
 
 
 def extend(commands, benches):
-    """Route ``rths bench rths-benchmark``'s many draws to the runner (after every register)."""
+    """Route the benchmark's many draws and the seed's DTM studies to the runner.
+
+    ``rths`` calls this after every package has registered its commands.
+    """
     _route_benchmark(benches)
+    _route_dtm_studies(_study_subcommands(commands))
+
+
+# ------------------------------------- rths study dtm-tuning / building-frequency
+def _route_dtm_studies(studies):
+    """Compute the grids of ``rths study dtm-tuning`` / ``building-frequency`` on the runner.
+
+    The commands keep their options and outputs (JSON, PNG): their criteria come from
+    the study runner (the SPECs of ``config/studies/dtm_tuning.yaml`` and
+    ``building_frequency.yaml``), one run per grid point, the table in ``OUT/runs_*``
+    (rerunning the command skips the points it holds).
+    """
+    for name in ('dtm-tuning', 'building-frequency'):
+        parser = studies.choices.get(name)
+        if parser is None:
+            raise RuntimeError(f'rths_study.cli: rths study {name} is not registered; rebuild '
+                               'the workspace (make setup) so that rths_numerical is installed')
+        add_cluster_arguments(parser)
+        direct = parser.get_default('func')
+        grid = _dtm_tuning_grid if name == 'dtm-tuning' else _building_frequency_grid
+        parser.set_defaults(func=lambda args, direct=direct, grid=grid: direct(
+            args, surfaces=functools.partial(grid, args)))
+        parser.description += (' The grid runs on the study runner (rths study run; a local '
+                               'Dask cluster, or --scheduler), its table in OUT/runs_*.')
+
+
+def _dtm_tuning_grid(args, fn_hz, zetas) -> dict:
+    """Return the dtm-tuning criteria of the grid ``fn_hz`` x ``zetas`` (the runner)."""
+    raw = {'study': 'dtm-tuning',
+           'scenario': {'kind': 'dtm-tuning', 'building': 'building2story',
+                        'mass_ratio': args.mass_ratio, 'f1_hz': args.f1_hz,
+                        'duration_s': args.duration_s, 'fs_hz': args.fs_hz,
+                        'signal_seed': args.seed},
+           'parameters': {'grid': {'fn_hz': list(fn_hz), 'zeta': list(zetas)}}}
+    return _grid(args, raw, os.path.join(args.out, 'runs_dtm_tuning'), ('fn_hz', 'zeta'))
+
+
+def _building_frequency_grid(args, damper, f1_hz, mass_ratios) -> dict:
+    """Return the building-frequency criteria of one damper's grid (the runner)."""
+    raw = {'study': f'building-frequency-{damper}',
+           'scenario': {'kind': 'building-frequency', 'building': args.building,
+                        'damper': damper, 'scale': args.scale, 'fs_hz': args.fs_hz},
+           'parameters': {'grid': {'f1_hz': list(f1_hz), 'mass_ratio': list(mass_ratios)}},
+           'records': [args.record]}
+    return _grid(args, raw, os.path.join(args.out, f'runs_building_frequency_{damper}'),
+                 ('f1_hz', 'mass_ratio'))
+
+
+def _grid(args, raw, study_dir, axes) -> dict:
+    """Run a two-axis grid SPEC into ``study_dir``; return each metric as a 2-D array."""
+    import numpy as np
+
+    from .spec import check_spec
+    from .store import Store, schema_of
+    spec = check_spec({**raw, 'parameters': {'grid': {
+        a: [float(v) for v in values] for a, values in raw['parameters']['grid'].items()}}},
+        f'rths study {raw["scenario"]["kind"]}')
+    code = run_and_report(spec, study_dir, args.scheduler, args.workers, plots=False)
+    if code:
+        raise ValueError(f'grid points failed (their errors: {study_dir}/study.log); fix the '
+                         'cause and rerun: the points already done are skipped')
+    first, second = (spec.axes[a] for a in axes)
+    where = {(row[axes[0]], row[axes[1]]): row
+             for row in Store(study_dir, schema_of(spec)).table().to_pylist()}
+    return {m: np.array([[where[(x, y)][m] for y in second] for x in first])
+            for m in spec.metrics}
 
 
 def _study_subcommands(commands):

@@ -72,3 +72,50 @@ def test_a_missing_benchmark_command_is_an_error_not_a_silent_skip():
         assert 'rths bench rths-benchmark' in str(err)
     else:
         raise AssertionError('extend() passed without the command it extends')
+
+
+def _json_numbers(path):
+    data = json.loads(path.read_text())
+    return data, {k: np.asarray(v, dtype=float) for k, v in _flat(data)}
+
+
+def _flat(data, prefix=''):
+    for k, v in data.items():
+        if isinstance(v, dict):
+            yield from _flat(v, f'{prefix}{k}.')
+        elif isinstance(v, (int, float, list)) and not isinstance(v, bool):
+            yield f'{prefix}{k}', v
+
+
+def _direct(argv):
+    """Run a ``rths study`` sub-command in this process, without the runner."""
+    from rths_numerical import cli
+    args = build_parser().parse_args(argv)
+    command = {'dtm-tuning': cli.cmd_study_dtm_tuning,
+               'building-frequency': cli.cmd_study_building_frequency}[argv[1]]
+    return command(args)
+
+
+def test_rths_study_dtm_subcommands_run_their_grids_on_the_runner_same_outputs(tmp_path):
+    cases = {'dtm-tuning': (['--n-fn', '4', '--n-zeta', '3', '--duration-s', '8',
+                             '--fs-hz', '128', '--seed', '3'], 'dtm_tuning.json'),
+             'building-frequency': (['--n-freq', '3', '--n-ratio', '2', '--fs-hz', '50',
+                                     '--dampers', 'valve4'], 'building_frequency.json')}
+    for name, (options, output) in cases.items():
+        routed, alone = tmp_path / name / 'runner', tmp_path / name / 'direct'
+        argv = ['study', name, *options]
+        assert main(argv + ['--out', str(routed), '--workers', '1']) == 0
+        assert _direct(argv + ['--out', str(alone)]) == 0
+        ours, ours_n = _json_numbers(routed / output)
+        theirs, theirs_n = _json_numbers(alone / output)
+        assert set(ours_n) == set(theirs_n) and len(ours_n) > 10
+        for key, value in theirs_n.items():
+            np.testing.assert_allclose(ours_n[key], value, rtol=1e-12, err_msg=key)
+        runs = [p for p in routed.iterdir() if p.name.startswith('runs_')]
+        assert len(runs) == 1 and pq.read_table(runs[0] / 'runs').num_rows in (6, 12)
+    # rerunning skips every grid point already in the table
+    before = pq.read_table(runs[0] / 'runs').num_rows
+    argv = ['study', 'building-frequency', *cases['building-frequency'][0]]
+    assert main(argv + ['--out', str(tmp_path / 'building-frequency' / 'runner'),
+                        '--workers', '1']) == 0
+    assert pq.read_table(runs[0] / 'runs').num_rows == before

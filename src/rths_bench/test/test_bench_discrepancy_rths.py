@@ -1,0 +1,50 @@
+"""``rths bench discrepancy-rths``: its cases, their configs and the targets it reports."""
+
+import pytest
+
+from rths_bench import bench_discrepancy_rths as b
+
+
+def test_every_hidden_effect_of_the_simulated_lab_is_a_case_at_two_sizes():
+    from rths_actuator_bridge.simulated import HIDDEN_EFFECTS
+
+    keys = [c[1] for c in b.CASES]
+    for key, (scenario, effect) in HIDDEN_EFFECTS.items():
+        cases = [c for c in b.CASES if c[1] == key]
+        assert {c[3] for c in cases} == {scenario}
+        if effect is None:      # outside the library: must end 'unexplained'
+            assert [c[4] for c in cases] == ['unexplained']
+        else:
+            assert len(cases) == 2 and {c[4] for c in cases} == {effect}
+    assert keys.count(None) == 2    # the nominal controls
+
+
+def test_a_case_config_hides_its_key_in_the_bridge_only(tmp_path):
+    from rths_bringup.commands import default_config_dir
+    from rths_common import runinfo
+
+    cfg = b.case_config(default_config_dir(), tmp_path / 'c', 'specimen_backlash_m', 1e-3)
+    bridge = runinfo.load_params(cfg / 'bridge.yaml', 'bridge')
+    assert bridge['specimen_backlash_m'] == 1e-3 and bridge['specimen'] == 'valve4'
+    assert (cfg / 'numerical.yaml').read_text() == (default_config_dir()
+                                                    / 'numerical.yaml').read_text()
+
+
+def _row(hidden, named, err=None, after=0.1):
+    return {'hidden': hidden, 'named': named, 'named_correctly': named == hidden,
+            'parameter_error_pct': err, 'rths_vs_reference_after_pct': after}
+
+
+def test_summary_counts_the_targets():
+    rows = [_row('none', 'none', after=0.4), _row('none', 'none', after=0.3),
+            _row('coulomb_friction', 'coulomb_friction', 3.0, 0.2),
+            _row('mass_error', 'mass_error', -20.0, 0.7),      # within 2x the control's 0.4
+            _row('backlash', 'none', None, 5.0),
+            _row('unexplained', 'unexplained')]
+    s = b.summarise(rows)
+    assert s['hidden_cases'] == 3
+    assert s['named_pct'] == pytest.approx(200 / 3)
+    assert s['parameters_within_15_pct'] == [1, 3]
+    assert s['rerun_within_target'] == [2, 3]
+    assert s['names_in_controls'] == 0
+    assert s['outside_library_unexplained'] == [1, 1]
