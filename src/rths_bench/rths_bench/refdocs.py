@@ -341,7 +341,7 @@ def package_readme(package: Path, text: str = None) -> str:
 
 
 def packages(root: Path = None) -> list:
-    """Return the directories of the workspace's packages (``src/*`` with a package.xml)."""
+    """Return every directory under ``src/`` that holds a package.xml: the workspace's."""
     root = Path(root) if root else repo_root()
     return sorted(p for p in (root / 'src').iterdir() if (p / 'package.xml').exists())
 

@@ -78,8 +78,8 @@ def test_graph_params_build_the_node_cores(tmp_path, capsys):
     t = np.arange(0, 2.0, 0.02)
     acc = np.sin(2 * np.pi * 1.5 * t)
     path = rb.write_at2(str(tmp_path / 'r.AT2'), t, acc)
-    dt, back = read_at2(path)
-    assert dt == 0.02 and np.allclose(back, acc, rtol=1e-7, atol=1e-9)
+    record = read_at2(path)
+    assert record.dt == 0.02 and np.allclose(record.accel, acc, rtol=1e-7, atol=1e-9)
     params = rb.graph_params('3', design_inverse(4096.0, 10.0), path, 0.4, duration_s=0.25)
     sub = make_substructure(params['numerical'])
     assert sub.n_steps == 1024 and sub.model.name == 'silva2020_case3'
