@@ -98,7 +98,9 @@ def check_compensator(path) -> dict:
     """Validate ``compensator.yaml`` (known keys, taps, denominator, fs_hz)."""
     params = load_params_file(path, 'compensator')
     check_compensator_params({k: v for k, v in params.items() if k not in NODE_KEYS}, str(path))
-    return _wrap(path, 'compensator', load_compensator_params, path)
+    loaded = _wrap(path, 'compensator', load_compensator_params, path)
+    # the node's own keys (mode, executor, ...) count for check_modes
+    return {**loaded, **{k: v for k, v in params.items() if k in NODE_KEYS}}
 
 
 def check_rates(config_dir, numerical: dict, compensator: dict) -> None:

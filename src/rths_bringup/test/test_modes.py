@@ -35,3 +35,20 @@ def test_launcher_gives_a_node_without_mode_the_runs_mode(tmp_path):
     launcher = Launcher(cfg, mode='lockstep', preflight=False)
     assert {launcher.overrides[n]['mode'] for n in ('numerical', 'compensator', 'bridge')} == \
         {'lockstep'}
+
+
+def test_the_mode_written_in_every_file_passes_the_preflight(tmp_path):
+    """mode: realtime in all three files (as rths bench loop writes them) is one mode."""
+    import shutil
+
+    import yaml
+
+    from rths_bringup.commands import default_config_dir
+    from rths_bringup.preflight import check_config
+    cfg = tmp_path / 'config'
+    shutil.copytree(default_config_dir(), cfg)
+    for node in ('numerical', 'compensator', 'bridge'):
+        doc = yaml.safe_load((cfg / f'{node}.yaml').read_text())
+        doc[node]['ros__parameters']['mode'] = 'realtime'
+        (cfg / f'{node}.yaml').write_text(yaml.safe_dump(doc))
+    check_config(cfg)
