@@ -35,7 +35,7 @@ NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'autostart': True,
                'watchdog_timeout_s': 5.0, 'clock': 'loop', 'spin_margin_us': 0.0,
                'timing_out': '', 'publish_specimen': 'auto',
                'command_source': 'compensator',
-               **ns.TUNING_PARAMS}
+               **ns.TUNING_PARAMS, **ns.RUN_PARAMS}
 CLOCKS = ('loop', 'thread', 'timer')
 EXIT_SAFETY_STOP = 3
 #: Shortest time between two graph scans for the command source's writer gids [s].
@@ -99,8 +99,9 @@ class BridgeNode:
                                                              status_qos())
         ns.wait_for_readers(self.node, self.pub, self.own['wait_for_subscribers'])
         raw = not self.lockstep   # lean messages: CDR bytes in and out (rths_common.cdr)
-        self.io_in = Transport(Command, ('command',), raw)
-        self.io_out = Transport(Measurement, ('applied', 'displacement', 'force'), raw)
+        run_id = self.own['run_id']
+        self.io_in = Transport(Command, ('command',), raw, run_id)
+        self.io_out = Transport(Measurement, ('applied', 'displacement', 'force'), raw, run_id)
         self.node.create_subscription(Command, topics.COMMAND, self.on_command, qos, raw=raw)
         self.node.create_subscription(String, topics.EMERGENCY_STOP, self.on_estop_topic, 10)
         self.node.create_service(EmergencyStop, topics.EMERGENCY_STOP_SERVICE, self.on_estop_srv)
@@ -256,6 +257,22 @@ class BridgeNode:
                              f'ignored; {self.foreign_rejected} foreign command(s) so far')
         return False
 
+    def command_accepted(self, msg, step: int) -> bool:
+        """Return True if the command ``msg`` may reach the actuator (else it is logged).
+
+        A command of another run (its run identity, rths_common.transport) never
+        does.  In a run with an identity, a command carrying it is the run's own,
+        whichever writer the graph shows (a node of another run with the source's
+        name cannot make the run's first command wait for a graph scan); without one
+        (a bridge started by hand) the sender must be the command source's writer.
+        """
+        sender = self.io_in.sender(msg)
+        if not self.io_in.ours(msg):    # another run's command never reaches the actuator
+            if self.command_from_source(sender, step):   # else logged there as foreign
+                ns.log_foreign(self.log, self.io_in, topics.COMMAND)
+            return False
+        return bool(self.io_in.run_id) or self.command_from_source(sender, step)
+
     @property
     def rejected(self) -> int:
         """Return (lock-step) the count of commands of another step than the expected one."""
@@ -272,7 +289,7 @@ class BridgeNode:
         if self.stopped:
             return
         stamp_ns, step, (command,) = self.io_in.decode(msg)
-        if not self.command_from_source(self.io_in.sender(msg), step):
+        if not self.command_accepted(msg, step):
             return
         timing = self.timing
         timing['recv_step'].append(step)
@@ -417,6 +434,7 @@ class BridgeNode:
             spec = Specimen(step=step, table_accel=[float(ch.get('table_accel', np.nan))],
                             rel_disp=[float(ch.get('rel_disp', np.nan))],
                             rel_vel=[float(ch.get('rel_vel', np.nan))])
+            spec.header.frame_id = self.io_out.status_frame
             ns.stamp(spec.header, ns.now_ns())
             self.specimen_pub.publish(spec)
 
@@ -434,6 +452,7 @@ class BridgeNode:
         for key, value in counts.items():
             if hasattr(msg, key):
                 setattr(msg, key, type(getattr(msg, key))(value))
+        msg.header.frame_id = self.io_out.status_frame
         ns.stamp(msg.header, ns.now_ns())
         self.controller_pub.publish(msg)
 
@@ -551,6 +570,7 @@ class BridgeNode:
         ns.flush([p for p in (self.pub, self.status_pub, self.controller_pub) if p is not None])
         self.log.info(f'bridge: {self.step + 1} steps applied, {self.rejected} rejected, '
                       f'{self.foreign_rejected} foreign, '
+                      f'{self.io_in.foreign} of another run, '
                       f'{self.clock.misses} deadline miss(es), '
                       f'{self.bridge.supervisor.rejoins} rejoin(s) after misses, '
                       f'final state {self.bridge.state}')

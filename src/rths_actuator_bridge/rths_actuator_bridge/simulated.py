@@ -318,9 +318,10 @@ class SimulatedPlant:
         cfg = self.config
         self.dt = 1.0 / cfg.fs_hz
         self.specimen = SPECIMENS.entry(cfg.specimen, "parameter 'specimen'")
-        self.dtm = self.specimen.table_mass   # the mass on the table (eq. 46), or None
-        self.frame_mass = (self.specimen.frame_mass_kg if math.isnan(cfg.frame_mass_kg)
-                           else cfg.frame_mass_kg)
+        # the mass on the table (eq. 46), or None
+        self.dtm = self.specimen.mass_on_table(cfg.specimen_settings)
+        self.frame_mass = (self.specimen.frame_mass(cfg.specimen_settings)
+                           if math.isnan(cfg.frame_mass_kg) else cfg.frame_mass_kg)
         self.arx = None
         self._scales = dict.fromkeys(RETUNE_KEYS, 1.0)
         self._noiseless = (cfg.adc_bits <= 0 and cfg.displacement_noise_m <= 0

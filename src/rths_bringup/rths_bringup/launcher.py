@@ -42,7 +42,10 @@ and supervises them:
   (:mod:`rths_bringup.preflight`): a bad one raises ValueError naming file,
   field and fix, and nothing is written;
 * ``node_env`` / ``node_prefix`` give a node its own environment (ROS domain,
-  discovery) and command prefix (``ip netns exec HOST``): distributed runs.
+  discovery) and command prefix (``ip netns exec HOST``): distributed runs;
+* every run is isolated (:mod:`rths_bringup.isolation`): it holds its ROS domain
+  (``ROS_DOMAIN_ID``, else a free one) while it runs, refusing to start when
+  another run holds it, and gives every node a fresh run identity (``run_id``).
 
 Timing mode: ``mode`` None (the default) takes the numerical node's ``mode``
 from the config (or its override), so the recorder subscribes with matching
@@ -73,6 +76,7 @@ import time
 
 import yaml
 
+from rths_bringup import isolation
 from rths_bringup.preflight import check_config
 from rths_common import lifeline, yamlfile
 from rths_common.bagio import reindex
@@ -368,6 +372,20 @@ class Launcher:
         """Run the graph until the owner finishes, a node dies or a signal arrives."""
         if self.preflight:  # every params file checked before anything starts or is written
             check_config(self.config_dir, self.overrides)
+        with isolation.reserved(self.describe()) as domain:
+            self.run_id = isolation.new_run_id()
+            for name in (*(n[0] for n in NODES), RECORDER[0]):
+                self.overrides.setdefault(name, {})['run_id'] = self.run_id
+            how = ('a free domain taken for this run' if domain.picked else 'ROS_DOMAIN_ID')
+            self.say(f'ROS domain {domain.domain} ({how}), run identity {self.run_id}')
+            return self._run()
+
+    def describe(self) -> str:
+        """Return how this run is named to another run that finds its domain taken."""
+        where = f', bag {self.bag.resolve()}' if self.bag else ''
+        return f'rths launch --config {self.config_dir.resolve()}{where}'
+
+    def _run(self) -> int:
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         failed = None
         try:

@@ -12,6 +12,11 @@ passed, so a SIGKILL of the recorder loses at most the last 0.1 s (one batch
 plus one commit period).  This node never
 sits in the 1 kHz path of the loop.
 
+Run identity (``run_id``, from the launcher): a stamped loop message of another
+run (its ``header.frame_id``, :mod:`rths_common.transport`) is not recorded; the
+recorder counts them and says so at the end.  A recorder started without one (by
+hand, beside ``rths replay``) records every run's messages.
+
 Realtime mode: the recorder must not take the loop's CPU.  Its threads stay
 at normal (SCHED_OTHER) scheduling with a positive nice value (``nice``,
 default 10 in realtime, 0 in lock-step) and, if ``cpus`` is set (e.g. ``'0'``),
@@ -45,9 +50,13 @@ from rths_common import bagstore, cdr, lifeline, topics
 from rths_common import node_support as ns
 from rths_common.bagio import BagWriter
 from rths_common.qos import recorder_qos, status_qos
+from rths_common.transport import split_frame
 
 #: Recorder parameters that are not run information (everything else is kept in the bag).
 RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s', 'storage', 'pipe_fd')
+#: Recorded topics whose messages carry a header (and so the run identity).
+STAMPED = (topics.INTERFACE_DISPLACEMENT, topics.COMMAND, topics.MEASUREMENT, topics.STATUS,
+           topics.SPECIMEN, topics.CONTROLLER)
 #: Shortest time between two commits of the bag [s]; a crash loses at most this
 #: plus one batch (MAX_BATCH_S): 0.1 s.
 COMMIT_PERIOD_S = 0.05
@@ -87,6 +96,8 @@ class Recorder:
         self.wake = threading.Event()
         self.running = True
         self.count = 0
+        self.run_id = str(params.get('run_id', '') or '')
+        self.foreign = 0
         # sqlite objects must stay in the thread that made them: the writer thread opens the bag.
         opened = threading.Event()
         self.open_error = None
@@ -106,7 +117,8 @@ class Recorder:
         for topic, msgtype in topics.LOOP_TOPICS.items():
             if topic in teed and topic != topics.EMERGENCY_STOP:
                 continue   # the container's tee brings every one of these
-            qos = (status_qos() if topic in (topics.STATUS, topics.SPECIMEN, topics.CONTROLLER)
+            qos = (status_qos() if topic in (topics.STATUS, topics.SPECIMEN, topics.CONTROLLER,
+                                             topics.RUN_INPUTS, topics.RESPONSE)
                    else recorder_qos(mode))
             self.node.create_subscription(ns.message_class(msgtype), topic,
                                           self._callback(topic), qos, raw=True)
@@ -143,12 +155,23 @@ class Recorder:
 
     def _callback(self, topic):
         queue, now_ns = self.queue, ns.now_ns
+        # a stamped topic carries the run identity; a recorder without one takes every run's
+        run_id = self.run_id if topic in STAMPED else ''
+
+        def ours(raw: bytes) -> bool:
+            if run_id and split_frame(cdr.sender_of(raw))[0] != run_id:
+                self.foreign += 1      # another run's message: not this run's record
+                return False
+            return True
 
         def on_message(raw: bytes):
             # only a deque append (thread-safe): the writer thread drains in batches
-            queue.append((topic, now_ns(), raw))
+            if ours(raw):
+                queue.append((topic, now_ns(), raw))
 
         def on_status(raw: bytes):
+            if not ours(raw):
+                return
             queue.append((topic, now_ns(), raw))
             if lifeline.lost() and cdr.status_state(raw) == ('bridge', _STOPPED):
                 self.bridge_stopped = True
@@ -237,8 +260,9 @@ def main(argv=None):
               'BAG INCOMPLETE', flush=True)
     count = rec.close()
     piped = f' ({rec.piped} from the container)' if rec.pipe_fd >= 0 else ''
-    print(f'recorder: {count} messages written{piped} in {time.monotonic() - t0:.1f} s',
-          flush=True)
+    foreign = f'; {rec.foreign} of another run not recorded' if rec.foreign else ''
+    print(f'recorder: {count} messages written{piped} in {time.monotonic() - t0:.1f} s'
+          f'{foreign}', flush=True)
     rclpy.shutdown()
     lifeline.end_if_lost(0)
     return 0

@@ -63,7 +63,7 @@ def tables(s: dict) -> str:
         return out + ('<p>Tables 6-9 need the numerical model, which ran in the client '
                       '(OpenSees/OpenFresco): not part of a site review.</p>\n')
     out += _table(
-        'Tables 6-8 layout: 2nd-floor displacement',
+        f"Tables 6-8 layout: displacement of {s.get('dof', 'the output DOF')} (relative)",
         ('model', 'max [m]', 'max [in]', 'red. [%]', 'RMS [m]', 'RMS [in]', 'red. [%]'),
         (('uncontrolled', f"{s['uncontrolled_max_disp_2nd_m']:.4e}",
           f"{s['uncontrolled_max_disp_2nd_m'] / _INCH:.4f}", '-',
@@ -91,7 +91,26 @@ def tables(s: dict) -> str:
                         c['replies_malformed'], c['restarts'], f"{c['worst_reply_ms']:.3f}"),))
         if c.get('fault'):
             out += f"<p>controller fault: {html.escape(c['fault'])}</p>\n"
+    if s.get('every_dof'):
+        out += _table('Every DOF: relative displacement in the RTHS (response.csv)',
+                      ('DOF', 'column', 'max [m]', 'RMS [m]'),
+                      [(r['dof'], r['column'], f"{r['max_m']:.4e}", f"{r['rms_m']:.4e}")
+                       for r in s['every_dof']])
     return out
+
+
+def settings(s: dict) -> str:
+    """Return what shaped the run (scale, force scale, frame, specimen, processing) as HTML."""
+    if s.get('kind') == 'site':      # the record and the model ran in the client
+        return ''
+    rows = [('record', f"{s.get('record', '?')} x {s.get('scale', '?')}"),
+            ('specimen', s.get('specimen', '?')),
+            ('model', f"{s.get('numerical_model', '?')}"),
+            ('force scale', f"{s.get('force_scale', '?')}"),
+            ('interface frame', f"{s.get('interface_frame', '?')} at "
+                                f"{', '.join(s.get('interface_dofs', []))}"),
+            ('input processing', '; '.join(s.get('input_processing') or []) or 'none')]
+    return _table('What shaped the run', ('', ''), rows)
 
 
 def realtime_table(s: dict) -> str:
@@ -151,7 +170,8 @@ def render(summary: dict, images: dict) -> str:
     return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
             f'<title>{html.escape(title)}</title><style>{_STYLE}</style></head>\n<body>\n'
             f'<h1>{html.escape(title)}</h1>\n<p>compensator: {html.escape(scheme) or "-"}</p>\n'
-            + tables(s) + realtime_table(s) + f'<p>{html.escape(misses)}</p>\n' + extra
+            + settings(s) + tables(s) + realtime_table(s)
+            + f'<p>{html.escape(misses)}</p>\n' + extra
             + (f'<p>safety faults:</p><ul>{faults}</ul>\n' if faults else '')
             + figures + '</body></html>\n')
 

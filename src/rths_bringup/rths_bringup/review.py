@@ -23,6 +23,7 @@ from rths_common import bagio, runinfo, topics
 from rths_common.params import core_params
 from rths_compensator.estimation import impulse_response
 from rths_compensator.indicators import frf_h1, relative_rms_pct
+from rths_numerical.inputs import parse_inputs, table_from_chunks
 from rths_numerical.model import LinearModel
 from rths_numerical.reference import (
     coupled_rths,
@@ -319,7 +320,38 @@ def table5_of(desired, applied, measured, fs) -> dict:
 REVIEW_STAGES = 4
 
 
-def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None) -> dict:
+def run_inputs(bag, numerical: dict):
+    """Return the run's substructure, from the bag's own copy of its model and record.
+
+    Bags recorded before the copy existed rebuild it from the files the parameters name.
+    """
+    recorded = bagio.read_topic(bag, topics.RUN_INPUTS)
+    if not recorded:
+        return make_substructure(numerical)
+    model, motion, _ = parse_inputs(recorded[-1][1].data)
+    return make_substructure(numerical, model, motion)
+
+
+def response_of(bag):
+    """Return ``(columns, table)`` of the bag's /rths/response (None, None if absent)."""
+    return table_from_chunks((m.layout.data_offset, m.data, m.layout.dim[1].label)
+                             for _, m in bagio.read_topic(bag, topics.RESPONSE))
+
+
+def dof_index(model, dof, where: str = '--dof') -> int:
+    """Return the index of DOF ``dof`` (a name of the model, or a number from 1)."""
+    names = list(getattr(model, 'dof_names', []) or [])
+    text = str(dof).strip()
+    if text in names:
+        return names.index(text)
+    if text.isdigit() and 1 <= int(text) <= model.n:
+        return int(text) - 1
+    raise ValueError(f'{where} {dof}: the model {getattr(model, "name", "")} has no such DOF; '
+                     f'give one of {", ".join(names)} or a number 1..{model.n}')
+
+
+def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None,
+                dof=None) -> dict:
     """Tables 5-9 of an RTHS bag: JSON summary, text report, PNG plots and ``report.html``.
 
     ``specimen_model``: an updated specimen model (``updated_model.yaml`` of ``rths
@@ -330,8 +362,11 @@ def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None) -
 
     ``report.html`` (:mod:`rths_bringup.report_html`) holds the tables and every
     plot in one self-contained file.  ``progress(done, 4)`` follows the stages: bag
-    read, references simulated, plots drawn, report written.  ``limits``: the
-    real-time limits a realtime run is judged by (:mod:`rths_bringup.realtime`).
+    read, references simulated, plots drawn, report written.  ``dof``: the DOF
+    the tables report (a name of the model or a number from 1; default the model's
+    output DOF).  The model and the record come from the bag (:func:`run_inputs`).
+    ``limits``: the real-time limits a realtime run is judged by
+    (:mod:`rths_bringup.realtime`).
     """
     stage = progress or (lambda done, total: None)
 
@@ -347,10 +382,14 @@ def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None) -
         return review_site(bag, out_dir, info, fs, stage)
     bridge = runinfo.section(info, 'bridge')
     compensator = runinfo.section(info, 'compensator')
-    sub = make_substructure(numerical)
+    sub = run_inputs(bag, numerical)
     model = sub.model
-    if sub.iface != [model.output_dof]:
-        raise ValueError('the review needs the output DOF to be the interface DOF')
+    if dof is not None:
+        model.output_dof = dof_index(model, dof)
+    columns, response = response_of(bag)
+    if sub.iface != [model.output_dof] and response is None:
+        raise ValueError(f'{bag}: the bag has no /rths/response (recorded before it existed), '
+                         'so only the interface DOF can be reviewed; drop --dof')
 
     desired, applied, measured, meas, status, n, recorded, recording = _tracking(bag, fs)
     timing = bridge_realtime(status, sub.n_steps, fs, limits) if (
@@ -360,16 +399,23 @@ def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None) -
     table5 = table5_of(desired, applied, measured, fs)
     # Tables 6-9: the 2nd floor relative to the ground
     ug = sub.ug[:n] if sub.frame == 'absolute' else 0.0
-    floor2 = desired - ug
+    floor2 = (desired - ug if sub.iface == [model.output_dof]
+              else response[:n, 2 + model.output_dof])
     dt = 1.0 / fs
     name = specimen_of(bridge)
     remote = bridge.get('backend') == 'genericclient'
     external = '' if remote else external_controller(bridge)
     if remote:   # a remote site: no model of its specimen (compared with the bare building)
         name, bridge = 'remote', dict(bridge, specimen='none')
+
+    def build():
+        own = run_inputs(bag, numerical)
+        own.model.output_dof = model.output_dof     # the DOF the review reports
+        return own
     uncontrolled, reference, specimen = references(numerical, bridge, sub, dt,
                                                    specimen_known=not external,
-                                                   where=f'{bag}: bridge parameter specimen')
+                                                   where=f'{bag}: bridge parameter specimen',
+                                                   build=build)
     reference_model = 'nominal specimen model (the run\'s specimen, linear)'
     if specimen_model is not None:
         reference, reference_model = _updated_reference(bag, specimen, specimen_model)
@@ -388,6 +434,12 @@ def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None) -
         'compensator': compensator,
         'numerical_backend': numerical.get('backend', 'builtin'),
         'numerical_model': getattr(model, 'name', str(numerical.get('model'))),
+        'force_scale': float(sub.force_scale), 'interface_frame': sub.frame,
+        'input_processing': list(sub.motion.processing) if sub.motion is not None else [],
+        'record_summary': sub.motion.summary() if sub.motion is not None else None,
+        'dof': _dof_name(model, model.output_dof),
+        'interface_dofs': [_dof_name(model, i) for i in sub.iface],
+        'every_dof': _every_dof(model, columns, response, n),
         **table5,
         **response_metrics(floor2, ref_disp, uncontrolled['metrics'], fs),
         'reference_model': reference_model if ref_disp is not None else None,
@@ -449,13 +501,15 @@ REALTIME_KEYS = ('late_or_missed_pct', 'missed_ticks', 'clock_overruns', 'stalle
                  'worst_period_ms', 'behind_s', 'realtime_ok', 'realtime_limits')
 
 
-def references(numerical, bridge, sub, dt, specimen_known=True, where='bridge specimen'):
+def references(numerical, bridge, sub, dt, specimen_known=True, where='bridge specimen',
+               build=None):
     """``(uncontrolled, reference, specimen)`` responses of a run's substructure ``sub``.
 
     ``uncontrolled``: the building without the specimen; ``reference``: the whole-numerical
     RTHS (the same substructure with the specimen model on a perfect actuator), None where
     there is no model of the specimen (``specimen_known`` False: a lab's own controller; a
-    bare table).  Both are dicts with ``disp`` and ``metrics``.
+    bare table).  Both are dicts with ``disp`` and ``metrics``.  ``build``: returns a fresh
+    copy of ``sub`` for the offline runs (default: built again from ``numerical``).
     """
     model = sub.model
     uncontrolled = (simulate_uncontrolled(model, sub.ag, dt, numerical.get('integrator', 'cr'))
@@ -464,16 +518,17 @@ def references(numerical, bridge, sub, dt, specimen_known=True, where='bridge sp
     specimen = SPECIMENS.entry(specimen_of(bridge), where) if specimen_known else None
     if specimen is None:   # no model of the lab's specimen: no reference to compare with
         if uncontrolled is None:
-            uncontrolled, _ = offline_references(numerical, dict(bridge, specimen='none'), dt)
+            uncontrolled, _ = offline_references(numerical, dict(bridge, specimen='none'), dt,
+                                                 build)
         reference = None
     elif specimen.device is not None or backend != 'builtin':
         # a device specimen or an OpenSees model: the same substructure, offline, with the
         # same specimen model on a perfect actuator (and without it for the uncontrolled one)
-        uncontrolled, reference = offline_references(numerical, bridge, dt)
-    elif specimen.table_mass is not None:
-        reference = simulate_reference(model, sub.ag, dt, damper=specimen.table_mass,
+        uncontrolled, reference = offline_references(numerical, bridge, dt, build)
+    elif specimen.mass_on_table(bridge) is not None:
+        reference = simulate_reference(model, sub.ag, dt, damper=specimen.mass_on_table(bridge),
                                        n_dtm=sub.force_scale,
-                                       frame_mass_kg=specimen.frame_mass_kg,
+                                       frame_mass_kg=specimen.frame_mass(bridge),
                                        integrator=numerical.get('integrator', 'cr'),
                                        uncontrolled=uncontrolled)
     else:
@@ -582,6 +637,23 @@ def _site_text(s: dict) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def _dof_name(model, i: int) -> str:
+    names = list(getattr(model, 'dof_names', []) or [])
+    return names[i] if i < len(names) else f'dof{i + 1}'
+
+
+def _every_dof(model, columns, response, n) -> list:
+    """Return max and RMS of every DOF's relative displacement in the RTHS [m]."""
+    if response is None:
+        return []
+    rows = []
+    for j in range(2, len(columns)):
+        d = response[:n, j]
+        rows.append({'dof': _dof_name(model, j - 2), 'column': columns[j],
+                     'max_m': float(np.max(np.abs(d))), 'rms_m': float(np.sqrt(np.mean(d ** 2)))})
+    return rows
+
+
 def review_text(s: dict) -> str:
     """Return the review as text, in the layout of the seed's tables 5-9."""
     if s.get('kind') == 'site':
@@ -590,6 +662,9 @@ def review_text(s: dict) -> str:
     lines = [
         f"RTHS review: {s['record']} x {s['scale']}, specimen {specimen_title(s)}, {s['mode']}, "
         f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)",
+        f"  model {s['numerical_model']}, force scale {s.get('force_scale', '?')}, interface "
+        f"frame {s.get('interface_frame', '?')} at {', '.join(s.get('interface_dofs', []))}",
+        '  input processing: ' + ('; '.join(s.get('input_processing') or []) or 'none'),
         '',
         'Table 5 layout: actuator time delay and relative RMS tracking error',
         '                      before compensation   after compensation',
@@ -598,7 +673,7 @@ def review_text(s: dict) -> str:
         f"{s['tracking_rel_rms_pct_after']:>18.2f}",
         '  (before: plant input -> output; after: interface displacement -> output)',
         '',
-        'Tables 6-8 layout: 2nd-floor displacement',
+        f"Tables 6-8 layout: displacement of {s.get('dof', 'the output DOF')} (relative)",
         '  model            max [m]      max [in]   red. [%]   RMS [m]      RMS [in]   red. [%]',
         f"  uncontrolled     {s['uncontrolled_max_disp_2nd_m']:.4e}  "
         f"{s['uncontrolled_max_disp_2nd_m'] / inch:8.4f}        -     "
@@ -623,6 +698,11 @@ def review_text(s: dict) -> str:
     if s.get('controller'):
         lines.append(controller_text(s['controller']))
     lines += notes(s)
+    if s.get('every_dof'):
+        lines += ['', 'Every DOF (relative displacement, RTHS; response.csv, /rths/response)',
+                  '  DOF                  column       max [m]      RMS [m]']
+        lines += [f"  {r['dof'][:20]:<20} {r['column']:<10} {r['max_m']:.4e}  {r['rms_m']:.4e}"
+                  for r in s['every_dof']]
     return '\n'.join(lines) + '\n'
 
 
@@ -637,7 +717,7 @@ def residual_drift(disp, fs, seconds=1.0):
     return float(np.mean(disp[-max(1, int(seconds * fs)):])) if disp.size else float('nan')
 
 
-def offline_references(numerical, bridge, dt):
+def offline_references(numerical, bridge, dt, build=None):
     """Uncontrolled and reference responses from the run's own substructure, offline.
 
     The reference couples the same substructure with the run's specimen model on
@@ -646,12 +726,13 @@ def offline_references(numerical, bridge, dt):
     dicts with ``disp`` and ``metrics`` (the reference also its whole ``history``; None if the
     bridge ran a bare table).
     """
-    free = coupled_rths(make_substructure(numerical), lambda x: np.zeros(1))
+    build = build or (lambda: make_substructure(numerical))
+    free = coupled_rths(build(), lambda x: np.zeros(1))
     uncontrolled = {'disp': free['output_disp'], 'metrics': metrics(free['output_disp'])}
     specimen = SPECIMENS.entry(specimen_of(bridge)).reference(dt, bridge)
     if specimen is None:
         return uncontrolled, None
-    hist = coupled_rths(make_substructure(numerical), specimen)
+    hist = coupled_rths(build(), specimen)
     return uncontrolled, {'disp': hist['output_disp'], 'history': hist,
                           'metrics': metrics(hist['output_disp'], uncontrolled['metrics'])}
 

@@ -30,6 +30,7 @@ import json
 from pathlib import Path
 import sys
 
+from rths_bringup import isolation
 from rths_bringup.commands import default_config_dir, launch
 from rths_common import runinfo
 from rths_common.params import add_renamed_option, renamed
@@ -37,6 +38,7 @@ from rths_compensator.methods import DEFAULT as METHOD_DEFAULT
 from rths_compensator.methods import METHODS, adaptive_names
 from rths_compensator.params import PROVENANCE, identity_params
 from rths_compensator.schemes import DEFAULT_SCHEME, DESIGN_DEFAULTS, designed
+from rths_numerical.ground_motion import FORMATS, SEED_SCALES
 from rths_numerical.specimens import (
     DEFAULT_SPECIMEN,
     SPECIMENS,
@@ -71,11 +73,28 @@ def register(commands, benches):
     p.add_argument('--config', default=None, help='config directory (default: repo config/)')
     p.add_argument('--out', default=None, help='results directory (default: out/run-<time>)')
     p.add_argument('--record', default='kobe',
-                   help='ground motion: kobe, northridge, imperial_valley or a PEER .AT2 path '
-                        '(default kobe)')
-    p.add_argument('--scale', type=float, default=0.135,
-                   help='ground-motion scale factor (seed: kobe 0.135, northridge 0.039, '
-                        'el centro 0.10; default 0.135)')
+                   help='ground motion: kobe, northridge, imperial_valley (the seed\'s records) '
+                        'or a record file: PEER .AT2; CSV or whitespace text (.csv .txt .dat '
+                        '.tsv .asc) with a time and an acceleration column; one column of '
+                        'accelerations with --record-dt (default kobe)')
+    p.add_argument('--record-format', default='', choices=('',) + FORMATS.names(),
+                   help='the record file\'s format (default: by its ending and its content)')
+    p.add_argument('--record-units', default='',
+                   help='acceleration unit of a record whose header does not name it: g, '
+                        'm/s^2, cm/s^2 or gal (refused if it contradicts the header)')
+    p.add_argument('--record-dt', type=float, default=0.0,
+                   help='time step [s] of a single-column record')
+    p.add_argument('--no-resample', action='store_true',
+                   help='do not resample the record to the loop rate (its rate must be fs_hz)')
+    p.add_argument('--no-mean-removal', action='store_true',
+                   help="keep the record's mean acceleration")
+    p.add_argument('--no-baseline', action='store_true',
+                   help='no baseline correction (a cubic polynomial fitted to the ground '
+                        'displacement is removed by default)')
+    p.add_argument('--scale', type=float, default=None,
+                   help='ground-motion scale factor (default: 1 for a record file; the seed\'s '
+                        'factor for its records: kobe 0.135, northridge 0.039, '
+                        'imperial_valley 0.10)')
     p.add_argument('--specimen', default=None, type=_specimen_arg,
                    choices=_RemoteOr(SPECIMENS.names()),
                    help=f'the specimen (default: the specimen of CONFIG/bridge.yaml, else '
@@ -101,9 +120,10 @@ def register(commands, benches):
     p.add_argument('--controller', default=None, metavar='HOST:PORT',
                    help='--backend udp: the servo controller (e.g. 192.168.1.20:5005; '
                         'rths controller-emulator prints its own)')
-    p.add_argument('--force-scale', type=float, default=5.0,
-                   help='DTMs the one in the lab stands for: its measured force is multiplied '
-                        'by this in the building (seed 6.2: 5, the default)')
+    p.add_argument('--force-scale', type=float, default=None,
+                   help='specimens the one in the lab stands for: its measured force is '
+                        'multiplied by this in the model (default: 5 for building2story, seed '
+                        '6.2; 1 for any other model)')
     p.add_argument('--numerical', choices=('builtin', 'opensees'), default='builtin',
                    help='numerical backend: builtin (default) or opensees (OpenSeesPy, `make '
                         'setup-opensees`; integrator central_difference)')
@@ -111,6 +131,9 @@ def register(commands, benches):
                    help='numerical model: building2story (default), a model YAML, or with '
                         '--numerical opensees an OpenSeesPy script (.py, or a name in '
                         'config/models/, e.g. frame-steel01)')
+    p.add_argument('--output-dof', default=None,
+                   help="the DOF the review's tables report: a name of the model's DOFs or a "
+                        "number from 1 (default: the model's output_dof); checked before the run")
     p.add_argument('--mode', choices=('lockstep', 'realtime'), default='lockstep',
                    help='timing mode (default lockstep: deterministic, as fast as possible)')
     p.add_argument('--layout', choices=('composed', 'processes'), default=None,
@@ -175,6 +198,9 @@ def register(commands, benches):
     p.add_argument('bag', help='bag directory of an RTHS run')
     p.add_argument('--out', default=None, help='directory for summary.json, review.txt and '
                    'plots (default: beside the bag)')
+    p.add_argument('--dof', default=None,
+                   help="the DOF tables 6-9 report: a name of the model's DOFs or a number from 1 "
+                        "(default: the model's output DOF); every DOF is listed anyway")
     p.add_argument('--specimen-model', default=None, metavar='MODEL.yaml',
                    help='Table 9 against the reference with this specimen model (the '
                         'updated_model.yaml of rths discrepancy --scenario specimen) instead '
@@ -525,8 +551,12 @@ def cmd_run(args) -> int:
     from rths_bringup import live
     from rths_bringup.commands import live_rate_of
 
+    if not args.out:
+        args.out = str(Path('out') / ('run-' + datetime.datetime.now().strftime('%Y%m%d-%H%M%S')))
     try:
-        with live.session(args, fs_hz=live_rate_of(args.config) if args.live else 0.0):
+        # the run's ROS domain is held from the first phase to the last (the live view joins it)
+        with isolation.reserved(f'rths run --out {Path(args.out).resolve()}'), \
+                live.session(args, fs_hz=live_rate_of(args.config) if args.live else 0.0):
             return _run(args)
     except RuntimeError as err:
         print(f'rths run: error: {err}', file=sys.stderr)
@@ -538,12 +568,11 @@ def _run(args) -> int:
     from rths_bringup.review import print_review
 
     limits = limits_of(args)
-    if not args.force_scale > 0:
-        raise ValueError(f'--force-scale must be > 0 (DTMs the one in the lab stands for), '
+    if args.force_scale is not None and not args.force_scale > 0:
+        raise ValueError(f'--force-scale must be > 0 (specimens the one in the lab stands for), '
                          f'got {args.force_scale}')
     config = Path(args.config) if args.config else default_config_dir()
-    out = Path(args.out) if args.out else Path('out') / (
-        'run-' + datetime.datetime.now().strftime('%Y%m%d-%H%M%S'))
+    out = Path(args.out)
     if out.exists() and any(out.iterdir()):
         raise OSError(f'results directory {out} exists and is not empty; choose a new --out')
     out.mkdir(parents=True, exist_ok=True)
@@ -560,6 +589,8 @@ def _run(args) -> int:
         from rths_numerical.opensees_backend import import_opensees
         import_opensees()
     _say(f'results in {out}')
+    numerical = _numerical_params(args, base['numerical'], model_param, base['bridge'], remote)
+    settings = _check_inputs(numerical, out, base['bridge'], args.output_dof)   # before all
 
     # 1-2: identification and design
     comp_file = out / 'compensator.yaml'
@@ -614,18 +645,6 @@ def _run(args) -> int:
         comp.update(method=args.adaptive)
 
     # 3: the RTHS run
-    numerical = dict(base['numerical'], model=model_param,
-                     record=args.record, scale=float(args.scale),
-                     force_scale=float(args.force_scale), backend=args.numerical,
-                     # the frame the table must follow, and the specimen's mass for P_I^E
-                     # (a controller's or a remote site's specimen: the numerical config's own)
-                     **({} if remote or args.backend != 'simulated' else
-                        SPECIMENS[args.specimen].numerical_params()))
-    if args.numerical == 'opensees':
-        numerical['integrator'] = 'central_difference'   # the RTHS pairing (README)
-    for key in ('sdof_mass_kg', 'sdof_freq_hz', 'sdof_zeta', 'harmonic_freq_hz'):
-        numerical.pop(key, None)
-    numerical['duration_s'] = float(args.duration)
     rths_dir = out / 'rths'
     cfg = _phase_config(rths_dir, {'numerical': numerical, 'compensator': comp,
                                    'bridge': base['bridge']})
@@ -639,17 +658,125 @@ def _run(args) -> int:
                          live=args.live, layout=args.layout)
     if stop is not None:
         return _report_safety_stop(stop, numerical, out, rths_dir / 'bag', limits)
+    record = settings['record_summary'] or {}
+    _write_response(rths_dir / 'numerical_history.npz', record.get('t0_s', 0.0),
+                    out / 'response.csv')
 
     # 4: review
     _say('step 4: review')
-    summary = _review(rths_dir / 'bag', out, limits, args.specimen_model)
+    summary = _review(rths_dir / 'bag', out, limits, args.specimen_model, args.output_dof)
     summary['adaptive'] = args.adaptive
+    summary.setdefault('run_settings', {k: v for k, v in settings.items()
+                                        if k != 'record_summary'})
     (out / 'summary.json').write_text(json.dumps(summary, indent=2))
     print_review(summary)
     _say(f'results: {out}/report.html (one file), {out}/summary.json, {out}/review.txt, '
          f'plots {out}/*.png, '
          f'bags {out}/*/bag')
     return 0
+
+
+def _numerical_params(args, base: dict, model_param: str, bridge: dict, remote: bool) -> dict:
+    """Return the RTHS run's numerical parameters: the config's, then every option given.
+
+    No demo value reaches a lab's data: the scale is 1 for a record file (the
+    seed's factor for its own records) and the force scale 1 for any model but
+    the seed's building (5: one DTM stands for five, seed 6.2), unless given.
+    """
+    record = str(args.record)
+    scale = args.scale if args.scale is not None else SEED_SCALES.get(record.lower(), 1.0)
+    force_scale = (args.force_scale if args.force_scale is not None
+                   else 5.0 if model_param == 'building2story' else 1.0)
+    numerical = dict(base, model=model_param, record=record, scale=float(scale),
+                     force_scale=float(force_scale), backend=args.numerical,
+                     record_format=args.record_format, record_units=args.record_units,
+                     record_dt_s=float(args.record_dt), record_resample=not args.no_resample,
+                     record_remove_mean=not args.no_mean_removal,
+                     record_baseline=not args.no_baseline,
+                     # the frame the table must follow, and the specimen's mass for P_I^E
+                     # (a controller's or a remote site's specimen: the numerical config's own)
+                     **({} if remote or args.backend != 'simulated' else
+                        SPECIMENS[args.specimen].numerical_params(bridge)))
+    if args.numerical == 'opensees':
+        numerical['integrator'] = 'central_difference'   # the RTHS pairing (README)
+    for key in ('sdof_mass_kg', 'sdof_freq_hz', 'sdof_zeta', 'harmonic_freq_hz'):
+        numerical.pop(key, None)
+    numerical['duration_s'] = float(args.duration)
+    return numerical
+
+
+def _check_inputs(numerical: dict, out: Path, bridge: dict, output_dof=None):
+    """Build the numerical substructure once (every input checked) and report the record.
+
+    Prints the record as read (first and last samples, duration, rate, peak) and as
+    the run will use it (its processing), and what shapes the run (scale, force
+    scale, interface frame, model and its DOFs); writes them to ``OUT/inputs.json``.
+    """
+    from rths_common.params import core_params
+    from rths_numerical.ground_motion import read_record
+    from rths_numerical.substructure import make_substructure
+
+    sub = make_substructure(core_params(numerical))
+    specimen = specimen_of(bridge)
+    entry = SPECIMENS.get(specimen) if bridge.get('backend', 'simulated') == 'simulated' else None
+    if entry is not None:   # a simulated specimen (a controller's or a site's is their own)
+        entry.check(bridge, sub.n_interface, f'model {getattr(sub.model, "name", "")}')
+    settings = run_settings(numerical, sub)
+    if output_dof is not None:
+        from rths_bringup.review import dof_index
+        dof_index(sub.model, output_dof, '--output-dof')
+    settings['specimen'] = specimen
+    settings['specimen_settings'] = entry.settings(bridge) if entry is not None else {}
+    lines = ['inputs of the RTHS run:']
+    if sub.motion is not None and sub.motion.fmt != 'synthetic':
+        raw = read_record(numerical['record'], numerical.get('record_format', ''),
+                          numerical.get('record_units', ''), numerical.get('record_dt_s', 0.0))
+        lines.append('  as read:  ' + raw.describe().replace('\n', '\n  '))
+        settings['record_as_read'] = raw.summary()
+        del settings['record_as_read']['processing']
+    if sub.motion is not None:
+        lines.append('  as used:  ' + sub.motion.describe().replace('\n', '\n  '))
+    lines.append(f"  specimen {specimen} {settings['specimen_settings'] or ''}".rstrip())
+    lines.append(f"  scale {settings['scale']:g}, force scale {settings['force_scale']:g}, "
+                 f"interface frame {settings['interface_frame']}, model "
+                 f"{settings['model_name']} ({len(settings['dof_names'])} DOFs: "
+                 f"{', '.join(settings['dof_names'])}), interface DOF(s) "
+                 f"{', '.join(settings['interface_dof_names'])}")
+    for line in lines:
+        _say(line)
+    (out / 'inputs.json').write_text(json.dumps(settings, indent=2))
+    return settings
+
+
+def run_settings(numerical: dict, sub) -> dict:
+    """Return every value that shapes a run's numerical side, as the summary states it."""
+    model = sub.model
+    names = list(getattr(model, 'dof_names', []) or [])
+    return {
+        'record': numerical.get('record'), 'scale': float(numerical.get('scale', 1.0)),
+        'force_scale': float(sub.force_scale), 'interface_frame': sub.frame,
+        'specimen_mass_kg': float(getattr(sub, 'specimen_mass', 0.0)),
+        'input_processing': list(sub.motion.processing) if sub.motion is not None else [],
+        'model_name': getattr(model, 'name', str(numerical.get('model'))),
+        'dof_names': names,
+        'interface_dof_names': [names[i] if i < len(names) else str(i) for i in sub.iface],
+        'record_summary': sub.motion.summary() if sub.motion is not None else None,
+    }
+
+
+def _write_response(history: Path, t0: float, path: Path):
+    """Write ``response.csv`` (time, ground acceleration, every DOF) from the run's history."""
+    import numpy as np
+
+    from rths_numerical.inputs import response_columns, write_response_csv
+
+    if not history.is_file():
+        return
+    hist = np.load(history)
+    disp = hist['displacements']
+    table = np.column_stack([t0 + hist['time'], hist['ground_accel'], disp])
+    write_response_csv(path, response_columns(disp.shape[1]), table)
+    _say(f'response of every DOF: {path}')
 
 
 def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
@@ -675,7 +802,7 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
     return EXIT_SAFETY_STOP
 
 
-def _review(bag, out, limits=None, specimen_model=None) -> dict:
+def _review(bag, out, limits=None, specimen_model=None, dof=None) -> dict:
     """Run :func:`rths_bringup.review.review_rths` with a progress line over its stages."""
     from rths_bringup.review import REVIEW_STAGES, review_rths
     from rths_common.progress import Progress
@@ -684,7 +811,7 @@ def _review(bag, out, limits=None, specimen_model=None) -> dict:
         raise OSError(f'--specimen-model {specimen_model}: no such file')
     with Progress(REVIEW_STAGES, 'review', 'stages') as bar:
         return review_rths(bag, out, progress=bar.report, limits=limits,
-                           specimen_model=specimen_model)
+                           specimen_model=specimen_model, dof=dof)
 
 
 def cmd_review(args) -> int:
@@ -698,7 +825,7 @@ def cmd_review(args) -> int:
         raise OSError(f'bag directory {bag} does not exist')
     limits = limits_of(args)
     bagio.run_info(bag)   # a damaged bag is refused before anything is written
-    summary = _review(bag, out, limits, args.specimen_model)
+    summary = _review(bag, out, limits, args.specimen_model, args.dof)
     print_review(summary)
     print(f'wrote {out}/report.html, {out}/summary.json, {out}/review.txt and plots')
     return 0

@@ -90,7 +90,7 @@ def pack_step_arrays(stamp_ns: int, step: int, *arrays, frame_id: str = '') -> b
 
 
 def sender_of(data: bytes) -> str:
-    """``header.frame_id`` of a stamped loop message's CDR (the sender's writer gid, or '')."""
+    """``header.frame_id`` of a stamped loop message's CDR (run identity and sender, or '')."""
     (n,) = _U32.unpack_from(data, 12)   # after encapsulation (4), sec and nanosec (8)
     return data[16:16 + n - 1].decode(errors='replace') if n > 1 else ''
 
@@ -157,10 +157,11 @@ _STATUS_TAIL = struct.Struct('<QB')
 
 
 def pack_status(stamp_ns: int, node: str, step: int, period_us=0.0, compute_us=0.0,
-                latency_us=-1.0, missed=False, misses=0, safety_state=0, fault='') -> bytes:
+                latency_us=-1.0, missed=False, misses=0, safety_state=0, fault='',
+                frame_id: str = '') -> bytes:
     """CDR of an ``rths_msgs/LoopStatus`` (field meanings in LoopStatus.msg)."""
     buf = bytearray(_ENCAP_LE)
-    _header(buf, stamp_ns)
+    _header(buf, stamp_ns, frame_id)
     _string(buf, node)
     _pad(buf, 8)
     buf += _STATUS_NUMBERS.pack(int(step), float(period_us), float(compute_us),

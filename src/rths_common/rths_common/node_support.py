@@ -159,6 +159,9 @@ def parse_cpus(spec: str) -> set:
 #: -1 / 'auto': the realtime defaults of :func:`tuning` (nothing in lock-step).
 TUNING_PARAMS = {'rt_priority': -1, 'cpus': '', 'gc': 'auto'}
 
+#: The run identity every loop node takes (rths_common.transport; '' when started by hand).
+RUN_PARAMS = {'run_id': ''}
+
 #: SCHED_FIFO priority of each loop node in realtime mode unless ``rt_priority`` is set
 #: (0 = normal scheduling): the bridge (the clock) above the two others.  Measured on the
 #: 2-core VM under load: without SCHED_FIFO about half of the 1024 Hz deadlines are missed.
@@ -227,14 +230,24 @@ def tune_process(rt_priority: int = 0, cpus: str = '', gc_mode: str = 'default')
 
 
 def status_msg(node_name: str, step: int, *, period_us=0.0, compute_us=0.0, latency_us=-1.0,
-               missed=False, misses=0, safety_state=LoopStatus.SAFETY_OK, fault='') -> LoopStatus:
+               missed=False, misses=0, safety_state=LoopStatus.SAFETY_OK, fault='',
+               frame_id: str = '') -> LoopStatus:
     """Build a LoopStatus message (arrays/strings set through the constructor, as is fastest)."""
     msg = LoopStatus(node=node_name, step=int(step), step_period_us=float(period_us),
                      compute_us=float(compute_us), latency_us=float(latency_us),
                      deadline_missed=bool(missed), deadline_misses=int(misses),
                      safety_state=int(safety_state), fault=fault)
+    msg.header.frame_id = frame_id
     stamp(msg.header, now_ns())
     return msg
+
+
+def log_foreign(log, transport, topic: str):
+    """Log a message of another run dropped from ``topic`` (the first 5, then every 1000th)."""
+    n = transport.foreign
+    if n <= 5 or n % 1000 == 0:
+        log.warning(f'{topic}: {transport.foreign_text()}; this node acts only on run '
+                    f'{transport.run_id or "(none)"}')
 
 
 def make_executor(kind: str = 'events'):

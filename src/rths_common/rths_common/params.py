@@ -44,6 +44,8 @@ NODE_KEYS = {
     'gc': 'auto | default | freeze | disable: the Python garbage collector (auto: freeze '
           'in realtime mode)',
     'coefficients_every': '[steps] adaptive compensator: publish its coefficients every N steps',
+    'run_id': "the run's identity (the launcher gives one per run): messages of another "
+              'run are ignored',
     'loop_fs_hz': '[Hz] the loop rate (fs_hz of numerical.yaml and bridge.yaml; rths launch '
                   'passes it): the taps must be designed for it',
 }
@@ -227,8 +229,9 @@ OPTION_RANGES = {
     **{opt: Spec('[-] count', (1, 1_000_000))
        for opt in ('--draws', '--n-fn', '--n-zeta', '--n-freq', '--n-ratio', '--n-dtm',
                    '--status-every', '--watchdog-steps', '--max-nfev', '--n-correction')},
-    '--force-scale': Spec('[-] DTMs the one in the lab stands for', (0.0, 1e6)),
+    '--force-scale': Spec('[-] specimens the one in the lab stands for', (0.0, 1e6)),
     '--scale': Spec('[-] ground-motion scale', (0.0, 1000.0)),
+    '--record-dt': Spec('[s] time step of a single-column record (0: not given)', (0.0, 1e3)),
 }
 
 

@@ -26,6 +26,12 @@ COMPENSATOR_COEFFICIENTS = '/rths/compensator_coefficients'
 #: (rths_compensator.monitor; level 0 ok, 1 warn, 2 stop).
 STABILITY = '/rths/stability'
 
+#: numerical node -> recorder, once at the start: the model and the ground motion as used
+#: (std_msgs/msg/String, JSON; rths_numerical.inputs), so a bag needs no other file
+RUN_INPUTS = '/rths/run_inputs'
+#: numerical node -> recorder, at the end: time, ground acceleration and every DOF per step
+#: (std_msgs/msg/Float64MultiArray in chunks; rths_numerical.inputs)
+RESPONSE = '/rths/response'
 #: actuator bridge -> recorder: counts of an external servo controller's replies
 #: (rths_msgs/msg/ControllerStatus)
 CONTROLLER = '/rths/controller'
@@ -40,4 +46,6 @@ LOOP_TOPICS = {
     COMPENSATOR_COEFFICIENTS: 'std_msgs/msg/Float64MultiArray',
     STABILITY: 'std_msgs/msg/Float64MultiArray',
     CONTROLLER: 'rths_msgs/msg/ControllerStatus',
+    RUN_INPUTS: 'std_msgs/msg/String',
+    RESPONSE: 'std_msgs/msg/Float64MultiArray',
 }

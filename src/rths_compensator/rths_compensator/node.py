@@ -41,7 +41,7 @@ from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus, Measuremen
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
                'loop_fs_hz': 1024.0,
                'status_every': 1, 'coefficients_every': 64,
-               **ns.TUNING_PARAMS}
+               **ns.TUNING_PARAMS, **ns.RUN_PARAMS}
 
 
 class CompensatorNode:
@@ -75,8 +75,9 @@ class CompensatorNode:
         self.log = self.node.get_logger()
         qos = loop_qos(self.own['mode'])
         raw = not self.lockstep   # lean messages: CDR bytes in and out (rths_common.cdr)
-        self.io_in = Transport(InterfaceDisplacement, ('displacement',), raw)
-        self.io_out = Transport(Command, ('command',), raw)
+        run_id = self.own['run_id']
+        self.io_in = Transport(InterfaceDisplacement, ('displacement',), raw, run_id)
+        self.io_out = Transport(Command, ('command',), raw, run_id)
         self.adaptive = self.core.adaptive
         if self.adaptive:
             self._setup_adaptive()
@@ -123,7 +124,8 @@ class CompensatorNode:
         self.coef_pub = self.node.create_publisher(Float64MultiArray,
                                                    topics.COMPENSATOR_COEFFICIENTS,
                                                    loop_qos(self.own['mode']))
-        self.io_meas = Transport(Measurement, ('applied', 'displacement'), not self.lockstep)
+        self.io_meas = Transport(Measurement, ('applied', 'displacement'), not self.lockstep,
+                                 self.own['run_id'])
         self.node.create_subscription(Measurement, topics.MEASUREMENT, self.on_measurement,
                                       loop_qos(self.own['mode']), raw=not self.lockstep)
 
@@ -171,6 +173,9 @@ class CompensatorNode:
 
     def on_measurement(self, msg):
         """Keep measurement k for the command of step k + 1 (lock-step: run it if it waits)."""
+        if not self.io_meas.ours(msg):
+            ns.log_foreign(self.log, self.io_meas, topics.MEASUREMENT)
+            return
         _, step, (applied, displacement) = self.io_meas.decode(msg)
         if self.monitor_mode != 'off':
             self._monitor_step(step, displacement)
@@ -201,6 +206,9 @@ class CompensatorNode:
     def on_displacement(self, msg):
         """Filter the interface displacement of step k (lost ones filled); publish command k."""
         t_in = ns.now_ns()
+        if not self.io_in.ours(msg):
+            ns.log_foreign(self.log, self.io_in, topics.INTERFACE_DISPLACEMENT)
+            return
         stamp_ns, step, (x,) = self.io_in.decode(msg)
         t0 = time.perf_counter_ns()
         result = self.driver.feed(step, x)

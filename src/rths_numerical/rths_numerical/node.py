@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 import rclpy
-from std_msgs.msg import UInt64
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String, UInt64
 
 from rths_common import gaps, lifeline, topics
 from rths_common import node_support as ns
@@ -20,12 +20,14 @@ from rths_common.qos import loop_qos, run_info_qos, status_qos
 from rths_common.stepping import Driver
 from rths_common.transport import Transport
 from rths_msgs.msg import InterfaceDisplacement, LoopStatus, Measurement
+from rths_numerical.inputs import inputs_text, response_chunks, response_table
 from rths_numerical.stepping import NumericalCore
 
 #: Parameters of the node itself; every other parameter goes to make_substructure().
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
                'remote_graph': False,
-               'history_out': '', 'timing_out': '', 'status_every': 1, **ns.TUNING_PARAMS}
+               'history_out': '', 'timing_out': '', 'status_every': 1, **ns.TUNING_PARAMS,
+               **ns.RUN_PARAMS}
 
 
 class NumericalNode:
@@ -57,11 +59,15 @@ class NumericalNode:
         self.log = self.node.get_logger()
         qos = loop_qos(own['mode'])
         raw = not self.lockstep   # lean messages: CDR bytes in and out (rths_common.cdr)
-        self.io_in = Transport(Measurement, ('applied', 'displacement', 'force'), raw)
-        self.io_out = Transport(InterfaceDisplacement, ('displacement',), raw)
+        run_id = own['run_id']
+        self.io_in = Transport(Measurement, ('applied', 'displacement', 'force'), raw, run_id)
+        self.io_out = Transport(InterfaceDisplacement, ('displacement',), raw, run_id)
         self.pub = self.node.create_publisher(InterfaceDisplacement,
                                               topics.INTERFACE_DISPLACEMENT, qos)
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
+        self.inputs_pub = self.node.create_publisher(String, topics.RUN_INPUTS, status_qos())
+        self.response_pub = self.node.create_publisher(Float64MultiArray, topics.RESPONSE,
+                                                       status_qos())
         self.node.create_subscription(Measurement, topics.MEASUREMENT, self.on_measurement, qos,
                                       raw=raw)
         self.clock = ns.StepClock()
@@ -83,6 +89,8 @@ class NumericalNode:
             gaps.warm_up(gaps.FORCE_ORDER, n_channels=self.sub.n_interface)
             tuning = ns.tune_process(*ns.tuning(own, 'numerical'))
             self.log.info(f'{own["mode"]}: {tuning}')
+        if self.sub.motion is not None:    # what the run will apply, before it starts
+            self.log.info(self.sub.motion.describe().replace('\n', ';'))
         self.start_timer = self.node.create_timer(0.05, self.try_start)
         self.log.info(f'numerical substructure ready: {self.sub.n_steps} steps at '
                       f'{1.0 / self.sub.dt:g} Hz, {self.sub.n_interface} interface DOF(s); '
@@ -126,6 +134,8 @@ class NumericalNode:
             self.start_timer.cancel()
         self.t_start = time.monotonic()
         self.log.info('graph connected: publishing step 0')
+        if getattr(self.sub, 'motion', None) is not None:
+            self.inputs_pub.publish(String(data=inputs_text(self.sub, self.own['run_id'])))
         self.first = self.core.first_displacement()
         self.last_publish = time.monotonic()
         self.publish(0, self.first)
@@ -159,6 +169,9 @@ class NumericalNode:
         t_in = ns.now_ns()
         if self.finished or not self.started:
             return  # before step 0 is out, a measurement cannot be of this run
+        if not self.io_in.ours(msg):
+            ns.log_foreign(self.log, self.io_in, topics.MEASUREMENT)
+            return
         stamp_ns, step, (_, _, force) = self.io_in.decode(msg)
         expected = self.core.policy.next_step
         if step >= expected:
@@ -229,13 +242,28 @@ class NumericalNode:
         1 if the run failed (a bad measured force), 130 if a signal stopped it
         before the last step (``done`` False), else 0.
         """
-        ns.flush([self.pub, self.status_pub])
+        self.publish_response()
+        ns.flush([self.pub, self.status_pub, self.inputs_pub, self.response_pub])
         self.log.info(self.summary())
         self.save_history()
         self.save_timing()
         if self.failed:
             return 1
         return 0 if done else 130
+
+    def publish_response(self):
+        """Publish the whole structure's response of the finished steps (/rths/response)."""
+        if not hasattr(self.sub, 'history') or getattr(self.sub, 'motion', None) is None:
+            return
+        columns, table = response_table(self.sub)
+        for first, data, shape, run_id, names in response_chunks(columns, table,
+                                                                 self.own['run_id']):
+            msg = Float64MultiArray(data=data)
+            msg.layout.dim = [MultiArrayDimension(label=run_id, size=shape[0],
+                                                  stride=shape[0] * shape[1]),
+                              MultiArrayDimension(label=names, size=shape[1], stride=shape[1])]
+            msg.layout.data_offset = first
+            self.response_pub.publish(msg)
 
     def save_history(self):
         """Write the response history (``history_out``), if asked."""

@@ -32,10 +32,12 @@ class SteppedSubstructure(abc.ABC):
 
     Attributes every implementation sets: ``dt`` [s], ``n_steps`` (the run's
     length), ``n_interface`` (interface DOFs, the length of a displacement
-    and of a force), ``backend`` (one of :data:`BACKENDS`).
+    and of a force), ``backend`` (one of :data:`BACKENDS`); ``motion``, the
+    :class:`.ground_motion.GroundMotion` it runs (None for a prescribed excitation).
     """
 
     backend = ''
+    motion = None
     dt: float
     n_steps: int
     n_interface: int

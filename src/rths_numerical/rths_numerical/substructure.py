@@ -61,7 +61,15 @@ from rths_common.params import LOOP_RATE_RANGE_HZ, node_schema
 from .building import BUILDING_MASS_KG, building_16dof
 from .dtm import FRAME_MASS_KG, SEED_CONFIGURATION, TABLE4
 from .excitation import EXCITATION_PARAMS, EXCITATION_RANGES, make_excitation
-from .ground_motion import G, baseline_correct, ground_motion, integrate
+from .ground_motion import (
+    G,
+    GroundMotion,
+    Processing,
+    ground_motion,
+    integrate,
+    prepare,
+    read_record,
+)
 from .integrators import INTEGRATORS, make_integrator
 from .model import LinearModel, load_model_yaml, sdof_model
 from .opensees_backend import (
@@ -89,7 +97,16 @@ PARAMS = {
     'fs_hz': (1024.0, '[Hz] loop rate (time step 1/fs_hz)'),
     'duration_s': (None, '[s] simulated time; 0 = whole record (10 s for blwn/harmonic/none)'),
     'record': ('harmonic', "'kobe', 'northridge', 'imperial_valley', 'none', 'blwn', "
-               "'harmonic' or a PEER .AT2 path"),
+               "'harmonic' or a record file (.AT2, .csv .txt .dat .tsv .asc)"),
+    'record_format': ('', "record file format (empty: by its ending and content): at2, text, "
+                      'series'),
+    'record_units': ('', "acceleration unit of a record file whose header does not name it: g, "
+                     "m/s^2, cm/s^2, gal (empty: the header's)"),
+    'record_dt_s': (0.0, '[s] time step of a single-column record (0: from its time column)'),
+    'record_resample': (True, 'resample the record to the loop rate (band-limited FFT); false: '
+                        'its rate must be the loop rate'),
+    'record_remove_mean': (True, "subtract the record's mean acceleration"),
+    'record_baseline': (True, 'remove a cubic polynomial fitted to the ground displacement'),
     'scale': (0.1, '[-] record scale factor; BLWN/harmonic peak in g'),
     'harmonic_freq_hz': (None, "[Hz] frequency of the 'harmonic' ground acceleration "
                          '(0: the first mode)'),
@@ -113,6 +130,7 @@ RANGES = {
     'fs_hz': LOOP_RATE_RANGE_HZ,
     'duration_s': (0.0, 1.0e6),
     'scale': (0.0, 1000.0),
+    'record_dt_s': (0.0, 1000.0),
     'harmonic_freq_hz': (0.0, 100_000.0),
     'blwn_band_hz': (0.0, 100_000.0),
     'force_scale': (0.0, 1.0e6),
@@ -122,6 +140,8 @@ RANGES = {
     'sdof_zeta': (0.0, 10.0),
     'building_mass_kg': (0.0, 1.0e12),
 }
+#: The record's processing switches (:class:`.ground_motion.Processing`, in its order).
+PROCESSING_KEYS = ('record_resample', 'record_remove_mean', 'record_baseline')
 #: Default of every parameter (None: see :data:`PARAMS`).
 DEFAULTS = {key: default for key, (default, _) in PARAMS.items()}
 
@@ -139,12 +159,14 @@ class NumericalSubstructure(SteppedSubstructure):
 
     def __init__(self, model: LinearModel, ground_accel, dt, integrator='cr', rho_inf=0.5,
                  interface_dofs=None, force_scale=1.0, interface_frame='absolute',
-                 specimen_mass_kg=0.0, ground_disp=None):
+                 specimen_mass_kg=0.0, ground_disp=None, motion=None):
         """Set up the model, the ground acceleration [m/s^2] per step, and the integrator.
 
         ``ground_disp`` [m] is needed in the absolute frame; by default it is
-        the trapezoidal double integral of ``ground_accel``.
+        the trapezoidal double integral of ``ground_accel``.  ``motion``: the
+        :class:`.ground_motion.GroundMotion` it came from (source, processing, t0).
         """
+        self.motion = motion
         if interface_frame not in FRAMES:
             raise ValueError(f'interface_frame {interface_frame!r}: use absolute or relative')
         self.model = model
@@ -309,7 +331,7 @@ def model_script_path(name: str):
     return shipped if os.path.isfile(shipped) else None
 
 
-def make_substructure(params: dict) -> SteppedSubstructure:
+def make_substructure(params: dict, model: Any = None, motion=None) -> SteppedSubstructure:
     """Build the substructure the parameters describe (module docstring).
 
     ``backend: builtin`` gives a :class:`NumericalSubstructure`, ``backend:
@@ -318,6 +340,9 @@ def make_substructure(params: dict) -> SteppedSubstructure:
 
     ``model: excitation`` returns a :class:`~.excitation.PrescribedExcitation`
     instead (the identification run: a BLWN interface displacement).
+
+    ``model`` (a LinearModel) and ``motion`` (a prepared GroundMotion at ``fs_hz``)
+    replace reading the model file and the record: a bag's own copies (:mod:`.inputs`).
     """
     params = {k: v for k, v in dict(params).items()
               if v is not None and k not in ROS_KEYS and not k.startswith('qos_overrides')}
@@ -340,11 +365,10 @@ def make_substructure(params: dict) -> SteppedSubstructure:
     if script and params.get('interface_dofs') is not None:
         raise ValueError('parameter interface_dofs: a model script names its interface itself '
                          '(interface_node, interface_dof)')
-    model: Any  # a LinearModel; a ScriptModel (opensees backend only) for a model script
     if script:
         builder, ground_dof = script_builder(script)
         model = ScriptModel(script, gamma=1.0 if ground_dof == 1 else 0.0)
-    else:
+    elif model is None:
         model = build_model(params)
     integ = str(params.get('integrator') or
                 ('cr' if backend == 'builtin' else 'central_difference'))
@@ -377,12 +401,25 @@ def make_substructure(params: dict) -> SteppedSubstructure:
                            blwn_band_hz=_num(params, 'blwn_band_hz'))
     elif record == 'none':
         ag = np.zeros(int(round((duration or 10.0) * fs)))
+    processing = Processing(*(bool(params.get(k, DEFAULTS[k])) for k in PROCESSING_KEYS))
+    if motion is not None:        # the record as the run used it (a bag's own copy)
+        ug = integrate(motion.accel, motion.dt)[1]
+    elif record in ('harmonic', 'blwn', 'none'):
+        motion = GroundMotion(ag, dt, record, 'synthetic', 'g', processing=(
+            f'{record} at the loop rate, peak {scale:g} g' if record != 'none' else 'none',))
+        if record != 'none':
+            motion, ug = prepare(motion, fs, 1.0, None, processing._replace(resample=False))
+        else:
+            ug = ag * 0
     else:
         try:
-            ag = ground_motion(record, fs, scale, duration)
+            raw = read_record(record, str(params.get('record_format') or ''),
+                              str(params.get('record_units') or ''),
+                              _num(params, 'record_dt_s', allow_zero=True))
+            motion, ug = prepare(raw, fs, scale, duration, processing)
         except ValueError as err:
             raise ValueError(f'parameter record: {err}') from None
-    ag, _, ug = baseline_correct(ag, dt) if record not in ('none',) else (ag, None, ag * 0)
+    ag = motion.accel
     iface = params.get('interface_dofs')
     if iface is not None:
         iface = [int(i) for i in np.atleast_1d(iface)]
@@ -397,5 +434,7 @@ def make_substructure(params: dict) -> SteppedSubstructure:
         if not script:
             builder = linear_model_builder(model, model.interface_dofs if iface is None
                                            else iface)
-        return OpenSeesSubstructure(builder, model, ag, dt, integ, iface, fscale, frame, mass, ug)
-    return NumericalSubstructure(model, ag, dt, integ, rho, iface, fscale, frame, mass, ug)
+        sub = OpenSeesSubstructure(builder, model, ag, dt, integ, iface, fscale, frame, mass, ug)
+        sub.motion = motion
+        return sub
+    return NumericalSubstructure(model, ag, dt, integ, rho, iface, fscale, frame, mass, ug, motion)
