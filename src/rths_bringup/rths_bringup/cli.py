@@ -89,6 +89,7 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message):
         """Exit 2 with one line: the error and where to read the command's options."""
+        message = message.replace('\r', '\\r').replace('\n', '\\n')  # arguments hold newlines
         self.exit(2, f'{self.prog}: error: {message} (see {self.prog} --help)\n')
 
 

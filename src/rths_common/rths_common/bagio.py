@@ -322,7 +322,8 @@ _READ_ERRORS = (KeyError, IndexError, TypeError, AttributeError, EOFError, Unico
 def _reader_errors():
     # lazy: start-up cost: rosbags (~0.2 s), which this module needs only to read
     from rosbags.rosbag2.errors import ReaderError
-    return (ReaderError, *_READ_ERRORS)
+    from rosbags.serde import SerdeError
+    return (ReaderError, SerdeError, *_READ_ERRORS)
 
 
 def open_reader(bag):
