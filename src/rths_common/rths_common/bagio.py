@@ -413,7 +413,12 @@ def read_messages(bag, topic_names=None):
 
 
 def raw_messages(reader, bag, connections):
-    """Yield ``reader.messages(connections=...)``; damaged data raises :class:`BagDamaged`."""
+    """Yield ``reader.messages(connections=...)``; damaged data raises :class:`BagDamaged`.
+
+    No connections yield nothing (rosbags reads every connection when given none).
+    """
+    if not connections:
+        return
     count = 0
     messages = reader.messages(connections=connections)
     while True:

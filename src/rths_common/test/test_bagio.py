@@ -35,6 +35,16 @@ def test_write_read_and_run_info(tmp_path):
     assert np.allclose(measured - command, -1e-5)
 
 
+def test_a_topic_the_bag_does_not_hold_reads_as_empty(tmp_path):
+    # rosbags reads every connection when asked for none: a review of a bag recorded
+    # before /rths/run_inputs existed got its LoopStatus messages as run inputs
+    bag = tmp_path / 'bag'
+    with bagio.BagWriter(bag, run_info={'fs_hz': 1024.0}) as w:
+        w.write_msg('/rths/measurement', 10, _measurement(0))
+    assert bagio.read_topic(bag, '/rths/run_inputs') == []
+    assert len(bagio.read_topic(bag, '/rths/measurement')) == 1
+
+
 def test_existing_bag_is_refused(tmp_path):
     (tmp_path / 'bag').mkdir()
     with pytest.raises(OSError, match='already exists'):
