@@ -141,7 +141,7 @@ class CompensatorNode:
         self.estop_pub = self.node.create_publisher(String, topics.EMERGENCY_STOP, status_qos())
         if not self.adaptive:
             self.io_meas = Transport(Measurement, ('applied', 'displacement'),
-                                     not self.lockstep)
+                                     not self.lockstep, self.own['run_id'])
             self.node.create_subscription(Measurement, topics.MEASUREMENT,
                                           self.on_measurement, loop_qos(self.own['mode']),
                                           raw=not self.lockstep)
