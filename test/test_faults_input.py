@@ -139,7 +139,7 @@ def record_cases(tmp):
     truncated = write_dat(tmp / 'cut.dat', t, a).read_text()
     (tmp / 'cut.dat').write_text(truncated[:-12])            # ends mid-line
     return [
-        (write_dat(tmp / 'uneven.dat', t_bad, a), ['uneven.dat', 'not equally spaced',
+        (write_dat(tmp / 'uneven.dat', t_bad, a), ['uneven.dat', 'not uniformly sampled',
                                                    'resample']),
         (tmp / 'cut.dat', ['cut.dat', 'truncated', 'restore']),
         (write_at2(tmp / 'short.AT2', a[:300], npts=500), ['short.AT2', 'NPTS=500', 'truncated']),

@@ -27,6 +27,9 @@ RATE_RTOL = 1e-6
 #: the printed precision), before a time column counts as not uniformly sampled.
 UNIFORM_RTOL = 0.01
 
+#: Rows either side whose printed digits tell a row's precision in the uniformity check.
+UNIT_WINDOW = 4
+
 _MAX_DECIMALS = 17
 _MAX_DIGITS = 12
 
@@ -74,7 +77,10 @@ def infer_rate(time, where: str = 'time') -> RateEstimate:
     period, period_se = _fit_period(k, t)
     unit = _printed_unit(t)
     tol = 0.5 * unit + 8 * np.spacing(np.abs(t))
-    dev = np.abs(dt - period) - tol[:-1] - tol[1:]
+    # a row whose last digits happen to be zeros looks coarser than it was printed: for the
+    # step check its neighbours' finer digits tell the precision (the column's format)
+    near = 0.5 * _neighbourhood_unit(unit, t, UNIT_WINDOW) + 8 * np.spacing(np.abs(t))
+    dev = np.abs(dt - period) - near[:-1] - near[1:]
     if np.max(dev) > UNIFORM_RTOL * period:
         i = int(np.argmax(dev))
         raise ValueError(f'{where}: column time is not uniformly sampled (step {dt[i]:.6g} s '
@@ -123,6 +129,21 @@ def _fit_period(k, t):
         return slope, 0.0
     resid = tc - slope * kc
     return slope, float(np.sqrt(np.dot(resid, resid) / (t.size - 2) / skk))
+
+
+def _neighbourhood_unit(unit, t, half: int):
+    """Return, for each row, the finest ``unit`` of the rows within ``half`` of it.
+
+    Only rows of the same order of magnitude count: a format with significant digits
+    (``%g``) prints 9.99999 to 1e-5 but 10.0001 to 1e-4.
+    """
+    decade = np.floor(np.log10(np.maximum(np.abs(t), np.finfo(float).tiny)))
+    window = 2 * half + 1
+    units = np.lib.stride_tricks.sliding_window_view(np.pad(unit, half, mode='edge'), window)
+    decades = np.lib.stride_tricks.sliding_window_view(np.pad(decade, half, mode='edge'),
+                                                       window)
+    same = decades == decade[:, None]
+    return np.where(same, units, np.inf).min(axis=1)
 
 
 def _printed_unit(t):

@@ -55,3 +55,12 @@ def test_rates_compare_to_the_six_digits_they_are_printed_with():
     assert nominal_rate(1024.000524) == 1024.0
     assert nominal_rate(1000 / 3) == pytest.approx(1000 / 3, rel=1e-6)
     assert format_hz(1024.0) == '1024' and format_hz(1024.000524) == '1024.000524'
+
+
+def test_a_half_period_jump_is_refused_though_rows_before_it_end_in_zeros():
+    # printed '%.4f': 1.9900 reads as 1.99 (coarse), 2.0050 shows the format's finer digits
+    t = np.arange(500) * 0.01
+    t[200:] += 0.005
+    t = np.array([float(f'{x:.4f}') for x in t])
+    with pytest.raises(ValueError, match='not uniformly sampled .*row 200'):
+        infer_rate(t, 'uneven.dat')
