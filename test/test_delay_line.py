@@ -27,11 +27,12 @@ FS_HZ = 1024.0
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    'known regression (2026-11-25, bisected to 916ef41, the run isolation): with D = 3 the '
-    'identification is exact (ARX na=3 nb=3 d=3) but the designed WLS compensator has a '
-    '47 dB high-frequency gain and a unit-step command peak of 217, the RTHS oscillates at '
-    '~70 Hz and the bridge stops it safely at step 112 (velocity 1.008 m/s > 1 m/s); '
-    'strict: passing again fails the test, so the marker goes when it is fixed'))
+    'known regression (2026-11-25): the identification now finds the exact plant with the '
+    'delay line (ARX na=3 nb=3 d=3; before this session an approximate na=3 nb=4 d=0), and '
+    'the WLS design on it has a 47 dB high-frequency gain and a unit-step command peak of '
+    '217: the RTHS oscillates at ~70 Hz and the bridge stops it safely at step 112 '
+    '(velocity 1.008 m/s > 1 m/s). Strict: passing again fails the test, so the marker '
+    'goes when the design bounds its high-frequency gain'))
 def test_identification_through_the_delay_line_lets_the_compensator_absorb_it(tmp_path):
     from rths_bringup.review import weighted_delay_ms
     from rths_common import bagio
