@@ -30,20 +30,31 @@ WIDTH = 100
 
 # -- docs/cli.md ------------------------------------------------------------------------------
 
+def _subcommands(parser):
+    """Return the sub-command action of ``parser`` (``add_subparsers``), or None."""
+    return next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+
+
+def _subparsers(parser) -> dict:
+    """Return ``{name: parser}`` of ``parser``'s sub-commands (empty for a leaf)."""
+    action = _subcommands(parser)
+    return dict(action.choices) if action else {}
+
+
 def _leaves(parser, words):
     """Yield ``(words, parser)`` for every command that takes options (no sub-commands)."""
-    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    subs = _subparsers(parser)
     if not subs:
         yield words, parser
         return
-    for name, sub in subs[0].choices.items():
+    for name, sub in subs.items():
         yield from _leaves(sub, words + [name])
 
 
-def _help_of(parser, words) -> dict:
-    """Return ``{name: one-line help}`` of the sub-commands of ``words``' parent parser."""
-    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    return {c.dest: (c.help or '') for c in subs[0]._choices_actions} if subs else {}
+def _help_of(parser) -> dict:
+    """Return ``{name: one-line help}`` of ``parser``'s sub-commands."""
+    action = _subcommands(parser)
+    return {c.dest: (c.help or '') for c in action._choices_actions} if action else {}
 
 
 def _cell(text) -> str:
@@ -73,14 +84,13 @@ def cli_markdown(parser=None) -> str:
     """Return the text of ``docs/cli.md`` for ``parser`` (default: the full ``rths`` parser)."""
     if parser is None:
         parser = build_parser()
+    leaves = list(_leaves(parser, ['rths']))
     helps = {}
-    for words, _ in _leaves(parser, ['rths']):
+    for words, _ in leaves:
         node = parser
         for i, word in enumerate(words[1:], start=1):
-            helps[' '.join(words[:i + 1])] = _help_of(node, words[:i]).get(word, '')
-            subs = [a for a in node._actions if isinstance(a, argparse._SubParsersAction)]
-            node = subs[0].choices[word]
-    leaves = list(_leaves(parser, ['rths']))
+            helps[' '.join(words[:i + 1])] = _help_of(node).get(word, '')
+            node = _subparsers(node)[word]
     out = ['# The `rths` command', '',
            'Generated from the argparse definitions by `make docs` '
            '(`src/rths_bench/rths_bench/refdocs.py`); a test fails when this file is out of '
@@ -270,15 +280,10 @@ def _bench_parsers(parser) -> dict:
     return _subparsers(bench)
 
 
-def _subparsers(parser) -> dict:
-    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    return dict(subs[0].choices) if subs else {}
-
-
 def benchmarks_markdown(parser=None) -> str:
     """Return the text of ``docs/benchmarks.md``: what each benchmark runs and where it writes."""
     parser = parser or build_parser()
-    helps = _help_of(_subparsers(parser)['bench'], ['bench'])
+    helps = _help_of(_subparsers(parser)['bench'])
     out = ['# Benchmarks', '',
            'Each `rths bench` command once: what it runs and measures (its `--help` '
            'description) and the file it writes. The figures they produced are collected in '

@@ -76,10 +76,11 @@ def infer_rate(time, where: str = 'time') -> RateEstimate:
     k = np.arange(t.size, dtype=float)
     period, period_se = _fit_period(k, t)
     unit = _printed_unit(t)
-    tol = 0.5 * unit + 8 * np.spacing(np.abs(t))
+    ulp = 8 * np.spacing(np.abs(t))
+    tol = 0.5 * unit + ulp
     # a row whose last digits happen to be zeros looks coarser than it was printed: for the
     # step check its neighbours' finer digits tell the precision (the column's format)
-    near = 0.5 * _neighbourhood_unit(unit, t, UNIT_WINDOW) + 8 * np.spacing(np.abs(t))
+    near = 0.5 * _neighbourhood_unit(unit, t, UNIT_WINDOW) + ulp
     dev = np.abs(dt - period) - near[:-1] - near[1:]
     if np.max(dev) > UNIFORM_RTOL * period:
         i = int(np.argmax(dev))
