@@ -31,6 +31,7 @@ setup(
             'bench_site = rths_bench.bench_site',
             'bench_monitor = rths_bench.bench_monitor',
             'bench_discrepancy_v3 = rths_bench.bench_discrepancy_v3',
+            'bench_discrepancy_unseen = rths_bench.bench_discrepancy_unseen',
             'bench_identification = rths_bench.bench_identification',
             'marths = rths_bench.marths',
             'bench_discrepancy_rths = rths_bench.bench_discrepancy_rths',

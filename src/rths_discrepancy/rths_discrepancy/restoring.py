@@ -34,6 +34,7 @@ parameter each (a grid and a bounded search, relative to the data's own scales):
     stribeck               + (F_c + (F_s - F_c) exp(-(v / v_s)^2)) tanh(v / v_eps)
     force_offset           + F_0 (load-cell bias)
     cubic_stiffness        + k3 x^3
+    quadratic_damping      + c2 v |v|   (a fluid damper, drag: the velocity-squared law)
     backlash               + k_b dz(x, b) + F_b tanh(z' / v_eps), a clearance (play)
                              of half-width b: a spring engaging beyond it, friction
                              through it (z = play(x, b), its far side: no force while
@@ -100,7 +101,7 @@ from rths_discrepancy.report import _atomic_write
 COLUMNS = ('time_s', 'displacement_m', 'force_N')
 OPTIONAL = ('velocity_m_s',)
 EFFECTS = ('coulomb_friction', 'asymmetric_friction', 'stribeck', 'force_offset',
-           'cubic_stiffness', 'backlash', 'hysteresis', 'time_delay')
+           'cubic_stiffness', 'quadratic_damping', 'backlash', 'hysteresis', 'time_delay')
 #: Parameter names and units of each effect (amplitudes, then the shape parameter).
 PARAMS = {
     'coulomb_friction': (('F_c', 'N'), ('v_eps', 'm/s')),
@@ -108,6 +109,7 @@ PARAMS = {
     'stribeck': (('F_c', 'N'), ('F_s_minus_F_c', 'N'), ('v_s', 'm/s')),
     'force_offset': (('F_0', 'N'),),
     'cubic_stiffness': (('k3', 'N/m^3'),),
+    'quadratic_damping': (('c2', 'N s^2/m^2'),),
     'backlash': (('k_b', 'N/m'), ('F_b', 'N'), ('b', 'm')),
     'hysteresis': (('alpha', 'N'), ('x_y', 'm')),
     'time_delay': (('tau', 's'),),
@@ -119,6 +121,8 @@ MIN_REL_GAIN = 0.05
 PAIR_CUT = 0.2
 PAIR_REL_GAIN = 0.02
 UNEXPLAINED_LEFT = 0.5
+#: A clearance this wide (of the displacement's spread) is no reading of friction.
+CLEARANCE_MIN = 0.1
 #: Composite effects and their decomposition into elementary ones (the same law while sliding).
 EQUIVALENT = {'asymmetric_friction': ('coulomb_friction', 'force_offset')}
 
@@ -211,6 +215,10 @@ def convert(kind, src):
 FC_MAX = 0.4
 #: Central differences only while the band stays below this fraction of the rate.
 CENTRAL_MAX = 0.05
+#: Cut-offs tried between the displacement's band edge and the upper cut-off.
+FC_GRID = 12
+#: A higher cut-off is kept while its linear-fit residual stays within this fraction of the least.
+FC_TIE = 0.01
 #: A record is periodic when it repeats to within this fraction of its spread (rms).
 PERIOD_TOL = 0.05
 DIFFERENTIATORS = ('spectral, whole periods', 'spectral, smoothing',
@@ -235,14 +243,11 @@ def whole_periods(data):
     return cut, p
 
 
-def smooth_states(data, periodic=False):
-    """x, v, a and the differentiator's cut-off fc and name (see the module doc)."""
+def _states_at(data, fc, periodic):
+    """x, v, a of ``data`` band-limited at ``fc`` by the differentiator that fits it."""
     fs = data['fs']
     x_raw = data['displacement_m']
-    f99 = max(sg.band_edge(x_raw, fs, 0.99), 10.0 * fs / x_raw.size)
-    f99_force = sg.band_edge(data['force_N'], fs, 0.99)
-    fc = float(np.clip(4.0 * f99_force, 10.0 * f99, FC_MAX * fs))
-    out = {'fc': fc, 'f99': f99, 'f99_force': f99_force}
+    out = {'fc': float(fc)}
     if periodic or fc > CENTRAL_MAX * fs:
         out['method'] = DIFFERENTIATORS[0 if periodic else 1]
         out.update(sg.spectral_states(x_raw, fs, fc, periodic))
@@ -259,6 +264,47 @@ def smooth_states(data, periodic=False):
     v = lp(data['velocity_m_s']) if 'velocity_m_s' in data else lp(np.gradient(x, 1.0 / fs))
     a = lp(np.gradient(v, 1.0 / fs))
     out.update(x=x, v=v, a=a, method=DIFFERENTIATORS[2])
+    return out
+
+
+def _linear_residual(st, force):
+    """Mean square residual of ``force`` on ``a, v, x, 1`` over the whole record (edges out).
+
+    The whole record: the cut-off is the record's band, which a sweep or a stepped
+    sine reaches only in its later part; no model is scored by it.
+    """
+    n = force.size
+    core = slice(int(0.05 * n), n - int(0.05 * n))
+    mat = np.column_stack([st['a'][core], st['v'][core], st['x'][core], np.ones(n)[core]])
+    scale = np.std(mat, axis=0)
+    scale[scale == 0] = 1.0
+    theta = np.linalg.lstsq(mat / scale, force[core], rcond=None)[0]
+    return float(np.mean((force[core] - (mat / scale) @ theta) ** 2))
+
+
+def smooth_states(data, periodic=False):
+    """x, v, a and the differentiator's cut-off fc and name (see the module doc)."""
+    fs = data['fs']
+    x_raw = data['displacement_m']
+    f99 = max(sg.band_edge(x_raw, fs, 0.99), 10.0 * fs / x_raw.size)
+    f99_force = sg.band_edge(data['force_N'], fs, 0.99)
+    fc_max = float(np.clip(4.0 * f99_force, 10.0 * f99, FC_MAX * fs))
+    # the cut-off chosen by the data: the record's own linear fit of the force on the
+    # states at each cut-off of a grid from f99 to fc_max; noise differentiated past the
+    # motion's band enters the regressors and raises that residual, a cut-off below the
+    # band loses motion and raises it too; the highest cut-off within FC_TIE of the least
+    # residual is taken (noise-free records keep fc_max)
+    # (never below the band holding 99.9 % of the displacement's power: a nonlinear force
+    # can favour dropping a small late motion, e.g. a sweep's high end, the states need)
+    f_lo = min(max(f99, sg.band_edge(x_raw, fs, 0.999)), fc_max)
+    grid = np.unique(np.concatenate([np.geomspace(f_lo, fc_max, FC_GRID), [fc_max]]))
+    res = [(_linear_residual(_states_at(data, fc, periodic), data['force_N']), fc)
+           for fc in grid]
+    best = min(r for r, _ in res)
+    fc = max(f for r, f in res if r <= (1.0 + FC_TIE) * best)
+    out = _states_at(data, fc, periodic)
+    out.update(f99=f99, f99_force=f99_force, fc_max=fc_max,
+               fc_residuals={f'{f:.4g}': r for r, f in res})
     return out
 
 
@@ -314,6 +360,8 @@ class Fit:
         if name == 'cubic_stiffness':
             xc = x - np.mean(x)
             return [xc ** 3]
+        if name == 'quadratic_damping':
+            return [v * np.abs(v)]
         if name == 'backlash':
             xc = x - np.mean(x)
             z = fx.play(x, p)           # the far side of the clearance
@@ -491,6 +539,10 @@ def select(fit, progress=None, count=None):
     ics = {k: ic(c) for k, c in cands.items()}
     ic_none = ic(nominal)
     m0 = nominal['mse_test']
+    # the pair margins are read against the linear model with its constant: an offset
+    # (a transducer's zero, volts about a bias) is as large as its units make it and
+    # must not decide whether a second effect is worth its name
+    m_lin = min(m0, cands['force_offset']['mse_test'])
     singles = [k for k in cands if '+' not in k]
     pairs = [k for k in cands if '+' in k]
     best1 = min(singles, key=lambda k: ics[k])
@@ -501,10 +553,11 @@ def select(fit, progress=None, count=None):
     e1 = cands[best1]['mse_test'] - floor
     e2 = cands[best2]['mse_test'] - floor
     more = cands[best2]['p'] > cands[best1]['p']
-    big = e1 - e2 > PAIR_REL_GAIN * (m0 - floor)
+    big = e1 - e2 > PAIR_REL_GAIN * (m_lin - floor)
     if ics[best2] < ics[best1] and (not more or (e2 < (1.0 - PAIR_CUT) * e1 and big)):
         choice = best2
-    choice, equivalence = _prefer_decomposition(fit, cands, choice, PAIR_REL_GAIN * (m0 - floor))
+    margin = PAIR_REL_GAIN * (m_lin - floor)
+    choice, equivalence = _prefer_decomposition(fit, cands, choice, margin)
     ics = {k: ic(c) for k, c in cands.items()}
     choice, play = _play_or_loop(fit, cands, choice, ics, ic_none)
     mc = cands[choice]['mse_test']
@@ -526,10 +579,22 @@ def clearance_seen(fit, cand):
     stretch at least ``b`` wide that does not grow with the amplitude.  Where the record
     shows none, a small ``b`` is only another reading of Coulomb friction (and of an
     offset, through the spring's centre): the candidate is not offered.
+
+    A spring behind a clearance (the F-16's joint: no reversal plateau, the force is a
+    function of the position) shows instead as a wide clearance, at least
+    ``CLEARANCE_MIN`` of the displacement's spread, whose spring carries more of the
+    candidate's force than its friction does: no reading of Coulomb friction.
     """
+    b = cand['shapes']['backlash']
+    amp = {par: v for (g, par), v in zip(cand['labels'], cand['theta'], strict=True)
+           if g == 'backlash'}
+    cols = fit.columns('backlash', b, fit.st)
+    if (b >= CLEARANCE_MIN * fit.scales['x']
+            and np.std(amp['k_b'] * cols[0]) >= np.std(amp['F_b'] * cols[1])):
+        return True
     ev = play_evidence(fit, cand)
     width, growth = ev.get('plateau_width_median'), ev.get('growth')
-    return bool(width is not None and width >= cand['shapes']['backlash']
+    return bool(width is not None and width >= b
                 and (growth is None or growth < reversals.MAX_GROWTH))
 
 

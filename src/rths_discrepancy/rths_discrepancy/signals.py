@@ -96,8 +96,9 @@ def period(u, min_periods=2, tol=1e-3):
     if n < 8 or np.std(u) == 0:
         return None
     spec = np.fft.rfft(u, 2 * n)
-    ac = np.fft.irfft(np.abs(spec) ** 2)[:n // min_periods + 1]
-    ac /= ac[0]
+    m = n // min_periods + 2     # lags up to n / min_periods can be a peak
+    ac = np.fft.irfft(np.abs(spec) ** 2)[:m]
+    ac /= ac[0] * (n - np.arange(m)) / n     # per overlapping sample: 2 periods reach 1 too
     lags = np.flatnonzero((ac[1:-1] > ac[:-2]) & (ac[1:-1] >= ac[2:]) & (ac[1:-1] > 0.5)) + 1
     for p in lags:
         if p >= 4 and np.sqrt(np.mean((u[p:] - u[:-p]) ** 2)) < tol * np.std(u):
