@@ -6,7 +6,7 @@ recorder subscribes best-effort): :func:`aligned_steps` drops identical re-sends
 and fills short gaps, and the review says how many. A run stopped before the
 end of its record (a safety stop, a killed launcher) is reviewed up to where it
 stopped and said to be cut short; a realtime run's timing is judged by
-:mod:`rths_bringup.realtime`.
+:mod:`rths_review.realtime`.
 """
 
 import json
@@ -17,8 +17,6 @@ from scipy import signal
 from scipy.signal import coherence
 
 from rths_actuator_bridge.bridge import DEFAULT_BACKEND, backend_class
-from rths_bringup.realtime import realtime_figures
-from rths_bringup.report_html import notes, row_label, specimen_title, write_report
 from rths_common import bagio, runinfo, topics
 from rths_common.params import core_params
 from rths_compensator.estimation import impulse_response
@@ -34,6 +32,8 @@ from rths_numerical.reference import (
 )
 from rths_numerical.specimens import SPECIMENS, specimen_of
 from rths_numerical.substructure import make_substructure
+from rths_review.realtime import realtime_figures
+from rths_review.report_html import notes, row_label, specimen_title, write_report
 
 #: Loop topics that carry one message per step, and the array field to summarise.
 STEP_TOPICS = {
@@ -360,13 +360,13 @@ def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None,
     perfect actuator (:func:`rths_discrepancy.rerun.compare`); the summary names it
     (``reference_model``).  Refused for a run whose specimen is no mass on the table.
 
-    ``report.html`` (:mod:`rths_bringup.report_html`) holds the tables and every
+    ``report.html`` (:mod:`rths_review.report_html`) holds the tables and every
     plot in one self-contained file.  ``progress(done, 4)`` follows the stages: bag
     read, references simulated, plots drawn, report written.  ``dof``: the DOF
     the tables report (a name of the model or a number from 1; default the model's
     output DOF).  The model and the record come from the bag (:func:`run_inputs`).
     ``limits``: the real-time limits a realtime run is judged by
-    (:mod:`rths_bringup.realtime`).
+    (:mod:`rths_review.realtime`).
     """
     stage = progress or (lambda done, total: None)
 
@@ -481,7 +481,7 @@ def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None,
 
 
 def bridge_realtime(status: dict, n_steps: int, fs_hz: float, limits=None) -> dict:
-    """Real-time figures (:mod:`rths_bringup.realtime`) of the bridge's ticks of the run.
+    """Real-time figures (:mod:`rths_review.realtime`) of the bridge's ticks of the run.
 
     ``status``: the bridge's entry of :func:`read_loop`.  Only the ticks of the run
     before any safety stop count (not those of its hold and ramp, which run without
