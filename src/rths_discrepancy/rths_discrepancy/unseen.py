@@ -49,7 +49,7 @@ IO_EFFECTS = {'linear': None, 'duffing': 'cubic_stiffness', 'output_clipping': '
 EXCITATIONS = ('multisine', 'swept_sine', 'stepped_sine', 'random')
 UNITS = {  # (displacement gain per m, unit), (force gain per N, unit)
     'SI': ((1.0, 'm'), (1.0, 'N')),
-    'mm_kN': ((1e3, 'mm'), (1e-3, 'kN')),
+    'mm_kN': ((1e3, 'millimetre'), (1e-3, 'kN')),
     'volts': ((250.0, 'V'), (2e-3, 'V')),
     'counts': ((2e6, 'counts'), (50.0, 'counts')),
 }
