@@ -224,8 +224,9 @@ FC_MAX = 0.4
 CENTRAL_MAX = 0.05
 #: Cut-offs tried between the displacement's band edge and the upper cut-off.
 FC_GRID = 12
-#: A higher cut-off is kept while its linear-fit residual stays within this fraction of the least.
-FC_TIE = 0.01
+#: A higher cut-off is kept while its linear-fit residual stays within this fraction of the least
+#: (a friction record with rests: the residuals of all cut-offs within 2 %, noise-level).
+FC_TIE = 0.05
 #: A record is periodic when it repeats to within this fraction of its spread (rms).
 PERIOD_TOL = 0.05
 DIFFERENTIATORS = ('spectral, whole periods', 'spectral, smoothing',
