@@ -25,6 +25,7 @@ setup(
         # below this package and may not import it); each has register(commands, benches).
         'rths.cli': [
             'bench_loop = rths_bench.bench_loop',
+            'bench_faults = rths_bench.bench_faults',
             'bench_distributed = rths_bench.bench_distributed',
             'bench_adaptive = rths_bench.bench_adaptive',
             'rths_benchmark = rths_bench.rths_benchmark',

@@ -21,6 +21,10 @@ def register(commands, benches):
                     'numerical node finishes the run, on Ctrl-C/SIGTERM, or when a node dies '
                     '(exit code 1, naming the node).')
     add_launch_args(p)
+    p.add_argument('--enclave-keystore', default=None, metavar='DIR',
+                   help='start every process of the run inside its SROS2 enclave /rths/NAME '
+                        'of this keystore (DDS authentication and encryption; needs a ROS 2 '
+                        'install with DDS security, not the wheels: docs/lab_network.md)')
     from rths_live import live
     live.add_arguments(p)
     p.set_defaults(func=cmd_launch)
@@ -134,7 +138,7 @@ def run_info_of(config, overrides) -> dict:
 
 
 def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, storage=None,
-           live=False, layout=None, progress_label='run', mode=None):
+           live=False, layout=None, progress_label='run', mode=None, enclave_keystore=None):
     """Run the graph; return the launcher's exit code.
 
     With a bag, the run's parameters (the three params files with the
@@ -142,7 +146,10 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, stora
     ``rths identify --bag`` and ``rths discrepancy`` need nothing but the bag.
     """
     from rths_bringup.launcher import Launcher
+    from rths_bringup.security import enclave_env
 
+    # checked before anything starts: a missing keystore or enclave is one line
+    node_env = enclave_env(enclave_keystore) if enclave_keystore else None
     config = Path(config) if config else default_config_dir()
     overrides = overrides or {}
     if mode is not None:            # one switch for every node (the recorder's QoS follows)
@@ -158,7 +165,7 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, stora
     if bag and storage:
         overrides.setdefault('recorder', {})['storage'] = storage
     launcher = Launcher(config, bag=bag, overrides=overrides, timeout_s=timeout, layout=layout,
-                        progress_label=progress_label)
+                        progress_label=progress_label, node_env=node_env)
     if live:  # the live view is one more reader of each loop topic: arm the chain after it too
         # (composed, the recorder reads the container's pipe, not the topics)
         readers = 3 if bag and launcher.layout == 'processes' else 2
@@ -169,12 +176,16 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, stora
 
 def cmd_launch(args) -> int:
     """Run ``rths launch``; then print the bag's topics and the loop summary."""
+    from rths_bringup.security import enclave_env
     from rths_live import live
 
+    if args.enclave_keystore:
+        enclave_env(args.enclave_keystore)   # refused before the live view starts too
     fs = live_rate_of(args.config) if args.live else 0.0
     with live.session(args, fs_hz=fs):
         code = launch(args.config, args.duration, args.bag, args.timeout, storage=args.storage,
-                      live=args.live, layout=args.layout, mode=getattr(args, 'mode', None))
+                      live=args.live, layout=args.layout, mode=getattr(args, 'mode', None),
+                      enclave_keystore=args.enclave_keystore)
     if args.bag and Path(args.bag).exists():
         from rths_bringup.evidence import bag_missing
         from rths_bringup.review import loop_summary
