@@ -188,7 +188,7 @@ def cmd_launch(args) -> int:
                       enclave_keystore=args.enclave_keystore)
     if args.bag and Path(args.bag).exists():
         from rths_bringup.evidence import bag_missing
-        from rths_bringup.review import loop_summary
+        from rths_review.review import loop_summary
         print_bag_info(args.bag)
         summary = loop_summary(args.bag)
         missing = bag_missing(summary)
@@ -267,7 +267,7 @@ def cmd_bag_verify(args) -> int:
 
 
 def print_summary(summary: dict):
-    """Print the run summary of :func:`rths_bringup.review.loop_summary`."""
+    """Print the run summary of :func:`rths_review.review.loop_summary`."""
     print('\nrun summary')
     for key, value in summary.items():
         if isinstance(value, dict):

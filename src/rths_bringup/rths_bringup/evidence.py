@@ -9,7 +9,7 @@
 * ``completeness``: every step of every loop topic present or accounted for.
   The bridge writes a measurement and a status every tick: all of them must be
   there (:func:`bag_missing`). The interface displacements and commands go
-  through the review's step alignment (:func:`rths_bringup.review.aligned_steps`):
+  through the review's step alignment (:func:`rths_review.review.aligned_steps`):
   re-sends and short gaps it fills are counted, longer gaps make the bag
   incomplete. A run that stopped early says why (a safety stop, or a recording
   recovered after a crash, ``reindexed``);
@@ -28,7 +28,7 @@ from rths_common import bagio, bagstore, provenance, topics
 def bag_missing(summary: dict) -> list:
     """Return what a run's bag lacks: the bridge writes a measurement and a status every tick.
 
-    ``summary`` is :func:`rths_bringup.review.loop_summary`'s; returns one text
+    ``summary`` is :func:`rths_review.review.loop_summary`'s; returns one text
     per incomplete stream (empty: every tick the bridge ran is in the bag).
     (Commands and interface displacements may be missing by design: lost or
     dropped ones are deadline misses, counted in the status.)
@@ -92,7 +92,7 @@ def _provenance(info: dict) -> dict:
 def completeness(bag: Path, info: dict) -> dict:
     """Return the steps of every loop topic present or accounted for (module doc), problems."""
     # lazy: start-up cost: the review imports SciPy and the numerical package
-    from rths_bringup.review import STEP_TOPICS, aligned_steps, loop_summary
+    from rths_review.review import STEP_TOPICS, aligned_steps, loop_summary
 
     summary = loop_summary(bag)
     problems = bag_missing(summary)
