@@ -44,6 +44,9 @@ import time
 
 import numpy as np
 
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
+
 #: Stall lengths [ms] injected in each node, and the nodes.
 STALLS_MS = (20, 50, 200)
 STALL_NODES = ('numerical', 'compensator', 'bridge')
@@ -438,7 +441,8 @@ def cmd_bench_faults(args) -> int:
         raise ValueError(f'--memory-fraction {args.memory_fraction}: use (0, 0.9]')
     cases = select(args.cases)
     keep = Path(args.keep) if args.keep else None
-    report: dict = {'machine': machine_info(), 'rate_hz': args.rate,
+    date = time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())
+    report: dict = {'machine': machine_info(), 'date': date, 'rate_hz': args.rate,
                     'duration_s': args.duration, 'expected_safety_state_by_stall_ms':
                     {str(k): v for k, v in EXPECTED_STATE.items()},
                     'stall_limit_s': STALL_LIMIT_S, 'cases': {}}

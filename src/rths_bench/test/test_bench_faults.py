@@ -45,8 +45,8 @@ def test_command_peaks_are_those_written(tmp_path):
             w.write(topics.MEASUREMENT, k, cdr.pack_step_arrays(k, k, [u], [u], [0.0]))
     peaks = bf.command_peaks(bag, fs)
     assert peaks['command_peak_m'] == pytest.approx(0.003)
-    assert peaks['velocity_peak_m_s'] == pytest.approx(3.0)       # 0.002 m in 1 ms
-    assert peaks['acceleration_peak_m_s2'] == pytest.approx(3000.0)
+    assert peaks['velocity_peak_m_s'] == pytest.approx(2.0)       # 0.002 m in 1 ms
+    assert peaks['acceleration_peak_m_s2'] == pytest.approx(3000.0)   # 2 m/s to -1 m/s
 
 
 def test_the_memory_hog_stays_bounded(tmp_path):
