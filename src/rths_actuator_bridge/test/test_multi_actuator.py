@@ -174,3 +174,29 @@ def test_a_two_channel_servo_controller_over_udp_takes_its_channel_count_from_th
         b.cleanup()
     finally:
         emu.stop()
+
+
+def test_a_fault_brings_each_actuator_to_its_own_safe_position_within_its_own_limits():
+    lim = safety.SafetyLimits.from_params({
+        'stroke_m': [0.03, 0.02], 'velocity_m_s': [0.05, 0.02],
+        'acceleration_m_s2': [50.0, 10.0], 'safe_position_m': [0.005, -0.004],
+        'ramp_time_s': 0.1, 'hold_time_s': 0.01})
+    sup = safety.SafetySupervisor()
+    sup.configure(lim)
+    sup.activate(np.array([0.01, 0.01]))
+    sup.emergency_stop('test')
+    outs = [sup.pos.copy()]
+    for k in range(20000):
+        out, state, _ = sup.filter(k, None)
+        outs.append(out)
+        if state == safety.STOPPED:
+            break
+    assert state == safety.STOPPED
+    pos = np.array(outs)
+    vel = np.diff(pos, axis=0) * lim.fs_hz
+    acc = np.diff(vel, axis=0) * lim.fs_hz
+    assert pos[-1] == pytest.approx([0.005, -0.004], abs=1e-9)
+    assert np.all(np.max(np.abs(vel), axis=0) <= np.array([0.05, 0.02]) * (1 + 1e-9))
+    assert np.all(np.max(np.abs(acc), axis=0) <= np.array([50.0, 10.0]) * (1 + 1e-6))
+    # the slower actuator really is limited by its own, tighter limit
+    assert np.max(np.abs(vel[:, 1])) > 0.9 * 0.02 and np.max(np.abs(vel[:, 0])) > 0.03
