@@ -21,12 +21,13 @@ import warnings
 
 import numpy as np
 from scipy import signal
-from scipy.linalg import expm, matrix_balance
+from scipy.linalg import matrix_balance
 
 from rths_common.coupler import Coupler
 from rths_common.marths_data import load_config
 
 from .backend import Backend
+from .channels import zoh as discretise
 
 INCH = 0.0254
 
@@ -172,15 +173,6 @@ def plant_state_space(pp: dict):
     t = np.diag(scale)
     ti = np.linalg.inv(t)
     return ti @ a @ t, ti @ b, c @ t, d
-
-
-def discretise(a, b, dt):
-    """Zero-order-hold ``(Ad, Bd)``."""
-    n, m = b.shape
-    big = np.zeros((n + m, n + m))
-    big[:n, :n], big[:n, n:] = a * dt, b * dt
-    e = expm(big)
-    return e[:n, :n], e[:n, n:]
 
 
 class PlantBatch:
