@@ -136,3 +136,31 @@ def test_worst_realtime_over_cases_takes_the_worst_and_sums_losses():
     assert rt['step_us_p99_by_node'] == {'bridge': 40.0, 'compensator': 50.0}
     assert rt['recorder_loss'] == {'/rths/command': 0, '/rths/measurement': 2}
     assert rt['completed'] is False and rt['cases'] == 2
+
+
+def test_example_through_the_node_cores_stays_within_the_benchmark_rules(tmp_path):
+    """The PI + lead (``pi_lead``) through the node cores tracks like the benchmark's loop.
+
+    It used to stop at the first noise peak of its command (the bridge's former 5000 m/s^2
+    command acceleration limit; the hold then read as a divergence, J2 > 200 %).  A
+    synthetic 3 s record (a 3.5 Hz burst, 2.4 mm at floor 1): no data set needed.
+    """
+    from rths_actuator_bridge.silva2020 import FS_HZ, Silva2020Params
+    from rths_compensator.design import design_inverse
+    dt = 1.0 / FS_HZ
+    t = np.arange(0, 3.0, 0.005)
+    acc = 0.3 * np.sin(2 * np.pi * 3.5 * t) * np.exp(-((t - 1.2) / 0.6) ** 2)
+    path = rb.write_at2(str(tmp_path / 'burst.AT2'), t, acc)
+    params = rb.graph_params('1', design_inverse(FS_HZ, 10.0), path, 1.0, duration_s=3.0,
+                             controller='example')
+    cores = rb.run_cores(params)
+    assert cores['safety_state'].max() == 0                      # no hold, no stop
+    ag = cores['ag']
+    ref = rb.reference_response('1', ag, dt)
+    ours = rb.criteria(cores['x_m'], cores['y_n'], ref, dt)
+    loop = rb.run_batch([('1', Silva2020Params())], ag, rb.ExampleController(dt, 1), seed=3)
+    bench = rb.criteria(loop['x_m'][0], loop['y_n'][0], ref, dt)
+    assert abs(ours['J1'] - bench['J1']) <= 0.25, (ours, bench)
+    for name in ('J2', 'J3'):                                     # tracking: within 10 %
+        assert abs(ours[name] - bench[name]) <= 0.10 * bench[name], (name, ours, bench)
+    assert ours['J2'] < 20.0                                      # tracks (it was > 200 %)
