@@ -142,7 +142,8 @@ def test_example_through_the_node_cores_stays_within_the_benchmark_rules(tmp_pat
     """The PI + lead (``pi_lead``) through the node cores tracks like the benchmark's loop.
 
     It used to stop at the first noise peak of its command (the bridge's former 5000 m/s^2
-    command acceleration limit; the hold then read as a divergence, J2 > 200 %).  A
+    command acceleration limit; the hold then read as a divergence, J2 > 200 %).  The
+    criteria take the measurement at the start of each sample, as the benchmark does.  A
     synthetic 3 s record (a 3.5 Hz burst, 2.4 mm at floor 1): no data set needed.
     """
     from rths_actuator_bridge.silva2020 import FS_HZ, Silva2020Params
@@ -157,10 +158,12 @@ def test_example_through_the_node_cores_stays_within_the_benchmark_rules(tmp_pat
     assert cores['safety_state'].max() == 0                      # no hold, no stop
     ag = cores['ag']
     ref = rb.reference_response('1', ag, dt)
-    ours = rb.criteria(cores['x_m'], cores['y_n'], ref, dt)
+    ours = rb.criteria(rb.sampled_at_start(cores['x_m']), cores['y_n'], ref, dt)
     loop = rb.run_batch([('1', Silva2020Params())], ag, rb.ExampleController(dt, 1), seed=3)
     bench = rb.criteria(loop['x_m'][0], loop['y_n'][0], ref, dt)
     assert abs(ours['J1'] - bench['J1']) <= 0.25, (ours, bench)
-    for name in ('J2', 'J3'):                                     # tracking: within 10 %
-        assert abs(ours[name] - bench[name]) <= 0.10 * bench[name], (name, ours, bench)
+    for name in ('J2', 'J3'):                    # tracking: the issue's 5 % (J1: 0.25 ms)
+        assert abs(ours[name] - bench[name]) <= 0.05 * bench[name], (name, ours, bench)
+    unshifted = rb.criteria(cores['x_m'], cores['y_n'], ref, dt)
+    assert unshifted['J1'] < ours['J1']         # the end-of-sample record: one sample early
     assert ours['J2'] < 20.0                                      # tracks (it was > 200 %)
