@@ -52,12 +52,25 @@ def test_bench_command_tiny_configuration(tmp_path):
                  '--draws', '2', '--seed', '5', '--out', str(out), '--no-plots'])
     assert code == 0
     data = json.loads((out / 'summary.json').read_text())
-    assert set(data) == {'controller', 'cases', 'perturbed'}
+    assert set(data) == {'controller', 'cases', 'perturbed', 'rules'}
     assert data['controller'] == 'example'
     assert sorted(data['cases']) == ['1', '2', '3', '4']
     assert all(sorted(row) == sorted(rb.J_NAMES) for row in data['cases'].values())
-    assert data['perturbed']['n'] == 2 and data['perturbed']['unstable'] == 0
-    assert set(data['perturbed']) == {'n', 'J1_max', 'J2_max', 'J3_max', 'unstable'}
+    # 2 perturbed plants with every case (the benchmark: >= 20 per case)
+    assert data['perturbed']['n'] == 8 and data['perturbed']['unstable'] == 0
+    assert set(data['perturbed']) == {'n', 'J1_max', 'J2_max', 'J3_max', 'unstable',
+                                      'n_per_case', 'by_case'}
+    assert sorted(data['perturbed']['by_case']) == ['1', '2', '3', '4']
+    assert all(b['n'] == 2 and b['J2_max'] is not None
+               for b in data['perturbed']['by_case'].values())
+    assert data['perturbed']['J2_max'] == max(b['J2_max']
+                                              for b in data['perturbed']['by_case'].values())
+    # the benchmark's rules on the actuator's response, checked on every run
+    rules = data['rules']['perturbed']
+    assert rules['stroke_m']['limit'] == 0.007 and rules['force_n']['limit'] == 8900.0
+    # this burst drives floor 1 to ~16 mm: beyond the benchmark's stroke, and said so
+    assert rules['stroke_m']['max'] > 0.007 and 1 <= rules['stroke_m']['runs_over'] <= 8
+    assert 0 < rules['force_n']['max'] and 0 < rules['velocity_m_s']['max']
     # the PI + phase lead lags by a few ms on this plant
     assert 2.0 <= data['cases']['1']['J1'] <= 8.0
     assert (out / 'table.md').read_text().count('\n| ') >= 4
