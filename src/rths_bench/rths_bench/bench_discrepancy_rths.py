@@ -321,7 +321,13 @@ def _write(out, rows, args, work, load, t0, done) -> dict:
     finished = [r for r in rows if r is not None]
     library = [r for r in finished if 'error' not in r and r['case'] not in names]
     held_out = [r for r in finished if 'error' not in r and r['case'] in names]
-    summary = {'cases': finished, 'cases_done': done, 'cases_total': len(rows),
+    from datetime import datetime, timezone
+
+    from rths_bench.bench_loop import machine_info
+
+    summary = {'date': datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC'),
+               'machine': machine_info(),
+               'cases': finished, 'cases_done': done, 'cases_total': len(rows),
                'summary': {**summarise(library), **summarise_specimens(held_out)},
                'duration_s': args.duration, 'work_dir': str(work), 'jobs': args.jobs,
                'path': 'every case is a lock-step rths run through the ROS 2 node graph '
