@@ -107,4 +107,3 @@ def nothing_found(where: dict) -> list:
             'the noise floor (on a noise-free record, the resolution of the model) and no '
             'effect of the library explains more of it than noise would; the per-window and '
             'per-band figures stay in result.json (localization)']
-
