@@ -13,7 +13,10 @@ no tracking.
 
 Per case the JSON holds exactly ``fs_hz, delay_s, noise_pct, model, validation_nrmse_pct,
 tracking_sine_pct, tracking_noise_pct, floor_sine_pct, floor_noise_pct, refused``; the
-summary and the issue's targets follow.
+case's ``details`` entry names every limit a command exceeds (``limits_exceeded``: the
+bridge parameter, the command's figure and the bound, and which command: ``reference`` for
+the design's own check, ``sine`` or ``noise`` for the tracking commands); the summary and
+the issue's targets follow.
 """
 
 import json
@@ -53,7 +56,7 @@ def cases(seed: int = 32):
 
 def run_case(case: dict, limits) -> tuple:
     """Identify, design and track one case; return ``(row, detail)`` (row: the JSON fields)."""
-    from rths_compensator.assessment import assess
+    from rths_compensator.assessment import assess, exceeded_limits
     from rths_compensator.design import DESIGN_DEFAULTS, design_default
     from rths_compensator.estimation import identify_record
     from rths_compensator.synthetic import (
@@ -89,6 +92,12 @@ def run_case(case: dict, limits) -> tuple:
         comp, violations, pred = None, [str(err)], {}
     row['refused'] = bool(violations)
     detail['violations'] = violations
+    # which limit each command exceeds: the design's prediction for the reference (a
+    # refusal) and the tracking signals' commands through the written design
+    detail['limits_exceeded'] = ([dict(e, command='reference') for e in exceeded_limits(
+        {k: pred[f'reference_command_{k}'] for k in ('peak_m', 'velocity_m_s',
+                                                     'acceleration_m_s2')}, limits)]
+        if pred else [])
     for name, x in tests.items():
         if comp is None or violations:
             row[f'tracking_{name}_pct'] = None
@@ -96,10 +105,11 @@ def run_case(case: dict, limits) -> tuple:
         tr = tracking(act, comp.taps, comp.denominator, x)
         row[f'tracking_{name}_pct'] = round(tr['tracking_pct'], 4)
         detail[f'{name}_command_ratio'] = round(tr['command_ratio'], 4)
-        detail[f'{name}_within_limits'] = bool(
-            tr['command_peak_m'] <= limits.stroke_m
-            and tr['command_velocity_m_s'] <= limits.velocity_m_s
-            and tr['command_acceleration_m_s2'] <= limits.acceleration_m_s2)
+        excess = exceeded_limits({'peak_m': tr['command_peak_m'],
+                                  'velocity_m_s': tr['command_velocity_m_s'],
+                                  'acceleration_m_s2': tr['command_acceleration_m_s2']}, limits)
+        detail[f'{name}_within_limits'] = not excess
+        detail['limits_exceeded'] += [dict(e, command=name) for e in excess]
     if pred:
         detail['predicted_record_tracking_pct'] = round(pred.get('record_tracking_pct', np.nan), 4)
         detail['gain_peak_db'] = round(pred['gain_peak_db'], 2)
@@ -126,6 +136,13 @@ def summarise(rows: list, details: list) -> dict:
         'median_ratio_to_floor': float(np.median(ratios)) if ratios else None,
         'worst_tracking_noise_le_1pct': float(np.max(low_noise)) if low_noise else None,
         'written_designs_within_limits': int(sum(within)),
+        # the written designs outside their limits, with the limit each command exceeds
+        'outside_limits': [{'case': i, 'fs_hz': r['fs_hz'], 'delay_s': r['delay_s'],
+                            'noise_pct': r['noise_pct'],
+                            'limits_exceeded': d.get('limits_exceeded', [])}
+                           for i, (r, d) in enumerate(zip(rows, details, strict=True))
+                           if not r['refused'] and not (d.get('sine_within_limits', True)
+                                                        and d.get('noise_within_limits', True))],
     }
     summary['targets'] = [
         {'name': 'median tracking within 3x of the true-model floor (median of per-case '

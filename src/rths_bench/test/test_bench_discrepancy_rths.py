@@ -48,3 +48,25 @@ def test_summary_counts_the_targets():
     assert s['rerun_within_target'] == [2, 3]
     assert s['names_in_controls'] == 0
     assert s['outside_library_unexplained'] == [1, 1]
+
+
+def test_held_out_specimens_are_a_swapped_valve_and_the_mr_damper(tmp_path):
+    from rths_bringup.commands import default_config_dir
+    from rths_common import runinfo
+
+    assert [(c[0], c[1]) for c in b.SPECIMEN_CASES] == [('swapped_valve', 'valve2'),
+                                                        ('mr_damper', 'mr')]
+    cfg = b.case_config(default_config_dir(), tmp_path / 'c', None, 0.0, specimen='valve2')
+    bridge = runinfo.load_params(cfg / 'bridge.yaml', 'bridge')
+    assert bridge['specimen'] == 'valve2' and 'dtm' not in bridge
+
+
+def test_specimen_summary_needs_both_valve_parameters_within_15_pct():
+    rows = [{'case': 'swapped_valve', 'named_correctly': True,
+             'parameter_errors_pct': {'dc': 9.7, 'dk': -21.5}},    # issue 35's biased fit
+            {'case': 'mr_damper', 'named_correctly': False}]
+    s = b.summarise_specimens(rows)
+    assert s == {'swapped_valve_named': True, 'swapped_valve_parameters_within_15_pct': False,
+                 'mr_damper_analysed': False}
+    rows[0]['parameter_errors_pct']['dk'] = 3.0
+    assert b.summarise_specimens(rows)['swapped_valve_parameters_within_15_pct']

@@ -52,12 +52,25 @@ def test_bench_command_tiny_configuration(tmp_path):
                  '--draws', '2', '--seed', '5', '--out', str(out), '--no-plots'])
     assert code == 0
     data = json.loads((out / 'summary.json').read_text())
-    assert set(data) == {'controller', 'cases', 'perturbed'}
+    assert set(data) == {'controller', 'cases', 'perturbed', 'rules'}
     assert data['controller'] == 'example'
     assert sorted(data['cases']) == ['1', '2', '3', '4']
     assert all(sorted(row) == sorted(rb.J_NAMES) for row in data['cases'].values())
-    assert data['perturbed']['n'] == 2 and data['perturbed']['unstable'] == 0
-    assert set(data['perturbed']) == {'n', 'J1_max', 'J2_max', 'J3_max', 'unstable'}
+    # 2 perturbed plants with every case (the benchmark: >= 20 per case)
+    assert data['perturbed']['n'] == 8 and data['perturbed']['unstable'] == 0
+    assert set(data['perturbed']) == {'n', 'J1_max', 'J2_max', 'J3_max', 'unstable',
+                                      'n_per_case', 'by_case'}
+    assert sorted(data['perturbed']['by_case']) == ['1', '2', '3', '4']
+    assert all(b['n'] == 2 and b['J2_max'] is not None
+               for b in data['perturbed']['by_case'].values())
+    assert data['perturbed']['J2_max'] == max(b['J2_max']
+                                              for b in data['perturbed']['by_case'].values())
+    # the benchmark's rules on the actuator's response, checked on every run
+    rules = data['rules']['perturbed']
+    assert rules['stroke_m']['limit'] == 0.007 and rules['force_n']['limit'] == 8900.0
+    # this burst drives floor 1 to ~16 mm: beyond the benchmark's stroke, and said so
+    assert rules['stroke_m']['max'] > 0.007 and 1 <= rules['stroke_m']['runs_over'] <= 8
+    assert 0 < rules['force_n']['max'] and 0 < rules['velocity_m_s']['max']
     # the PI + phase lead lags by a few ms on this plant
     assert 2.0 <= data['cases']['1']['J1'] <= 8.0
     assert (out / 'table.md').read_text().count('\n| ') >= 4
@@ -136,3 +149,34 @@ def test_worst_realtime_over_cases_takes_the_worst_and_sums_losses():
     assert rt['step_us_p99_by_node'] == {'bridge': 40.0, 'compensator': 50.0}
     assert rt['recorder_loss'] == {'/rths/command': 0, '/rths/measurement': 2}
     assert rt['completed'] is False and rt['cases'] == 2
+
+
+def test_example_through_the_node_cores_stays_within_the_benchmark_rules(tmp_path):
+    """The PI + lead (``pi_lead``) through the node cores tracks like the benchmark's loop.
+
+    It used to stop at the first noise peak of its command (the bridge's former 5000 m/s^2
+    command acceleration limit; the hold then read as a divergence, J2 > 200 %).  The
+    criteria take the measurement at the start of each sample, as the benchmark does.  A
+    synthetic 3 s record (a 3.5 Hz burst, 2.4 mm at floor 1): no data set needed.
+    """
+    from rths_actuator_bridge.silva2020 import FS_HZ, Silva2020Params
+    from rths_compensator.design import design_inverse
+    dt = 1.0 / FS_HZ
+    t = np.arange(0, 3.0, 0.005)
+    acc = 0.3 * np.sin(2 * np.pi * 3.5 * t) * np.exp(-((t - 1.2) / 0.6) ** 2)
+    path = rb.write_at2(str(tmp_path / 'burst.AT2'), t, acc)
+    params = rb.graph_params('1', design_inverse(FS_HZ, 10.0), path, 1.0, duration_s=3.0,
+                             controller='example')
+    cores = rb.run_cores(params)
+    assert cores['safety_state'].max() == 0                      # no hold, no stop
+    ag = cores['ag']
+    ref = rb.reference_response('1', ag, dt)
+    ours = rb.criteria(rb.sampled_at_start(cores['x_m']), cores['y_n'], ref, dt)
+    loop = rb.run_batch([('1', Silva2020Params())], ag, rb.ExampleController(dt, 1), seed=3)
+    bench = rb.criteria(loop['x_m'][0], loop['y_n'][0], ref, dt)
+    assert abs(ours['J1'] - bench['J1']) <= 0.25, (ours, bench)
+    for name in ('J2', 'J3'):                    # tracking: the issue's 5 % (J1: 0.25 ms)
+        assert abs(ours[name] - bench[name]) <= 0.05 * bench[name], (name, ours, bench)
+    unshifted = rb.criteria(cores['x_m'], cores['y_n'], ref, dt)
+    assert unshifted['J1'] < ours['J1']         # the end-of-sample record: one sample early
+    assert ours['J2'] < 20.0                                      # tracks (it was > 200 %)

@@ -161,19 +161,34 @@ def predict_all(plant, comp, band_hz: float, reference, record=None) -> dict:
     return out
 
 
+#: The limits a command is checked against: (figure of the command, DesignLimits field, unit).
+LIMIT_ROWS = (('peak_m', 'stroke_m', 'm'), ('velocity_m_s', 'velocity_m_s', 'm/s'),
+              ('acceleration_m_s2', 'acceleration_m_s2', 'm/s^2'))
+
+
+def exceeded_limits(figures: dict, limits: DesignLimits) -> list:
+    """Return the limits a command's figures exceed, as ``{'limit', 'value', 'bound'}`` dicts.
+
+    ``figures`` holds the command's ``peak_m``, ``velocity_m_s`` and ``acceleration_m_s2``;
+    ``limit`` is the bridge parameter's name (``stroke_m``, ``velocity_m_s``,
+    ``acceleration_m_s2``).  A non-finite figure exceeds its limit.  Empty: within every limit.
+    """
+    out = []
+    for key, name, _ in LIMIT_ROWS:
+        value, bound = float(figures[key]), float(getattr(limits, name))
+        if not value <= bound:
+            out.append({'limit': name, 'value': value, 'bound': bound})
+    return out
+
+
 def check_limits(pred: dict, limits: DesignLimits, reference_text: str) -> list:
     """Return the violated limits as lines (empty: within every limit)."""
-    rows = (('reference_command_peak_m', limits.stroke_m, 'stroke_m', 'm'),
-            ('reference_command_velocity_m_s', limits.velocity_m_s, 'velocity_m_s', 'm/s'),
-            ('reference_command_acceleration_m_s2', limits.acceleration_m_s2,
-             'acceleration_m_s2', 'm/s^2'))
-    out = []
-    for key, limit, name, unit in rows:
-        if not pred[key] <= limit:
-            out.append(f'the command for the reference ({reference_text}) reaches '
-                       f'{pred[key]:.4g} {unit}, above {name} = {limit:g} {unit} '
-                       f'({limits.source or "limits"})')
-    return out
+    figures = {key: pred[f'reference_command_{key}'] for key, _, _ in LIMIT_ROWS}
+    units = {name: unit for _, name, unit in LIMIT_ROWS}
+    return [f'the command for the reference ({reference_text}) reaches '
+            f'{e["value"]:.4g} {units[e["limit"]]}, above {e["limit"]} = {e["bound"]:g} '
+            f'{units[e["limit"]]} ({limits.source or "limits"})'
+            for e in exceeded_limits(figures, limits)]
 
 
 def assess(plant, comp, band_hz: float, record=None, limits: DesignLimits = None):

@@ -89,4 +89,21 @@ def localize(ctx, data) -> dict:
                    'errors of white noise')
     return {'time_windows': windows, 'frequency_bands': bands[:6], 'state': state,
             'residual_mean': mean, 'residual_mean_z': float(mean / se) if se else 0.0,
+            'residual_rms_to_noise': float(np.sqrt(np.mean(r * r)) / sigma) if sigma > 0
+            else 0.0,
             'summary': summary}
+
+
+def nothing_found(where: dict) -> list:
+    """Summary lines of a localisation when the workflow named no effect (``none``).
+
+    The per-window and per-band ratios compare a residual with the noise floor; where
+    nothing was found the residual lies within the floor as a whole, but a band's power
+    can still be many times the floor's share of it (on a noise-free record the floor
+    is the model resolution, not white noise), so ratios such as "1e+06x noise" there
+    read as a finding.  Only the whole residual against the floor is stated.
+    """
+    return [f"nothing to localise: the residual's rms is {where['residual_rms_to_noise']:.2f}x "
+            'the noise floor (on a noise-free record, the resolution of the model) and no '
+            'effect of the library explains more of it than noise would; the per-window and '
+            'per-band figures stay in result.json (localization)']

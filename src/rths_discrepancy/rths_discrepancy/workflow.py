@@ -523,6 +523,8 @@ def run_discrepancy(scenario, data, model=None, out_dir=None, rng=None, progress
     te = ctx.test
     noise = math.sqrt(ctx.sigma2) / float(np.std(ctx.y[te]))
     before = sg.nrmse(ctx.y, ctx.y_nom, te)
+    if decision == 'none':
+        where['summary'] = localize.nothing_found(where)
     if decision in ('none', 'unexplained'):
         added = {}
         align = ctx.alignment

@@ -45,6 +45,10 @@ def test_controls_name_no_effect(scenario, seed):
     _, _, res = _case(scenario, [], seed=seed)
     assert res['effect'] == 'none'
     assert res['parameters'] == {}
+    # nothing found: no per-band "x noise" ratios that read as a finding (issue 35)
+    (line,) = res['localization']['summary']
+    assert 'nothing to localise' in line and 'x noise' not in line
+    assert res['localization']['residual_rms_to_noise'] < 2.0
     # the noise floor estimate matches the 0.5 % noise added by the generator
     assert res['nrmse_noise'] == pytest.approx(selftest.NOISE, rel=0.2)
 
