@@ -33,7 +33,9 @@ has exited) before it closes the bag.
 
 When the launcher dies (:mod:`rths_common.lifeline`) the recorder keeps
 recording until the bridge reports STOPPED (its safe stop is over; composed: the
-pipe ended), then closes the bag.
+pipe ended), or until the bridge has been silent for BRIDGE_SILENT_S (it had
+stopped or died before: no STOPPED will come), at most LOST_TAIL_S; then it
+closes the bag and ends at once (no rclpy teardown: nobody waits for it).
 """
 
 from collections import deque
@@ -65,8 +67,11 @@ MAX_BATCH_S = 0.05
 #: After the stop request the recorder keeps taking messages this long [s] ...
 TAIL_S = 0.2
 #: ... and after its launcher died, until the bridge reports STOPPED (its safe stop is
-#: over), at most LOST_TAIL_S [s] (the run's processes are gone within 1 s).
+#: over), at most LOST_TAIL_S [s] (the run's processes are gone within 1 s) ...
 LOST_TAIL_S = 0.75
+#: ... or until no status of the bridge came for this long [s] (a live bridge reports
+#: every tick, ~1 ms, while it holds and ramps: it had stopped or died already).
+BRIDGE_SILENT_S = 0.15
 _STOPPED = 3                     # rths_msgs/LoopStatus SAFETY_STOPPED
 
 
@@ -93,6 +98,7 @@ class Recorder:
         self.run_info = {k: v for k, v in params.items() if k not in RECORDER_PARAMS}
         self.queue = deque()
         self.bridge_stopped = False    # (after the launcher died) the bridge reported STOPPED
+        self.bridge_heard = None       # monotonic time of the bridge's last status (DDS)
         self.wake = threading.Event()
         self.running = True
         self.count = 0
@@ -173,24 +179,29 @@ class Recorder:
             if not ours(raw):
                 return
             queue.append((topic, now_ns(), raw))
-            if lifeline.lost() and cdr.status_state(raw) == ('bridge', _STOPPED):
-                self.bridge_stopped = True
+            if lifeline.lost():
+                node, state = cdr.status_state(raw)
+                if node == 'bridge':
+                    self.bridge_heard = time.monotonic()
+                    self.bridge_stopped = self.bridge_stopped or state == _STOPPED
         return on_status if topic == topics.STATUS else on_message
 
     def collect_tail(self, lost: bool):
         """Take the messages still in flight after the stop request (module constants).
 
         After the launcher died (processes layout) that is until the bridge's
-        STOPPED status arrived; composed, the statuses come through the pipe.
+        STOPPED status arrived or the bridge fell silent (BRIDGE_SILENT_S);
+        composed, the statuses come through the pipe.
         """
         start = time.monotonic()
         executor = ns.make_executor('events')
         executor.add_node(self.node)
         wait_stop = lost and self.pipe_fd < 0
         while time.monotonic() - start < (LOST_TAIL_S if wait_stop else TAIL_S):
-            if wait_stop and self.bridge_stopped:
+            if wait_stop and (self.bridge_stopped or time.monotonic() - max(
+                    self.bridge_heard or start, start) > BRIDGE_SILENT_S):
                 break
-            executor.spin_once(timeout_sec=0.02)
+            executor.spin_once(timeout_sec=0.01)
         executor.remove_node(self.node)
 
     def _read_pipe(self):
@@ -263,8 +274,8 @@ def main(argv=None):
     foreign = f'; {rec.foreign} of another run not recorded' if rec.foreign else ''
     print(f'recorder: {count} messages written{piped} in {time.monotonic() - t0:.1f} s'
           f'{foreign}', flush=True)
+    lifeline.end_if_lost(0)     # the bag is closed: no rclpy teardown once the launcher died
     rclpy.shutdown()
-    lifeline.end_if_lost(0)
     return 0
 
 

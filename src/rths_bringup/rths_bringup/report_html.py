@@ -144,6 +144,18 @@ def notes(s: dict) -> list:
     for topic, rec in s.get('recording', {}).items():
         lines.append(f"recording of {topic}: {rec['resent']} re-sent step(s) dropped, "
                      f"{rec['filled']} step(s) missing from the bag filled linearly")
+    if s.get('recording_complete') is False:
+        fs = s['fs_hz']
+        gaps = s.get('recording_gaps', [])
+        where = ', '.join(f"{g['topic'].rsplit('/', 1)[-1]} {g['steps']} step(s) from step "
+                          f"{g['first_step']} ({g['start_s']:.3f} s)" for g in gaps[:5])
+        more = f' and {len(gaps) - 5} more gap(s)' if len(gaps) > 5 else ''
+        lines.append(f"RECORDING INCOMPLETE: the bag lacks steps (longest gap "
+                     f"{s['recording_longest_gap_steps']} steps, "
+                     f"{s['recording_longest_gap_steps'] / fs:.3f} s): {where}{more}; the "
+                     f"tracking errors are computed on the {s['recording_kept_pct']:.2f} % of "
+                     'the steps the bag holds, the delays and responses with the gaps filled '
+                     'linearly')
     return lines
 
 

@@ -416,13 +416,15 @@ def flush(publishers, timeout_s: float = 2.0) -> bool:
     recorder would lose the last steps of a run.  Once the launcher died the
     wait is at most ``lifeline.LOST_FLUSH_S``: the readers that died with it
     never answer, and the run's processes must be gone within a second.
+    ``timeout_s`` bounds the whole wait, not each publisher's.
     """
     if lifeline.lost():
         timeout_s = min(timeout_s, lifeline.LOST_FLUSH_S)
-
+    t_end = time.monotonic() + timeout_s
     ok = True
     for pub in publishers:
-        ok = pub.wait_for_all_acked(Duration(nanoseconds=int(timeout_s * 1e9))) and ok
+        left = max(0.0, t_end - time.monotonic())
+        ok = pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))) and ok
     return ok
 
 
