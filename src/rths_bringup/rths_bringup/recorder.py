@@ -68,7 +68,7 @@ MAX_BATCH_S = 0.05
 TAIL_S = 0.2
 #: ... and after its launcher died, until the bridge reports STOPPED (its safe stop is
 #: over), at most LOST_TAIL_S [s] (the run's processes are gone within 1 s) ...
-LOST_TAIL_S = 0.75
+LOST_TAIL_S = 0.6
 #: ... or until no status of the bridge came for this long [s] (a live bridge reports
 #: every tick, ~1 ms, while it holds and ramps: it had stopped or died already).
 BRIDGE_SILENT_S = 0.15

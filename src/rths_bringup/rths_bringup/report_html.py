@@ -188,6 +188,30 @@ def render(summary: dict, images: dict) -> str:
             + figures + '</body></html>\n')
 
 
+def render_stop(summary: dict, text: str) -> str:
+    """Return the page of a run the bridge's safety supervisor stopped too early for tables 5-9.
+
+    ``text``: the printed report of the stop (``rths_bringup.run.safety_stop_text``).
+    """
+    title = (f"RTHS ABORTED by the bridge's safety supervisor: {summary.get('record')} x "
+             f"{summary.get('scale')}, {summary.get('mode')}")
+    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+            f'<title>{html.escape(title)}</title><style>{_STYLE}</style></head>\n<body>\n'
+            f'<h1>{html.escape(title)}</h1>\n'
+            f'<p>No tables 5-9: the run stopped before 2 s of it could be reviewed.</p>\n'
+            f'<pre>{html.escape(text)}</pre>\n' + realtime_table(summary)
+            + '</body></html>\n')
+
+
+def write_stop_report(out_dir, summary: dict, text: str) -> Path:
+    """Write ``out_dir/report.html`` of a run stopped too early for a review (render_stop)."""
+    path = Path(out_dir) / 'report.html'
+    tmp = path.with_suffix('.html.tmp')
+    tmp.write_text(render_stop(summary, text), encoding='utf-8')
+    tmp.replace(path)
+    return path
+
+
 def write_report(out_dir, summary: dict) -> Path:
     """Write ``out_dir/report.html`` from ``summary`` and the PNG plots in ``out_dir``."""
     out_dir = Path(out_dir)

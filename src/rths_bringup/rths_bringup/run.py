@@ -20,9 +20,12 @@ and the launcher with 1 (``node bridge died (exit code 3: safety stop)``).  ``rt
 then reads the bag (:func:`read_safety_stop`), writes ``OUT/summary.json`` and
 ``OUT/review.txt`` with ``safety_stop`` (the bridge's fault text), the fault and stop
 steps, the ``steps`` run and the final actuator position (:func:`safety_stop_summary`),
-prints them and exits with :data:`EXIT_SAFETY_STOP`.  Tables 5-9 are not computed: after
-the fault the plant holds and ramps to the safe position, so a comparison with the
-reference would be meaningless.
+prints them and exits with :data:`EXIT_SAFETY_STOP`.  The run is still reviewed up to
+the fault (after it the plant holds and ramps to the safe position, which no reference
+describes): with at least 2 s before the fault, tables 5-9 of those steps, the plots and
+``OUT/report.html``, the stop's figures beside them (``reviewed_steps`` the steps the
+tables cover); with less, ``OUT/report.html`` holds the stop's report and real-time
+figures only.
 """
 
 import datetime
@@ -615,6 +618,7 @@ def _run(args) -> int:
                                  args.mode, {'numerical': numerical, 'bridge': base['bridge']},
                                  storage=args.storage, live=args.live, layout=args.layout)
             if stop is not None:
+                _write_identification_stop(stop, out)
                 raise RuntimeError(f'the identification run ended in the bridge\'s safety stop '
                                    f'({stop["safety_stop"]}); check the excitation against the '
                                    f'limits in {config / "bridge.yaml"}')
@@ -782,7 +786,8 @@ def _write_response(history: Path, t0: float, path: Path):
 def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
                         limits=None) -> int:
     """Write and print the summary of an RTHS run the bridge stopped; return EXIT_SAFETY_STOP."""
-    from rths_bringup.review import REALTIME_KEYS, bridge_realtime, read_loop
+    from rths_bringup.report_html import write_report, write_stop_report
+    from rths_bringup.review import REALTIME_KEYS, bridge_realtime, read_loop, review_text
     from rths_common.params import core_params
     from rths_numerical.substructure import make_substructure
 
@@ -792,14 +797,45 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
         timing = bridge_realtime(read_loop(bag)['status'].get('bridge', {}),
                                  stop['planned_steps'], stop['fs_hz'], limits)
         stop.update({key: timing[key] for key in REALTIME_KEYS})
-    _say('step 4: no review (tables 5-9): the bridge stopped the run')
-    (out / 'summary.json').write_text(json.dumps(stop, indent=2))
     text = safety_stop_text(stop)
-    (out / 'review.txt').write_text(text)
+    # the review of what ran before the fault (tables 5-9 need 2 s of it)
+    _say('step 4: review of the run up to the safety stop')
+    try:
+        summary = _review(bag, out, limits)
+    except ValueError as err:
+        _say(f'no tables 5-9: {err}')
+        summary = None
+    if summary is None:
+        (out / 'summary.json').write_text(json.dumps(stop, indent=2))
+        (out / 'review.txt').write_text(text)
+        write_stop_report(out, stop, text)
+    else:
+        # the stop's own figures win (steps: the steps run); the review's count stays beside
+        summary = {**summary, 'reviewed_steps': summary['steps'], **stop}
+        (out / 'summary.json').write_text(json.dumps(summary, indent=2))
+        text = text + '\n' + review_text(summary)
+        (out / 'review.txt').write_text(text)
+        write_report(out, summary)
     print(text, end='', flush=True)
-    _say(f'results: {out}/summary.json, {out}/review.txt, bag {bag}; exit code '
-         f'{EXIT_SAFETY_STOP} (safety stop)')
+    _say(f'results: {out}/report.html, {out}/summary.json, {out}/review.txt, bag {bag}; '
+         f'exit code {EXIT_SAFETY_STOP} (safety stop)')
     return EXIT_SAFETY_STOP
+
+
+def _write_identification_stop(stop: dict, out: Path) -> None:
+    """Write summary.json, review.txt and report.html of an identification run's safety stop.
+
+    No RTHS ran, so no tables; the files say which phase stopped, where and why.
+    """
+    from rths_bringup.report_html import write_stop_report
+
+    stop = dict(stop, phase='identification', record='identification excitation (BLWN)',
+                scale=1.0)
+    text = 'IDENTIFICATION ' + safety_stop_text(stop)
+    (out / 'summary.json').write_text(json.dumps(stop, indent=2))
+    (out / 'review.txt').write_text(text)
+    write_stop_report(out, stop, text)
+    _say(f'identification stopped: {out}/summary.json, {out}/review.txt, {out}/report.html')
 
 
 def _review(bag, out, limits=None, specimen_model=None, dof=None) -> dict:
