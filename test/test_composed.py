@@ -81,7 +81,7 @@ def realtime_config(directory, duration_s=DURATION_S):
 
 def test_realtime_composed_bag_holds_every_step_and_the_miss_accounting(tmp_path):
     from rths_bench.bench_loop import bag_check
-    from rths_bringup.review import read_loop
+    from rths_review.review import read_loop
 
     bag = tmp_path / 'bag'
     proc = rths('launch', '--config', realtime_config(tmp_path / 'config'), '--bag', bag,
@@ -116,7 +116,7 @@ def read_bridge_flags(bag) -> list:
 
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_to_the_container_stops_all_three_nodes_and_keeps_the_bag(tmp_path, sig):
-    from rths_bringup.review import read_loop, step_check
+    from rths_review.review import read_loop, step_check
 
     bag = tmp_path / 'bag'
     proc = launch_background(realtime_config(tmp_path / 'config', duration_s=600.0), bag)

@@ -34,8 +34,8 @@ FS_HZ = 1024.0
     '(velocity 1.008 m/s > 1 m/s). Strict: passing again fails the test, so the marker '
     'goes when the design bounds its high-frequency gain'))
 def test_identification_through_the_delay_line_lets_the_compensator_absorb_it(tmp_path):
-    from rths_bringup.review import weighted_delay_ms
     from rths_common import bagio
+    from rths_review.review import weighted_delay_ms
 
     config = tmp_path / 'config'
     shutil.copytree(REPO / 'config', config)

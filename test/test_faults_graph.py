@@ -90,7 +90,7 @@ def read_bag(bag):
 
 def check_recording(bag):
     """Return the bag is readable; every loop topic starts at 0, in order, without gaps."""
-    from rths_bringup.review import read_loop, step_check
+    from rths_review.review import read_loop, step_check
 
     loop = read_loop(bag)
     for topic, data in loop['steps'].items():

@@ -63,8 +63,8 @@ def lockstep_config(directory: Path, duration_s: float) -> Path:
 def test_three_hosts_over_an_emulated_link_run_the_loop_exactly(tmp_path):
     from rths_bench import netns
     from rths_bench.bench_distributed import HOSTS, run_condition
-    from rths_bringup.review import read_loop, step_check
     from rths_common import topics
+    from rths_review.review import read_loop, step_check
 
     reason = netns.available()
     if reason:

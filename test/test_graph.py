@@ -11,7 +11,7 @@ import signal
 
 import pytest
 
-from rths_bringup.review import STEP_TOPICS
+from rths_review.review import STEP_TOPICS
 from rths_system_tests import (
     REPO,
     launch_background,
@@ -28,7 +28,7 @@ FS_HZ = 1024.0
 
 
 def read_steps(bag):
-    from rths_bringup.review import read_loop
+    from rths_review.review import read_loop
     return read_loop(bag)
 
 
@@ -44,7 +44,7 @@ def test_lockstep_run_progresses_on_every_topic(tmp_path):
         assert f'[{name}]' in proc.stdout, name
     n_steps = int(round(duration * FS_HZ))
     loop = read_steps(bag)
-    from rths_bringup.review import step_check
+    from rths_review.review import step_check
     for topic, data in loop['steps'].items():
         check = step_check(data['step'])
         assert check['count'] == n_steps, (topic, check)
@@ -85,7 +85,7 @@ def test_sigkill_of_a_node_fails_the_run_names_it_and_keeps_the_bag(tmp_path, vi
     assert f'node {victim} died (killed by SIGKILL)' in out
     assert f'FAILED: node {victim}' in out
     # The bag is readable and holds the steps up to the crash, in order, without gaps.
-    from rths_bringup.review import step_check
+    from rths_review.review import step_check
     loop = read_steps(bag)
     for topic, data in loop['steps'].items():
         check = step_check(data['step'])
@@ -118,7 +118,7 @@ def test_ctrl_c_or_sigterm_stops_every_node_and_closes_the_bag(tmp_path, sig):
         assert not os.path.exists(f'/proc/{pid}') or 'zombie' in open(
             f'/proc/{pid}/status').read().lower(), name
     assert (bag / 'metadata.yaml').exists()                 # closed by the recorder itself
-    from rths_bringup.review import step_check
+    from rths_review.review import step_check
     loop = read_steps(bag)
     for topic, data in loop['steps'].items():
         check = step_check(data['step'])

@@ -106,7 +106,7 @@ def test_replay_live_is_seen_by_a_foxglove_websocket_client(tmp_path):
 
 
 def test_launch_live_streams_the_run_and_the_bag_still_starts_at_step_0(tmp_path):
-    from rths_bringup.review import read_loop, step_check
+    from rths_review.review import read_loop, step_check
 
     bag, port = tmp_path / 'bag', _free_port()
     proc = subprocess.Popen([rths_executable(), 'launch', '--config', str(REPO / 'config'),

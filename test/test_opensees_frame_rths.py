@@ -4,7 +4,7 @@ Offline (rths_bringup.offline, the lock-step graph's cores): the frame of
 config/models/frame_steel01.py (Steel01 beam hinges) in OpenSeesPy, the repo's designed
 compensator, the simulated 3-pole actuator with the valve #4 DTM (5 DTMs), Kobe x 0.135.
 The reference is the same OpenSees model with the same DTM model on a perfect actuator
-(rths_bringup.review.offline_references).  Needs OpenSeesPy (``make test`` installs it;
+(rths_review.review.offline_references).  Needs OpenSeesPy (``make test`` installs it;
 without it the test skips, and fails in CI).
 """
 
@@ -20,10 +20,10 @@ def test_frame_rths_matches_the_whole_numerical_reference():
     from rths_numerical.testing import require_opensees
     require_opensees()
     from rths_bringup.offline import offline_rths
-    from rths_bringup.review import offline_references, residual_drift
     from rths_common import runinfo
     from rths_common.params import core_params
     from rths_numerical.reference import relative_rms_error
+    from rths_review.review import offline_references, residual_drift
 
     params = {n: runinfo.load_params(REPO / 'config' / f'{n}.yaml', n)
               for n in ('numerical', 'compensator', 'bridge')}

@@ -62,8 +62,8 @@ def step_values(bag, topic) -> dict:
                                            ('ats', 'composed'), ('amb', 'composed'),
                                            ('pi_lead', 'composed')])
 def test_method_runs_in_real_time_and_tracks(tmp_path, method, layout):
-    from rths_bringup.review import read_loop
     from rths_common import bagio, topics
+    from rths_review.review import read_loop
 
     bag = tmp_path / 'bag'
     proc = rths('launch', '--config', method_config(tmp_path / 'config', method), '--bag', bag,

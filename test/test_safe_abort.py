@@ -120,8 +120,8 @@ def bridge_status(bag):
 
 def test_uncompensated_unstable_run_ends_in_the_bridges_safe_abort(tmp_path):
     from rths_actuator_bridge.safety import SafetyLimits
-    from rths_bringup.review import read_loop, step_check
     from rths_common import bagio, topics
+    from rths_review.review import read_loop, step_check
 
     config, out = copy_config(tmp_path / 'config'), tmp_path / 'run'
     proc = rths('run', '--no-compensation', *UNSTABLE, '--config', config, '--out', out,

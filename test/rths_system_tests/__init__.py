@@ -128,7 +128,7 @@ def sigkill_mid_run(proc, bag, victim, timeout=120.0) -> str:
     a loss bound in wall time (COMMIT_PERIOD_S plus one batch), not in steps (CI had
     committed 73 steps at step 1024).  Returns the launcher's whole output.
     """
-    from rths_bringup.review import STEP_TOPICS
+    from rths_review.review import STEP_TOPICS
 
     head = wait_for(proc, 'graph connected')
     wait_steps(bag, 1024)                           # one simulated second is done

@@ -93,8 +93,8 @@ def write_run_config(directory, rate_hz, duration_s, priority, taps_from=None) -
 
 def bag_metrics(bag) -> dict:
     """Deadline misses, tracking error and safety state of a run's bag."""
-    from rths_bringup.review import read_loop
     from rths_common import topics
+    from rths_review.review import read_loop
 
     loop = read_loop(bag)
     target = dict(zip(loop['steps'][topics.INTERFACE_DISPLACEMENT]['step'],
@@ -286,9 +286,9 @@ def _phase_config(directory, base, numerical=None, compensator=None, bridge=None
 
 def _loop_tracking(bag) -> dict:
     """Delay (eq. 42, PSD-weighted) and relative RMS error, interface displacement -> measured."""
-    from rths_bringup.review import weighted_delay_ms
     from rths_common import bagio, topics
     from rths_compensator.indicators import relative_rms_pct
+    from rths_review.review import weighted_delay_ms
 
     fs = bagio.sampling_rate(bag)
     disp = bagio.step_arrays(bag, topics.INTERFACE_DISPLACEMENT, ('displacement',))

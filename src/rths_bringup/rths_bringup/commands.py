@@ -150,7 +150,7 @@ def cmd_launch(args) -> int:
         code = launch(args.config, args.duration, args.bag, args.timeout, storage=args.storage,
                       live=args.live, layout=args.layout, mode=getattr(args, 'mode', None))
     if args.bag and Path(args.bag).exists():
-        from rths_bringup.review import loop_summary
+        from rths_review.review import loop_summary
         print_bag_info(args.bag)
         summary = loop_summary(args.bag)
         missing = bag_missing(summary)
@@ -164,7 +164,7 @@ def cmd_launch(args) -> int:
 def bag_missing(summary: dict) -> list:
     """Return what a run's bag lacks: the bridge writes a measurement and a status every tick.
 
-    ``summary`` is :func:`rths_bringup.review.loop_summary`'s; returns one text
+    ``summary`` is :func:`rths_review.review.loop_summary`'s; returns one text
     per incomplete stream (empty: every tick the bridge ran is in the bag).
     (Commands and interface displacements may be missing by design: lost or
     dropped ones are deadline misses, counted in the status.)
@@ -225,7 +225,7 @@ def cmd_bag_reindex(args) -> int:
 
 
 def print_summary(summary: dict):
-    """Print the run summary of :func:`rths_bringup.review.loop_summary`."""
+    """Print the run summary of :func:`rths_review.review.loop_summary`."""
     print('\nrun summary')
     for key, value in summary.items():
         if isinstance(value, dict):

@@ -9,7 +9,7 @@
    them as the lab's taps is ``rths install-taps OUT``);
 3. the RTHS run: the building (numerical node), the compensator and the bridge
    with the simulated DTM, recorded to ``OUT/rths/bag``;
-4. the review (:mod:`rths_bringup.review`): tables 5-9 as text, ``OUT/summary.json``
+4. the review (:mod:`rths_review.review`): tables 5-9 as text, ``OUT/summary.json``
    and PNG plots.
 
 Every phase writes the exact params files it ran with under ``OUT/<phase>/config``.
@@ -214,7 +214,7 @@ def register(commands, benches):
 
 def add_limit_arguments(p):
     """Add the real-time limits a realtime run is judged by (realtime_ok in summary.json)."""
-    from rths_bringup.realtime import REALTIME_LIMITS as lim
+    from rths_review.realtime import REALTIME_LIMITS as lim
 
     g = p.add_argument_group('real-time limits (realtime mode: beyond any of them the summary '
                              'says realtime_ok false and the review NOT REAL TIME)')
@@ -231,7 +231,7 @@ def add_limit_arguments(p):
 
 def limits_of(args) -> dict:
     """Return the real-time limits of ``rths run`` / ``rths review`` (checked)."""
-    from rths_bringup.realtime import check_limits
+    from rths_review.realtime import check_limits
 
     return check_limits({'late_or_missed_pct': args.max_late_pct,
                          'worst_period_ms': args.max_period_ms, 'behind_s': args.max_behind_s})
@@ -351,7 +351,7 @@ def read_safety_stop(bag):
     def channel0(table):
         return table[:, 0] if table.shape[1] else np.full(steps.size, np.nan)
 
-    from rths_bringup.review import EXTERNAL, controller_counts, external_controller
+    from rths_review.review import EXTERNAL, controller_counts, external_controller
 
     info = bagio.run_info(bag)
     fs = bagio.sampling_rate(bag)
@@ -384,8 +384,8 @@ def safety_stop_text(s: dict) -> str:
     def metres(value, spec):
         return 'none' if value is None else f'{value:{spec}} m'
 
-    from rths_bringup.report_html import specimen_title
-    from rths_bringup.review import controller_text
+    from rths_review.report_html import specimen_title
+    from rths_review.review import controller_text
 
     lines = [
         f"RTHS ABORTED by the bridge's safety supervisor: {s['record']} x {s['scale']}, "
@@ -406,7 +406,7 @@ def safety_stop_text(s: dict) -> str:
     if len(s.get('safety_faults', [])) > 1:
         lines.append('  further faults: ' + '; '.join(s['safety_faults'][1:]))
     if 'realtime_ok' in s:
-        from rths_bringup.realtime import realtime_text
+        from rths_review.realtime import realtime_text
         lines.append('  ' + realtime_text(s))
     if s.get('controller'):
         lines.append('  ' + controller_text(s['controller']))
@@ -568,7 +568,7 @@ def cmd_run(args) -> int:
 
 def _run(args) -> int:
     from rths_bringup.cli import main as rths_main
-    from rths_bringup.review import print_review
+    from rths_review.review import print_review
 
     limits = limits_of(args)
     if args.force_scale is not None and not args.force_scale > 0:
@@ -727,7 +727,7 @@ def _check_inputs(numerical: dict, out: Path, bridge: dict, output_dof=None):
         entry.check(bridge, sub.n_interface, f'model {getattr(sub.model, "name", "")}')
     settings = run_settings(numerical, sub)
     if output_dof is not None:
-        from rths_bringup.review import dof_index
+        from rths_review.review import dof_index
         dof_index(sub.model, output_dof, '--output-dof')
     settings['specimen'] = specimen
     settings['specimen_settings'] = entry.settings(bridge) if entry is not None else {}
@@ -786,10 +786,10 @@ def _write_response(history: Path, t0: float, path: Path):
 def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
                         limits=None) -> int:
     """Write and print the summary of an RTHS run the bridge stopped; return EXIT_SAFETY_STOP."""
-    from rths_bringup.report_html import write_report, write_stop_report
-    from rths_bringup.review import REALTIME_KEYS, bridge_realtime, read_loop, review_text
     from rths_common.params import core_params
     from rths_numerical.substructure import make_substructure
+    from rths_review.report_html import write_report, write_stop_report
+    from rths_review.review import REALTIME_KEYS, bridge_realtime, read_loop, review_text
 
     stop['planned_steps'] = int(make_substructure(core_params(numerical)).n_steps)
     stop['bag'] = str(bag)
@@ -827,7 +827,7 @@ def _write_identification_stop(stop: dict, out: Path) -> None:
 
     No RTHS ran, so no tables; the files say which phase stopped, where and why.
     """
-    from rths_bringup.report_html import write_stop_report
+    from rths_review.report_html import write_stop_report
 
     stop = dict(stop, phase='identification', record='identification excitation (BLWN)',
                 scale=1.0)
@@ -839,9 +839,9 @@ def _write_identification_stop(stop: dict, out: Path) -> None:
 
 
 def _review(bag, out, limits=None, specimen_model=None, dof=None) -> dict:
-    """Run :func:`rths_bringup.review.review_rths` with a progress line over its stages."""
-    from rths_bringup.review import REVIEW_STAGES, review_rths
+    """Run :func:`rths_review.review.review_rths` with a progress line over its stages."""
     from rths_common.progress import Progress
+    from rths_review.review import REVIEW_STAGES, review_rths
 
     if specimen_model is not None and not Path(specimen_model).is_file():
         raise OSError(f'--specimen-model {specimen_model}: no such file')
@@ -852,8 +852,8 @@ def _review(bag, out, limits=None, specimen_model=None, dof=None) -> dict:
 
 def cmd_review(args) -> int:
     """``rths review``."""
-    from rths_bringup.review import print_review
     from rths_common import bagio
+    from rths_review.review import print_review
 
     bag = Path(args.bag)
     out = Path(args.out) if args.out else bag.parent

@@ -44,3 +44,17 @@ def test_the_default_applies_when_neither_names_a_specimen(tmp_path):
 def test_an_unknown_config_specimen_is_refused_naming_the_file(tmp_path):
     with pytest.raises(ValueError, match='bridge.yaml'):
         bridge_params(_bridge(specimen='valve9'), _args(), tmp_path)
+
+
+def test_remote_site_bridge_keeps_the_limits_and_drops_the_local_plant():
+    from rths_actuator_bridge.bridge import check_core_params
+    from rths_bringup.run import remote_bridge
+    from rths_common.params import core_params
+    local = {'mode': 'lockstep', 'backend': 'simulated', 'fs_hz': 1024.0, 'dtm': 'valve4',
+             'actuator_model': '3pole', 'seed': 1, 'stroke_m': 0.2, 'velocity_m_s': 0.5}
+    remote = remote_bridge(local, 'tcp://10.0.0.5:8090')
+    assert remote == {'mode': 'lockstep', 'backend': 'genericclient', 'fs_hz': 1024.0,
+                      'stroke_m': 0.2, 'velocity_m_s': 0.5, 'site': 'tcp://10.0.0.5:8090'}
+    check_core_params(core_params(remote))   # a valid bridge of the genericclient backend
+    with pytest.raises(ValueError, match='tcp://host:port'):
+        remote_bridge(local, 'http://10.0.0.5')

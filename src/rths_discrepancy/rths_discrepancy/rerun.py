@@ -2,7 +2,7 @@
 
 The RTHS result is the 2nd-floor displacement of the run (the interface
 displacement of each step less the ground displacement in the absolute
-frame, as in :func:`rths_bringup.review.review_rths`).  The reference is the
+frame, as in :func:`rths_review.review.review_rths`).  The reference is the
 same numerical substructure (same model, record, integrator and step) coupled
 in lock-step to a *numerical* DTM on a perfect table
 (:func:`rths_numerical.reference.coupled_rths` with a

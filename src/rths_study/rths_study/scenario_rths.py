@@ -5,7 +5,7 @@ the lab's params files (``config``: ``numerical.yaml``, ``bridge.yaml``, and the
 compensator), step through :func:`rths_bringup.offline.offline_rths`, the order of the
 lock-step node graph (a lock-step ``rths run`` gives the same arrays bit for bit), on
 the 2-story building (or ``model``) under a record, with the simulated plant and a
-specimen.  The metrics are the review's (:mod:`rths_bringup.review`, tables 5-9 of
+specimen.  The metrics are the review's (:mod:`rths_review.review`, tables 5-9 of
 ``rths run``'s ``summary.json``, under the same names): the actuator's delay and
 tracking error before and after compensation, the 2nd floor's peak and RMS
 displacement and their reductions against the uncontrolled building, and the RTHS's
@@ -112,8 +112,8 @@ def evaluate_run(settings: dict, run: dict) -> dict:
     # `rths` imports every scenario module to list the scenarios in its help
     # lazy: start-up cost: the review loads SciPy and matplotlib (~3 s)
     from rths_bringup.offline import offline_rths
-    from rths_bringup.review import references, response_metrics, table5_of
     from rths_numerical.substructure import make_substructure
+    from rths_review.review import references, response_metrics, table5_of
 
     numerical, comp, bridge = run_params(settings, run)
     out = offline_rths(numerical, comp, bridge)

@@ -4,7 +4,7 @@ import base64
 from html.parser import HTMLParser
 import re
 
-from rths_bringup import report_html
+from rths_review import report_html
 
 SUMMARY = {
     'record': 'kobe', 'scale': 0.135, 'specimen': 'valve4', 'mode': 'lockstep', 'fs_hz': 1024.0,

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from rths_bringup.review import step_check, weighted_delay_ms
+from rths_review.review import step_check, weighted_delay_ms
 
 
 def test_step_check_counts_gaps_duplicates_and_order():
@@ -60,7 +60,7 @@ def test_review_of_a_site_bag_has_table_5_and_no_guessed_model(tmp_path):
 
     from rths_actuator_bridge import openfresco as of
     from rths_actuator_bridge.site import build_site, load_site_config
-    from rths_bringup.review import review_rths
+    from rths_review.review import review_rths
 
     config = load_site_config(None, Path(__file__).resolve().parents[3] / 'config')
     core = build_site(config, tmp_path / 'bag')
@@ -87,18 +87,3 @@ def test_review_of_a_site_bag_has_table_5_and_no_guessed_model(tmp_path):
     assert (tmp_path / 'review' / 'report.html').is_file()
     assert (tmp_path / 'review' / 'tracking_zoom.png').is_file()
     assert not (tmp_path / 'review' / 'time_history.png').exists()
-
-
-def test_remote_site_bridge_keeps_the_limits_and_drops_the_local_plant():
-    from rths_actuator_bridge.bridge import check_core_params
-    from rths_bringup.run import remote_bridge
-    from rths_common.params import core_params
-    local = {'mode': 'lockstep', 'backend': 'simulated', 'fs_hz': 1024.0, 'dtm': 'valve4',
-             'actuator_model': '3pole', 'seed': 1, 'stroke_m': 0.2, 'velocity_m_s': 0.5}
-    remote = remote_bridge(local, 'tcp://10.0.0.5:8090')
-    assert remote == {'mode': 'lockstep', 'backend': 'genericclient', 'fs_hz': 1024.0,
-                      'stroke_m': 0.2, 'velocity_m_s': 0.5, 'site': 'tcp://10.0.0.5:8090'}
-    check_core_params(core_params(remote))   # a valid bridge of the genericclient backend
-    import pytest
-    with pytest.raises(ValueError, match='tcp://host:port'):
-        remote_bridge(local, 'http://10.0.0.5')

@@ -9,7 +9,7 @@ import base64
 import html
 from pathlib import Path
 
-from rths_bringup.realtime import realtime_text
+from rths_review.realtime import realtime_text
 
 #: The review's plots, in page order, with their captions.
 PLOTS = {
@@ -48,7 +48,7 @@ def _table(caption: str, header, rows) -> str:
 
 
 def tables(s: dict) -> str:
-    """Return tables 5-9 of a review summary (:func:`rths_bringup.review.review_rths`) as HTML.
+    """Return tables 5-9 of a review summary (:func:`rths_review.review.review_rths`) as HTML.
 
     A site review (``kind`` site) has table 5 only: its model ran in the client.
     """

@@ -10,7 +10,7 @@ first step, length, time) in summary.json, review.txt and report.html, and the
 tracking errors of Table 5 are computed on the recorded steps only.  A run
 stopped before the end of its record (a safety stop, a killed launcher) is reviewed up to where it
 stopped and said to be cut short; a realtime run's timing is judged by
-:mod:`rths_bringup.realtime`.
+:mod:`rths_review.realtime`.
 """
 
 import json
@@ -18,15 +18,12 @@ from pathlib import Path
 
 import numpy as np
 from scipy import signal
-from scipy.signal import coherence
 
 from rths_actuator_bridge.bridge import DEFAULT_BACKEND, backend_class
-from rths_bringup.realtime import realtime_figures
-from rths_bringup.report_html import notes, row_label, specimen_title, write_report
 from rths_common import bagio, runinfo, topics
 from rths_common.params import core_params
 from rths_compensator.estimation import impulse_response
-from rths_compensator.indicators import frf_h1, relative_rms_pct
+from rths_compensator.indicators import relative_rms_pct
 from rths_numerical.inputs import parse_inputs, table_from_chunks
 from rths_numerical.model import LinearModel
 from rths_numerical.reference import (
@@ -38,6 +35,9 @@ from rths_numerical.reference import (
 )
 from rths_numerical.specimens import SPECIMENS, specimen_of
 from rths_numerical.substructure import make_substructure
+from rths_review import plots
+from rths_review.realtime import realtime_figures
+from rths_review.report_html import notes, row_label, specimen_title, write_report
 
 #: Loop topics that carry one message per step, and the array field to summarise.
 STEP_TOPICS = {
@@ -190,9 +190,6 @@ def loop_summary(bag) -> dict:
 
 #: Upper edge [Hz] of the band over which delays are averaged (the seed's RTHS design band).
 DELAY_BAND_HZ = 10.0
-ZOOM_S = 3.0
-#: The plot of a hysteretic specimen's measured force against its stroke (report_html.PLOTS).
-HYSTERESIS_PNG = 'specimen_hysteresis.png'
 #: ``specimen`` of a run through a servo controller (a backend outside the bridge process).
 EXTERNAL = 'external controller'
 #: Counts of an external controller in ``summary['controller']`` (rths_msgs/ControllerStatus).
@@ -393,13 +390,13 @@ def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None,
     perfect actuator (:func:`rths_discrepancy.rerun.compare`); the summary names it
     (``reference_model``).  Refused for a run whose specimen is no mass on the table.
 
-    ``report.html`` (:mod:`rths_bringup.report_html`) holds the tables and every
+    ``report.html`` (:mod:`rths_review.report_html`) holds the tables and every
     plot in one self-contained file.  ``progress(done, 4)`` follows the stages: bag
     read, references simulated, plots drawn, report written.  ``dof``: the DOF
     the tables report (a name of the model or a number from 1; default the model's
     output DOF).  The model and the record come from the bag (:func:`run_inputs`).
     ``limits``: the real-time limits a realtime run is judged by
-    (:mod:`rths_bringup.realtime`).
+    (:mod:`rths_review.realtime`).
     """
     stage = progress or (lambda done, total: None)
 
@@ -491,21 +488,21 @@ def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None,
         summary['controller'] = counts
     (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
     (out_dir / 'review.txt').write_text(review_text(summary))
-    _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp,
-           uncontrolled['disp'][:n])
+    plots.review_plots(out_dir, fs, desired, applied, measured, floor2, ref_disp,
+                       uncontrolled['disp'][:n])
     hinge = _hinge_history(bag, reference)
     if hinge is not None:
-        _hysteresis_plot(out_dir / 'hinge_hysteresis.png', hinge['hinge_rotation'],
-                         hinge['hinge_moment'], fs, f"hinge of {summary['numerical_model']} "
-                         f"({hinge['source']})", ('rotation [mrad]', 'moment [N m]'),
-                         velocity=False)
+        plots.hysteresis_plot(out_dir / 'hinge_hysteresis.png', hinge['hinge_rotation'],
+                              hinge['hinge_moment'], fs, f"hinge of {summary['numerical_model']} "
+                              f"({hinge['source']})", ('rotation [mrad]', 'moment [N m]'),
+                              velocity=False)
     if specimen is not None and specimen.params:
         summary.update(specimen.settings(bridge))
         (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
     if specimen is not None and specimen.hysteresis:
         settings = ', '.join(f'{k} {v:g}' for k, v in specimen.settings(bridge).items())
-        _hysteresis_plot(out_dir / HYSTERESIS_PNG, measured, meas['force'][:n, 0], fs,
-                         f'specimen {name} ({settings}), measured')
+        plots.hysteresis_plot(out_dir / plots.HYSTERESIS_PNG, measured, meas['force'][:n, 0],
+                              fs, f'specimen {name} ({settings}), measured')
     stage(3, REVIEW_STAGES)
     write_report(out_dir, summary)
     stage(4, REVIEW_STAGES)
@@ -513,7 +510,7 @@ def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None,
 
 
 def bridge_realtime(status: dict, n_steps: int, fs_hz: float, limits=None) -> dict:
-    """Real-time figures (:mod:`rths_bringup.realtime`) of the bridge's ticks of the run.
+    """Real-time figures (:mod:`rths_review.realtime`) of the bridge's ticks of the run.
 
     ``status``: the bridge's entry of :func:`read_loop`.  Only the ticks of the run
     before any safety stop count (not those of its hold and ramp, which run without
@@ -627,7 +624,7 @@ def review_site(bag, out_dir, info, fs, stage) -> dict:
     out_dir = Path(out_dir)
     (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
     (out_dir / 'review.txt').write_text(review_text(summary))
-    _tracking_plots(out_dir, fs, desired, applied, measured)
+    plots.tracking_plots(out_dir, fs, desired, applied, measured)
     stage(3, REVIEW_STAGES)
     write_report(out_dir, summary)
     stage(4, REVIEW_STAGES)
@@ -779,102 +776,3 @@ def _hinge_history(bag, reference):
     if reference and 'hinge_moment' in reference.get('history', {}):
         return dict(reference['history'], source='reference')
     return None
-
-
-def _hysteresis_plot(path, stroke, force, fs, title, labels=('stroke [mm]', 'force [N]'),
-                     velocity=True):
-    """Force against stroke (and against velocity, by finite differences) of a specimen."""
-    # lazy: start-up cost: matplotlib (~0.5 s), which only the plots need
-    import matplotlib
-    matplotlib.use('Agg')
-    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(1, 2 if velocity else 1, figsize=(10 if velocity else 6, 4),
-                           squeeze=False)
-    ax = ax[0]
-    ax[0].plot(stroke * 1e3, force, lw=0.5)
-    ax[0].set_xlabel(labels[0])
-    ax[0].set_ylabel(labels[1])
-    if velocity:
-        ax[1].plot(np.gradient(stroke) * fs * 1e3, force, lw=0.5)
-        ax[1].set_xlabel('velocity [mm/s]')
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def _plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_disp):
-    # lazy: start-up cost: matplotlib (~0.5 s), which only the plots need
-    import matplotlib
-    matplotlib.use('Agg')
-    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
-    import matplotlib.pyplot as plt
-
-    t = np.arange(desired.size) / fs
-    fig, ax = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
-    ax[0].plot(t, unc_disp * 1e3, color='0.6', lw=0.8, label='uncontrolled (numerical)')
-    if ref_disp is not None:
-        ax[0].plot(t, ref_disp * 1e3, lw=1.0,
-                   label='reference: building + specimens (numerical)')
-    ax[0].plot(t, floor2 * 1e3, '--', lw=1.0, label='RTHS')
-    ax[0].set_ylabel('2nd-floor displacement [mm]')
-    ax[0].legend(loc='upper right', fontsize=8)
-    if ref_disp is None:   # an external controller's specimen: no model, no reference
-        ax[1].plot(t, (floor2 - unc_disp) * 1e3, lw=0.8)
-        ax[1].set_ylabel('RTHS - uncontrolled [mm]')
-    else:
-        ax[1].plot(t, (floor2 - ref_disp) * 1e3, lw=0.8)
-        ax[1].set_ylabel('RTHS - reference [mm]')
-    ax[1].set_xlabel('time [s]')
-    fig.tight_layout()
-    fig.savefig(out_dir / 'time_history.png', dpi=110)
-    plt.close(fig)
-    _tracking_plots(out_dir, fs, desired, applied, measured)
-
-
-def _tracking_plots(out_dir, fs, desired, applied, measured):
-    """Tracking around the peak and the measured FRF of the actuator (table 5's plots)."""
-    # lazy: start-up cost: matplotlib (~0.5 s), which only the plots need
-    import matplotlib
-    matplotlib.use('Agg')
-    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
-    import matplotlib.pyplot as plt
-
-    t = np.arange(desired.size) / fs
-    k = int(np.argmax(np.abs(desired)))
-    lo, hi = max(0, k - int(ZOOM_S * fs / 2)), min(desired.size, k + int(ZOOM_S * fs / 2))
-    fig, ax = plt.subplots(figsize=(10, 4))
-    ax.plot(t[lo:hi], desired[lo:hi] * 1e3, label='interface displacement (desired)')
-    ax.plot(t[lo:hi], applied[lo:hi] * 1e3, lw=0.8, label='command (compensated)')
-    ax.plot(t[lo:hi], measured[lo:hi] * 1e3, '--', label='measured')
-    ax.set_xlabel('time [s]')
-    ax.set_ylabel('actuator displacement [mm]')
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out_dir / 'tracking_zoom.png', dpi=110)
-    plt.close(fig)
-
-    fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-    nperseg = int(min(desired.size, 4 * round(fs)))
-    for x, label in ((applied, 'plant: command -> measured'),
-                     (desired, 'compensated: desired -> measured')):
-        f, h = frf_h1(x, measured, fs, nperseg)
-        _, coh = coherence(x, measured, fs=fs, nperseg=nperseg)
-        _, pxx = signal.welch(x, fs=fs, nperseg=nperseg)
-        # An earthquake response has little energy above ~10 Hz; there the estimate is window
-        # leakage of the low-frequency content (coherent, but meaningless).  Show only bins the
-        # data determine: coherence > 0.9 and power within 60 dB of the peak.
-        h = np.where((coh > 0.9) & (pxx > 1e-6 * pxx.max()), h, np.nan)
-        sel = (f > 0) & (f <= 30)
-        ax[0].plot(f[sel], 20 * np.log10(np.abs(h[sel])), '.-', ms=3, label=label)
-        ax[1].plot(f[sel], np.degrees(np.angle(h[sel])), '.-', ms=3, label=label)
-    ax[0].set_ylabel('magnitude [dB]')
-    ax[1].set_ylabel('phase [deg]')
-    ax[1].set_xlabel('frequency [Hz]')
-    ax[0].legend(fontsize=8)
-    ax[0].set_title('Measured FRF of the actuator (H1) during the RTHS\n'
-                    '(bins with coherence > 0.9 and power within 60 dB of the peak)', fontsize=10)
-    fig.tight_layout()
-    fig.savefig(out_dir / 'bode_actuator.png', dpi=110)
-    plt.close(fig)

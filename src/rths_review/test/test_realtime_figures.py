@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from rths_bringup.realtime import check_limits, realtime_figures
 from rths_common.stepping import TickClock
+from rths_review.realtime import check_limits, realtime_figures
 
 FS = 1024.0
 

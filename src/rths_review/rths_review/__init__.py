@@ -1,0 +1,1 @@
+"""Review of a recorded RTHS run from its bag alone: tables 5-9, real-time figures, report."""
