@@ -15,6 +15,9 @@
 Prints one line per run and writes ``{runs: {...}, kills: {composed: {...},
 processes: {...}}, load: [...]}`` to ``--out``.  Timing figures are upper bounds
 on a loaded machine: the load average is recorded before and after.
+
+Imports of the commands' code sit in the command functions (``rths`` imports
+this module to build its parser).
 """
 
 import json
