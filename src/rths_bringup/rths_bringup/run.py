@@ -325,9 +325,15 @@ def safety_stop_summary(step, state, fault, applied, displacement, force, fs_hz:
 def read_safety_stop(bag):
     """Return the bridge's safety stop recorded in a bag (:func:`safety_stop_summary`), else None.
 
-    None when the bridge never reported STOPPED in ``/rths/status``.  The
-    summary also holds the run's parameters from the bag's run information and
-    every distinct fault the bridge reported (``safety_faults``).
+    None when the bridge never reported a fault, or reported one but neither
+    its STOPPED status nor a last command at the safe position is in the bag.  A
+    recorder that lagged the loop (processes layout, loaded machine) may close
+    the bag before the last statuses of the stop reach it: when the bag's last
+    status of the bridge is HOLD or RAMP and its last command written is the
+    safe position, the last measured step is taken as the stop
+    (``stop_inferred``: True).  The summary also holds the run's parameters from
+    the bag's run information and every distinct fault the bridge reported
+    (``safety_faults``).
     """
     import numpy as np
 
@@ -340,11 +346,23 @@ def read_safety_stop(bag):
             status[int(msg.step)] = int(msg.safety_state)
             if msg.fault and msg.fault not in faults:
                 faults.append(msg.fault)
-    if STOPPED not in status.values() or not faults:
+    if not faults:
         return None
+    info = bagio.run_info(bag)
+    bridge = runinfo.section(info, 'bridge')
+    safe = float(bridge.get('safe_position_m', 0.0) or 0.0)
     meas = bagio.step_arrays(bag, topics.MEASUREMENT, ('applied', 'displacement', 'force'))
+    order = np.argsort(meas['step'], kind='stable')
+    meas = {k: np.asarray(v)[order] for k, v in meas.items()}
     steps = meas['step']
     state = np.array([status.get(int(k), ACTIVE) for k in steps])
+    inferred = False
+    if not np.any(state == STOPPED) and status and steps.size and meas['applied'].shape[1]:
+        last_status = status[max(status)]
+        if last_status != ACTIVE and float(meas['applied'][-1, 0]) == safe:
+            state = np.where(steps > max(status), last_status, state)
+            state[-1] = STOPPED
+            inferred = True
     if not np.any(state == STOPPED):  # STOPPED after the last recorded measurement
         return None
 
@@ -353,10 +371,8 @@ def read_safety_stop(bag):
 
     from rths_review.review import EXTERNAL, controller_counts, external_controller
 
-    info = bagio.run_info(bag)
     fs = bagio.sampling_rate(bag)
     numerical = runinfo.section(info, 'numerical')
-    bridge = runinfo.section(info, 'bridge')
     external = external_controller(bridge)
     summary = {
         'record': numerical.get('record'), 'scale': numerical.get('scale'),
@@ -368,7 +384,8 @@ def read_safety_stop(bag):
     }
     summary.update(safety_stop_summary(
         steps, state, faults[0], channel0(meas['applied']), channel0(meas['displacement']),
-        channel0(meas['force']), fs, float(bridge.get('safe_position_m', 0.0) or 0.0)))
+        channel0(meas['force']), fs, safe))
+    summary['stop_inferred'] = inferred
     summary['safety_faults'] = faults
     summary['damper'] = summary['specimen']   # the former name of the key, kept for a while
     counts = controller_counts(bag)
@@ -393,7 +410,9 @@ def safety_stop_text(s: dict) -> str:
         f"  safety stop: {s['safety_stop']}",
         f"  fault at step {s['fault_step']} ({s['fault_time_s']:.3f} s); hold, ramp to the safe "
         f"position {s['safe_position_m']:g} m; STOPPED at step {s['stop_step']} "
-        f"({s['stop_time_s']:.3f} s)",
+        f"({s['stop_time_s']:.3f} s)" + (
+            ' (inferred: the bag ends before the STOPPED status, at the safe position)'
+            if s.get('stop_inferred') else ''),
         f"  steps run: {s['steps']}" + (f" of {s['planned_steps']} planned"
                                         if s.get('planned_steps') else ''),
         f"  final command {metres(s['final_command_m'], '.3g')}, measured displacement "

@@ -172,3 +172,41 @@ def test_a_recording_with_a_large_gap_is_reviewed_and_the_gaps_stated(tmp_path, 
         text = (out / name).read_text()
         assert 'RECORDING INCOMPLETE' in text and '220 step(s) from step 1000 (0.977 s)' in text
     assert 'RECORDING INCOMPLETE' not in (whole_dir / 'review.txt').read_text()
+
+
+def _stop_bag(path, last_status_step: int, last_applied: float):
+    """Write a bag of a safety stop: fault at step 10, HOLD from there, statuses up to a step.
+
+    The measurements go on to step 266 (the bridge's stop), the last command written is
+    ``last_applied``; the bridge's statuses after ``last_status_step`` are missing (a
+    recorder that lagged the loop closed the bag before they reached it).
+    """
+    info = runinfo.flatten('identification', FS, 'realtime', _sections())
+    fault = 'watchdog: no command for 10 steps (limit 10) at step 10'
+    with BagWriter(path, topics.LOOP_TOPICS, run_info=info) as bag:
+        for k in range(267):
+            t = T0_NS + k * int(1e9 / FS)
+            applied = last_applied if k == 266 else 0.0
+            bag.write(topics.MEASUREMENT, t, cdr.pack_step_arrays(
+                t, k, np.array([applied]), np.array([0.0]), np.array([0.0])))
+            if k <= last_status_step:
+                state, text = (0, '') if k < 10 else (1, fault)
+                bag.write(topics.STATUS, t, cdr.pack_status(t, 'bridge', k, safety_state=state,
+                                                            fault=text))
+    return path
+
+
+def test_a_safety_stop_whose_stopped_status_the_recorder_missed_is_still_a_safety_stop(tmp_path):
+    # issue 30: in the processes layout the recorder lagged the loop and closed the bag at
+    # the bridge's HOLD (statuses to step 160 of 266); rths run then reported "identification
+    # run failed (launcher exit 1)" with no summary.  The last command written at the safe
+    # position shows the stop completed: the stop is read, and said to be inferred.
+    from rths_bringup.run import read_safety_stop, safety_stop_text
+
+    stop = read_safety_stop(_stop_bag(tmp_path / 'bag', 160, 0.0))
+    assert stop is not None and stop['stop_inferred'] is True
+    assert (stop['fault_step'], stop['stop_step'], stop['steps']) == (10, 266, 267)
+    assert 'inferred: the bag ends before the STOPPED status' in safety_stop_text(
+        dict(stop, record='excitation', scale=1.0))
+    # a last command away from the safe position: no evidence of the stop, none is made up
+    assert read_safety_stop(_stop_bag(tmp_path / 'moving', 160, 0.01)) is None
