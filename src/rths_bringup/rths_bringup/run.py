@@ -330,8 +330,9 @@ def read_safety_stop(bag):
     recorder that lagged the loop (processes layout, loaded machine) may close
     the bag before the last statuses of the stop reach it: when the bag's last
     status of the bridge is HOLD or RAMP and its last command written is the
-    safe position, the last measured step is taken as the stop
-    (``stop_inferred``: True).  The summary also holds the run's parameters from
+    safe position, the bag's last measured step stands for the stop
+    (``stop_step``, with ``stop_inferred``: True; the real STOPPED step is not
+    known, and the report says so).  The summary also holds the run's parameters from
     the bag's run information and every distinct fault the bridge reported
     (``safety_faults``).
     """
@@ -409,10 +410,11 @@ def safety_stop_text(s: dict) -> str:
         f"specimen {specimen_title(s)} x {s['force_scale']}, {s['mode']}, compensator {scheme}",
         f"  safety stop: {s['safety_stop']}",
         f"  fault at step {s['fault_step']} ({s['fault_time_s']:.3f} s); hold, ramp to the safe "
-        f"position {s['safe_position_m']:g} m; STOPPED at step {s['stop_step']} "
-        f"({s['stop_time_s']:.3f} s)" + (
-            ' (inferred: the bag ends before the STOPPED status, at the safe position)'
-            if s.get('stop_inferred') else ''),
+        f"position {s['safe_position_m']:g} m; " + (
+            f"the bag ends at step {s['stop_step']} ({s['stop_time_s']:.3f} s) with the command "
+            'at the safe position, before the STOPPED status reached it (inferred stop; the '
+            'recorder lagged the loop)' if s.get('stop_inferred') else
+            f"STOPPED at step {s['stop_step']} ({s['stop_time_s']:.3f} s)"),
         f"  steps run: {s['steps']}" + (f" of {s['planned_steps']} planned"
                                         if s.get('planned_steps') else ''),
         f"  final command {metres(s['final_command_m'], '.3g')}, measured displacement "

@@ -206,7 +206,7 @@ def test_a_safety_stop_whose_stopped_status_the_recorder_missed_is_still_a_safet
     stop = read_safety_stop(_stop_bag(tmp_path / 'bag', 160, 0.0))
     assert stop is not None and stop['stop_inferred'] is True
     assert (stop['fault_step'], stop['stop_step'], stop['steps']) == (10, 266, 267)
-    assert 'inferred: the bag ends before the STOPPED status' in safety_stop_text(
+    assert 'before the STOPPED status reached it (inferred stop' in safety_stop_text(
         dict(stop, record='excitation', scale=1.0))
     # a last command away from the safe position: no evidence of the stop, none is made up
     assert read_safety_stop(_stop_bag(tmp_path / 'moving', 160, 0.01)) is None
