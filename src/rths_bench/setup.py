@@ -8,7 +8,6 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test']),
-    package_data={package_name: ['data/*.json']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -25,6 +24,7 @@ setup(
         # below this package and may not import it); each has register(commands, benches).
         'rths.cli': [
             'bench_loop = rths_bench.bench_loop',
+            'bench_faults = rths_bench.bench_faults',
             'bench_distributed = rths_bench.bench_distributed',
             'bench_adaptive = rths_bench.bench_adaptive',
             'rths_benchmark = rths_bench.rths_benchmark',

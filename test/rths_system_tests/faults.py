@@ -13,7 +13,8 @@ the container's recording tee, so the bag sees what the graph sees), as
 ``ControllerEmulator(faults=...)`` does for the controller's network.
 
 Faults (steps k > 0 with k % N == 0; 0 = off), per node ``numerical`` or
-``compensator``:
+``compensator`` (or ``bridge``, its measurement; composed layout only: the
+container is wrapped, the bridge's own executable is not):
 
 * ``drop_every``: the output of step k is not published (a lost message);
 * ``duplicate_every``: it is published twice;
@@ -31,7 +32,7 @@ import time
 #: The faults a node can be given, with their off value.
 FAULTS = {'drop_every': 0, 'duplicate_every': 0, 'delay_every': 0, 'delay_ms': 0.0}
 #: Nodes whose loop output can be made faulty.
-NODES = ('numerical', 'compensator')
+NODES = ('numerical', 'compensator', 'bridge')
 #: package -> (executable, module with main(argv, prepare), the node it runs or None: composed)
 WRAPPED = {'rths_numerical': ('numerical_node', 'rths_numerical.node', 'numerical'),
            'rths_compensator': ('compensator_node', 'rths_compensator.node', 'compensator'),

@@ -30,6 +30,18 @@ delay of the plant, ``P(z) z^-D``; an identification run made with the same
 D identifies it, and the compensator designed on that plant compensates it
 (``rths bench distributed --absorb``).  Ticks before step 0's command is due
 write the command of step 0 (the position at rest).
+
+Several actuators (``rig_file``, :mod:`rths_common.rig`, docs/multi_actuator.md): the
+file names the actuators (one command channel, displacement sensor and load cell each,
+in channel order), their own limits (every :data:`.safety.PER_CHANNEL` limit per
+actuator), the coupler and the interface limits.  Commands, displacements and forces stay
+per actuator (strokes [m], axial forces [N]); the bridge checks every command's
+interface pose ``(x, theta)`` and every reading's pose, force and moment against the
+interface limits, and adds them to each step's channels (``interface_disp`` = (x [m],
+theta [rad]), ``interface_force`` = (F [N], M [N m])) through :class:`rths_common.rig.Rig`,
+the one place strokes and interface DOFs meet.  The backend must drive as many channels
+as the file lists actuators (``simulated_rig``; ``udp`` with ``n_channels`` set from the
+file); a one-actuator run (no ``rig_file``) is unchanged.
 """
 
 import math
@@ -40,11 +52,13 @@ import numpy as np
 from rths_common import stepping
 from rths_common.params import node_schema, renamed
 from rths_common.registry import Registry
+from rths_common.rig import load_rig
 
 from . import safety
 from .backend import Backend
 from .genericclient import GenericClientBackend
 from .ideal import IdealBackend
+from .marths_rig import SimulatedRigBackend
 from .simulated import SimulatedBackend
 from .udp import UdpBackend
 
@@ -52,7 +66,8 @@ from .udp import UdpBackend
 #: carries its summary, parameters, ranges and choices).
 BACKENDS = Registry('bridge backend', 'backend',
                     {'simulated': SimulatedBackend, 'udp': UdpBackend, 'ideal': IdealBackend,
-                     'genericclient': GenericClientBackend})
+                     'genericclient': GenericClientBackend,
+                     'simulated_rig': SimulatedRigBackend})
 #: The backend of a params file that names none.
 DEFAULT_BACKEND = 'simulated'
 
@@ -62,6 +77,8 @@ DEFAULT_BACKEND = 'simulated'
 PARAMS = {
     'backend': (DEFAULT_BACKEND, 'what the bridge drives (rths_actuator_bridge.bridge.BACKENDS)'),
     'command_delay_steps': (0, '[steps] the command of step k is written at tick k + D'),
+    'rig_file': ('', "multi-actuator rig file (actuators, coupler, interface limits; "
+                 "config/rig_two_actuators.yaml); '' = one actuator"),
 }
 
 
@@ -104,7 +121,8 @@ def check_core_params(core: dict, node_keys=()) -> dict:
     if unknown:
         raise ValueError(f'unknown parameter(s) {", ".join(unknown)} for backend {backend!r}; '
                          f'known: {", ".join(sorted(known | set(node_keys)))}')
-    safety.SafetyLimits.from_params(core)
+    rig = read_rig(core.get('rig_file', ''))
+    safety.SafetyLimits.from_params(rig.bridge_params(core) if rig else core)
     DelayLine(core.get('command_delay_steps', 0))
     for key, (bound, unit, other) in PLAUSIBLE_MAX.items():
         value = core.get(key)
@@ -112,6 +130,19 @@ def check_core_params(core: dict, node_keys=()) -> dict:
             raise ValueError(f'parameter {key} = {value} {unit} is beyond any lab actuator '
                              f'(> {bound:g} {unit}): it looks like {other}; give it in {unit}')
     return core
+
+
+def read_rig(path):
+    """Return the :class:`rths_common.rig.Rig` of ``rig_file`` ``path`` (None for '')."""
+    if not path:
+        return None
+    if not isinstance(path, str):
+        raise ValueError(f'parameter rig_file = {path!r} must be the path of a rig file')
+    try:
+        return load_rig(path)
+    except OSError as err:
+        raise ValueError(f'parameter rig_file: {err}; give the path of a rig file '
+                         '(config/rig_two_actuators.yaml)') from None
 
 
 def make_backend(params: dict) -> Backend:
@@ -197,6 +228,7 @@ class Bridge:
         self.delay = DelayLine(0)
         self.next_step = 0   # the tick after the last one stepped
         self.last_valid = None   # (displacement, force, channels) of the last valid reading
+        self.rig = None          # rths_common.rig.Rig of a multi-actuator rig_file
 
     @property
     def delay_steps(self) -> int:
@@ -222,8 +254,26 @@ class Bridge:
             self.backend.close()
         params = dict(params)
         self.delay = DelayLine(params.pop('command_delay_steps', 0))
+        rig = self.rig = read_rig(params.pop('rig_file', ''))
+        sup = self.supervisor
+        sup.command_check = sup.measurement_check = None
+        if rig is not None:
+            params = rig.bridge_params(params)
+            if 'n_channels' in backend_class(params).params:
+                params['n_channels'] = rig.n
         self.backend = make_backend(params)
-        self.supervisor.configure(self.backend.limits)
+        if rig is not None:
+            if self.backend.n_channels != rig.n:
+                name = params.get('backend', DEFAULT_BACKEND)
+                self.backend.close()
+                self.backend = None
+                raise ValueError(f'{rig.where} lists {rig.n} actuators but backend {name!r} '
+                                 'drives one channel; use backend simulated_rig, or udp '
+                                 '(its n_channels follows the file)')
+            sup.command_check = rig.check_command
+            sup.measurement_check = rig.check_reading
+        self.backend.limits.per_channel(self.backend.n_channels)
+        sup.configure(self.backend.limits)
 
     def activate(self, position=0.0):
         """Activate the backend and arm the supervisor at ``position`` [m] (actuator at rest)."""
@@ -288,6 +338,8 @@ class Bridge:
                               **({'lost': lost} if lost else {}))
         filled = 0
         if np.all(np.isfinite(disp)) and np.all(np.isfinite(force)):
+            if self.rig is not None:
+                chans = {**chans, **self.interface(disp, force)}
             self.last_valid = (disp, force, chans)
         else:
             filled = 1
@@ -295,6 +347,15 @@ class Bridge:
         if sup.state == safety.STOPPED:
             backend.deactivate()
         return StepResult(step, out, disp, force, sup.state, sup.fault, chans, filled)
+
+    def interface(self, displacement, force) -> dict:
+        """Return a rig's interface channels of one reading (module doc); {} without a rig."""
+        if self.rig is None:
+            return {}
+        x, theta = self.rig.to_dofs(np.asarray(displacement, float))
+        f, m = self.rig.interface_forces(np.asarray(force, float), theta)
+        return {'interface_disp': np.array((float(x), float(theta))),
+                'interface_force': np.array((float(f), float(m)))}
 
     def park(self, period_s: float = 0.0) -> list:
         """End the run of an external actuator: ramp to the safe position, then deactivate.

@@ -152,7 +152,10 @@ class BridgeNode:
             return TransitionCallbackReturn.FAILURE
         backend = self.bridge.backend
         self.log.info(f'bridge configured: backend {self.params.get("backend", "simulated")}, '
-                      f'{backend.n_channels} channel(s), stroke +-{backend.limits.stroke_m} m')
+                      f'{backend.n_channels} channel(s), stroke +-{backend.limits.stroke_m} m'
+                      + (f', rig file {self.bridge.rig.where.removeprefix("rig file ")}: '
+                         f'actuators {", ".join(self.bridge.rig.actuators)}'
+                         if self.bridge.rig else ''))
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, _state) -> TransitionCallbackReturn:

@@ -130,13 +130,21 @@ SAFETY_RANGES = {
     'instability_growth': (1.0, 1000.0),
     'instability_growth_windows': (1, 10_000),
 }
+#: Limits that may differ per actuator: a list of one value per channel (the bridge's
+#: ``n_channels``) instead of one number for all (a multi-actuator rig, docs/multi_actuator.md).
+PER_CHANNEL = ('stroke_m', 'velocity_m_s', 'acceleration_m_s2', 'force_n', 'dtm_rel_disp_m',
+               'safe_position_m', 'instability_tracking_m', 'instability_force_n')
 _INT_KEYS = {'watchdog_steps', 'max_invalid_measurements', 'instability_window_steps',
              'instability_growth_windows'}
 
 
 @dataclass(frozen=True)
 class SafetyLimits:
-    """Limits the bridge enforces (SI units; meanings in :data:`SAFETY_PARAMS`)."""
+    """Limits the bridge enforces (SI units; meanings in :data:`SAFETY_PARAMS`).
+
+    A :data:`PER_CHANNEL` limit is a number (every channel) or a tuple of one number per
+    channel; :meth:`channel_count` says how many channels the tuples are for.
+    """
 
     fs_hz: float = 1024.0
     stroke_m: float = 0.254
@@ -164,29 +172,71 @@ class SafetyLimits:
         for f in fields(cls):
             default, meaning = SAFETY_PARAMS[f.name]
             raw = params.get(f.name, default)
-            try:
-                val = float(raw)
-            except (TypeError, ValueError):
-                raise ValueError(f'safety parameter {f.name!r} = {raw!r} is not a number; '
-                                 f'set it to {meaning}') from None
-            if not math.isfinite(val):
-                raise ValueError(f'safety parameter {f.name!r} = {raw!r} must be finite '
-                                 f'({meaning})')
-            if f.name in _INT_KEYS:
-                if val != int(val) or val < 1:
-                    raise ValueError(f'safety parameter {f.name!r} = {raw!r} must be an integer '
-                                     f'>= 1 ({meaning})')
-                val = int(val)
-            elif f.name != 'safe_position_m' and val <= 0:
-                raise ValueError(f'safety parameter {f.name!r} = {raw!r} must be > 0 ({meaning})')
-            values[f.name] = val
+            if f.name in PER_CHANNEL and isinstance(raw, (list, tuple, np.ndarray)):
+                if len(raw) == 0:
+                    raise ValueError(f'safety parameter {f.name!r} is an empty list; give one '
+                                     f'number, or one per actuator channel ({meaning})')
+                vals = tuple(_limit_value(f'{f.name}[{i}]', r, meaning)
+                             for i, r in enumerate(raw))
+                values[f.name] = vals[0] if len(vals) == 1 else vals
+            else:
+                values[f.name] = _limit_value(f.name, raw, meaning)
         lim = cls(**values)
-        if abs(lim.safe_position_m) > lim.stroke_m:
+        lengths = {key: len(getattr(lim, key)) for key in PER_CHANNEL
+                   if isinstance(getattr(lim, key), tuple)}
+        if len(set(lengths.values())) > 1:
+            raise ValueError('safety parameters ' + ', '.join(
+                f'{k!r} ({n} values)' for k, n in lengths.items())
+                + ' list different numbers of actuator channels; give each one value per '
+                'channel (or one number for all)')
+        safe, stroke = np.asarray(lim.safe_position_m), np.asarray(lim.stroke_m)
+        if np.any(np.abs(safe) > stroke):
             raise ValueError(f"safety parameter 'safe_position_m' = {lim.safe_position_m} m is "
                              f'outside the stroke +-{lim.stroke_m} m; choose a position inside it')
         if lim.instability_growth <= 1:
             raise ValueError("safety parameter 'instability_growth' must be > 1 (e.g. 1.5)")
         return lim
+
+    def channel_count(self):
+        """Return the channels the per-channel limits list (None: every limit is one number)."""
+        for key in PER_CHANNEL:
+            value = getattr(self, key)
+            if isinstance(value, tuple):
+                return len(value)
+        return None
+
+    def per_channel(self, n: int) -> dict:
+        """Return every :data:`PER_CHANNEL` limit as an array of ``n`` values.
+
+        ValueError naming the limit when it lists another number of channels.
+        """
+        count = self.channel_count()
+        if count is not None and count != n:
+            key = next(k for k in PER_CHANNEL if isinstance(getattr(self, k), tuple))
+            raise ValueError(f'safety parameter {key!r} lists {count} values but the actuator '
+                             f'has {n} channel(s); give one value per channel')
+        return {key: np.broadcast_to(np.asarray(getattr(self, key), float), (n,)).copy()
+                for key in PER_CHANNEL}
+
+
+def _limit_value(name: str, raw, meaning: str):
+    """Return one limit's value checked (finite, > 0 or integer as its kind); ValueError."""
+    key = name.split('[')[0]
+    try:
+        val = float(raw)
+    except (TypeError, ValueError):
+        raise ValueError(f'safety parameter {name!r} = {raw!r} is not a number; '
+                         f'set it to {meaning}') from None
+    if not math.isfinite(val):
+        raise ValueError(f'safety parameter {name!r} = {raw!r} must be finite ({meaning})')
+    if key in _INT_KEYS:
+        if val != int(val) or val < 1:
+            raise ValueError(f'safety parameter {name!r} = {raw!r} must be an integer '
+                             f'>= 1 ({meaning})')
+        return int(val)
+    if key != 'safe_position_m' and val <= 0:
+        raise ValueError(f'safety parameter {name!r} = {raw!r} must be > 0 ({meaning})')
+    return val
 
 
 class SafetySupervisor:
@@ -205,6 +255,10 @@ class SafetySupervisor:
         self.faults = []
         self.configured = False
         self.n = 1
+        #: Extra checks of a multi-actuator rig's interface (set by the bridge): a command
+        #: ``u -> fault text or ''`` and a reading ``(displacement, force) -> fault text or ''``.
+        self.command_check = None
+        self.measurement_check = None
         self._reset_motion(np.zeros(1))
         self._precompute()
 
@@ -218,6 +272,11 @@ class SafetySupervisor:
         lim = self.limits
         tol = 1e-9
         self._fs = lim.fs_hz
+        count = lim.channel_count()
+        self.ch = lim.per_channel(count if count is not None else self.n)
+        if count is not None:      # per-channel limits: no one-channel fast path
+            self._stroke_tol = self._vel_tol = self._acc_tol = self._two_acc = math.nan
+            return
         self._stroke_tol = lim.stroke_m * (1 + tol)
         self._vel_tol = lim.velocity_m_s * (1 + tol)
         self._acc_tol = lim.acceleration_m_s2 * (1 + tol)
@@ -239,10 +298,11 @@ class SafetySupervisor:
         if not self.configured:
             self.configure()
         pos = np.atleast_1d(np.asarray(position, float)).copy()
-        if not np.all(np.isfinite(pos)) or np.any(np.abs(pos) > self.limits.stroke_m):
+        self.n = pos.size
+        self.ch = self.limits.per_channel(self.n)
+        if not np.all(np.isfinite(pos)) or np.any(np.abs(pos) > self.ch['stroke_m']):
             raise ValueError(f'cannot activate: actuator position {pos} m is not finite or '
                              f'outside the stroke +-{self.limits.stroke_m} m')
-        self.n = pos.size
         self._reset_motion(pos)
         self.state = ACTIVE
         self.fault = ''
@@ -347,25 +407,30 @@ class SafetySupervisor:
             return f'command size {u.size} != {self.pos.size} actuator channel(s)'
         fs = lim.fs_hz
         tol = 1e-9
+        strokes, vels, accs = self.ch['stroke_m'], self.ch['velocity_m_s'], \
+            self.ch['acceleration_m_s2']
         for i, ui in enumerate(u):
             ch = f' (channel {i})' if u.size > 1 else ''
+            stroke, vel, acc = float(strokes[i]), float(vels[i]), float(accs[i])
             if not math.isfinite(ui):
                 return f'non-finite command {ui}{ch}'
-            if abs(ui) > lim.stroke_m * (1 + tol):
-                return f'stroke limit: command {ui:.6g} m > {lim.stroke_m:.6g} m{ch}'
+            if abs(ui) > stroke * (1 + tol):
+                return f'stroke limit: command {ui:.6g} m > {stroke:.6g} m{ch}'
             v = (ui - self.pos[i]) * fs
-            if abs(v) > lim.velocity_m_s * (1 + tol):
+            if abs(v) > vel * (1 + tol):
                 return (f'velocity limit: command velocity {v:.6g} m/s > '
-                        f'{lim.velocity_m_s:.6g} m/s{ch}')
+                        f'{vel:.6g} m/s{ch}')
             a = (v - self.vel[i]) * fs
-            if abs(a) > lim.acceleration_m_s2 * (1 + tol):
+            if abs(a) > acc * (1 + tol):
                 return (f'acceleration limit: command acceleration {a:.6g} m/s^2 > '
-                        f'{lim.acceleration_m_s2:.6g} m/s^2{ch}')
+                        f'{acc:.6g} m/s^2{ch}')
             if v * ui > 0:
-                reach = abs(ui) + v * v / (2 * lim.acceleration_m_s2)
-                if reach > lim.stroke_m * (1 + tol):
+                reach = abs(ui) + v * v / (2 * acc)
+                if reach > stroke * (1 + tol):
                     return (f'stroke limit: command {ui:.6g} m at {v:.6g} m/s cannot brake '
-                            f'before {lim.stroke_m:.6g} m (would reach {reach:.6g} m){ch}')
+                            f'before {stroke:.6g} m (would reach {reach:.6g} m){ch}')
+        if self.command_check is not None:
+            return self.command_check(u)
         return ''
 
     def _accept(self, u):
@@ -378,7 +443,7 @@ class SafetySupervisor:
 
     def _brake(self):
         """One step of maximum deceleration towards standstill."""
-        dv = self.limits.acceleration_m_s2 / self.limits.fs_hz
+        dv = self.ch['acceleration_m_s2'] / self.limits.fs_hz
         vel = np.sign(self.vel) * np.maximum(np.abs(self.vel) - dv, 0.0)
         return self._accept(self.pos + vel / self.limits.fs_hz)
 
@@ -406,10 +471,11 @@ class SafetySupervisor:
 
     def _ramp(self):
         """One step towards the safe position within velocity/acceleration limits."""
-        lim = self.limits
-        v_cap = np.minimum(lim.velocity_m_s,
+        ch = self.ch
+        v_cap = np.minimum(ch['velocity_m_s'],
                            np.maximum(np.abs(self._ramp_dist) / self._ramp_s(), 1e-6))
-        return self._accept(self._approach(lim.safe_position_m, v_cap, lim.acceleration_m_s2))
+        return self._accept(self._approach(ch['safe_position_m'], v_cap,
+                                           ch['acceleration_m_s2']))
 
     def filter(self, step: int, command=None):
         """Return ``(command_to_send or None, state, fault_text)`` for loop step ``step``.
@@ -459,14 +525,15 @@ class SafetySupervisor:
                 out = self._accept(self.pos)
                 if self.hold_left <= 0:
                     self.state = RAMP
-                    self._ramp_dist = lim.safe_position_m - self.pos
+                    self._ramp_dist = self.ch['safe_position_m'] - self.pos
             return out, HOLD, self.fault
         if self.state == RAMP:
             out = self._ramp()
-            if np.all(np.abs(self.pos - lim.safe_position_m) < 1e-9) and np.all(self.vel == 0):
+            at_safe = np.all(np.abs(self.pos - self.ch['safe_position_m']) < 1e-9)
+            if at_safe and np.all(self.vel == 0):
                 self.state = STOPPED
                 return out, STOPPED, self.fault
-            if np.all(np.abs(self.pos - lim.safe_position_m) < 1e-9):
+            if at_safe:
                 self.vel[:] = 0.0
             return out, RAMP, self.fault
         # STOPPED: keep the safe position (the owner deactivates the backend)
@@ -476,7 +543,7 @@ class SafetySupervisor:
         """Return True for a command to approach after misses: right size, finite, in the stroke."""
         u = np.atleast_1d(np.asarray(command, float))
         return (u.shape == self.pos.shape and bool(np.all(np.isfinite(u)))
-                and bool(np.all(np.abs(u) <= self.limits.stroke_m)))
+                and bool(np.all(np.abs(u) <= self.ch['stroke_m'])))
 
     def _rejoin(self, command):
         """Step towards ``command`` at 80 % of the limits: ``(output, '')`` or ``(None, fault)``."""
@@ -490,8 +557,7 @@ class SafetySupervisor:
             return None, (f'rejoin: the commands were not reached within {lim.watchdog_steps} '
                           'steps after missing commands')
         out = self._approach(np.atleast_1d(np.asarray(command, float)),
-                             np.full(self.pos.shape, 0.8 * lim.velocity_m_s),
-                             0.8 * lim.acceleration_m_s2)
+                             0.8 * self.ch['velocity_m_s'], 0.8 * self.ch['acceleration_m_s2'])
         text = self.check_command(out)
         if text:
             return None, f'{text} (rejoining the commands after missing ones)'
@@ -562,12 +628,19 @@ class SafetySupervisor:
                         f'{lim.max_invalid_measurements})')
         else:
             self.invalid = 0
-            if np.any(np.abs(f) > lim.force_n):
-                text = f'force limit: measured force {f[np.argmax(np.abs(f))]:.6g} N > ' \
-                       f'{lim.force_n:.6g} N'
-            elif r is not None and np.any(np.abs(r) > lim.dtm_rel_disp_m):
-                text = (f'DTM relative displacement limit: {r[np.argmax(np.abs(r))]:.6g} m > '
-                        f'{lim.dtm_rel_disp_m:.6g} m')
+            force_n = _match(self.ch['force_n'], f.size)
+            dtm = None if r is None else _match(self.ch['dtm_rel_disp_m'], r.size)
+            if np.any(np.abs(f) > force_n):
+                i = int(np.argmax(np.abs(f) / force_n))
+                ch = f' (channel {i})' if f.size > 1 else ''
+                text = f'force limit: measured force {f[i]:.6g} N > {force_n[i]:.6g} N{ch}'
+            elif r is not None and np.any(np.abs(r) > dtm):
+                i = int(np.argmax(np.abs(r) / dtm))
+                ch = f' (channel {i})' if r.size > 1 else ''
+                text = (f'DTM relative displacement limit: {r[i]:.6g} m > '
+                        f'{dtm[i]:.6g} m{ch}')
+            elif self.measurement_check is not None and (rig := self.measurement_check(y, f)):
+                text = rig
             elif self.state == ACTIVE and self.last_sent is not None:
                 text = self._instability(y - self.last_sent, f)
         if text and text not in self.faults:
@@ -606,23 +679,34 @@ class SafetySupervisor:
         e = np.array(self._win_e, dtype=float).reshape(len(self._win_e), -1)
         f = np.array(self._win_f, dtype=float).reshape(len(self._win_f), -1)
         self._win_e, self._win_f = [], []
-        rms = {'tracking': float(np.max(np.sqrt(np.mean(e ** 2, axis=0)))),
-               'force': float(np.max(np.sqrt(np.mean((f - f.mean(axis=0)) ** 2, axis=0))))}
-        thresholds = {'tracking': (lim.instability_tracking_m, 'm'),
-                      'force': (lim.instability_force_n, 'N')}
+        # per channel: RMS over the window against that channel's threshold
+        rms = {'tracking': np.sqrt(np.mean(e ** 2, axis=0)),
+               'force': np.sqrt(np.mean((f - f.mean(axis=0)) ** 2, axis=0))}
+        thresholds = {'tracking': (self.ch['instability_tracking_m'], 'm'),
+                      'force': (self.ch['instability_force_n'], 'N')}
         for key, (thr, unit) in thresholds.items():
             label = 'tracking error' if key == 'tracking' else 'force oscillation'
-            if rms[key] > thr:
-                return (f'instability: RMS {label} {rms[key]:.6g} {unit} > {thr:.6g} {unit} '
-                        f'over {lim.instability_window_steps} steps')
+            value = rms[key]
+            thr = _match(thr, value.size)
+            i = int(np.argmax(value / thr))
+            ch = f' (channel {i})' if value.size > 1 else ''
+            if value[i] > thr[i]:
+                return (f'instability: RMS {label} {value[i]:.6g} {unit} > {thr[i]:.6g} {unit} '
+                        f'over {lim.instability_window_steps} steps{ch}')
             prev = self._rms_prev[key]
-            if prev is not None and rms[key] > lim.instability_growth * prev \
-                    and rms[key] > 0.1 * thr:
+            if prev is not None and np.any((value > lim.instability_growth * prev)
+                                           & (value > 0.1 * thr)):
                 self._growing[key] += 1
             else:
                 self._growing[key] = 0
-            self._rms_prev[key] = rms[key]
+            self._rms_prev[key] = value
             if self._growing[key] >= lim.instability_growth_windows:
                 return (f'instability: RMS {label} grew by > x{lim.instability_growth:g} for '
-                        f'{self._growing[key]} windows in a row (now {rms[key]:.6g} {unit})')
+                        f'{self._growing[key]} windows in a row (now {np.max(value):.6g} '
+                        f'{unit})')
         return ''
+
+
+def _match(limit: np.ndarray, size: int) -> np.ndarray:
+    """Return the per-channel ``limit`` for readings of ``size`` values (the tightest if other)."""
+    return limit if limit.size == size else np.full(size, float(np.min(limit)))

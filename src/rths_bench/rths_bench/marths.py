@@ -48,24 +48,34 @@ stricter reading here is the issue's.
 import json
 import math
 import os
-from pathlib import Path
 import sys
 import time
-import warnings
 
 import numpy as np
 from scipy import signal
-from scipy.linalg import expm, matrix_balance
 
+from rths_actuator_bridge.marths_rig import (  # noqa: F401 (the rig's physics, re-exported)
+    INCH,
+    FrameForce,
+    PlantBatch,
+    command_volts,
+    discretise,
+    draw_plant_params,
+    physical_frame,
+    plant_params,
+    plant_state_space,
+    rig_coupler,
+    rig_plants,
+)
 from rths_bench.rths_benchmark import DATA_ENV, ground_acceleration, target_lowpass
 from rths_common.coupler import Coupler
+from rths_common.marths_data import DATA_FILE, load_config  # noqa: F401 (re-exported)
 from rths_common.progress import Progress
 from rths_compensator.adaptive import make_method
 from rths_compensator.design import design_fir, predict
 from rths_compensator.identification import identify
 from rths_numerical.signals import blwn
 
-DATA_FILE = Path(__file__).parent / 'data' / 'marths.json'
 #: Adaptive methods of the project run decentralised (one per actuator).
 ADAPTIVE = ('rls_fir', 'ats', 'amb')
 CONTROLLERS = ('none', 'decentralised_fir', 'mimo') + ADAPTIVE
@@ -73,17 +83,10 @@ J_NAMES = tuple(f'J{i}' for i in range(1, 11))
 #: A run counts as unstable when a measured stroke leaves this multiple of the largest
 #: stroke of the reference structure's interface motion (or turns non-finite).
 UNSTABLE_FACTOR = 10.0
-INCH = 0.0254
 
 
 def _log(msg):
     print(msg, file=sys.stderr, flush=True)
-
-
-def load_config(path=DATA_FILE) -> dict:
-    """Return the benchmark's numbers (``data/marths.json``)."""
-    with open(path) as fh:
-        return json.load(fh)
 
 
 # ----------------------------------------------------------------------------- structures
@@ -150,70 +153,6 @@ def numerical_matrices(cfg: dict):
     return k, m, c, ell
 
 
-def _frame_element(e, area, inertia, length, angle):
-    """Global 6 x 6 stiffness of a 2-D frame element, axial terms dropped."""
-    ei = e * inertia
-    k = np.zeros((6, 6))
-    bend = ei / length ** 3 * np.array(
-        [[12, 6 * length, -12, 6 * length],
-         [6 * length, 4 * length ** 2, -6 * length, 2 * length ** 2],
-         [-12, -6 * length, 12, -6 * length],
-         [6 * length, 2 * length ** 2, -6 * length, 4 * length ** 2]])
-    k[np.ix_([1, 2, 4, 5], [1, 2, 4, 5])] = bend
-    cs, sn = math.cos(angle), math.sin(angle)
-    r = np.array([[cs, sn, 0], [-sn, cs, 0], [0, 0, 1]])
-    t = np.kron(np.eye(2), r)
-    return t.T @ k @ t
-
-
-def _modal_damping(m, k, zeta):
-    """Damping matrix of ratio ``zeta`` in every mode (frequencies rounded to 0.01 rad/s)."""
-    lam, phi = np.linalg.eig(np.linalg.solve(m, k))
-    order = np.argsort(np.sqrt(np.real(lam)))
-    w = np.round(100 * np.sqrt(np.real(lam[order]))) / 100
-    phi = np.real(phi[:, order])
-    c = np.zeros_like(m)
-    for i in range(m.shape[0]):
-        v = phi[:, i]
-        c += m @ np.outer(v, v) @ m * (2 * zeta * w[i] / (v @ m @ v))
-    return c
-
-
-def physical_frame(cfg: dict):
-    """``(K5, C5, M5, T)`` of the 5-DOF physical frame and the condensation ``T``.
-
-    DOFs: x of the beam, rotations of the interface node, of the other beam end and of
-    the two pinned column bases.  ``T`` (3 x 2) gives the three slave rotations from
-    (x, theta) by static condensation.
-    """
-    p = cfg['physical_frame']
-    e, lb, lc = p['E_pa'], p['Lb_m'], p['Lc_m']
-    ic = p['Ic_in4'] * INCH ** 4 * p['tuning_column']
-    ib = p['Ib_m4'] * p['tuning_beam']
-    ac = p['Ac_in2'] * INCH ** 2
-    col = _frame_element(e, ac, ic, lc, math.pi / 2)   # end 1 base, end 2 top
-    beam = _frame_element(e, p['Ab_m2'], ib, lb, 0.0)  # end 1 far node, end 2 interface
-    k = np.zeros((5, 5))
-    # element DOF (X1, Y1, R1, X2, Y2, R2) -> frame DOF, None where fixed or neglected
-    maps = [(col, (None, None, 4, 0, None, 1)),   # column under the interface node
-            (col, (None, None, 3, 0, None, 2)),   # column under the far node
-            (beam, (None, None, 2, None, None, 1))]
-    for ke, dofs in maps:
-        for i, gi in enumerate(dofs):
-            for j, gj in enumerate(dofs):
-                if gi is not None and gj is not None:
-                    k[gi, gj] += ke[i, j]
-    mass_b, mass_c = p['rho_kg_m3'] * p['Ab_m2'] * lb, p['rho_kg_m3'] * ac * lc
-    f = p['mass_factor']
-    m = np.diag(np.array([(mass_b + 2 * mass_c) / 2,
-                          (mass_b / 2 * lb ** 2 + mass_c / 2 * lc ** 2) / 3,
-                          (mass_b / 2 * lb ** 2 + mass_c / 2 * lc ** 2) / 3,
-                          mass_c / 2 * lc ** 2 / 3, mass_c / 2 * lc ** 2 / 3]) * f)
-    c = _modal_damping(m, k, p['damping'])
-    t = -np.linalg.solve(k[2:, 2:], k[2:, :2])
-    return k, c, m, t
-
-
 class Newmark:
     """Batch of Newmark integrations of one linear structure (``M, C, K``, ground ``l``)."""
 
@@ -240,126 +179,6 @@ class Newmark:
         self.v = v + a6 * acc + a7 * acc1
         self.u, self.acc = u1, acc1
         return u1
-
-
-# ----------------------------------------------------------------------------- plant
-def plant_params(cfg: dict) -> dict:
-    """Nominal poles/zeros [rad/s] and gains of the 2 x 2 control plant."""
-    p = cfg['plant']
-    w = 2 * math.pi
-    frame = complex(*p['frame_pole_hz']) * w
-    c1, c2 = p['col1'], p['col2']
-    return {'frame_pole': frame,
-            'col1_zeros': [z * w for z in c1['zeros_hz']],
-            'col1_poles': [q * w for q in c1['poles_hz']],
-            'zero_12': c2['zero_12_hz'] * w, 'zero_22': c2['zero_22_hz'] * w,
-            'col2_poles': [q * w for q in c2['poles_hz']],
-            'gains': [[c1['gain_11'], c2['gain_12']], [c1['gain_21'], c2['gain_22']]]}
-
-
-def _zpk_elements(pp: dict) -> list:
-    """``[[(z, p, k), ...], ...]`` of the plant's four transfer functions."""
-    fp = [pp['frame_pole'], pp['frame_pole'].conjugate()]
-    p1 = list(pp['col1_poles']) + fp
-    p2 = list(pp['col2_poles']) + fp
-    g = pp['gains']
-    return [[(pp['col1_zeros'], p1, g[0][0]), ([pp['zero_12']], p2, g[0][1])],
-            [(pp['col1_zeros'], p1, g[1][0]), ([pp['zero_22']], p2, g[1][1])]]
-
-
-def _dc(z, p, k) -> float:
-    return float(np.real(k * np.prod(-np.asarray(z)) / np.prod(-np.asarray(p))))
-
-
-def draw_plant_params(cfg: dict, rng) -> dict:
-    """One uncertain plant: normal draws of poles and zeros, static gains kept nominal.
-
-    Standard deviations are fractions of each nominal value (``plant.std``); the two
-    transfer functions of a column share their poles, all four share the frame's pair.
-    """
-    s = cfg['plant']['std']
-    nom = plant_params(cfg)
-    out = dict(nom)
-    out['col1_zeros'] = [z * (1 + s['col1_zeros'] * rng.standard_normal())
-                         for z in nom['col1_zeros']]
-    out['col1_poles'] = [q * (1 + s['col1_poles'] * rng.standard_normal())
-                         for q in nom['col1_poles']]
-    out['frame_pole'] = nom['frame_pole'] * (1 + s['frame_pole'] * rng.standard_normal())
-    out['zero_12'] = nom['zero_12'] * (1 + s['col2_zeros'] * rng.standard_normal())
-    out['col2_poles'] = [q * (1 + s['col2_poles'] * rng.standard_normal())
-                         for q in nom['col2_poles']]
-    out['zero_22'] = nom['zero_22'] * (1 + s['col2_zeros'] * rng.standard_normal())
-    # the benchmark rescales each gain so the low-frequency magnitude stays nominal
-    new, old = _zpk_elements(out), _zpk_elements(nom)
-    out['gains'] = [[old[i][j][2] * _dc(*old[i][j]) / _dc(*new[i][j]) for j in range(2)]
-                    for i in range(2)]
-    return out
-
-
-def plant_state_space(pp: dict):
-    """Continuous ``(A, B, C, D)`` of the plant (one SIMO realisation per column)."""
-    els = _zpk_elements(pp)
-    blocks = []
-    for j in range(2):
-        den = np.real(np.poly(els[0][j][1]))
-        nums = [np.real(els[i][j][2] * np.poly(els[i][j][0])) for i in range(2)]
-        width = den.size
-        num = np.array([np.r_[np.zeros(width - n.size), n] for n in nums])
-        with warnings.catch_warnings():   # the SIMO numerator's leading zeros
-            warnings.simplefilter('ignore', signal.BadCoefficients)
-            blocks.append(signal.tf2ss(num, den))
-    a = np.zeros((8, 8))
-    b = np.zeros((8, 2))
-    c = np.zeros((2, 8))
-    d = np.zeros((2, 2))
-    for j, (aj, bj, cj, dj) in enumerate(blocks):
-        s = slice(4 * j, 4 * j + 4)
-        a[s, s], b[s, j], c[:, s], d[:, j] = aj, bj[:, 0], cj, dj[:, 0]
-    _, (scale, _) = matrix_balance(a, permute=False, separate=True)
-    t = np.diag(scale)
-    ti = np.linalg.inv(t)
-    return ti @ a @ t, ti @ b, c @ t, d
-
-
-def discretise(a, b, dt):
-    """Zero-order-hold ``(Ad, Bd)``."""
-    n, m = b.shape
-    big = np.zeros((n + m, n + m))
-    big[:n, :n], big[:n, n:] = a * dt, b * dt
-    e = expm(big)
-    return e[:n, :n], e[:n, n:]
-
-
-class PlantBatch:
-    """The control plants of a batch of runs, ZOH at ``dt``, with sensor noise [mm]."""
-
-    def __init__(self, params: list, dt: float, noise_std_mm: float, rng):
-        """Discretise every plant; noise drawn from ``rng``."""
-        ss = [plant_state_space(p) for p in params]
-        dis = [discretise(a, b, dt) for a, b, _, _ in ss]
-        self.ad = np.stack([d[0] for d in dis])
-        self.bd = np.stack([d[1] for d in dis])
-        self.c = np.stack([s[2] for s in ss])
-        self.d = np.stack([s[3] for s in ss])
-        self.x = np.zeros((len(params), self.ad.shape[1]))
-        self.noise_std = noise_std_mm
-        self.rng = rng
-
-    def output(self, u_prev) -> np.ndarray:
-        """Measured strokes [mm] (batch, 2) at this tick."""
-        y = np.einsum('bij,bj->bi', self.c, self.x) + np.einsum('bij,bj->bi', self.d, u_prev)
-        return y + self.noise_std * self.rng.standard_normal(y.shape)
-
-    def advance(self, u):
-        """Hold command ``u`` [mm] (batch, 2) over one sample."""
-        self.x = np.einsum('bij,bj->bi', self.ad, self.x) + np.einsum('bij,bj->bi', self.bd, u)
-
-
-def command_volts(cfg: dict, u_mm) -> np.ndarray:
-    """Command voltage of strokes ``u_mm`` (..., 2) through the channels' calibration."""
-    ch = cfg['channels']
-    g = np.asarray(ch['v2d_gain'])
-    return u_mm / np.asarray(ch['correction_gain']) / g - np.asarray(ch['v2d_const']) / g
 
 
 # ----------------------------------------------------------------------------- controllers
@@ -630,11 +449,11 @@ def run_batch(cfg: dict, ag, plant_list: list, controller, seed: int = 0,
     batch = len(plant_list)
     rng = np.random.default_rng(seed)
     plant = PlantBatch(plant_list, dt, math.sqrt(cfg['channels']['noise_power'] / dt), rng)
-    coupler = Coupler.from_offsets(cfg['coupler']['offsets_m'])
+    coupler = rig_coupler(cfg)
     dofs = {k: v - 1 for k, v in cfg['reference']['dofs'].items()}
     ref = Newmark(*reference_matrices(cfg), dt, 1)
     num = Newmark(*numerical_matrices(cfg), dt, batch)
-    k5, c5, m5, t5 = physical_frame(cfg)
+    frame = FrameForce(cfg, dt, batch)
     force_dofs = [dofs['x'], dofs['theta'], dofs['theta_node2']]
     n = len(ag)
     out = {key: np.zeros((n, batch, 2)) for key in ('target', 'measured', 'command')}
@@ -642,17 +461,11 @@ def run_batch(cfg: dict, ag, plant_list: list, controller, seed: int = 0,
         out[key] = np.zeros((n, batch))
     r = {key: np.zeros(n) for key in ('x', 'theta', 'x2', 'th2', 'x3', 'th3')}
     u_prev = np.zeros((batch, 2))
-    q_prev = np.zeros((batch, 5))
-    v_prev = np.zeros((batch, 5))
     force = np.zeros((batch, num.u.shape[1]))
     for k in range(n):
         meas = plant.output(u_prev)
         x_hat, th_hat = coupler.dofs(meas.T / 1000.0, iterations=2)
-        q = np.column_stack([x_hat, th_hat, np.column_stack([x_hat, th_hat]) @ t5.T])
-        vel = (q - q_prev) / dt if k else np.zeros_like(q)
-        acc = (vel - v_prev) / dt if k else np.zeros_like(q)
-        f5 = q @ k5.T + vel @ c5.T + acc @ m5.T
-        q_prev, v_prev = q, vel
+        f5 = frame.step(x_hat, th_hat)
         force[:, force_dofs[0]] = f5[:, 0]
         force[:, force_dofs[1]] = -f5[:, 1]
         force[:, force_dofs[2]] = -f5[:, 2]
@@ -761,7 +574,7 @@ def run_benchmark(controller: str = 'none', record: str = 'elcentro', n_draws: i
         h = run_batch(cfg, ag, plants, ctrl, seed=seed + 1, progress=bar.report)
     loop_s = time.perf_counter() - t_loop
     rows = [criteria(h, i, fs) for i in range(len(plants))]
-    coupler = Coupler.from_offsets(cfg['coupler']['offsets_m'])
+    coupler = rig_coupler(cfg)
     bad = [unstable(h, i, coupler) for i in range(len(plants))]
     volts = np.max(np.abs(command_volts(cfg, h['command'])), axis=0)   # run x actuator
     volts = np.where(np.isfinite(volts), volts, np.inf)

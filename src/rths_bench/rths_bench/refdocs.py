@@ -128,6 +128,8 @@ def _anchor(title: str) -> str:
 #: target or ''). A path is keys joined by '/'; a list index is a number.
 MAIN = 'The main job (rths run, Kobe x 0.135, valve 4, real time, 20 s)'
 SILVA = 'RTHS benchmark (Silva et al. 2020), case 1'
+FAULTS = 'Load and faults (composed 1024 Hz, 10 s each; rths bench faults)'
+FAULTS_JSON = 'faults_1024hz_10s.json'
 FIGURES = (
     (MAIN, 'actuator delay before compensation',
      'run_realtime_kobe_20s_summary.json', 'delay_ms_before', 'ms', ''),
@@ -147,6 +149,22 @@ FIGURES = (
      'loop_2048hz_30s_composed_quiet.json', 'late_or_missed_pct', '%', ''),
     ('Real-time loop', 'highest rate at <= 0.1 % late or missed (--find-max)',
      'loop_findmax_30s_composed_quiet.json', 'max_rate_hz', 'Hz', ''),
+    (FAULTS, 'CPU hog on every core: late or missed ticks',
+     FAULTS_JSON, 'cases/cpu_hog/late_or_missed_pct', '%', '<= 0.1 %'),
+    (FAULTS, 'CPU hog: samples lost from the bag',
+     FAULTS_JSON, 'cases/cpu_hog/samples_lost', '', '0'),
+    (FAULTS, 'memory hog: samples lost from the bag',
+     FAULTS_JSON, 'cases/memory_hog/samples_lost', '', '0'),
+    (FAULTS, 'I/O hog on the bag disk: samples lost from the bag',
+     FAULTS_JSON, 'cases/io_hog/samples_lost', '', '0'),
+    (FAULTS, 'stalls 20/50/200 ms in each node: command within its limits',
+     FAULTS_JSON, 'summary/all_within_limits', '', 'true'),
+    (FAULTS, 'stalls: supervisor state as documented',
+     FAULTS_JSON, 'summary/stall_states_as_documented', '', 'true'),
+    (FAULTS, 'SIGKILL of the container: bag ends before the kill',
+     FAULTS_JSON, 'cases/kill_container/loss_before_kill_ms', 'ms', '<= 100 ms'),
+    (FAULTS, 'SIGKILL of the recorder: repaired bag ends before the kill',
+     FAULTS_JSON, 'cases/kill_recorder/loss_before_kill_ms', 'ms', '<= 100 ms'),
     (SILVA, 'example controller (the published one): J1',
      'rths_benchmark_example/summary.json', 'cases/1/J1', 'ms', 'Table 3: 4.6 ms'),
     (SILVA, 'example controller: J2',

@@ -12,6 +12,7 @@ import math
 import numpy as np
 import pytest
 
+from rths_actuator_bridge import marths_rig as rig
 from rths_bench import marths as mr
 from rths_common.coupler import Coupler
 
@@ -67,9 +68,9 @@ def test_uncertain_draws_keep_static_gains_and_spread_poles():
     rng = np.random.default_rng(0)
     nom = mr.plant_params(CFG)
     draws = [mr.draw_plant_params(CFG, rng) for _ in range(400)]
-    dc_nom = [[mr._dc(*e) for e in row] for row in mr._zpk_elements(nom)]
+    dc_nom = [[rig._dc(*e) for e in row] for row in rig._zpk_elements(nom)]
     for q in draws[:5]:
-        dc = [[mr._dc(*e) for e in row] for row in mr._zpk_elements(q)]
+        dc = [[rig._dc(*e) for e in row] for row in rig._zpk_elements(q)]
         assert np.allclose(dc, dc_nom)
     p1 = np.array([q['col1_poles'][0] for q in draws]) / nom['col1_poles'][0]
     assert np.std(p1) == pytest.approx(CFG['plant']['std']['col1_poles'], rel=0.15)

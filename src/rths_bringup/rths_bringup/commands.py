@@ -9,7 +9,7 @@ from pathlib import Path
 
 
 def register(commands, benches):
-    """Add ``rths launch`` and ``rths bag info|reindex|export``."""
+    """Add ``rths launch`` and ``rths bag info|reindex|repair|verify|export``."""
     p = commands.add_parser(
         'launch', help='start the node graph (composed or one process per node), supervise it',
         description='Start the actuator bridge, compensator and numerical node, each with its '
@@ -21,6 +21,10 @@ def register(commands, benches):
                     'numerical node finishes the run, on Ctrl-C/SIGTERM, or when a node dies '
                     '(exit code 1, naming the node).')
     add_launch_args(p)
+    p.add_argument('--enclave-keystore', default=None, metavar='DIR',
+                   help='start every process of the run inside its SROS2 enclave /rths/NAME '
+                        'of this keystore (DDS authentication and encryption; needs a ROS 2 '
+                        'install with DDS security, not the wheels: docs/lab_network.md)')
     from rths_live import live
     live.add_arguments(p)
     p.set_defaults(func=cmd_launch)
@@ -43,6 +47,32 @@ def register(commands, benches):
                                         'after its last complete record first.')
     b.add_argument('bag', help='bag directory')
     b.set_defaults(func=cmd_bag_reindex)
+    b = bag_cmds.add_parser('repair', help='recover a killed recording up to its last complete '
+                                           'chunk',
+                            description='Recover the bag of a recording whose writer was '
+                                        'killed (SIGKILL, power loss): the MCAP file is cut '
+                                        'after its last complete chunk and closed, sqlite3 '
+                                        'rolls back its open transaction, and metadata.yaml '
+                                        'is rebuilt; then print what the bag holds. The '
+                                        'recorder commits every 0.05 s, so at most the last '
+                                        '0.1 s before the kill is lost. A whole bag is left '
+                                        'untouched.')
+    b.add_argument('bag', help='bag directory')
+    b.set_defaults(func=cmd_bag_repair)
+    b = bag_cmds.add_parser('verify', help='check a bag is whole and complete (exit 1 if not)',
+                            description='Check a bag as the evidence of a run, without changing '
+                                        'it: integrity (MCAP: the CRC-32 of every chunk; '
+                                        'sqlite3: PRAGMA integrity_check), completeness (every '
+                                        'bridge tick has its measurement and status; commands '
+                                        'and interface displacements aligned as the review '
+                                        'does: re-sends and short gaps counted, longer gaps '
+                                        'fail) and provenance (rths version, git commit, host, '
+                                        'the params and plant files). Exit 0 when the bag is '
+                                        'whole and complete, 1 when it is damaged, cut or '
+                                        'incomplete (each problem on one line).')
+    b.add_argument('bag', help='bag directory')
+    b.add_argument('--json', action='store_true', help='print the report as JSON')
+    b.set_defaults(func=cmd_bag_verify)
     b = bag_cmds.add_parser('export', help='write the restoring-force CSV of a run bag',
                             description='Write the measured displacement and force of an rths '
                                         'run bag (channel 0) as a CSV of the restoring-force '
@@ -108,7 +138,7 @@ def run_info_of(config, overrides) -> dict:
 
 
 def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, storage=None,
-           live=False, layout=None, progress_label='run', mode=None):
+           live=False, layout=None, progress_label='run', mode=None, enclave_keystore=None):
     """Run the graph; return the launcher's exit code.
 
     With a bag, the run's parameters (the three params files with the
@@ -116,7 +146,10 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, stora
     ``rths identify --bag`` and ``rths discrepancy`` need nothing but the bag.
     """
     from rths_bringup.launcher import Launcher
+    from rths_bringup.security import enclave_env
 
+    # checked before anything starts: a missing keystore or enclave is one line
+    node_env = enclave_env(enclave_keystore) if enclave_keystore else None
     config = Path(config) if config else default_config_dir()
     overrides = overrides or {}
     if mode is not None:            # one switch for every node (the recorder's QoS follows)
@@ -132,7 +165,7 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, stora
     if bag and storage:
         overrides.setdefault('recorder', {})['storage'] = storage
     launcher = Launcher(config, bag=bag, overrides=overrides, timeout_s=timeout, layout=layout,
-                        progress_label=progress_label)
+                        progress_label=progress_label, node_env=node_env)
     if live:  # the live view is one more reader of each loop topic: arm the chain after it too
         # (composed, the recorder reads the container's pipe, not the topics)
         readers = 3 if bag and launcher.layout == 'processes' else 2
@@ -143,13 +176,18 @@ def launch(config, duration=None, bag=None, timeout=600.0, overrides=None, stora
 
 def cmd_launch(args) -> int:
     """Run ``rths launch``; then print the bag's topics and the loop summary."""
+    from rths_bringup.security import enclave_env
     from rths_live import live
 
+    if args.enclave_keystore:
+        enclave_env(args.enclave_keystore)   # refused before the live view starts too
     fs = live_rate_of(args.config) if args.live else 0.0
     with live.session(args, fs_hz=fs):
         code = launch(args.config, args.duration, args.bag, args.timeout, storage=args.storage,
-                      live=args.live, layout=args.layout, mode=getattr(args, 'mode', None))
+                      live=args.live, layout=args.layout, mode=getattr(args, 'mode', None),
+                      enclave_keystore=args.enclave_keystore)
     if args.bag and Path(args.bag).exists():
+        from rths_bringup.evidence import bag_missing
         from rths_review.review import loop_summary
         print_bag_info(args.bag)
         summary = loop_summary(args.bag)
@@ -159,30 +197,6 @@ def cmd_launch(args) -> int:
         for text in missing:
             print(f'BAG INCOMPLETE: {text}')
     return code
-
-
-def bag_missing(summary: dict) -> list:
-    """Return what a run's bag lacks: the bridge writes a measurement and a status every tick.
-
-    ``summary`` is :func:`rths_review.review.loop_summary`'s; returns one text
-    per incomplete stream (empty: every tick the bridge ran is in the bag).
-    (Commands and interface displacements may be missing by design: lost or
-    dropped ones are deadline misses, counted in the status.)
-    """
-    from rths_common import topics
-
-    status = summary.get('status bridge', {})
-    meas = summary.get(topics.MEASUREMENT, {})
-    ticks = max(int(status.get('steps', 0)), (meas.get('last') or -1) + 1)
-    out = []
-    if int(status.get('steps', 0)) < ticks:
-        out.append(f"the bridge status of {ticks - int(status.get('steps', 0))} of {ticks} "
-                   'ticks is not in the bag')
-    if int(meas.get('count', 0)) - int(meas.get('duplicates', 0)) < ticks:
-        lost = ticks - int(meas.get('count', 0)) + int(meas.get('duplicates', 0))
-        out.append(f'{topics.MEASUREMENT} lacks {lost} of {ticks} steps (the recorder lost '
-                   'them)')
-    return out
 
 
 def live_rate_of(config) -> float:
@@ -222,6 +236,34 @@ def cmd_bag_reindex(args) -> int:
     from rths_common.bagio import reindex
     print(f'wrote {reindex(args.bag)}')
     return 0
+
+
+def cmd_bag_repair(args) -> int:
+    """``rths bag repair``."""
+    from rths_bringup.evidence import repair
+
+    result = repair(args.bag)
+    if not result['repaired']:
+        print(f'{args.bag}: closed and indexed; nothing to repair')
+    else:
+        print(f"{args.bag}: recovered up to the last complete chunk; metadata.yaml rebuilt")
+    for topic, count in result['topics'].items():
+        print(f'  {topic}: {count} messages')
+    if result['last_step'] is not None:
+        print(f"  last bridge tick recorded: step {result['last_step']}")
+    return 0
+
+
+def cmd_bag_verify(args) -> int:
+    """``rths bag verify``: 0 whole and complete, 1 damaged, cut or incomplete."""
+    from rths_bringup.evidence import print_report, verify
+
+    report = verify(args.bag)
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print_report(report)
+    return 1 if report['problems'] else 0
 
 
 def print_summary(summary: dict):

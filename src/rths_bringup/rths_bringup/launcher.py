@@ -463,6 +463,8 @@ class Launcher:
             recorder_over = self.overrides.setdefault('recorder', {})
             recorder_over.setdefault('bag', str(self.bag))
             recorder_over.setdefault('mode', self.mode)
+            # the bag's provenance: the recorder keeps the files of the config directory
+            recorder_over.setdefault('config_dir', str(self.config_dir.resolve()))
             if composed:   # the container's tee brings the recorder every message
                 read_fd, write_fd = os.pipe()
                 recorder_over['pipe_fd'] = read_fd

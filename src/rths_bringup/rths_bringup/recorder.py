@@ -12,6 +12,10 @@ passed, so a SIGKILL of the recorder loses at most the last 0.1 s (one batch
 plus one commit period).  This node never
 sits in the 1 kHz path of the loop.
 
+Provenance: the bag's run information also gets the rths version and git commit,
+the host and the text of the params files of ``config_dir`` (from the launcher)
+and of the plant files they name (:mod:`rths_common.provenance`).
+
 Run identity (``run_id``, from the launcher): a stamped loop message of another
 run (its ``header.frame_id``, :mod:`rths_common.transport`) is not recorded; the
 recorder counts them and says so at the end.  A recorder started without one (by
@@ -46,7 +50,7 @@ import time
 
 import rclpy
 
-from rths_common import bagstore, cdr, lifeline, topics
+from rths_common import bagstore, cdr, lifeline, provenance, topics
 from rths_common import node_support as ns
 from rths_common.bagio import BagWriter
 from rths_common.qos import recorder_qos, status_qos
@@ -55,7 +59,7 @@ from rths_common.tee import read_records
 from rths_common.transport import split_frame
 
 #: Recorder parameters that are not run information (everything else is kept in the bag).
-RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s', 'storage', 'pipe_fd')
+RECORDER_PARAMS = ('bag', 'nice', 'cpus', 'batch_s', 'storage', 'pipe_fd', 'config_dir')
 #: Recorded topics whose messages carry a header (and so the run identity).
 STAMPED = (topics.INTERFACE_DISPLACEMENT, topics.COMMAND, topics.MEASUREMENT, topics.STATUS,
            topics.SPECIMEN, topics.CONTROLLER)
@@ -101,6 +105,8 @@ class Recorder:
                              '(the writer drains the queue this often)')
         # Everything else given to the recorder (fs_hz, ...) is run information kept in the bag.
         self.run_info = {k: v for k, v in params.items() if k not in RECORDER_PARAMS}
+        # ... with its provenance: rths version and commit, host, the files of ``config_dir``
+        self.run_info.update(provenance.collect(params.get('config_dir') or None))
         self.queue = deque()
         self.bridge_stopped = False    # (after the launcher died) the bridge reported STOPPED
         self.bridge_heard = None       # monotonic time of the bridge's last status (DDS)

@@ -97,6 +97,8 @@ class BagWriter:
                                              storage_plugin=bagstore.plugin(storage))
         self._writer.open()
         self._storage = self._writer.storage
+        if self.storage == 'mcap':
+            bagstore.checksum_chunks(self._storage)   # every chunk carries its CRC-32
         self.run_info = {str(k): str(v) for k, v in (run_info or {}).items()}
         for key, value in self.run_info.items():
             self._writer.set_custom_data(key, value)

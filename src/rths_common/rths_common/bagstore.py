@@ -14,13 +14,18 @@
 * the ``metadata.yaml`` topic table of such a file (:func:`mcap_topics`), for
   ``bagio.reindex``;
 * the messages per topic already committed to a bag that is still being
-  written (:func:`committed_counts`), read without touching the file.
+  written (:func:`committed_counts`), read without touching the file;
+* a CRC-32 of every MCAP chunk (:func:`checksum_chunks`: rosbags writes 0, "not
+  computed") and the check of a whole data file (:func:`check_integrity`: every
+  MCAP chunk against its CRC; sqlite3 has no per-row checksum, its pages and
+  indexes are checked with ``PRAGMA integrity_check``).
 """
 
 import os
 from pathlib import Path
 import sqlite3
 import struct
+import zlib
 
 #: Storage identifiers of ``metadata.yaml`` that rths writes and reads.
 STORAGES = ('mcap', 'sqlite3')
@@ -58,6 +63,107 @@ def commit(storage_writer, storage: str):
     if storage_writer.chunk.msgs:        # rosbags keeps the pending chunk in memory
         storage_writer.close_chunk()
     storage_writer.bio.flush()
+
+
+#: Offset of the CRC-32 of the uncompressed records in a Chunk record (after the record
+#: head: message start time, message end time, uncompressed size).
+_CHUNK_CRC_AT = _RECORD.size + 24
+
+
+def checksum_chunks(storage_writer) -> None:
+    """Make a rosbags MCAP storage writer store the CRC-32 of every chunk it closes.
+
+    rosbags writes 0 ("not computed"); the CRC is of the chunk's uncompressed
+    records, as the MCAP specification defines it, so every reader (rosbags,
+    the ``mcap`` library, :func:`check_integrity`) checks it.
+    """
+    close = storage_writer.close_chunk
+
+    def close_chunk():
+        crc = zlib.crc32(storage_writer.chunk.bio.getbuffer())
+        bio = storage_writer.bio
+        start = bio.tell()
+        close()
+        end = bio.tell()
+        bio.seek(start + _CHUNK_CRC_AT)
+        bio.write(struct.pack('<I', crc))
+        bio.seek(end)
+
+    storage_writer.close_chunk = close_chunk
+
+
+def check_integrity(bag) -> dict:
+    """Check the data file of a bag; return what was checked and what is wrong.
+
+    MCAP: ``{'storage', 'check', 'chunks', 'chunks_checked', 'chunks_without_crc',
+    'bad_chunks': [offset, ...], 'closed': bool, 'tail_bytes'}`` -- every chunk
+    is decompressed and its CRC-32 compared (a chunk written with CRC 0, by an
+    older rths or another writer, cannot be checked and is counted as such);
+    ``closed`` is False for a file a killed writer left without its footer,
+    ``tail_bytes`` the bytes after its last complete record (a chunk cut by
+    the kill). sqlite3: ``{'storage', 'check', 'result'}``, the result of
+    ``PRAGMA integrity_check`` ('ok' when the database is sound; rosbag2's
+    sqlite3 storage has no per-message checksum).  ``'ok'`` sums it up.
+    """
+    bag = Path(bag)
+    path = data_file(bag)
+    if storage_of(bag) == 'sqlite3':
+        try:
+            conn = sqlite3.connect(f'file:{path}?mode=ro', uri=True, timeout=5.0)
+            try:
+                result = '; '.join(r[0] for r in conn.execute('PRAGMA integrity_check'))
+            finally:
+                conn.close()
+        except sqlite3.Error as err:
+            result = f'not a readable database ({err})'
+        return {'storage': 'sqlite3', 'check': 'PRAGMA integrity_check (no per-message '
+                'checksum in the sqlite3 storage)', 'result': result, 'ok': result == 'ok'}
+    out: dict = {'storage': 'mcap', 'check': 'CRC-32 of every chunk', 'chunks': 0,
+                 'chunks_checked': 0, 'chunks_without_crc': 0, 'bad_chunks': [],
+                 'closed': is_complete(path), 'tail_bytes': 0}
+    size = path.stat().st_size
+    with path.open('rb') as handle:
+        if handle.read(len(MAGIC)) != MAGIC:
+            out.update(bad_chunks=[0], ok=False)
+            return out
+        pos = len(MAGIC)
+        while True:
+            head = handle.read(_RECORD.size)
+            if len(head) < _RECORD.size:
+                break
+            opcode, length = _RECORD.unpack(head)
+            if opcode in (_OP_DATA_END, _OP_FOOTER) or pos + _RECORD.size + length > size:
+                break
+            content = handle.read(length)
+            if opcode == _OP_CHUNK:
+                out['chunks'] += 1
+                _check_chunk(content, pos, out)
+            pos += _RECORD.size + length
+        if not out['closed']:
+            out['tail_bytes'] = size - pos
+    out['ok'] = not out['bad_chunks'] and out['closed']
+    return out
+
+
+def _check_chunk(content: bytes, pos: int, out: dict) -> None:
+    """Compare one chunk's records with its CRC-32 (module doc); note the result in ``out``."""
+    try:
+        (crc,) = struct.unpack_from('<I', content, 24)
+        records = _chunk_records(content)
+        (size,) = struct.unpack_from('<Q', content, 16)
+    except (struct.error, ValueError, ImportError, RuntimeError) as err:
+        out['bad_chunks'].append(pos)
+        out.setdefault('errors', []).append(f'chunk at byte {pos}: {err}')
+        return
+    if len(records) != size:
+        out['bad_chunks'].append(pos)
+        return
+    if not crc:
+        out['chunks_without_crc'] += 1
+        return
+    out['chunks_checked'] += 1
+    if zlib.crc32(records) != crc:
+        out['bad_chunks'].append(pos)
 
 
 def storage_of(bag) -> str:

@@ -1,0 +1,476 @@
+"""``rths bench faults``: the composed realtime loop under load and faults, measured.
+
+Each case is one composed run of ``rths bench loop`` (:func:`rths_bench.bench_loop.run_once`:
+the same config, clock and analysis) at ``--rate`` Hz for ``--duration`` s, with:
+
+* ``baseline``: nothing else started;
+* ``cpu_hog``: one busy process per core at normal priority (``nproc`` processes);
+  the threads of the composed process and the recorder are listed with their
+  scheduling policy, priority, nice value, CPUs and CPU time (``threads``);
+* ``memory_hog``: one process holding ``--memory-fraction`` of the RAM available
+  at its start (pages written and re-touched), never leaving less than
+  MEMORY_RESERVE_MB available (it stops allocating first);
+* ``io_hog``: one process writing and fsyncing 8 MiB blocks beside the bag, at
+  most IO_HOG_MB on disk (it rewrites the file), deleted after;
+* ``stall_NODE_MS``: every STALL_EVERY_S s (half the run if shorter) the node
+  (numerical, compensator, bridge) sleeps MS ms before it publishes a step (the system tests' fault
+  injection, ``rths_system_tests.faults``); in the composed layout the whole
+  executor and the bridge's clock stall with it;
+* ``kill_container`` / ``kill_recorder``: SIGKILL of the composed process or of
+  the recorder half way through the run; the bag is read as the launcher left
+  it (reindexed) and ``loss_before_kill_ms`` is the time from the last bridge
+  tick in the bag to the kill.
+
+Per case: ``deadline_misses``, ``late_or_missed_pct``, ``stalled_ticks``,
+``command_peak_m`` / ``velocity_peak_m_s`` / ``acceleration_peak_m_s2`` of what
+the bridge wrote (``Measurement.applied``) against the bridge's ``stroke_m``,
+``velocity_m_s``, ``acceleration_m_s2`` (``within_limits``), ``final_safety_state``
+against ``expected_safety_state`` (:data:`EXPECTED_STATE`, documented in
+docs/reliability.md; ``state_as_documented``), and ``samples_produced`` (bridge
+ticks of the run) against ``samples_in_bag`` (its measurements in the bag,
+``samples_lost``).
+"""
+
+import argparse
+import json
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+import numpy as np
+
+# Imports of the commands' code sit in the command functions: rths imports this module
+# to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
+
+#: Stall lengths [ms] injected in each node, and the nodes.
+STALLS_MS = (20, 50, 200)
+STALL_NODES = ('numerical', 'compensator', 'bridge')
+#: Seconds between two injected stalls of a case.
+STALL_EVERY_S = 2.0
+#: The bridge supervisor's state at the end of a run per stall length (safety.py's stall
+#: policy, stall_limit_s 0.5 s): a stall shorter than stall_limit_s resumes (0, SAFETY_OK),
+#: a longer one trips the watchdog and stops safely (3, SAFETY_STOPPED).
+STALL_LIMIT_S = 0.5
+SAFETY_OK, SAFETY_STOPPED = 0, 3
+MEMORY_RESERVE_MB = 768
+IO_HOG_MB = 512
+#: The kill cases: the run is killed once this share of its ticks is in the bag.
+KILL_AT = 0.5
+
+
+def expected_state(stall_ms: float) -> int:
+    """Return the documented final safety state of a run with stalls of ``stall_ms``."""
+    return SAFETY_OK if stall_ms * 1e-3 <= STALL_LIMIT_S else SAFETY_STOPPED
+
+
+EXPECTED_STATE = {ms: expected_state(ms) for ms in STALLS_MS}
+
+
+def register(commands, benches):
+    """Add ``rths bench faults``."""
+    p = benches.add_parser(
+        'faults', help='the composed loop under CPU/memory/I-O hogs, stalls and kills',
+        description='Run the composed realtime loop (as rths bench loop) once per case: '
+                    'baseline, a CPU hog on every core, a memory hog, an I/O hog on the '
+                    "bag's disk, stalls of 20, 50 and 200 ms in each node, SIGKILL of the "
+                    'composed process and of the recorder; per case deadline misses, '
+                    'late-or-missed, the command peak against the limits, the safety state '
+                    'against the documented one and the samples in the bag against those '
+                    'the loop produced; write JSON to --out.')
+    p.add_argument('--out', default=None, help='JSON file to write')
+    p.add_argument('--rate', type=float, default=1024.0, help='loop rate [Hz] (default 1024)')
+    p.add_argument('--duration', type=float, default=10.0,
+                   help='length of each run [s] (default 10; 15 cases)')
+    p.add_argument('--cases', default='all', help='comma-separated case names or prefixes '
+                   '(e.g. baseline,cpu_hog,stall_bridge; default all)')
+    p.add_argument('--memory-fraction', type=float, default=0.7,
+                   help='share of the available RAM the memory hog holds (default 0.7, at most '
+                        f'0.9; it always leaves {MEMORY_RESERVE_MB} MB available)')
+    p.add_argument('--taps', type=int, default=400, help='FIR taps of the compensator '
+                   '(default 400)')
+    p.add_argument('--priority', type=int, default=80, help='SCHED_FIFO priority of the '
+                   'bridge (the others 1 less; 0 = normal scheduling; default 80)')
+    p.add_argument('--keep', default=None, help='keep configs, bags and logs here')
+    p.set_defaults(func=cmd_bench_faults)
+
+
+def case_names() -> list:
+    """Return every case of the bench, in run order."""
+    return (['baseline', 'cpu_hog', 'memory_hog', 'io_hog']
+            + [f'stall_{node}_{ms}' for node in STALL_NODES for ms in STALLS_MS]
+            + ['kill_container', 'kill_recorder'])
+
+
+def select(spec: str) -> list:
+    """Return the cases ``spec`` names ('all', or comma-separated names/prefixes)."""
+    names = case_names()
+    if spec.strip() == 'all':
+        return names
+    out = []
+    for part in (p.strip() for p in spec.split(',') if p.strip()):
+        hits = [n for n in names if n == part or n.startswith(part)]
+        if not hits:
+            raise ValueError(f'--cases {part!r}: no such case; use one of {", ".join(names)}')
+        out += [n for n in hits if n not in out]
+    return out
+
+
+def loop_args(args) -> argparse.Namespace:
+    """Return the ``rths bench loop`` options of the runs (its defaults, composed)."""
+    return argparse.Namespace(layout='composed', taps=args.taps, model='sdof', clock='loop',
+                              executor='events', priority=args.priority, cpus='', gc='freeze',
+                              watchdog_steps=10, margin=0.0, status_every=1, no_bag=False,
+                              recorder_nice=10, recorder_cpus='', live=False)
+
+
+# --------------------------------------------------------------------------- load
+
+HOGS = {
+    'cpu': 'while True:\n    pass\n',
+    'memory': '''
+import sys, time
+target, reserve = int(sys.argv[1]), int(sys.argv[2])
+def available():
+    for line in open('/proc/meminfo'):
+        if line.startswith('MemAvailable:'):
+            return int(line.split()[1]) * 1024
+blocks = []
+while sum(len(b) for b in blocks) < target and available() > reserve + (64 << 20):
+    b = bytearray(64 << 20)
+    b[::4096] = b'\\x01' * len(range(0, len(b), 4096))
+    blocks.append(b)
+print(sum(len(b) for b in blocks), flush=True)
+while True:
+    for b in blocks:
+        b[::4096] = b'\\x02' * len(range(0, len(b), 4096))
+        if available() < reserve:
+            blocks.pop()
+            break
+    time.sleep(0.2)
+''',
+    'io': '''
+import os, sys
+path, limit = sys.argv[1], int(sys.argv[2])
+block = os.urandom(8 << 20)
+with open(path, 'wb') as f:
+    while True:
+        f.write(block)
+        f.flush()
+        os.fsync(f.fileno())
+        if f.tell() >= limit:
+            f.seek(0)
+''',
+}
+
+
+def mem_available() -> int:
+    """Return MemAvailable [bytes] (0 if unknown)."""
+    try:
+        for line in Path('/proc/meminfo').read_text().splitlines():
+            if line.startswith('MemAvailable:'):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
+class Hogs:
+    """Start the load of a case; stop (SIGKILL) every process it started on exit."""
+
+    def __init__(self, kind: str, workdir: Path, memory_fraction: float):
+        self.kind, self.workdir, self.fraction = kind, workdir, memory_fraction
+        self.procs: list = []
+        self.info: dict = {}
+
+    def _start(self, code, *argv):
+        self.procs.append(subprocess.Popen([sys.executable, '-c', code, *map(str, argv)],
+                                           stdout=subprocess.PIPE, text=True))
+
+    def __enter__(self):
+        if self.kind == 'cpu':
+            for _ in range(os.cpu_count() or 1):
+                self._start(HOGS['cpu'])
+            self.info = {'processes': len(self.procs), 'nice': 0}
+        elif self.kind == 'memory':
+            avail = mem_available()
+            target = int(avail * self.fraction)
+            self._start(HOGS['memory'], target, MEMORY_RESERVE_MB << 20)
+            held = self.procs[0].stdout.readline().strip()
+            self.info = {'available_mb': avail >> 20, 'held_mb': int(held or 0) >> 20,
+                         'available_after_mb': mem_available() >> 20}
+        elif self.kind == 'io':
+            self.workdir.mkdir(parents=True, exist_ok=True)
+            self.path = self.workdir / 'io_hog.bin'
+            self._start(HOGS['io'], self.path, IO_HOG_MB << 20)
+            self.info = {'file': str(self.path), 'max_mb': IO_HOG_MB, 'block_mb': 8,
+                         'fsync': 'every block'}
+        return self
+
+    def __exit__(self, *exc):
+        for proc in self.procs:
+            proc.kill()
+            proc.wait()
+        if self.kind == 'io':
+            self.info['written_mb_at_least'] = (self.path.stat().st_size >> 20
+                                                if self.path.exists() else 0)
+            self.path.unlink(missing_ok=True)
+
+
+# --------------------------------------------------------------------------- threads
+
+_POLICIES = {os.SCHED_OTHER: 'SCHED_OTHER', os.SCHED_FIFO: 'SCHED_FIFO',
+             os.SCHED_RR: 'SCHED_RR', getattr(os, 'SCHED_BATCH', 3): 'SCHED_BATCH',
+             getattr(os, 'SCHED_IDLE', 5): 'SCHED_IDLE'}
+
+
+def threads_of(pid: int) -> list:
+    """Return every thread of ``pid``: name, policy, RT priority, nice, CPUs, CPU seconds."""
+    out = []
+    tick = os.sysconf('SC_CLK_TCK')
+    for tid in sorted(int(t) for t in os.listdir(f'/proc/{pid}/task')):
+        try:
+            name = Path(f'/proc/{pid}/task/{tid}/comm').read_text().strip()
+            fields = Path(f'/proc/{pid}/task/{tid}/stat').read_text().rsplit(')', 1)[1].split()
+            out.append({'tid': tid, 'name': name,
+                        'policy': _POLICIES.get(os.sched_getscheduler(tid), '?'),
+                        'rt_priority': os.sched_getparam(tid).sched_priority,
+                        'nice': int(fields[16]),
+                        'cpus': sorted(os.sched_getaffinity(tid)),
+                        'cpu_s': round((int(fields[11]) + int(fields[12])) / tick, 2)})
+        except (OSError, IndexError, ValueError):
+            continue          # the thread ended meanwhile
+    return out
+
+
+def run_children(word: str) -> list:
+    """Return the pids of this process's children running the executable ``word``."""
+    me = os.getpid()
+    out = []
+    for entry in os.listdir('/proc'):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f'/proc/{entry}/stat').read_text()
+            ppid = int(stat.rsplit(')', 1)[1].split()[1])
+            argv = Path(f'/proc/{entry}/cmdline').read_bytes().split(b'\0')[:2]
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid == me and word in (os.path.basename(a.decode(errors='replace')) for a in argv):
+            out.append(int(entry))
+    return out
+
+
+class Watcher(threading.Thread):
+    """During a run: list the threads (``threads``) or SIGKILL a process (``kill``) mid-run."""
+
+    def __init__(self, bag: Path, steps: int, kill: str = '', list_threads: bool = False):
+        super().__init__(daemon=True)
+        self.bag, self.steps, self.kill, self.list_threads = bag, steps, kill, list_threads
+        self.done = threading.Event()
+        self.result: dict = {}
+
+    def run(self):
+        """Wait until KILL_AT of the run is in the bag, then list or kill."""
+        from rths_common import bagstore, topics
+
+        while not self.done.wait(0.05):
+            have = bagstore.committed_counts(self.bag).get(topics.MEASUREMENT, 0) \
+                if self.bag.exists() else 0
+            if have < KILL_AT * self.steps:
+                continue
+            if self.list_threads:
+                self.result['threads'] = {w: [t for pid in run_children(w)
+                                              for t in threads_of(pid)]
+                                          for w in ('container', 'recorder')}
+            if self.kill:
+                pids = run_children(self.kill)
+                for pid in pids:
+                    os.kill(pid, signal.SIGKILL)
+                self.result.update(killed=self.kill, killed_pids=pids,
+                                   kill_wall_ns=time.time_ns())
+            return
+
+    def stop(self):
+        """End the watch (the run is over)."""
+        self.done.set()
+        self.join(5.0)
+
+
+# --------------------------------------------------------------------------- a case
+
+def command_peaks(bag, fs_hz: float) -> dict:
+    """Return the peaks of what the bridge wrote (``Measurement.applied``, channel 0)."""
+    from rths_common import bagio, topics
+
+    data = bagio.step_arrays(bag, topics.MEASUREMENT, ('applied',))
+    if data['step'].size == 0:
+        return {'command_peak_m': None}
+    order = np.argsort(data['step'], kind='stable')
+    u = data['applied'][order, 0]
+    u = u[np.isfinite(u)]
+    v = np.diff(u) * fs_hz
+    a = np.diff(v) * fs_hz
+    return {'command_peak_m': float(np.max(np.abs(u))) if u.size else None,
+            'command_infinite': int(np.sum(np.isinf(data['applied'][:, 0]))),
+            'velocity_peak_m_s': float(np.max(np.abs(v))) if v.size else 0.0,
+            'acceleration_peak_m_s2': float(np.max(np.abs(a))) if a.size else 0.0}
+
+
+def bag_side(bag, fs_hz: float, limits: dict) -> dict:
+    """Return the bag's side of a case: peaks against limits, final state, verification."""
+    from rths_bringup.evidence import verify
+    from rths_common import bagio, topics
+
+    out = command_peaks(bag, fs_hz)
+    if out['command_peak_m'] is not None:
+        out['within_limits'] = bool(
+            out['command_peak_m'] <= limits['stroke_m'] + 1e-9
+            and out['velocity_peak_m_s'] <= limits['velocity_m_s'] * (1 + 1e-6) + 1e-9
+            and out['acceleration_peak_m_s2'] <= limits['acceleration_m_s2'] * (1 + 1e-6)
+            + 1e-6)
+    out['limits'] = limits
+    states, stamps = [], []
+    for _, _, msg in bagio.read_messages(bag, [topics.STATUS]):
+        if msg.node == 'bridge':
+            states.append(int(msg.safety_state))
+            stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+    out['final_safety_state'] = states[-1] if states else None
+    out['worst_safety_state'] = max((s for s in states if s != 4), default=None)
+    out['last_bridge_stamp_ns'] = max(stamps) if stamps else None
+    out['samples_in_bag'] = len(set(bagio.step_arrays(bag, topics.MEASUREMENT, ())['step']
+                                    .tolist()))
+    report = verify(bag)
+    out['verify_problems'] = report['problems']
+    return out
+
+
+def run_case(name: str, args, workdir: Path, log) -> dict:
+    """Run one case; return its result (module doc)."""
+    from rths_actuator_bridge.safety import SAFETY_PARAMS
+    from rths_bench.bench_loop import run_once
+
+    la = loop_args(args)
+    limits = {k: SAFETY_PARAMS[k][0] for k in ('stroke_m', 'velocity_m_s', 'acceleration_m_s2')}
+    steps = int(args.rate * args.duration)
+    bag = workdir / 'bag'
+    kind = name.split('_')[0]
+    env_before = dict(os.environ)
+    stall_ms = 0
+    result: dict = {'case': name}
+    if kind == 'stall':
+        _, node, ms = name.split('_')
+        stall_ms = int(ms)
+        try:
+            # lazy: the system tests' fault injection (installed by make setup), only here
+            from rths_system_tests.faults import overlay_env
+        except ImportError:
+            raise OSError('the stall cases need the system tests package rths_system_tests '
+                          "(run 'make setup')") from None
+        every = max(min(int(STALL_EVERY_S * args.rate), steps // 2), 1)
+        os.environ.update(overlay_env(dict(os.environ), {node: {'delay_every': every,
+                                                                'delay_ms': float(ms)}}))
+        result.update(stall_node=node, stall_ms=stall_ms, stall_every_steps=every,
+                      stalls=int((steps - 1) // every))
+    watcher = Watcher(bag, steps, kill={'kill': name.split('_')[-1]}.get(kind, ''),
+                      list_threads=kind == 'cpu')
+    hog = Hogs(kind, workdir, args.memory_fraction) if kind in ('cpu', 'memory', 'io') else None
+    try:
+        watcher.start()
+        if hog is not None:
+            hog.__enter__()
+        try:
+            loop = run_once(args.rate, args.duration, la, workdir, log, label=name)
+        except OSError as err:            # a killed container wrote no timing files
+            loop = {'run_completed': False, 'loop_error': str(err).split(';')[0]}
+        finally:
+            if hog is not None:
+                hog.__exit__(None, None, None)
+                result['load'] = hog.info
+    finally:
+        watcher.stop()
+        os.environ.clear()
+        os.environ.update(env_before)
+    result.update({k: loop.get(k) for k in (
+        'steps', 'deadline_misses', 'deadline_miss_pct', 'late_or_missed_pct', 'stalled_ticks',
+        'clock_overruns', 'run_completed', 'loop_error', 'latency_us_p99', 'cpu_pct',
+        'loadavg_before', 'loadavg_after') if k in loop})
+    result.update(watcher.result)
+    if bag.exists():
+        result.update(bag_side(bag, args.rate, limits))
+    produced = loop.get('steps')
+    if produced is not None and 'samples_in_bag' in result:
+        result['samples_produced'] = produced
+        result['samples_lost'] = max(produced - result['samples_in_bag'], 0)
+    if 'kill_wall_ns' in result and result.get('last_bridge_stamp_ns'):
+        result['loss_before_kill_ms'] = round(
+            (result['kill_wall_ns'] - result['last_bridge_stamp_ns']) * 1e-6, 1)
+    if kind == 'stall':
+        result['expected_safety_state'] = expected_state(stall_ms)
+        result['state_as_documented'] = result.get('final_safety_state') == \
+            result['expected_safety_state']
+    return result
+
+
+def print_case(r: dict) -> None:
+    """Print one case on one line."""
+    extra = ''
+    if 'expected_safety_state' in r:
+        extra = (f", expected {r['expected_safety_state']} "
+                 f"({'as documented' if r['state_as_documented'] else 'NOT AS DOCUMENTED'})")
+    if 'loss_before_kill_ms' in r:
+        extra += f", bag ends {r['loss_before_kill_ms']} ms before the kill"
+    print(f"{r['case']}: misses {r.get('deadline_misses')}, late-or-missed "
+          f"{r.get('late_or_missed_pct')} %, stalled ticks {r.get('stalled_ticks')}, command "
+          f"peak {r.get('command_peak_m')} m (within limits {r.get('within_limits')}), final "
+          f"safety state {r.get('final_safety_state')}{extra}, samples "
+          f"{r.get('samples_in_bag')}/{r.get('samples_produced')} in the bag", flush=True)
+
+
+def cmd_bench_faults(args) -> int:
+    """Run ``rths bench faults``: every selected case, then write JSON."""
+    from rths_bench.bench_loop import domain_id, machine_info
+
+    if not args.rate > 0 or not args.duration > 0:
+        raise ValueError('--rate and --duration must be > 0')
+    if not 0 < args.memory_fraction <= 0.9:
+        raise ValueError(f'--memory-fraction {args.memory_fraction}: use (0, 0.9]')
+    cases = select(args.cases)
+    keep = Path(args.keep) if args.keep else None
+    date = time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())
+    report: dict = {'machine': machine_info(), 'date': date, 'rate_hz': args.rate,
+                    'duration_s': args.duration, 'expected_safety_state_by_stall_ms':
+                    {str(k): v for k, v in EXPECTED_STATE.items()},
+                    'stall_limit_s': STALL_LIMIT_S, 'cases': {}}
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix='rths-bench-faults-') as tmp:
+        base = keep or Path(tmp)
+        base.mkdir(parents=True, exist_ok=True)
+        os.environ['ROS_DOMAIN_ID'] = str(domain_id(-1))
+        with open(base / 'launch.log', 'w') as log:
+            for i, name in enumerate(cases):
+                print(f'[{i + 1}/{len(cases)}] {name} ...', flush=True)
+                r = run_case(name, args, base / name, log)
+                print_case(r)
+                report['cases'][name] = r
+    report['wall_s'] = round(time.monotonic() - t0, 1)
+    report['machine']['loadavg_end'] = [round(x, 2) for x in os.getloadavg()]
+    stalls = [r for r in report['cases'].values() if 'state_as_documented' in r]
+    report['summary'] = {
+        'all_within_limits': all(r.get('within_limits', True) for r in report['cases'].values()),
+        'stall_states_as_documented': all(r['state_as_documented'] for r in stalls),
+        'samples_lost_under_load': {n: r.get('samples_lost') for n, r in report['cases'].items()
+                                    if n.endswith('_hog')},
+        'loss_before_kill_ms': {n: r.get('loss_before_kill_ms')
+                                for n, r in report['cases'].items() if n.startswith('kill_')},
+    }
+    print(json.dumps(report['summary']), flush=True)
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps(report, indent=2))
+        print(f'wrote {args.out}')
+    return 0

@@ -1,0 +1,69 @@
+"""``rths bench faults`` on a tiny configuration, and the parts it is made of.
+
+The graph run (a 2 s composed run with one injected 200 ms bridge stall, then a
+SIGKILL of the recorder) checks what the bench reports against what the run did:
+the stall's final safety state is the documented one, the command stays inside
+its limits, the bag holds every tick the loop produced and, after the kill, ends
+at most 100 ms before it (issue 28's target).
+"""
+
+import json
+import os
+
+import pytest
+
+from rths_bench import bench_faults as bf
+from rths_bringup.cli import main as rths
+from rths_common import bagio, cdr, topics
+
+
+def test_the_documented_state_per_stall_length():
+    assert bf.EXPECTED_STATE == {20: bf.SAFETY_OK, 50: bf.SAFETY_OK, 200: bf.SAFETY_OK}
+    assert bf.expected_state(600) == bf.SAFETY_STOPPED     # beyond stall_limit_s 0.5 s
+    from rths_actuator_bridge.safety import SAFETY_PARAMS
+    assert SAFETY_PARAMS['stall_limit_s'][0] == bf.STALL_LIMIT_S
+
+
+def test_cases_are_selected_by_name_or_prefix_and_a_typo_is_refused():
+    assert bf.select('stall_bridge') == ['stall_bridge_20', 'stall_bridge_50', 'stall_bridge_200']
+    assert len(bf.select('all')) == 15
+    with pytest.raises(ValueError, match='no such case'):
+        bf.select('cpu_hogg')
+
+
+def test_threads_are_listed_with_their_scheduling():
+    threads = bf.threads_of(os.getpid())
+    me = [t for t in threads if t['tid'] == os.getpid()]
+    assert me and me[0]['policy'] in ('SCHED_OTHER', 'SCHED_FIFO') and me[0]['cpus']
+
+
+def test_command_peaks_are_those_written(tmp_path):
+    bag = tmp_path / 'bag'
+    fs = 1000.0
+    with bagio.BagWriter(bag, topics.LOOP_TOPICS) as w:
+        for k, u in enumerate([0.0, 0.001, 0.003, 0.002]):
+            w.write(topics.MEASUREMENT, k, cdr.pack_step_arrays(k, k, [u], [u], [0.0]))
+    peaks = bf.command_peaks(bag, fs)
+    assert peaks['command_peak_m'] == pytest.approx(0.003)
+    assert peaks['velocity_peak_m_s'] == pytest.approx(2.0)       # 0.002 m in 1 ms
+    assert peaks['acceleration_peak_m_s2'] == pytest.approx(3000.0)   # 2 m/s to -1 m/s
+
+
+def test_the_memory_hog_stays_bounded(tmp_path):
+    before = bf.mem_available()
+    with bf.Hogs('memory', tmp_path, 0.01) as hog:
+        assert 0 < hog.info['held_mb'] <= max(before >> 20, 1) * 0.01 + 64
+    assert not any(p.poll() is None for p in hog.procs)
+
+
+def test_bench_faults_on_a_tiny_run(tmp_path):
+    out = tmp_path / 'faults.json'
+    assert rths(['bench', 'faults', '--cases', 'stall_bridge_200,kill_recorder',
+                 '--duration', '2', '--taps', '16', '--out', str(out)]) == 0
+    report = json.loads(out.read_text())
+    stall = report['cases']['stall_bridge_200']
+    assert stall['stalls'] == 1 and stall['state_as_documented'] and stall['within_limits']
+    assert stall['samples_lost'] == 0 and stall['samples_in_bag'] == stall['samples_produced']
+    kill = report['cases']['kill_recorder']
+    assert kill['killed_pids'] and 0 <= kill['loss_before_kill_ms'] <= 100.0
+    assert kill['within_limits']
