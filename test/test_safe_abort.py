@@ -28,6 +28,7 @@ What the graph must do with it (``rths run``, lock-step, deterministic):
 """
 
 import functools
+import html
 import json
 import re
 import shutil
@@ -149,6 +150,11 @@ def test_uncompensated_unstable_run_ends_in_the_bridges_safe_abort(tmp_path):
     assert summary['planned_steps'] == int(DURATION_S * FS)
     assert summary['damper'] == 'novalve' and summary['force_scale'] == 60.0
     assert summary['compensator']['scheme'] == 'identity'
+    # issue 30: a run that ends in a safety stop is still reviewed: report.html names the stop
+    # (tables 5-9 of the steps before the fault when they are 2 s or more)
+    report = html.unescape((out / 'report.html').read_text())
+    assert summary['safety_stop'] in report
+    assert ('reviewed_steps' in summary) == (summary['fault_step'] >= 2 * FS)
 
     bag = out / 'rths' / 'bag'
     # the bag is readable up to the stop: every loop topic from step 0, in order, no gaps

@@ -30,6 +30,7 @@ setup(
             'rths_benchmark = rths_bench.rths_benchmark',
             'bench_site = rths_bench.bench_site',
             'bench_monitor = rths_bench.bench_monitor',
+            'bench_lab = rths_bench.bench_lab',
             'bench_discrepancy_v3 = rths_bench.bench_discrepancy_v3',
             'bench_discrepancy_unseen = rths_bench.bench_discrepancy_unseen',
             'bench_identification = rths_bench.bench_identification',

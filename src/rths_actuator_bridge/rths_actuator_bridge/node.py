@@ -24,7 +24,7 @@ from rths_actuator_bridge.managed import ManagedNode
 from rths_actuator_bridge.safety import HOLD, RAMP, STOPPED, SafetyLimits
 from rths_common import lifeline, topics
 from rths_common import node_support as ns
-from rths_common.qos import loop_qos, run_info_qos, status_qos
+from rths_common.qos import loop_qos, loop_writer_qos, run_info_qos, status_qos
 from rths_common.stepping import Driver, TickClock
 from rths_common.transport import Transport
 from rths_msgs.msg import Command, ControllerStatus, LoopStatus, Measurement, Specimen
@@ -83,7 +83,8 @@ class BridgeNode:
         self.launcher_lost = False
         self.finalized = False
         qos = loop_qos(self.own['mode'])
-        self.pub = self.node.create_publisher(Measurement, topics.MEASUREMENT, qos)
+        self.pub = self.node.create_publisher(Measurement, topics.MEASUREMENT,
+                                              loop_writer_qos(self.own['mode']))
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
         # Table/DTM sensor channels for the review and the discrepancy workflow (off the loop path;
         # in realtime only when asked for, each publish costs tens of microseconds).

@@ -100,10 +100,12 @@ class LinkEmulator:
         return {'sent': self.sent, 'lost': self.lost, 'delivered': self.delivered}
 
 
-def _qos(kind: str, mode: str):
-    from rths_common.qos import loop_qos, run_info_qos, status_qos
+def _qos(kind: str, mode: str, writer: bool = False):
+    """Return the QoS of a relayed topic of ``kind``: its readers', or (``writer``) its writers'."""
+    from rths_common.qos import loop_qos, loop_writer_qos, run_info_qos, status_qos
 
-    return {'loop': lambda: loop_qos(mode), 'run_info': run_info_qos,
+    loop = loop_writer_qos if writer else loop_qos
+    return {'loop': lambda: loop(mode), 'run_info': run_info_qos,
             'status': status_qos}[kind]()
 
 
@@ -147,7 +149,8 @@ class Relay:
         for src, dst, topics in (('a', 'b', A_TO_B), ('b', 'a', B_TO_A)):
             for topic, kind in topics:
                 qos = _qos(kind, mode)
-                pub = self.nodes[dst].create_publisher(_msg_type(topic), topic, qos)
+                pub = self.nodes[dst].create_publisher(_msg_type(topic), topic,
+                                                       _qos(kind, mode, writer=True))
                 routes.append((src, dst, topic, kind, qos, pub))
         for src, _dst, topic, _kind, qos, pub in routes:   # B -> A first: B's graph arms
             if src == 'b':

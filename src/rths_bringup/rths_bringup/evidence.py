@@ -10,9 +10,11 @@
   The bridge writes a measurement and a status every tick: all of them must be
   there (:func:`bag_missing`). The interface displacements and commands go
   through the review's step alignment (:func:`rths_review.review.aligned_steps`):
-  re-sends and short gaps it fills are counted, longer gaps make the bag
-  incomplete. A run that stopped early says why (a safety stop, or a recording
-  recovered after a crash, ``reindexed``);
+  re-sends and short gaps are counted (at most MAX_FILLED_PCT of the steps,
+  none longer than MAX_GAP_S, not at the start); longer gaps make the bag
+  incomplete (the review still reviews it and states them). A run that stopped
+  early says why (a safety stop, or a recording recovered after a crash,
+  ``reindexed``);
 * ``provenance``: rths version, git commit, host and the files the bag carries
   (:mod:`rths_common.provenance`).
 
@@ -23,6 +25,12 @@ whole and complete).
 from pathlib import Path
 
 from rths_common import bagio, bagstore, provenance, topics
+
+#: Gaps of the interface displacements and commands a complete bag may have (the review
+#: fills them linearly): at most this share of the steps [%] ...
+MAX_FILLED_PCT = 1.0
+#: ... none longer than this [s], and none at step 0.
+MAX_GAP_S = 0.05
 
 
 def bag_missing(summary: dict) -> list:
@@ -104,9 +112,18 @@ def completeness(bag: Path, info: dict) -> dict:
             try:
                 _, repairs = aligned_steps(bagio.step_arrays(bag, topic, (field,)), (field,),
                                            fs, f'{topic}')
-                entry.update(repairs)
             except ValueError as err:
                 problems.append(str(err).split(';')[0])
+            else:
+                seen = repairs.pop('recorded')
+                entry.update(repairs)
+                longest = repairs['longest_gap_steps']
+                if repairs['filled'] and (100.0 * repairs['filled'] / seen.size > MAX_FILLED_PCT
+                                          or longest > MAX_GAP_S * fs or not seen[0]):
+                    problems.append(f"{topic}: {repairs['filled']} missing steps in "
+                                    f"{repairs['gaps']} gap(s), the longest {longest} steps "
+                                    f'(more than {MAX_FILLED_PCT:g} % or a gap over '
+                                    f'{MAX_GAP_S:g} s): the recording is incomplete')
         out['topics'][topic] = entry
     status = summary.get('status bridge', {})
     ticks = int(status.get('steps', 0))

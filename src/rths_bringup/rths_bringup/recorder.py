@@ -37,7 +37,9 @@ has exited) before it closes the bag.
 
 When the launcher dies (:mod:`rths_common.lifeline`) the recorder keeps
 recording until the bridge reports STOPPED (its safe stop is over; composed: the
-pipe ended), then closes the bag.
+pipe ended), or until the bridge has been silent for BRIDGE_SILENT_S (it had
+stopped or died before: no STOPPED will come), at most LOST_TAIL_S; then it
+closes the bag and ends at once (no rclpy teardown: nobody waits for it).
 """
 
 from collections import deque
@@ -66,11 +68,19 @@ STAMPED = (topics.INTERFACE_DISPLACEMENT, topics.COMMAND, topics.MEASUREMENT, to
 COMMIT_PERIOD_S = 0.05
 #: Longest batch of the writer thread [s] (the ``batch_s`` parameter's upper bound).
 MAX_BATCH_S = 0.05
-#: After the stop request the recorder keeps taking messages this long [s] ...
+#: After the stop request the recorder keeps taking messages at least this long [s], until
+#: none came for TAIL_IDLE_S (what DDS delivered but the recorder had not taken yet, on a
+#: loaded machine seconds of the loop: the bridge's safe stop among them), at most
+#: MAX_TAIL_S (the launcher sends SIGTERM 5 s after SIGINT) ...
 TAIL_S = 0.2
+TAIL_IDLE_S = 0.1
+MAX_TAIL_S = 4.0
 #: ... and after its launcher died, until the bridge reports STOPPED (its safe stop is
-#: over), at most LOST_TAIL_S [s] (the run's processes are gone within 1 s).
-LOST_TAIL_S = 0.75
+#: over), at most LOST_TAIL_S [s] (the run's processes are gone within 1 s) ...
+LOST_TAIL_S = 0.6
+#: ... or until no status of the bridge came for this long [s] (a live bridge reports
+#: every tick, ~1 ms, while it holds and ramps: it had stopped or died already).
+BRIDGE_SILENT_S = 0.15
 _STOPPED = 3                     # rths_msgs/LoopStatus SAFETY_STOPPED
 
 
@@ -99,6 +109,8 @@ class Recorder:
         self.run_info.update(provenance.collect(params.get('config_dir') or None))
         self.queue = deque()
         self.bridge_stopped = False    # (after the launcher died) the bridge reported STOPPED
+        self.bridge_heard = None       # monotonic time of the bridge's last status (DDS)
+        self.taken = 0                 # messages taken from DDS (the tail waits until idle)
         self.wake = threading.Event()
         self.running = True
         self.count = 0
@@ -152,7 +164,7 @@ class Recorder:
         return ', '.join(parts)
 
     def hurry(self):
-        """Launcher dead: back to nice 0 (where allowed), the bag must close within a second."""
+        """Back to nice 0 (where allowed): the run is over, what is in flight must reach the bag."""
         for tid in (int(t) for t in os.listdir('/proc/self/task')):
             try:
                 os.setpriority(os.PRIO_PROCESS, tid, 0)
@@ -172,31 +184,49 @@ class Recorder:
 
         def on_message(raw: bytes):
             # only a deque append (thread-safe): the writer thread drains in batches
+            self.taken += 1
             if ours(raw):
                 queue.append((topic, now_ns(), raw))
 
         def on_status(raw: bytes):
+            self.taken += 1
             if not ours(raw):
                 return
             queue.append((topic, now_ns(), raw))
-            if lifeline.lost() and cdr.status_state(raw) == ('bridge', _STOPPED):
-                self.bridge_stopped = True
+            if lifeline.lost():
+                node, state = cdr.status_state(raw)
+                if node == 'bridge':
+                    self.bridge_heard = time.monotonic()
+                    self.bridge_stopped = self.bridge_stopped or state == _STOPPED
         return on_status if topic == topics.STATUS else on_message
 
     def collect_tail(self, lost: bool):
         """Take the messages still in flight after the stop request (module constants).
 
-        After the launcher died (processes layout) that is until the bridge's
-        STOPPED status arrived; composed, the statuses come through the pipe.
+        After a stop request: at least TAIL_S, then until nothing came for
+        TAIL_IDLE_S, at most MAX_TAIL_S.  After the launcher died (processes
+        layout): until the bridge's STOPPED status arrived or the bridge fell
+        silent (BRIDGE_SILENT_S), at most LOST_TAIL_S; composed, the statuses come
+        through the pipe.
         """
         start = time.monotonic()
         executor = ns.make_executor('events')
         executor.add_node(self.node)
         wait_stop = lost and self.pipe_fd < 0
-        while time.monotonic() - start < (LOST_TAIL_S if wait_stop else TAIL_S):
-            if wait_stop and self.bridge_stopped:
-                break
-            executor.spin_once(timeout_sec=0.02)
+        taken, idle_since = self.taken, start
+        while True:
+            now = time.monotonic()
+            if wait_stop:
+                if now - start >= LOST_TAIL_S or self.bridge_stopped or now - max(
+                        self.bridge_heard or start, start) > BRIDGE_SILENT_S:
+                    break
+            else:
+                idle = now - idle_since >= TAIL_IDLE_S
+                if now - start >= MAX_TAIL_S or (now - start >= TAIL_S and idle):
+                    break
+            executor.spin_once(timeout_sec=0.01)
+            if self.taken != taken:
+                taken, idle_since = self.taken, time.monotonic()
         executor.remove_node(self.node)
 
     def _read_pipe(self):
@@ -258,8 +288,7 @@ def main(argv=None):
     # The events executor has the least per-message overhead: the recorder takes every
     # message of every node and must keep up with the loop.
     ns.spin_until_done(rec.node, ns.make_executor('events'), lifeline.lost)
-    if lifeline.lost():
-        rec.hurry()
+    rec.hurry()      # the loop is over (or its launcher died): take the rest at full speed
     rec.collect_tail(lifeline.lost())
     if not rec.wait_for_pipe():
         print('recorder: the container did not close the recording pipe within 60 s; '
@@ -269,8 +298,8 @@ def main(argv=None):
     foreign = f'; {rec.foreign} of another run not recorded' if rec.foreign else ''
     print(f'recorder: {count} messages written{piped} in {time.monotonic() - t0:.1f} s'
           f'{foreign}', flush=True)
+    lifeline.end_if_lost(0)     # the bag is closed: no rclpy teardown once the launcher died
     rclpy.shutdown()
-    lifeline.end_if_lost(0)
     return 0
 
 

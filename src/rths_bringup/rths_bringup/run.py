@@ -20,9 +20,12 @@ and the launcher with 1 (``node bridge died (exit code 3: safety stop)``).  ``rt
 then reads the bag (:func:`read_safety_stop`), writes ``OUT/summary.json`` and
 ``OUT/review.txt`` with ``safety_stop`` (the bridge's fault text), the fault and stop
 steps, the ``steps`` run and the final actuator position (:func:`safety_stop_summary`),
-prints them and exits with :data:`EXIT_SAFETY_STOP`.  Tables 5-9 are not computed: after
-the fault the plant holds and ramps to the safe position, so a comparison with the
-reference would be meaningless.
+prints them and exits with :data:`EXIT_SAFETY_STOP`.  The run is still reviewed up to
+the fault (after it the plant holds and ramps to the safe position, which no reference
+describes): with at least 2 s before the fault, tables 5-9 of those steps, the plots and
+``OUT/report.html``, the stop's figures beside them (``reviewed_steps`` the steps the
+tables cover); with less, ``OUT/report.html`` holds the stop's report and real-time
+figures only.
 """
 
 import datetime
@@ -322,9 +325,16 @@ def safety_stop_summary(step, state, fault, applied, displacement, force, fs_hz:
 def read_safety_stop(bag):
     """Return the bridge's safety stop recorded in a bag (:func:`safety_stop_summary`), else None.
 
-    None when the bridge never reported STOPPED in ``/rths/status``.  The
-    summary also holds the run's parameters from the bag's run information and
-    every distinct fault the bridge reported (``safety_faults``).
+    None when the bridge never reported a fault, or reported one but neither
+    its STOPPED status nor a last command at the safe position is in the bag.  A
+    recorder that lagged the loop (processes layout, loaded machine) may close
+    the bag before the last statuses of the stop reach it: when the bag's last
+    status of the bridge is HOLD or RAMP and its last command written is the
+    safe position, the bag's last measured step stands for the stop
+    (``stop_step``, with ``stop_inferred``: True; the real STOPPED step is not
+    known, and the report says so).  The summary also holds the run's parameters from
+    the bag's run information and every distinct fault the bridge reported
+    (``safety_faults``).
     """
     import numpy as np
 
@@ -337,11 +347,23 @@ def read_safety_stop(bag):
             status[int(msg.step)] = int(msg.safety_state)
             if msg.fault and msg.fault not in faults:
                 faults.append(msg.fault)
-    if STOPPED not in status.values() or not faults:
+    if not faults:
         return None
+    info = bagio.run_info(bag)
+    bridge = runinfo.section(info, 'bridge')
+    safe = float(bridge.get('safe_position_m', 0.0) or 0.0)
     meas = bagio.step_arrays(bag, topics.MEASUREMENT, ('applied', 'displacement', 'force'))
+    order = np.argsort(meas['step'], kind='stable')
+    meas = {k: np.asarray(v)[order] for k, v in meas.items()}
     steps = meas['step']
     state = np.array([status.get(int(k), ACTIVE) for k in steps])
+    inferred = False
+    if not np.any(state == STOPPED) and status and steps.size and meas['applied'].shape[1]:
+        last_status = status[max(status)]
+        if last_status != ACTIVE and float(meas['applied'][-1, 0]) == safe:
+            state = np.where(steps > max(status), last_status, state)
+            state[-1] = STOPPED
+            inferred = True
     if not np.any(state == STOPPED):  # STOPPED after the last recorded measurement
         return None
 
@@ -350,10 +372,8 @@ def read_safety_stop(bag):
 
     from rths_review.review import EXTERNAL, controller_counts, external_controller
 
-    info = bagio.run_info(bag)
     fs = bagio.sampling_rate(bag)
     numerical = runinfo.section(info, 'numerical')
-    bridge = runinfo.section(info, 'bridge')
     external = external_controller(bridge)
     summary = {
         'record': numerical.get('record'), 'scale': numerical.get('scale'),
@@ -365,7 +385,8 @@ def read_safety_stop(bag):
     }
     summary.update(safety_stop_summary(
         steps, state, faults[0], channel0(meas['applied']), channel0(meas['displacement']),
-        channel0(meas['force']), fs, float(bridge.get('safe_position_m', 0.0) or 0.0)))
+        channel0(meas['force']), fs, safe))
+    summary['stop_inferred'] = inferred
     summary['safety_faults'] = faults
     summary['damper'] = summary['specimen']   # the former name of the key, kept for a while
     counts = controller_counts(bag)
@@ -389,8 +410,11 @@ def safety_stop_text(s: dict) -> str:
         f"specimen {specimen_title(s)} x {s['force_scale']}, {s['mode']}, compensator {scheme}",
         f"  safety stop: {s['safety_stop']}",
         f"  fault at step {s['fault_step']} ({s['fault_time_s']:.3f} s); hold, ramp to the safe "
-        f"position {s['safe_position_m']:g} m; STOPPED at step {s['stop_step']} "
-        f"({s['stop_time_s']:.3f} s)",
+        f"position {s['safe_position_m']:g} m; " + (
+            f"the bag ends at step {s['stop_step']} ({s['stop_time_s']:.3f} s) with the command "
+            'at the safe position, before the STOPPED status reached it (inferred stop; the '
+            'recorder lagged the loop)' if s.get('stop_inferred') else
+            f"STOPPED at step {s['stop_step']} ({s['stop_time_s']:.3f} s)"),
         f"  steps run: {s['steps']}" + (f" of {s['planned_steps']} planned"
                                         if s.get('planned_steps') else ''),
         f"  final command {metres(s['final_command_m'], '.3g')}, measured displacement "
@@ -615,6 +639,7 @@ def _run(args) -> int:
                                  args.mode, {'numerical': numerical, 'bridge': base['bridge']},
                                  storage=args.storage, live=args.live, layout=args.layout)
             if stop is not None:
+                _write_identification_stop(stop, out)
                 raise RuntimeError(f'the identification run ended in the bridge\'s safety stop '
                                    f'({stop["safety_stop"]}); check the excitation against the '
                                    f'limits in {config / "bridge.yaml"}')
@@ -784,7 +809,8 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
     """Write and print the summary of an RTHS run the bridge stopped; return EXIT_SAFETY_STOP."""
     from rths_common.params import core_params
     from rths_numerical.substructure import make_substructure
-    from rths_review.review import REALTIME_KEYS, bridge_realtime, read_loop
+    from rths_review.report_html import write_report, write_stop_report
+    from rths_review.review import REALTIME_KEYS, bridge_realtime, read_loop, review_text
 
     stop['planned_steps'] = int(make_substructure(core_params(numerical)).n_steps)
     stop['bag'] = str(bag)
@@ -792,14 +818,45 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
         timing = bridge_realtime(read_loop(bag)['status'].get('bridge', {}),
                                  stop['planned_steps'], stop['fs_hz'], limits)
         stop.update({key: timing[key] for key in REALTIME_KEYS})
-    _say('step 4: no review (tables 5-9): the bridge stopped the run')
-    (out / 'summary.json').write_text(json.dumps(stop, indent=2))
     text = safety_stop_text(stop)
-    (out / 'review.txt').write_text(text)
+    # the review of what ran before the fault (tables 5-9 need 2 s of it)
+    _say('step 4: review of the run up to the safety stop')
+    try:
+        summary = _review(bag, out, limits)
+    except ValueError as err:
+        _say(f'no tables 5-9: {err}')
+        summary = None
+    if summary is None:
+        (out / 'summary.json').write_text(json.dumps(stop, indent=2))
+        (out / 'review.txt').write_text(text)
+        write_stop_report(out, stop, text)
+    else:
+        # the stop's own figures win (steps: the steps run); the review's count stays beside
+        summary = {**summary, 'reviewed_steps': summary['steps'], **stop}
+        (out / 'summary.json').write_text(json.dumps(summary, indent=2))
+        text = text + '\n' + review_text(summary)
+        (out / 'review.txt').write_text(text)
+        write_report(out, summary)
     print(text, end='', flush=True)
-    _say(f'results: {out}/summary.json, {out}/review.txt, bag {bag}; exit code '
-         f'{EXIT_SAFETY_STOP} (safety stop)')
+    _say(f'results: {out}/report.html, {out}/summary.json, {out}/review.txt, bag {bag}; '
+         f'exit code {EXIT_SAFETY_STOP} (safety stop)')
     return EXIT_SAFETY_STOP
+
+
+def _write_identification_stop(stop: dict, out: Path) -> None:
+    """Write summary.json, review.txt and report.html of an identification run's safety stop.
+
+    No RTHS ran, so no tables; the files say which phase stopped, where and why.
+    """
+    from rths_review.report_html import write_stop_report
+
+    stop = dict(stop, phase='identification', record='identification excitation (BLWN)',
+                scale=1.0)
+    text = 'IDENTIFICATION ' + safety_stop_text(stop)
+    (out / 'summary.json').write_text(json.dumps(stop, indent=2))
+    (out / 'review.txt').write_text(text)
+    write_stop_report(out, stop, text)
+    _say(f'identification stopped: {out}/summary.json, {out}/review.txt, {out}/report.html')
 
 
 def _review(bag, out, limits=None, specimen_model=None, dof=None) -> dict:

@@ -408,6 +408,10 @@ def message_class(msgtype: str):
     return getattr(importlib.import_module(f'{package}.{kind}'), name)
 
 
+#: Longest single wait of :func:`flush` for acknowledgements [s].
+FLUSH_SLICE_S = 0.02
+
+
 def flush(publishers, timeout_s: float = 2.0) -> bool:
     """Wait until every reliable reader acknowledged what ``publishers`` sent.
 
@@ -416,14 +420,20 @@ def flush(publishers, timeout_s: float = 2.0) -> bool:
     recorder would lose the last steps of a run.  Once the launcher died the
     wait is at most ``lifeline.LOST_FLUSH_S``: the readers that died with it
     never answer, and the run's processes must be gone within a second.
+    ``timeout_s`` bounds the whole wait, not each publisher's; it waits in
+    slices of FLUSH_SLICE_S so that a launcher dying meanwhile shortens it too
+    (a bridge flushing after its safety stop outlived a killed launcher by 2 s).
     """
-    if lifeline.lost():
-        timeout_s = min(timeout_s, lifeline.LOST_FLUSH_S)
-
-    ok = True
-    for pub in publishers:
-        ok = pub.wait_for_all_acked(Duration(nanoseconds=int(timeout_s * 1e9))) and ok
-    return ok
+    t0 = time.monotonic()
+    pending = list(publishers)
+    while pending:
+        limit = min(timeout_s, lifeline.LOST_FLUSH_S) if lifeline.lost() else timeout_s
+        left = limit - (time.monotonic() - t0)
+        if left <= 0:
+            return False
+        wait = Duration(nanoseconds=int(min(left, FLUSH_SLICE_S) * 1e9))
+        pending = [pub for pub in pending if not pub.wait_for_all_acked(wait)]
+    return True
 
 
 def wait_for_readers(node, publisher, wanted: int, timeout_s: float = 60.0) -> None:

@@ -55,11 +55,74 @@ def test_qos_per_mode():
     assert rt.reliability == ReliabilityPolicy.BEST_EFFORT and rt.depth == 1
     ls = qos.loop_qos('lockstep')
     assert ls.reliability == ReliabilityPolicy.RELIABLE
-    assert qos.recorder_qos('realtime').reliability == ReliabilityPolicy.BEST_EFFORT
+    # realtime: the loop's readers stay best-effort, depth 1; the writers and the recorder
+    # are reliable with a deep history (issue 30: a best-effort recorder lost 220 steps)
+    writer = qos.loop_writer_qos('realtime')
+    assert writer.reliability == ReliabilityPolicy.RELIABLE
+    assert writer.durability == DurabilityPolicy.VOLATILE
+    assert writer.depth == qos.REALTIME_WRITER_DEPTH >= 4 * 1024
+    rec = qos.recorder_qos('realtime')
+    assert rec.reliability == ReliabilityPolicy.RELIABLE and rec.depth == writer.depth
+    assert qos.loop_writer_qos('lockstep') == ls
     info = qos.run_info_qos()
     assert info.durability == DurabilityPolicy.TRANSIENT_LOCAL and info.depth == 1
     with pytest.raises(ValueError):
         qos.loop_qos('fast')
+
+
+def test_realtime_recorder_matches_the_loop_writer_and_loses_nothing_while_it_lags():
+    """Issue 30: a recorder that does not take messages for a while (a loaded machine) loses none.
+
+    Over DDS (Fast DDS here): the realtime loop writer matches both a loop reader
+    (best-effort, depth 1: it still sees only the newest step) and the recorder's
+    reader; 3000 steps published while the recorder is not spun all reach it, in
+    order.  (With the former best-effort recorder of depth 1000 the first 2000
+    were gone.)  A reliable reader would not match a best-effort writer: the
+    writers must offer reliability.
+    """
+    import time
+    import uuid
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import UInt64
+
+    topic = f'/rths_test_{uuid.uuid4().hex[:8]}'
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        node = rclpy.create_node('qos_probe', context=ctx)
+        pub = node.create_publisher(UInt64, topic, qos.loop_writer_qos('realtime'))
+        got_loop, got_rec = [], []
+        node.create_subscription(UInt64, topic, lambda m: got_loop.append(m.data),
+                                 qos.loop_qos('realtime'))
+        node.create_subscription(UInt64, topic, lambda m: got_rec.append(m.data),
+                                 qos.recorder_qos('realtime'))
+        best_effort_pub = node.create_publisher(
+            UInt64, topic + '_be', QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+        node.create_subscription(UInt64, topic + '_be', lambda m: None,
+                                 qos.recorder_qos('realtime'))
+        t_end = time.monotonic() + 10.0
+        while pub.get_subscription_count() < 2 and time.monotonic() < t_end:
+            time.sleep(0.01)
+        assert pub.get_subscription_count() == 2      # the loop reader and the recorder
+        assert best_effort_pub.get_subscription_count() == 0
+        n = 3000
+        for k in range(n):                 # nobody takes them meanwhile
+            pub.publish(UInt64(data=k))
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        t_end = time.monotonic() + 20.0
+        while len(got_rec) < n and time.monotonic() < t_end:
+            executor.spin_once(timeout_sec=0.05)
+        assert got_rec == list(range(n))
+        assert got_loop and len(got_loop) < n      # best-effort depth 1: the newest only
+        executor.shutdown()
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
 
 
 def test_tick_thread_ticks_in_order_and_stops():

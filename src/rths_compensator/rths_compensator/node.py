@@ -25,7 +25,7 @@ from std_msgs.msg import Float64MultiArray, String
 
 from rths_common import gaps, lifeline, topics
 from rths_common import node_support as ns
-from rths_common.qos import loop_qos, status_qos
+from rths_common.qos import loop_qos, loop_writer_qos, status_qos
 from rths_common.stepping import Driver
 from rths_common.transport import Transport
 from rths_compensator.core import CompensatorCore
@@ -84,7 +84,8 @@ class CompensatorNode:
         self.monitor_mode = str(self.params.get('monitor') or 'off')
         if self.monitor_mode != 'off':
             self._setup_monitor()
-        self.pub = self.node.create_publisher(Command, topics.COMMAND, qos)
+        self.pub = self.node.create_publisher(Command, topics.COMMAND,
+                                              loop_writer_qos(self.own['mode']))
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
         self.sender = ''  # this node's writer gid, in frame_id: the bridge checks the sender
         ns.wait_for_readers(self.node, self.pub, self.own['wait_for_subscribers'])
@@ -123,7 +124,7 @@ class CompensatorNode:
         self.pending = None                          # the displacement message waiting
         self.coef_pub = self.node.create_publisher(Float64MultiArray,
                                                    topics.COMPENSATOR_COEFFICIENTS,
-                                                   loop_qos(self.own['mode']))
+                                                   loop_writer_qos(self.own['mode']))
         self.io_meas = Transport(Measurement, ('applied', 'displacement'), not self.lockstep,
                                  self.own['run_id'])
         self.node.create_subscription(Measurement, topics.MEASUREMENT, self.on_measurement,

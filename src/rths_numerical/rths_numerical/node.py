@@ -16,7 +16,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String, UInt64
 
 from rths_common import gaps, lifeline, topics
 from rths_common import node_support as ns
-from rths_common.qos import loop_qos, run_info_qos, status_qos
+from rths_common.qos import loop_qos, loop_writer_qos, run_info_qos, status_qos
 from rths_common.stepping import Driver
 from rths_common.transport import Transport
 from rths_msgs.msg import InterfaceDisplacement, LoopStatus, Measurement
@@ -63,7 +63,8 @@ class NumericalNode:
         self.io_in = Transport(Measurement, ('applied', 'displacement', 'force'), raw, run_id)
         self.io_out = Transport(InterfaceDisplacement, ('displacement',), raw, run_id)
         self.pub = self.node.create_publisher(InterfaceDisplacement,
-                                              topics.INTERFACE_DISPLACEMENT, qos)
+                                              topics.INTERFACE_DISPLACEMENT,
+                                              loop_writer_qos(own['mode']))
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
         self.inputs_pub = self.node.create_publisher(String, topics.RUN_INPUTS, status_qos())
         self.response_pub = self.node.create_publisher(Float64MultiArray, topics.RESPONSE,

@@ -144,6 +144,18 @@ def notes(s: dict) -> list:
     for topic, rec in s.get('recording', {}).items():
         lines.append(f"recording of {topic}: {rec['resent']} re-sent step(s) dropped, "
                      f"{rec['filled']} step(s) missing from the bag filled linearly")
+    if s.get('recording_complete') is False:
+        fs = s['fs_hz']
+        gaps = s.get('recording_gaps', [])
+        where = ', '.join(f"{g['topic'].rsplit('/', 1)[-1]} {g['steps']} step(s) from step "
+                          f"{g['first_step']} ({g['start_s']:.3f} s)" for g in gaps[:5])
+        more = f' and {len(gaps) - 5} more gap(s)' if len(gaps) > 5 else ''
+        lines.append(f"RECORDING INCOMPLETE: the bag lacks steps (longest gap "
+                     f"{s['recording_longest_gap_steps']} steps, "
+                     f"{s['recording_longest_gap_steps'] / fs:.3f} s): {where}{more}; the "
+                     f"tracking errors are computed on the {s['recording_kept_pct']:.2f} % of "
+                     'the steps the bag holds, the delays and responses with the gaps filled '
+                     'linearly')
     return lines
 
 
@@ -174,6 +186,30 @@ def render(summary: dict, images: dict) -> str:
             + f'<p>{html.escape(misses)}</p>\n' + extra
             + (f'<p>safety faults:</p><ul>{faults}</ul>\n' if faults else '')
             + figures + '</body></html>\n')
+
+
+def render_stop(summary: dict, text: str) -> str:
+    """Return the page of a run the bridge's safety supervisor stopped too early for tables 5-9.
+
+    ``text``: the printed report of the stop (``rths_bringup.run.safety_stop_text``).
+    """
+    title = (f"RTHS ABORTED by the bridge's safety supervisor: {summary.get('record')} x "
+             f"{summary.get('scale')}, {summary.get('mode')}")
+    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+            f'<title>{html.escape(title)}</title><style>{_STYLE}</style></head>\n<body>\n'
+            f'<h1>{html.escape(title)}</h1>\n'
+            f'<p>No tables 5-9: the run stopped before 2 s of it could be reviewed.</p>\n'
+            f'<pre>{html.escape(text)}</pre>\n' + realtime_table(summary)
+            + '</body></html>\n')
+
+
+def write_stop_report(out_dir, summary: dict, text: str) -> Path:
+    """Write ``out_dir/report.html`` of a run stopped too early for a review (render_stop)."""
+    path = Path(out_dir) / 'report.html'
+    tmp = path.with_suffix('.html.tmp')
+    tmp.write_text(render_stop(summary, text), encoding='utf-8')
+    tmp.replace(path)
+    return path
 
 
 def write_report(out_dir, summary: dict) -> Path:

@@ -1,10 +1,14 @@
 """Review of a recorded run, rebuilt from its bag alone.
 
 A realtime run recorded over DDS (processes layout) may hold a step twice (the
-numerical node re-sends step 0 until the loop runs) or lack a few (the
-recorder subscribes best-effort): :func:`aligned_steps` drops identical re-sends
-and fills short gaps, and the review says how many. A run stopped before the
-end of its record (a safety stop, a killed launcher) is reviewed up to where it
+numerical node re-sends step 0 until the loop runs) or lack some (a recorder
+that fell more than the writers' history behind the loop): :func:`aligned_steps`
+drops identical re-sends and fills the gaps linearly (the spectral delay
+estimate needs an unbroken series); the review is written anyway and says
+how complete the recording is: ``recording_complete`` and every gap (topic,
+first step, length, time) in summary.json, review.txt and report.html, and the
+tracking errors of Table 5 are computed on the recorded steps only.  A run
+stopped before the end of its record (a safety stop, a killed launcher) is reviewed up to where it
 stopped and said to be cut short; a realtime run's timing is judged by
 :mod:`rths_review.realtime`.
 """
@@ -92,10 +96,8 @@ def read_loop(bag) -> dict:
     return {'steps': data, 'status': status}
 
 
-#: Recording gaps :func:`aligned_steps` fills: at most this share of a topic's steps, and
-#: no single gap longer than MAX_GAP_S (a lost burst longer than that refuses the review).
-MAX_FILLED_PCT = 1.0
-MAX_GAP_S = 0.05
+#: Gaps listed one by one in summary.json (the rest are counted).
+MAX_GAPS_LISTED = 20
 
 
 def aligned_steps(data: dict, fields, fs_hz: float, where: str) -> tuple:
@@ -103,9 +105,12 @@ def aligned_steps(data: dict, fields, fs_hz: float, where: str) -> tuple:
 
     A step recorded more than once with the same values is a re-send: the
     copies are dropped. A step missing from the recording is filled linearly
-    from its neighbours when the gaps stay within ``MAX_FILLED_PCT`` of the steps
-    and ``MAX_GAP_S`` each. Returns ``(arrays, {'resent': n, 'filled': n})``;
-    ValueError (naming ``where``) for conflicting copies or larger gaps.
+    from its neighbours (before the first recorded step: that step's values),
+    however long the gap. Returns ``(arrays, info)``: ``info`` holds
+    ``resent``, ``filled`` (steps), ``gaps`` (the number of gaps),
+    ``longest_gap_steps``, ``gap_list`` (up to MAX_GAPS_LISTED
+    ``{'first_step', 'steps', 'start_s'}``) and ``recorded`` (a bool per step).
+    ValueError (naming ``where``) for an empty topic or conflicting copies.
     """
     steps = np.asarray(data['step'], dtype=np.int64)
     if steps.size == 0:
@@ -127,29 +132,28 @@ def aligned_steps(data: dict, fields, fs_hz: float, where: str) -> tuple:
         out[f] = table
     seen[steps] = True
     missing = np.flatnonzero(~seen)
-    longest = _longest_run(missing)
-    if missing.size and (100.0 * missing.size / seen.size > MAX_FILLED_PCT
-                         or longest > MAX_GAP_S * fs_hz or missing[0] == 0):
-        raise ValueError(f'{where}: {missing.size} missing and {int((~first).sum())} '
-                         f'duplicated steps (longest gap {longest} steps); the recording lost '
-                         'more than can be filled, so the run cannot be aligned (a recorder '
-                         'subscribed over DDS fell behind the loop on a loaded machine; the '
-                         'composed layout records through a pipe and loses nothing)')
     if missing.size:
         known = np.flatnonzero(seen)
         for f in fields:
             for col in out[f].T:            # a view: filled in place
                 col[missing] = np.interp(missing, known, col[known])
-    return out, {'resent': int((~first).sum()), 'filled': int(missing.size)}
+    runs = gap_runs(missing)
+    return out, {'resent': int((~first).sum()), 'filled': int(missing.size),
+                 'gaps': len(runs), 'longest_gap_steps': max((n for _, n in runs), default=0),
+                 'gap_list': [{'first_step': k, 'steps': n, 'start_s': round(k / fs_hz, 4)}
+                              for k, n in runs[:MAX_GAPS_LISTED]],
+                 'recorded': seen}
 
 
-def _longest_run(index) -> int:
-    """Length of the longest run of consecutive integers in sorted ``index``."""
+def gap_runs(index) -> list:
+    """Return ``[(first, length)]`` of the runs of consecutive integers in sorted ``index``."""
+    index = np.asarray(index, dtype=np.int64)
     if index.size == 0:
-        return 0
+        return []
     breaks = np.flatnonzero(np.diff(index) != 1)
-    bounds = np.r_[-1, breaks, index.size - 1]
-    return int(np.max(np.diff(bounds)))
+    starts = np.r_[0, breaks + 1]
+    ends = np.r_[breaks, index.size - 1]
+    return [(int(index[a]), int(b - a + 1)) for a, b in zip(starts, ends, strict=True)]
 
 
 def _pct(values, q):
@@ -269,9 +273,10 @@ def _tracking(bag, fs):
     """Return desired, applied (shifted by the delay line), measured up to a safety trip.
 
     Also the measurement arrays, the bridge's status, the step count ``n``, the
-    bridge ticks recorded and the repairs of the recording (:func:`aligned_steps`).
-    ValueError if the bag holds under 2 s before its end or a safety stop, or lost
-    more messages than can be filled.
+    bridge ticks recorded, the repairs of the recording (:func:`aligned_steps`)
+    and ``kept``: per step of the ``n``, True if both its interface displacement
+    and its measurement are in the bag (not filled).
+    ValueError if the bag holds under 2 s before its end or a safety stop.
     """
     recording, series = {}, {}
     for topic, fields in ((topics.INTERFACE_DISPLACEMENT, ('displacement',)),
@@ -298,18 +303,46 @@ def _tracking(bag, fs):
     if n < 2 * fs:
         raise ValueError(f'{bag}: only {n} steps recorded before the end or a safety stop; '
                          'the review needs at least 2 s')
-    return desired, applied, measured, meas, status, n, recorded, recording
+    kept = (recording[topics.INTERFACE_DISPLACEMENT].pop('recorded')[:n]
+            & recording[topics.MEASUREMENT].pop('recorded')[:n])
+    return desired, applied, measured, meas, status, n, recorded, recording, kept
 
 
-def table5_of(desired, applied, measured, fs) -> dict:
-    """Return table 5: delay and tracking of the plant (command) and the compensated actuator."""
+def table5_of(desired, applied, measured, fs, kept=None) -> dict:
+    """Return table 5: delay and tracking of the plant (command) and the compensated actuator.
+
+    ``kept``: the steps the recording holds (True) and those filled in its gaps;
+    the tracking errors are computed on the kept steps only, the delays (a
+    spectral estimate that needs an unbroken series) on the whole, gaps filled.
+    """
     # Table 5: the plant (command -> measured; with D > 0 it includes the D-step delay line)
     # and the compensated actuator (desired -> measured)
+    k = slice(None) if kept is None else np.asarray(kept, dtype=bool)
     return {
         'delay_ms_before': weighted_delay_ms(applied, measured, fs),
         'delay_ms_after': weighted_delay_ms(desired, measured, fs),
-        'tracking_rel_rms_pct_before': relative_rms_pct(applied, measured),
-        'tracking_rel_rms_pct_after': relative_rms_pct(desired, measured),
+        'tracking_rel_rms_pct_before': relative_rms_pct(applied[k], measured[k]),
+        'tracking_rel_rms_pct_after': relative_rms_pct(desired[k], measured[k]),
+    }
+
+
+def recording_summary(recording: dict, kept) -> dict:
+    """Return the summary's account of the recording: complete or not, and its gaps.
+
+    ``recording``: per topic the ``info`` of :func:`aligned_steps` (without
+    ``recorded``); ``kept``: per reviewed step, True if every topic holds it.
+    """
+    gaps = [dict(g, topic=topic) for topic, rec in recording.items() for g in rec['gap_list']]
+    return {
+        'recording_complete': not any(rec['filled'] for rec in recording.values()),
+        'recording_missing_steps': {topic: rec['filled'] for topic, rec in recording.items()},
+        'recording_gaps': sorted(gaps, key=lambda g: (g['first_step'], g['topic'])),
+        'recording_longest_gap_steps': max((rec['longest_gap_steps']
+                                            for rec in recording.values()), default=0),
+        'recording_kept_pct': round(100.0 * float(np.mean(kept)), 3),
+        'recording': {topic: {k: rec[k] for k in ('resent', 'filled', 'gaps',
+                                                  'longest_gap_steps')}
+                      for topic, rec in recording.items() if rec['resent'] or rec['filled']},
     }
 
 
@@ -388,12 +421,12 @@ def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None,
         raise ValueError(f'{bag}: the bag has no /rths/response (recorded before it existed), '
                          'so only the interface DOF can be reviewed; drop --dof')
 
-    desired, applied, measured, meas, status, n, recorded, recording = _tracking(bag, fs)
+    desired, applied, measured, meas, status, n, recorded, recording, kept = _tracking(bag, fs)
     timing = bridge_realtime(status, sub.n_steps, fs, limits) if (
         info.get('mode') == 'realtime') else None
     stage(1, REVIEW_STAGES)
 
-    table5 = table5_of(desired, applied, measured, fs)
+    table5 = table5_of(desired, applied, measured, fs, kept)
     # Tables 6-9: the 2nd floor relative to the ground
     ug = sub.ug[:n] if sub.frame == 'absolute' else 0.0
     floor2 = (desired - ug if sub.iface == [model.output_dof]
@@ -446,8 +479,7 @@ def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None,
         'planned_steps': int(sub.n_steps),
         'recorded_steps': recorded,
         'cut_short': recorded < sub.n_steps,
-        'recording': {topic: rec for topic, rec in recording.items()
-                      if rec['resent'] or rec['filled']},
+        **recording_summary(recording, kept),
     }
     if timing is not None:
         summary.update({key: timing[key] for key in REALTIME_KEYS})
@@ -567,7 +599,7 @@ def review_site(bag, out_dir, info, fs, stage) -> dict:
     Tables 6-9 need the numerical model, which ran in the client (OpenSees,
     OpenFresco): the bag holds none, so they are left out rather than guessed.
     """
-    desired, applied, measured, meas, status, n, recorded, recording = _tracking(bag, fs)
+    desired, applied, measured, meas, status, n, recorded, recording, kept = _tracking(bag, fs)
     stage(1, REVIEW_STAGES)
     bridge = runinfo.section(info, 'bridge')
     summary = {
@@ -576,13 +608,12 @@ def review_site(bag, out_dir, info, fs, stage) -> dict:
         'backend': bridge.get('backend', DEFAULT_BACKEND),
         'specimen': bridge.get('specimen', bridge.get('dtm', '-')),   # as the site's file says
         'compensator': runinfo.section(info, 'compensator'),
-        **table5_of(desired, applied, measured, fs),
+        **table5_of(desired, applied, measured, fs, kept),
         'deadline_misses': int(status.get('misses', 0)),
         'deadline_miss_pct': 100.0 * status.get('misses', 0)
         / max(len(status.get('step', [])), 1),
         'safety_faults': status.get('faults', []),
-        'recording': {topic: rec for topic, rec in recording.items()
-                      if rec['resent'] or rec['filled']},
+        **recording_summary(recording, kept),
         'site_events': [f.split(': ', 1)[1] for f in  # drop the 'step 0: ' prefix
                         read_loop(bag)['status'].get('site', {}).get('faults', [])],
     }
