@@ -323,8 +323,8 @@ def command_peaks(bag, fs_hz: float) -> dict:
 
 def bag_side(bag, fs_hz: float, limits: dict) -> dict:
     """Return the bag's side of a case: peaks against limits, final state, verification."""
-    from rths_bringup.evidence import verify
     from rths_common import bagio, topics
+    from rths_review.evidence import verify
 
     out = command_peaks(bag, fs_hz)
     if out['command_peak_m'] is not None:

@@ -187,7 +187,7 @@ def cmd_launch(args) -> int:
                       live=args.live, layout=args.layout, mode=getattr(args, 'mode', None),
                       enclave_keystore=args.enclave_keystore)
     if args.bag and Path(args.bag).exists():
-        from rths_bringup.evidence import bag_missing
+        from rths_review.evidence import bag_missing
         from rths_review.review import loop_summary
         print_bag_info(args.bag)
         summary = loop_summary(args.bag)
@@ -240,7 +240,7 @@ def cmd_bag_reindex(args) -> int:
 
 def cmd_bag_repair(args) -> int:
     """``rths bag repair``."""
-    from rths_bringup.evidence import repair
+    from rths_review.evidence import repair
 
     result = repair(args.bag)
     if not result['repaired']:
@@ -256,7 +256,7 @@ def cmd_bag_repair(args) -> int:
 
 def cmd_bag_verify(args) -> int:
     """``rths bag verify``: 0 whole and complete, 1 damaged, cut or incomplete."""
-    from rths_bringup.evidence import print_report, verify
+    from rths_review.evidence import print_report, verify
 
     report = verify(args.bag)
     if args.json:

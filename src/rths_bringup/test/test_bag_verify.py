@@ -16,8 +16,8 @@ import textwrap
 import pytest
 
 from rths_bringup.cli import main as rths
-from rths_bringup.evidence import repair, verify
 from rths_common import bagio, bagstore, cdr, provenance, topics
+from rths_review.evidence import repair, verify
 
 FS = 1024.0
 N = 2048            # 2 s of ticks

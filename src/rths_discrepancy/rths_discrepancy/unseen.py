@@ -36,6 +36,8 @@ import time
 import numpy as np
 from scipy import integrate
 
+from rths_discrepancy import iodisc, restoring
+
 SUB = 16
 #: The rates a case is drawn from (Hz): odd, non-round values as well as round ones.
 RATES = (250.0, 409.6, 610.35, 1000.0, 1234.5, 2048.0, 3300.0, 5000.0)
@@ -365,7 +367,6 @@ def judge(case, names, gap_ratio):
 
 
 def _test_mask(n):
-    from rths_discrepancy import restoring
     m = np.zeros(n, bool)
     m[int(restoring.TRAIN_FRACTION * n):int(0.98 * n)] = True
     return m
@@ -375,7 +376,6 @@ def run_case(case):
     """Run the workflow on one case; return the row (names, errors, gap ratio, seconds)."""
     t0 = time.perf_counter()
     if case['scenario'] == 'restoring-force':
-        from rths_discrepancy import restoring
         data, clean = restoring_case(case)
         data = restoring.validate(data, source=case['name'])
         cut, _ = restoring.whole_periods(data)
@@ -388,7 +388,6 @@ def run_case(case):
         if case['offset']:      # the gap of the effect: from the nominal with its offset
             before = min(before, res['candidates']['force_offset'])
     else:
-        from rths_discrepancy import iodisc
         rec, clean = io_case(case)
         res = iodisc.run([rec], plots=False)
         p = res['per_output']['y']
