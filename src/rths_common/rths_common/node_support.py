@@ -420,14 +420,17 @@ def flush(publishers, timeout_s: float = 2.0) -> bool:
     recorder would lose the last steps of a run.  Once the launcher died the
     wait is at most ``lifeline.LOST_FLUSH_S``: the readers that died with it
     never answer, and the run's processes must be gone within a second.
-    ``timeout_s`` bounds the whole wait, not each publisher's; it waits in
-    slices of FLUSH_SLICE_S so that a launcher dying meanwhile shortens it too
-    (a bridge flushing after its safety stop outlived a killed launcher by 2 s).
+    ``timeout_s`` is each publisher's share, as when they were waited for one
+    after another (the whole wait is at most ``timeout_s`` times their number);
+    it waits in slices of FLUSH_SLICE_S so that a launcher dying meanwhile cuts
+    it to ``lifeline.LOST_FLUSH_S`` (a bridge flushing after its safety stop
+    outlived a killed launcher by 2 s).
     """
     t0 = time.monotonic()
     pending = list(publishers)
+    budget = timeout_s * max(len(pending), 1)
     while pending:
-        limit = min(timeout_s, lifeline.LOST_FLUSH_S) if lifeline.lost() else timeout_s
+        limit = min(budget, lifeline.LOST_FLUSH_S) if lifeline.lost() else budget
         left = limit - (time.monotonic() - t0)
         if left <= 0:
             return False
