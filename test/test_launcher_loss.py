@@ -18,35 +18,16 @@ loaded machine it lags by seconds, so there only the first point and a closed,
 readable bag are required (the composed layout's recording pipe loses nothing).
 """
 
-import os
 import subprocess
 import time
 
 import numpy as np
 import pytest
 
+from rths_bench.bench_lab import run_processes
 from rths_system_tests import REPO, graph_env, rths, rths_executable, wait_for, wait_steps
 
 HOLD, RAMP, STOPPED = 1, 2, 3
-
-
-def run_processes(launcher_pid: int) -> list:
-    """Pids of the live processes whose environment names ``launcher_pid`` as their launcher."""
-    key = f'RTHS_LAUNCHER_PID={launcher_pid}'.encode()
-    pids = []
-    for entry in os.listdir('/proc'):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f'/proc/{entry}/environ', 'rb') as f:
-                env = f.read().split(b'\0')
-            with open(f'/proc/{entry}/stat') as f:
-                state = f.read().rsplit(')', 1)[1].split()[0]
-        except OSError:
-            continue
-        if key in env and state != 'Z':           # a zombie has ended, only its parent is gone
-            pids.append(int(entry))
-    return pids
 
 
 @pytest.mark.parametrize('layout', ['composed', 'processes'])
