@@ -17,13 +17,7 @@ demo: setup  ## run the main job (rths run: identify, design, RTHS of the buildi
 TEST_NEEDS := setup $(if $(filter no,$(OPENSEES)),,setup-opensees)
 
 test: $(TEST_NEEDS)  ## build and run every test through colcon test (installs OpenSeesPy unless OPENSEES=no); non-zero on any failure
-	@# (-e is on: a failing command must be caught with ||, or the summary below never runs)
-	@source env.sh && rm -rf build/*/test_results log/latest_test && rc=0 && rc2=0 && \
-	  { colcon test --base-paths src test --executor sequential --event-handlers console_cohesion+ \
-	    --return-code-on-test-failure --pytest-args -p no:cacheprovider || rc=$$? ; } ; \
-	  { colcon test-result --verbose || rc2=$$? ; } ; \
-	  if [ $$rc -ne 0 ] || [ $$rc2 -ne 0 ]; then echo "make test: FAILED"; exit 1; fi; \
-	  echo "make test: all tests passed"
+	@tools/run_tests.sh
 
 docs: setup  ## regenerate docs/cli.md and docs/benchmarks.md (from argparse), docs/performance.md (from docs/bench/*.json), the packages' module tables
 	@source env.sh && python -m rths_bench.refdocs --write

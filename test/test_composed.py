@@ -16,7 +16,15 @@ import signal
 import numpy as np
 import pytest
 
-from rths_system_tests import REPO, launch_background, rths, started_pids, wait_for, wait_steps
+from rths_system_tests import (
+    REPO,
+    Drain,
+    launch_background,
+    rths,
+    started_pids,
+    wait_for,
+    wait_steps,
+)
 
 RATE_HZ = 256.0
 DURATION_S = 2.0
@@ -122,13 +130,14 @@ def test_a_signal_to_the_container_stops_all_three_nodes_and_keeps_the_bag(tmp_p
     proc = launch_background(realtime_config(tmp_path / 'config', duration_s=600.0), bag)
     try:
         head = wait_for(proc, 'graph connected', timeout=120)
-        wait_steps(bag, int(RATE_HZ), timeout=60)
+        drain = Drain(proc, head)
+        wait_steps(bag, int(RATE_HZ), timeout=60, drain=drain)
         os.kill(started_pids(head)['container'], sig)
-        rest, _ = proc.communicate(timeout=120)
+        proc.wait(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
-    out = head + rest
+    out = drain.text()
     assert f'node container died (exit code {128 + sig})' in out, out[-3000:]
     for line in ('numerical: ', 'compensator: ', 'bridge: ', 'recording tee: ',
                  f'container: ended by signal {int(sig)}'):

@@ -14,6 +14,7 @@ import pytest
 from rths_review.review import STEP_TOPICS
 from rths_system_tests import (
     REPO,
+    Drain,
     launch_background,
     rths,
     sigkill_mid_run,
@@ -102,15 +103,16 @@ def test_ctrl_c_or_sigterm_stops_every_node_and_closes_the_bag(tmp_path, sig):
     proc = launch_background(CONFIG, bag, '--duration', 600.0)
     try:
         head = wait_for(proc, 'graph connected')
-        wait_steps(bag, 1024)
-        committed = wait_committed(bag, STEP_TOPICS, 100)   # (the recorder may lag the loop)
+        drain = Drain(proc, head)
+        wait_steps(bag, 1024, drain=drain)
+        committed = wait_committed(bag, STEP_TOPICS, 100, drain=drain)   # (the recorder lags)
         pids = started_pids(head)
         proc.send_signal(sig)
-        rest, _ = proc.communicate(timeout=60)
+        proc.wait(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
-    out = head + rest
+    out = drain.text()
     assert proc.returncode == 128 + sig, out[-3000:]       # 130 / 143, as a shell reports it
     assert f'{signal.Signals(sig).name} received: stopping all nodes' in out
     assert set(pids) == {'numerical', 'compensator', 'bridge', 'recorder'}

@@ -16,18 +16,46 @@ open for over a minute.  Now (rths_common.lifeline), in either layout:
 In the processes layout the recorder reads the loop over DDS at nice 10: on a
 loaded machine it lags by seconds, so there only the first point and a closed,
 readable bag are required (the composed layout's recording pipe loses nothing).
+That run is uncompensated, and its bridge tolerates START_GAP_STEPS missing
+commands in a row instead of 10: on the 2-core CI VM (2026-11-27) the processes
+layout's first commands after the clock started came 4-110 steps late (a DDS
+start-up delay of the first messages between the processes, seen at the commit
+before issue 30's work too; 3 of 4 default runs tripped the watchdog at step
+10).  What this test is about, the supervisor's death, is the same either way.
 """
 
+from pathlib import Path
+import shutil
 import subprocess
 import time
 
 import numpy as np
 import pytest
+import yaml
 
 from rths_bench.bench_lab import run_processes
-from rths_system_tests import REPO, graph_env, rths, rths_executable, wait_for, wait_steps
+from rths_system_tests import (
+    REPO,
+    Drain,
+    graph_env,
+    rths,
+    rths_executable,
+    wait_for,
+    wait_steps,
+)
 
 HOLD, RAMP, STOPPED = 1, 2, 3
+#: The processes-layout run's bridge watchdog [steps] (module doc): 0.25 s at 1024 Hz.
+START_GAP_STEPS = 256
+
+
+def tolerant_config(directory: Path) -> Path:
+    """config/ copied to ``directory`` with the bridge's watchdog_steps = START_GAP_STEPS."""
+    shutil.copytree(REPO / 'config', directory)
+    bridge = yaml.safe_load((directory / 'bridge.yaml').read_text())
+    bridge['bridge']['ros__parameters']['watchdog_steps'] = START_GAP_STEPS
+    (directory / 'bridge.yaml').write_text(yaml.safe_dump(bridge, sort_keys=False))
+    return directory
 
 
 @pytest.mark.parametrize('layout', ['composed', 'processes'])
@@ -35,13 +63,16 @@ def test_sigkill_of_the_supervisor_mid_run_stops_everything_safely(tmp_path, lay
     from rths_common import bagio, runinfo, topics
 
     out = tmp_path / 'run'
+    extra = [] if layout == 'composed' else [
+        '--config', str(tolerant_config(tmp_path / 'config')), '--no-compensation']
     proc = subprocess.Popen(
         [rths_executable(), 'run', '--mode', 'realtime', '--layout', layout, '--duration', '20',
-         '--plant', str(REPO / 'config' / 'plant.yaml'), '--out', str(out)],
+         '--plant', str(REPO / 'config' / 'plant.yaml'), '--out', str(out), *extra],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=graph_env())
     try:
-        wait_for(proc, 'first command: clock started', timeout=180.0)
-        wait_steps(out / 'rths' / 'bag', int(2.5 * 1024))   # 2.5 s of the RTHS are recorded
+        drain = Drain(proc, wait_for(proc, 'first command: clock started', timeout=180.0))
+        # 2.5 s of the RTHS are recorded
+        wait_steps(out / 'rths' / 'bag', int(2.5 * 1024), drain=drain)
         children = run_processes(proc.pid)
         assert len(children) == (2 if layout == 'composed' else 4), children
     finally:
@@ -51,7 +82,6 @@ def test_sigkill_of_the_supervisor_mid_run_stops_everything_safely(tmp_path, lay
     while run_processes(proc.pid) and time.monotonic() - t0 < 10.0:
         time.sleep(0.01)
     gone_s = time.monotonic() - t0
-    proc.stdout.close()
     assert not run_processes(proc.pid), 'processes of the run outlived it by 10 s'
     assert gone_s <= 1.0, f'the last process of the run ended {gone_s:.2f} s after the kill'
 

@@ -6,6 +6,7 @@ import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 
@@ -97,19 +98,53 @@ def committed_count(bag, topic) -> int:
     return int(committed_counts(bag).get(topic, 0))
 
 
-def wait_committed(bag, topics, count, timeout=60.0) -> dict:
-    """Wait until the bag holds more than ``count`` committed messages of every topic."""
+class Drain:
+    """Read a running process's text output in a thread, keeping all of it.
+
+    While a test waits on the bag, nobody else reads the launcher's pipe: once it
+    is full (64 KiB) the launcher blocks on writing, its nodes block on their log
+    lines and the loop stops.  ``head``: what was read before.
+    """
+
+    def __init__(self, proc: subprocess.Popen, head: str = ''):
+        self.proc = proc
+        self.lines = [head]
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+
+    def _read(self):
+        for line in self.proc.stdout:
+            self.lines.append(line)
+
+    def text(self, timeout: float = 30.0) -> str:
+        """Everything read; after the process ended, wait (``timeout``) for the rest."""
+        if self.proc.poll() is not None:
+            self.thread.join(timeout)
+        return ''.join(self.lines)
+
+
+def wait_committed(bag, topics, count, timeout=60.0, drain: Drain | None = None) -> dict:
+    """Wait until the bag holds more than ``count`` committed messages of every topic.
+
+    ``drain``: the run's output; its process ending first fails at once, and a
+    failure shows the end of the output.
+    """
     t_end = time.monotonic() + timeout
     while True:
         have = {t: committed_count(bag, t) for t in topics}
         if min(have.values()) > count:
             return have
-        if time.monotonic() > t_end:
-            raise AssertionError(f'the recorder committed only {have} within {timeout} s')
+        ended = drain is not None and drain.proc.poll() is not None
+        if ended or time.monotonic() > t_end:
+            why = (f'the run ended (exit code {drain.proc.returncode}) after the recorder '
+                   f'committed {have}' if ended else
+                   f'the recorder committed only {have} within {timeout} s')
+            tail = '' if drain is None else '; the run printed:\n' + drain.text()[-4000:]
+            raise AssertionError(why + tail)
         time.sleep(0.1)
 
 
-def wait_steps(bag, steps, timeout=90.0) -> dict:
+def wait_steps(bag, steps, timeout=90.0, drain: Drain | None = None) -> dict:
     """Wait until a running launch's bag holds ``steps`` committed measurements.
 
     (The launcher shows the run's progress on stderr, not the numerical node's
@@ -117,7 +152,7 @@ def wait_steps(bag, steps, timeout=90.0) -> dict:
     """
     from rths_common import topics
 
-    return wait_committed(bag, [topics.MEASUREMENT], steps - 1, timeout)
+    return wait_committed(bag, [topics.MEASUREMENT], steps - 1, timeout, drain)
 
 
 def sigkill_mid_run(proc, bag, victim, timeout=120.0) -> str:
@@ -131,8 +166,9 @@ def sigkill_mid_run(proc, bag, victim, timeout=120.0) -> str:
     from rths_review.review import STEP_TOPICS
 
     head = wait_for(proc, 'graph connected')
-    wait_steps(bag, 1024)                           # one simulated second is done
-    wait_committed(bag, STEP_TOPICS, 100)
+    drain = Drain(proc, head)
+    wait_steps(bag, 1024, drain=drain)              # one simulated second is done
+    wait_committed(bag, STEP_TOPICS, 100, drain=drain)
     os.kill(started_pids(head)[victim], signal.SIGKILL)
-    rest, _ = proc.communicate(timeout=timeout)
-    return head + rest
+    proc.wait(timeout=timeout)
+    return drain.text()

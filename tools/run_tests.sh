@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# make test: every test through colcon test; exits non-zero on any failure.
+#
+# Two streams on the project's 2-core machines: the system tests (test/: node graphs, real
+# time, kills) at normal priority and, beside them at nice 19, the unit tests of every package,
+# which then get mostly the CPU the system tests leave idle (the loop nodes' SCHED_FIFO
+# threads always come first).  The units' output is printed after the system tests'.
+# RTHS_TEST_SERIAL=1: one stream (units first, then the system tests), as before.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+# shellcheck disable=SC1091
+source env.sh
+rm -rf build/*/test_results log/latest_test log/units log/units.txt
+args=(--base-paths src test --executor sequential --event-handlers console_cohesion+
+      --return-code-on-test-failure --pytest-args -p no:cacheprovider)
+rc_units=0
+rc_system=0
+if [ "${RTHS_TEST_SERIAL:-0}" = 1 ]; then
+  colcon test "${args[@]}" || rc_system=$?
+else
+  nice -n 19 colcon --log-base log/units test --packages-skip rths_system_tests "${args[@]}" \
+    > log/units.txt 2>&1 &
+  units=$!
+  colcon test --packages-select rths_system_tests "${args[@]}" || rc_system=$?
+  wait "$units" || rc_units=$?
+  echo "--- unit tests of every package (ran beside the system tests at nice 19) ---"
+  cat log/units.txt
+fi
+rc_result=0
+colcon test-result --verbose || rc_result=$?
+if [ "$rc_units" -ne 0 ] || [ "$rc_system" -ne 0 ] || [ "$rc_result" -ne 0 ]; then
+  echo "make test: FAILED"
+  exit 1
+fi
+echo "make test: all tests passed"
