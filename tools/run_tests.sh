@@ -6,7 +6,7 @@
 # which then get mostly the CPU the system tests leave idle (the loop nodes' SCHED_FIFO
 # threads always come first).  The units' output is printed after the system tests'.
 # RTHS_TEST_SERIAL=1: one stream (units first, then the system tests), as before.
-set -uo pipefail
+set -o pipefail          # (not -u: the sourced colcon setup reads unset variables)
 cd "$(dirname "$0")/.."
 # shellcheck disable=SC1091
 source env.sh
