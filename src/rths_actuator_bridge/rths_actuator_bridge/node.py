@@ -103,7 +103,6 @@ class BridgeNode:
         run_id = self.own['run_id']
         self.io_in = Transport(Command, ('command',), raw, run_id)
         self.io_out = Transport(Measurement, ('applied', 'displacement', 'force'), raw, run_id)
-        self.node.create_subscription(Command, topics.COMMAND, self.on_command, qos, raw=raw)
         self.node.create_subscription(String, topics.EMERGENCY_STOP, self.on_estop_topic, 10)
         self.node.create_service(EmergencyStop, topics.EMERGENCY_STOP_SERVICE, self.on_estop_srv)
         # Command source guard: only the configured node's writer may command the actuator.
@@ -140,6 +139,10 @@ class BridgeNode:
             for trigger in (self.node.trigger_configure, self.node.trigger_activate):
                 if trigger() != TransitionCallbackReturn.SUCCESS:
                     raise self.config_error or RuntimeError(f'bridge: {trigger.__name__} failed')
+        # Last: the compensator arms once this reader is seen (and the run starts after it),
+        # so tuning, configure and activate are done before the first command can arrive
+        # (realtime: a command arriving meanwhile waited ~80 ms and started a late clock).
+        self.node.create_subscription(Command, topics.COMMAND, self.on_command, qos, raw=raw)
 
     # ---------------------------------------------------------------- lifecycle
     def on_configure(self, _state) -> TransitionCallbackReturn:

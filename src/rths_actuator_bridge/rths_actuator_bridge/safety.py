@@ -20,6 +20,14 @@ The bridge enforces these rules whatever the other nodes send (issue 4):
 * Watchdog: ``watchdog_steps`` consecutive steps without a new command.  While
   fewer steps are missing the supervisor extrapolates the last command at
   constant velocity (zero acceleration; still checked against every limit).
+  Cold start: in the first ``start_grace_steps`` steps of the run (realtime:
+  ticks since the clock started) misses do not trip it yet; the actuator is at
+  rest there (the command extrapolated from rest holds it) and the commands
+  are rejoined as below once they come.  A run whose commands have not caught
+  up by then trips at that step.  (The processes layout on a 2-core VM: the
+  first commands after the clock started came 2-6 ticks late for ~20 ms while
+  every process ran its first steps, and the 10-step watchdog tripped at step
+  10 in 3 of 4 runs.)
 * Stalls of the loop itself (the bridge's clock: its process or the whole host
   stopped, e.g. a virtual-machine stall; in the composed layout every node
   stops with it): :meth:`SafetySupervisor.stalled` with the number of ticks
@@ -98,6 +106,8 @@ SAFETY_PARAMS = {
     'launcher_loss_stop_s': (0.3, '[s] hold + ramp of the safe stop when the launcher '
                              'supervising the run dies (its processes must be gone within 1 s)'),
     'watchdog_steps': (10, '[steps] missing commands in a row that trip the watchdog'),
+    'start_grace_steps': (128, '[steps] first steps of a run in which missing commands do not '
+                          'trip the watchdog yet (the loop\'s cold start; 0: none)'),
     'stall_limit_s': (0.5, '[s] longest stall of the loop itself (its clock) that resumes; a '
                       'longer one trips the watchdog'),
     'max_invalid_measurements': (3, '[steps] non-finite/lost measurements in a row that the '
@@ -122,6 +132,7 @@ SAFETY_RANGES = {
     'hold_time_s': (0.0, 600.0),
     'launcher_loss_stop_s': (0.0, 600.0),
     'watchdog_steps': (1, 1_000_000),
+    'start_grace_steps': (0, 1_000_000),
     'stall_limit_s': (0.0, 600.0),
     'max_invalid_measurements': (1, 1_000_000),
     'instability_window_steps': (2, 10_000_000),
@@ -134,8 +145,8 @@ SAFETY_RANGES = {
 #: ``n_channels``) instead of one number for all (a multi-actuator rig, docs/multi_actuator.md).
 PER_CHANNEL = ('stroke_m', 'velocity_m_s', 'acceleration_m_s2', 'force_n', 'dtm_rel_disp_m',
                'safe_position_m', 'instability_tracking_m', 'instability_force_n')
-_INT_KEYS = {'watchdog_steps', 'max_invalid_measurements', 'instability_window_steps',
-             'instability_growth_windows'}
+_INT_KEYS = {'watchdog_steps', 'start_grace_steps', 'max_invalid_measurements',
+             'instability_window_steps', 'instability_growth_windows'}
 
 
 @dataclass(frozen=True)
@@ -157,6 +168,7 @@ class SafetyLimits:
     hold_time_s: float = 0.25
     launcher_loss_stop_s: float = 0.3
     watchdog_steps: int = 10
+    start_grace_steps: int = 128
     stall_limit_s: float = 0.5
     max_invalid_measurements: int = 3
     instability_window_steps: int = 256
@@ -230,9 +242,10 @@ def _limit_value(name: str, raw, meaning: str):
     if not math.isfinite(val):
         raise ValueError(f'safety parameter {name!r} = {raw!r} must be finite ({meaning})')
     if key in _INT_KEYS:
-        if val != int(val) or val < 1:
+        low = 0 if key == 'start_grace_steps' else 1
+        if val != int(val) or val < low:
             raise ValueError(f'safety parameter {name!r} = {raw!r} must be an integer '
-                             f'>= 1 ({meaning})')
+                             f'>= {low} ({meaning})')
         return int(val)
     if key != 'safe_position_m' and val <= 0:
         raise ValueError(f'safety parameter {name!r} = {raw!r} must be > 0 ({meaning})')
@@ -493,7 +506,7 @@ class SafetySupervisor:
         if self.state == ACTIVE:
             if command is None:
                 self.missing += 1
-                if self.missing >= lim.watchdog_steps:
+                if self.missing >= lim.watchdog_steps and step >= lim.start_grace_steps:
                     self._trip(f'watchdog: no command for {self.missing} steps '
                                f'(limit {lim.watchdog_steps}) at step {step}')
                 else:

@@ -148,6 +148,32 @@ def test_watchdog_holds_ramps_then_stops_and_deactivates():
     assert after.applied.size == 0      # deactivated backend: nothing written
 
 
+def test_a_cold_start_is_held_then_rejoined_and_a_start_that_never_catches_up_trips():
+    """Misses in the first start_grace_steps do not trip yet; afterwards the watchdog does."""
+    lim = SafetyLimits(fs_hz=FS, stroke_m=0.254, velocity_m_s=0.5, acceleration_m_s2=20.0,
+                       hold_time_s=0.01, ramp_time_s=0.5, watchdog_steps=5,
+                       start_grace_steps=64)
+    ramp = list(0.5e-3 * np.arange(1, 301) / 300)          # commands once the loop runs
+    # step 0's command, then 40 steps without one (the chain's cold start), then commands
+    sent, states, faults, sup = _run([0.0] + [None] * 40 + ramp, lim=lim, extra_steps=0)
+    assert all(s == safety.ACTIVE for s in states) and not any(faults), faults[-1]
+    assert np.all(sent[:41] == 0.0)                       # at rest: held where it was
+    assert sent[-1] == ramp[-1] and sup.rejoins <= 1
+    _assert_within_limits(sent, lim)
+    # the same misses after the grace trip at the fifth, as before
+    sent, states, faults, sup = _run([0.0] * 100 + [None] * 40 + ramp, lim=lim, extra_steps=0)
+    assert states[104] == safety.HOLD and 'no command for 5 steps' in faults[104]
+    # a start that never catches up trips at the end of the grace
+    sent, states, faults, sup = _run([0.0] + [None] * 200, lim=lim, extra_steps=0)
+    tripped = states.index(safety.HOLD)
+    assert tripped == 64 and 'no command for 64 steps' in faults[tripped]
+    _assert_within_limits(sent, lim)
+    # start_grace_steps 0: the first misses count at once
+    sent, states, faults, sup = _run([0.0] + [None] * 40, lim=SafetyLimits(
+        fs_hz=FS, watchdog_steps=5, start_grace_steps=0), extra_steps=0)
+    assert states.index(safety.HOLD) == 5
+
+
 LIM_REJOIN = SafetyLimits(fs_hz=FS, stroke_m=0.254, velocity_m_s=0.5, acceleration_m_s2=20.0,
                           hold_time_s=0.01, ramp_time_s=0.5, watchdog_steps=51)
 

@@ -89,8 +89,6 @@ class CompensatorNode:
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
         self.sender = ''  # this node's writer gid, in frame_id: the bridge checks the sender
         ns.wait_for_readers(self.node, self.pub, self.own['wait_for_subscribers'])
-        self.node.create_subscription(InterfaceDisplacement, topics.INTERFACE_DISPLACEMENT,
-                                      self.on_displacement, qos, raw=raw)
         self.clock = ns.StepClock()
         self.last_out = None
         self.misses = 0
@@ -101,6 +99,11 @@ class CompensatorNode:
             self.io_in.decode(self.io_out.encode(0, (np.zeros(1),)))
             tuning = ns.tune_process(*ns.tuning(self.own, 'compensator'))
             self.log.info(f"{self.own['mode']}: {tuning}")
+        # Last: the numerical node starts the run once this reader is seen, so everything
+        # above (warm-up, tuning) is done before the first displacement can arrive (realtime:
+        # a displacement arriving meanwhile waited tens of ms in a depth-1 queue).
+        self.node.create_subscription(InterfaceDisplacement, topics.INTERFACE_DISPLACEMENT,
+                                      self.on_displacement, qos, raw=raw)
         self.log.info(f"compensator ready: scheme {self.params['scheme']}, "
                       f"{len(self.params['taps'])} taps, "
                       f"{len(self.params['denominator']) - 1} denominator order")
