@@ -18,7 +18,10 @@ rc_system=0
 if [ "${RTHS_TEST_SERIAL:-0}" = 1 ]; then
   colcon test "${args[@]}" || rc_system=$?
 else
-  nice -n 19 colcon --log-base log/units test --packages-skip rths_system_tests "${args[@]}" \
+  # (env --default-signal: a background command of a script ignores SIGINT and SIGQUIT, and
+  # so would every test process under it; tests that stop a program with SIGINT hang then)
+  env --default-signal=INT,QUIT nice -n 19 \
+    colcon --log-base log/units test --packages-skip rths_system_tests "${args[@]}" \
     > log/units.txt 2>&1 &
   units=$!
   colcon test --packages-select rths_system_tests "${args[@]}" || rc_system=$?

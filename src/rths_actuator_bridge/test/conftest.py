@@ -56,7 +56,7 @@ def emulator_process():
         """Interrupt the emulator; return the datagram counts it printed on exit."""
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=60)   # (20 s ran out once beside the system tests)
+        out, _ = proc.communicate(timeout=20)
         for line in out.splitlines():
             if line.startswith('controller emulator stopped: '):
                 stats.update(ast.literal_eval(line.split(': ', 1)[1]))
