@@ -59,6 +59,10 @@ FREQ_SHIFT = 0.005
 DAMPING_SHIFT = 0.10
 #: Loss of overall fit a hard limit may cost when it fits the plateau samples better.
 HARD_LIMIT_MARGIN = 0.1
+#: Samples (at least; and 0.1 % of the record) at the output's edge that can make a plateau:
+#: a limit that clips only the highest peaks of a broadband response holds few samples,
+#: and the vanishing derivative there is what tells it from a peak.
+PLATEAU_MIN_SAMPLES = 8
 #: Lags of the restoring-force term ``C(q)``.
 NC = 3
 SHAPES = {'hysteresis': (0.05, 0.1, 0.2, 0.4, 0.8, 1.6),
@@ -149,7 +153,7 @@ def _plateau(y, top):
     span = float(np.max(y) - np.min(y))
     edge = float(np.max(y)) if top else float(np.min(y))
     near = np.abs(y - edge) <= 0.005 * span
-    if near.mean() < 0.005:
+    if near.sum() < max(PLATEAU_MIN_SAMPLES, 0.001 * y.size):
         return None
     # a plateau: the derivative vanishes while the output sits at the edge
     dy = np.abs(np.gradient(y))
