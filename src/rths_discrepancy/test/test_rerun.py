@@ -76,8 +76,15 @@ def test_specimen_effects_and_sensor_effects():
         return np.array([spec(x)[0] for x in table])
 
     f0 = forces(nominal)
-    sensor = forces(models.with_effects(nominal, {'time_delay': 0.01, 'sensor_bias': 1e-3}))
-    assert np.array_equal(f0, sensor)
+    sensor = models.with_effects(nominal, {'time_delay': 0.01, 'sensor_bias': 1e-3})
+    assert np.array_equal(f0, forces(sensor))
+    # left out, each with its reason (never silently)
+    assert set(rerun.left_out(sensor)) == {'time_delay', 'sensor_bias'}
+    # a load-cell offset is in the reading the bridge returns: R + F_0, as the lab's
+    # force_offset_n (rths_actuator_bridge.simulated) adds it
+    offset = models.with_effects(nominal, {'force_offset': 15.0})
+    np.testing.assert_allclose(forces(offset) - f0, 15.0, atol=1e-9)
+    assert rerun.left_out(offset) == {}
     for eff in ({'coulomb_friction': 20.0}, {'stiffness_error': 4000.0}, {'mass_error': 10.0}):
         f1 = forces(models.with_effects(nominal, eff))
         assert np.sqrt(np.mean((f1 - f0) ** 2)) > 0.01 * np.sqrt(np.mean(f0 ** 2)), eff
