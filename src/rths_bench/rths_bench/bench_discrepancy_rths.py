@@ -16,6 +16,9 @@ whole lab procedure a user runs, each step a ``rths`` command:
 3. the re-run with the updated model: a specimen effect through the reference re-run
    of ``rths discrepancy`` (``rths reference --specimen-model``); an actuator effect through
    ``rths run --plant updated_model.yaml`` (the compensator designed on the updated plant).
+   The nominal and whole-numerical references are the same for every case (same numerical
+   side, same nominal valve #4): the cases share them through ``--reference-cache
+   WORK/reference_cache``, so each is simulated once (:mod:`rths_discrepancy.rerun`).
 
 Per case: ``hidden, size, named, parameter_error_pct, nrmse_before, nrmse_after,
 rths_vs_reference_before_pct, rths_vs_reference_after_pct, seconds``, and where the
@@ -167,7 +170,7 @@ def _timed(row, phase, *argv, log=None):
 
 
 def run_case(case, base_cfg: Path, plant: Path, out: Path, duration: float,
-             run_dir=None, layout='composed') -> dict:
+             run_dir=None, layout='composed', cache=None) -> dict:
     """Run one case end to end; return its row (``run_dir``: an RTHS run already made).
 
     The row carries the wall time of each step (``run_s``: the lock-step RTHS through the
@@ -185,7 +188,7 @@ def run_case(case, base_cfg: Path, plant: Path, out: Path, duration: float,
     summary = json.loads((run / 'summary.json').read_text())
     disc = out / 'discrepancy'
     argv = ['discrepancy', '--scenario', scenario, '--measured', run / 'rths' / 'bag',
-            '--out', disc]
+            '--out', disc, *_cache_args(cache)]
     if scenario == 'actuator':
         argv += ['--model', plant]
     _timed(times, 'discrepancy', *argv, log=out / 'discrepancy.log')
@@ -213,7 +216,8 @@ def run_case(case, base_cfg: Path, plant: Path, out: Path, duration: float,
             row['left_out_of_reference'] = ref['left_out_of_reference']
     elif scenario == 'specimen':
         _timed(times, 'rerun', 'reference', run / 'rths' / 'bag', '--specimen-model',
-               _nominal_specimen(out), '--out', out / 'reference', log=out / 'reference.log')
+               _nominal_specimen(out), '--out', out / 'reference', *_cache_args(cache),
+               log=out / 'reference.log')
         ref = json.loads((out / 'reference' / 'reference.json').read_text())
         before = after = ref['rths_vs_nominal_reference_rel_rms_pct']
     elif named not in ('none', 'unexplained') and set(named.split('+')) <= SENSOR_ONLY:
@@ -234,7 +238,7 @@ def run_case(case, base_cfg: Path, plant: Path, out: Path, duration: float,
 
 
 def run_specimen_case(case, base_cfg: Path, plant: Path, out: Path, duration: float,
-                      layout='composed') -> dict:
+                      layout='composed', cache=None) -> dict:
     """Run a held-out specimen case: the lab's specimen swapped, the model valve #4."""
     from rths_numerical.specimens import SPECIMENS
 
@@ -248,7 +252,7 @@ def run_specimen_case(case, base_cfg: Path, plant: Path, out: Path, duration: fl
            '--layout', layout, '--out', run, log=out / 'run.log')
     disc = out / 'discrepancy'
     argv = ['discrepancy', '--scenario', scenario, '--measured', run / 'rths' / 'bag',
-            '--out', disc]
+            '--out', disc, *_cache_args(cache)]
     if params:     # a mass on the table: the detective's model is the nominal valve #4
         argv += ['--model', _nominal_specimen(out)]
     _timed(row, 'discrepancy', *argv, log=out / 'discrepancy.log')
@@ -274,6 +278,11 @@ def run_specimen_case(case, base_cfg: Path, plant: Path, out: Path, duration: fl
         row['model_parameters'] = result.get('model_parameters')
     row['seconds'] = time.perf_counter() - t0
     return row
+
+
+def _cache_args(cache) -> list:
+    """``--reference-cache DIR`` (the work directory's, shared by the cases) or nothing."""
+    return [] if cache is None else ['--reference-cache', cache]
 
 
 def _nominal_specimen(out: Path) -> Path:
@@ -332,18 +341,20 @@ def summarise_specimens(rows: list) -> dict:
 
 def _case_jobs(cases, specimen_cases, work, base_cfg, plant, duration, nominal, layout):
     """Return (label, function) per case, in output order."""
+    cache = work / 'reference_cache'
     jobs = []
     for i, case in enumerate(cases):
         out = work / f'{i:02d}_{case[0]}_{case[2]:g}'
         reuse = nominal if nominal and i == 0 and case[1] is None else None
         jobs.append((f'{case[0]} {case[1] or ""} {case[2]:g}', case,
                      lambda c=case, o=out, r=reuse: run_case(c, base_cfg, plant, o, duration,
-                                                             run_dir=r, layout=layout)))
+                                                             run_dir=r, layout=layout,
+                                                             cache=cache)))
     for j, case in enumerate(specimen_cases):
         out = work / f'{len(cases) + j:02d}_{case[0]}_{case[1]}'
         jobs.append((f'{case[0]} specimen {case[1]}', case,
                      lambda c=case, o=out: run_specimen_case(c, base_cfg, plant, o, duration,
-                                                             layout=layout)))
+                                                             layout=layout, cache=cache)))
     return jobs
 
 

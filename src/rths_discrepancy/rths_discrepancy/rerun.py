@@ -20,6 +20,13 @@ place in the load cells or the accelerometer, so the reading returned cannot be 
 from it.  Both references use the same coupling, so the difference between them is the
 specimen model alone.
 
+A cache directory (``cache_dir``, ``--reference-cache DIR``) shares the simulations among
+the runs of one study: every reference is stored as ``.npy`` under a key of everything it
+depends on (the run's numerical parameters, its ground-motion samples, the specimen model,
+the frame mass, the integrator), so runs with the same numerical side and nominal specimen
+(a benchmark's cases) simulate the nominal and whole-numerical references once.  The key
+does not cover this code: use a fresh directory after changing it.
+
 Reported: the relative RMS error [%] (seed Table 9 metric) of the RTHS
 against each reference, and against the linear whole-numerical reference of
 seed 6.3.4 (:func:`rths_numerical.reference.simulate_reference`) that
@@ -32,6 +39,7 @@ information lacks them (a recorder started by hand) needs the params
 directory of its launch (``--config DIR``: numerical.yaml and bridge.yaml).
 """
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -190,12 +198,31 @@ def _whole_steps(steps, values, bag) -> np.ndarray:
     return np.interp(whole, steps, values) if missing.size else values
 
 
-def compare(bag, updated_model, config=None, nominal_model=None, progress=None) -> dict:
+def _cached(cache_dir, hits, label, key, compute) -> np.ndarray:
+    """Return ``compute()``, stored in ``cache_dir`` under the hash of ``key`` (None: no cache)."""
+    if cache_dir is None:
+        return compute()
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
+    path = Path(cache_dir) / f'{label}-{digest[:32]}.npy'
+    if path.is_file():
+        hits.append(label)
+        return np.load(path)
+    values = np.asarray(compute(), dtype=float)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f'{path.stem}.{os.getpid()}.tmp.npy')
+    np.save(tmp, values)
+    os.replace(tmp, path)
+    return values
+
+
+def compare(bag, updated_model, config=None, nominal_model=None, progress=None,
+            cache_dir=None) -> dict:
     """RTHS-vs-reference relative RMS error [%] with the nominal and the updated specimen model.
 
     ``updated_model`` is a :class:`.models.SpecimenModel` or a YAML path;
     ``nominal_model`` defaults to the run's Table 4 damper.  ``progress(done, 3)``
-    follows the three simulations (nominal, updated, whole numerical).
+    follows the three simulations (nominal, updated, whole numerical); ``cache_dir``
+    shares them among runs (module docstring).
     """
     numerical, bridge = run_parameters(bag, config)
     if not isinstance(updated_model, models.SpecimenModel):
@@ -212,21 +239,31 @@ def compare(bag, updated_model, config=None, nominal_model=None, progress=None) 
     out = {'bag': str(bag), 'steps': n, 'duration_s': n * sub.dt,
            'nominal_model': nominal.to_dict(), 'updated_model': updated_model.to_dict(),
            'left_out_of_reference': left_out(updated_model)}
+    hits = []
+    side = {'numerical': numerical, 'frame_mass_kg': frame, 'dt': sub.dt,
+            'ground_motion_sha256': hashlib.sha256(
+                np.ascontiguousarray(sub.ag, dtype=float).tobytes()).hexdigest()}
     refs = {}
     for k, (label, model) in enumerate((('nominal', nominal), ('updated', updated_model))):
         if progress:
             progress(k, 3)
-        hist = coupled_rths(make_substructure(numerical), specimen(model, sub.dt, frame))
-        refs[label] = hist['output_disp'][:n]
+        refs[label] = _cached(
+            cache_dir, hits, 'coupled', {**side, 'specimen': model.to_dict(),
+                                         'substeps': SUBSTEPS},
+            lambda m=model: coupled_rths(make_substructure(numerical),
+                                         specimen(m, sub.dt, frame))['output_disp'])[:n]
         out[f'rths_vs_{label}_reference_rel_rms_pct'] = relative_rms_error(floor2, refs[label])
         out[f'{label}_reference_max_disp_2nd_m'] = float(np.max(np.abs(refs[label])))
     if progress:
         progress(2, 3)
-    whole = simulate_reference(sub.model, sub.ag, sub.dt, damper=_params(nominal),
-                               n_dtm=sub.force_scale, frame_mass_kg=frame or FRAME_MASS_KG,
-                               integrator=numerical.get('integrator', 'cr'))
-    out['rths_vs_linear_whole_numerical_rel_rms_pct'] = relative_rms_error(
-        floor2, whole['disp'][:n])
+    whole = _cached(
+        cache_dir, hits, 'whole', {**side, 'damper': nominal.to_dict()},
+        lambda: simulate_reference(sub.model, sub.ag, sub.dt, damper=_params(nominal),
+                                   n_dtm=sub.force_scale, frame_mass_kg=frame or FRAME_MASS_KG,
+                                   integrator=numerical.get('integrator', 'cr'))['disp'])
+    out['rths_vs_linear_whole_numerical_rel_rms_pct'] = relative_rms_error(floor2, whole[:n])
+    if cache_dir is not None:
+        out['reference_cache'] = {'dir': str(cache_dir), 'reused': hits}
     if progress:
         progress(3, 3)
     out['rths_max_disp_2nd_m'] = float(np.max(np.abs(floor2)))

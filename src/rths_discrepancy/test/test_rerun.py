@@ -97,3 +97,26 @@ def test_run_parameters_need_run_information_or_config(tmp_path):
         rerun.run_parameters(bag)
     with pytest.raises(ValueError, match='dtm: none'):
         rerun.run_damper_model({'dtm': 'none'})
+
+
+def test_the_reference_cache_simulates_each_reference_once(tmp_path):
+    """Cases with the same numerical side share a reference: computed once, then reused."""
+    calls = []
+
+    def simulate(value):
+        calls.append(value)
+        return np.full(4, value)
+
+    key = {'numerical': {'record': 'kobe', 'scale': 0.135}, 'specimen': {'m_d': 258.35}}
+    hits = []
+    first = rerun._cached(tmp_path, hits, 'coupled', key, lambda: simulate(1.0))
+    again = rerun._cached(tmp_path, hits, 'coupled', dict(key), lambda: simulate(2.0))
+    np.testing.assert_array_equal(again, first)
+    assert calls == [1.0] and hits == ['coupled']
+    # anything the reference depends on changes its key: simulated anew
+    other = rerun._cached(tmp_path, hits, 'coupled', {**key, 'specimen': {'m_d': 270.0}},
+                          lambda: simulate(3.0))
+    assert calls == [1.0, 3.0] and other[0] == 3.0
+    # no cache directory: always simulated
+    rerun._cached(None, hits, 'coupled', key, lambda: simulate(4.0))
+    assert calls[-1] == 4.0 and hits == ['coupled']
