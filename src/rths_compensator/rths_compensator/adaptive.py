@@ -260,7 +260,8 @@ def _clip_step(new, old, lower, upper, max_step):
         return new
     steps = np.broadcast_to(max_step, new.shape).tolist()
     new[:] = [min(max(min(max(v, o - m), o + m), lo), hi) for v, o, m, lo, hi
-              in zip(new.tolist(), old.tolist(), steps, lower.tolist(), upper.tolist())]
+              in zip(new.tolist(), old.tolist(), steps, lower.tolist(), upper.tolist(),
+                     strict=True)]
     return new
 
 
@@ -463,10 +464,13 @@ def _difference_responses(order, fs_hz, freqs):
 
 
 def _largest_eigenvalue_sym3(a00, a01, a02, a11, a12, a22):
-    """Largest eigenvalue of a symmetric 3 x 3 (closed form, Smith 1961; accurate for the largest)."""
+    """Return the largest eigenvalue of a symmetric 3 x 3 (closed form, Smith 1961).
+
+    Accurate for the largest eigenvalue only (the smallest loses digits when they spread).
+    """
     q = (a00 + a11 + a22) / 3.0
-    p2 = (a00 - q) ** 2 + (a11 - q) ** 2 + (a22 - q) ** 2 + 2.0 * (a01 * a01 + a02 * a02
-                                                                     + a12 * a12)
+    off = a01 * a01 + a02 * a02 + a12 * a12
+    p2 = (a00 - q) ** 2 + (a11 - q) ** 2 + (a22 - q) ** 2 + 2.0 * off
     if not p2 > 0.0:
         return q                                  # a multiple of the identity
     p = math.sqrt(p2 / 6.0)
