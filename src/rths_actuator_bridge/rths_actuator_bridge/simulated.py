@@ -80,8 +80,11 @@ mass on the table: ``specimen_damping_error_n_s_m`` (c_d + dc), ``specimen_stiff
 friction's sub-steps, and, outside the library (the control of a test that must end in
 ``unexplained``), ``specimen_quadratic_damping_n_s2_m2`` (c2 v|v|); on the sensors:
 ``rel_disp_bias_m`` (the DTM displacement sensor),
-``force_offset_n`` (the load cells) and ``displacement_bias_m`` (the actuator's displacement
-sensor); in the command path the bridge's ``command_delay_steps``.
+``force_offset_n`` (the load cells: their reading, the measured force the bridge returns to
+the numerical substructure, is ``R + force_offset_n``; the same physical thing and sign as
+the library's ``force_offset`` F_0, which eq. 45's force ``m_f xdd_s - R`` shows as ``-F_0``)
+and ``displacement_bias_m`` (the actuator's displacement sensor); in the command path the
+bridge's ``command_delay_steps``.
 
 Sensors: Gaussian noise of standard deviation ``displacement_noise_m``,
 ``force_noise_n``, ``rel_disp_noise_m``, ``accel_noise_m_s2`` from a seeded
@@ -188,7 +191,9 @@ SIM_PARAMS = {
                                            'library: quadratic damping c2 v|v| on the DTM '
                                            'moving mass'),
     'rel_disp_bias_m': (float, 0.0, '[m] hidden: offset of the DTM relative-displacement sensor'),
-    'force_offset_n': (float, 0.0, '[N] hidden: offset of the load cells'),
+    'force_offset_n': (float, 0.0, '[N] hidden: offset of the load-cell reading (the measured '
+                       'force reads R + force_offset_n): the force_offset F_0 of the discrepancy '
+                       'library, same sign'),
     'displacement_bias_m': (float, 0.0, "[m] hidden: offset of the actuator's displacement "
                             'sensor'),
     **specimen_params()[0],
