@@ -72,9 +72,9 @@ from rths_bench.rths_benchmark import DATA_ENV, ground_acceleration, target_lowp
 from rths_common.coupler import Coupler
 from rths_common.marths_data import DATA_FILE, load_config  # noqa: F401 (re-exported)
 from rths_common.progress import Progress
+from rths_compensator import multichannel as mc
 from rths_compensator.adaptive import make_method
 from rths_compensator.design import design_fir, predict
-from rths_compensator import multichannel as mc
 from rths_compensator.identification import identify
 from rths_numerical.signals import blwn
 
@@ -408,9 +408,9 @@ def identify_mimo(cfg: dict, seed: int = 11, record_s: float = 20.0, band_hz: fl
                                'tests': 3, 'record_s': record_s, 'blwn_band_hz': band_hz,
                                'peak_mm': peak_mm, 'order': model.order,
                                'horizon': model.selection['horizon'],
-                               'validation_fit': [
+                               'validation_fit': next(
                                    round(r['fit'], 5) for r in model.selection['grid']
-                                   if r['order'] == model.order]},
+                                   if r['order'] == model.order)},
             'dc_gain': coupling['dc_gain'],
             'cross_coupling': coupling,
             'n_taps': n_taps, 'fc_hz': fc_hz, 'lowpass_hz': lowpass_hz,

@@ -105,7 +105,7 @@ class MimoModel:
         return self.a.shape[0]
 
     def dc_gain(self) -> np.ndarray:
-        """Static gains ``C (I - A)^-1 B + D`` (p x m)."""
+        """Return the static gains ``C (I - A)^-1 B + D`` (p x m)."""
         return self.c @ np.linalg.solve(np.eye(self.order) - self.a, self.b) + self.d
 
     def freq_resp(self, f_hz) -> np.ndarray:
@@ -290,7 +290,7 @@ def fit_bd(a, c, records, feedthrough: bool = False):
     rows = sum(ph.shape[0] for ph in phis)
     big = np.zeros((rows, k + n * len(records)))
     at = 0
-    for idx, (phi, phx) in enumerate(zip(phis, x0s)):
+    for idx, (phi, phx) in enumerate(zip(phis, x0s, strict=True)):
         big[at:at + phi.shape[0], :k] = phi
         big[at:at + phi.shape[0], k + n * idx:k + n * (idx + 1)] = phx
         at += phi.shape[0]

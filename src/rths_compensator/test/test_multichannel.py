@@ -36,7 +36,7 @@ def _true_resp(f):
 
 
 def _plant(u, rng=None):
-    """Outputs of the plant, with the sensor noise when ``rng`` is given."""
+    """Return the outputs of the plant, with the sensor noise when ``rng`` is given."""
     y = np.zeros_like(u)
     for i in range(2):
         for j in range(2):
