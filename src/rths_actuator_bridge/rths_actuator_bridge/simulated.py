@@ -98,7 +98,6 @@ import math
 
 import numpy as np
 from scipy.linalg import expm
-from scipy.signal import lfilter, tf2ss
 
 from rths_common.params import LOOP_RATE_RANGE_HZ, renamed
 from rths_common.timebase import same_rate
@@ -302,6 +301,10 @@ def _actuator_ss(kind: str, scales: dict = None):
     poles = np.where(poles.imag != 0, poles * scales.get('actuator_mode_frequency', 1.0), poles)
     den = np.real(np.poly(poles))
     num = np.array([np.real(np.prod(-poles)) * scales.get('actuator_gain', 1.0)])
+    # lazy: start-up cost: scipy.signal (~1.5 s) for every `rths` command that only lists
+    # the backends; the plant's construction pays it here
+    from scipy.signal import tf2ss
+
     a, b, c, d = tf2ss(num, den)
     if np.any(np.abs(d) > 0) or abs((c @ b).item()) > 1e-9 * np.abs(c).max():
         raise ValueError(f'actuator model {kind!r} must have relative degree >= 2')
@@ -656,6 +659,9 @@ class SimulatedPlant:
         """
         if len(u) == 0:
             return {key: np.zeros(0) for key in CHANNELS}
+        # lazy: start-up cost: scipy.signal (~1.5 s), as in _actuator_ss
+        from scipy.signal import lfilter
+
         lam, vec = np.linalg.eig(self._ad)
         g = np.linalg.solve(vec, self._bd[:, 0].astype(complex))
         z0 = np.linalg.solve(vec, self.x.astype(complex))
