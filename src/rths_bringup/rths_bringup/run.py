@@ -626,23 +626,7 @@ def _run(args) -> int:
         plant = Path(args.plant) if args.plant else out / 'plant.yaml'
         if not args.plant:
             ident = out / 'identification'
-            numerical = {'mode': args.mode, 'executor': base['numerical'].get('executor',
-                                                                              'events'),
-                         'model': 'excitation', 'fs_hz': fs,
-                         'duration_s': float(args.ident_duration),
-                         'excitation_band_hz': 64.0, 'excitation_peak_m': 0.00254, 'seed': 7}
-            # the excitation replaces the building: only its own keys apply
-            cfg = _phase_config(ident, {
-                'numerical': numerical, 'bridge': base['bridge'],
-                'compensator': {**base['compensator'], **_identity(fs)}})
-            stop = _launch_phase('identification', cfg, ident / 'bag', 'identification', fs,
-                                 args.mode, {'numerical': numerical, 'bridge': base['bridge']},
-                                 storage=args.storage, live=args.live, layout=args.layout)
-            if stop is not None:
-                _write_identification_stop(stop, out)
-                raise RuntimeError(f'the identification run ended in the bridge\'s safety stop '
-                                   f'({stop["safety_stop"]}); check the excitation against the '
-                                   f'limits in {config / "bridge.yaml"}')
+            _identification_run(args, base, fs, ident, out, config)
             _say('step 2: identification (rths identify)')
             code = rths_main(['identify', '--bag', str(ident / 'bag'), '--out', str(plant)]
                              + _identify_args(args))
@@ -699,6 +683,35 @@ def _run(args) -> int:
          f'plots {out}/*.png, '
          f'bags {out}/*/bag')
     return 0
+
+
+def identification_numerical(args, base_numerical: dict, fs: float) -> dict:
+    """The identification run's numerical parameters: the excitation replaces the building.
+
+    Only the excitation's own keys apply.  Its own dict, never the RTHS phase's: from
+    2026-11-25 to this fix the RTHS phase reused this one (a reassigned variable), so
+    ``rths run`` drove the 0-64 Hz identification excitation through the compensator
+    designed for 0-10 Hz instead of the building (test_delay_line's "70 Hz oscillation").
+    """
+    return {'mode': args.mode, 'executor': base_numerical.get('executor', 'events'),
+            'model': 'excitation', 'fs_hz': fs, 'duration_s': float(args.ident_duration),
+            'excitation_band_hz': 64.0, 'excitation_peak_m': 0.00254, 'seed': 7}
+
+
+def _identification_run(args, base: dict, fs: float, ident: Path, out: Path, config: Path):
+    """Step 1: the identification run (the excitation through the identity compensator)."""
+    excitation = identification_numerical(args, base['numerical'], fs)
+    cfg = _phase_config(ident, {
+        'numerical': excitation, 'bridge': base['bridge'],
+        'compensator': {**base['compensator'], **_identity(fs)}})
+    stop = _launch_phase('identification', cfg, ident / 'bag', 'identification', fs,
+                         args.mode, {'numerical': excitation, 'bridge': base['bridge']},
+                         storage=args.storage, live=args.live, layout=args.layout)
+    if stop is not None:
+        _write_identification_stop(stop, out)
+        raise RuntimeError(f'the identification run ended in the bridge\'s safety stop '
+                           f'({stop["safety_stop"]}); check the excitation against the '
+                           f'limits in {config / "bridge.yaml"}')
 
 
 def _numerical_params(args, base: dict, model_param: str, bridge: dict, remote: bool) -> dict:
