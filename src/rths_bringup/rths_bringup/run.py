@@ -147,8 +147,9 @@ def register(commands, benches):
                    help='simulated seconds of the RTHS run (default 0: the whole record)')
     p.add_argument('--scheme', default=DEFAULT_SCHEME, choices=designed(),
                    help=f'compensator scheme (default {DEFAULT_SCHEME}; rths design --help)')
-    p.add_argument('--fc', type=float, default=DESIGN_DEFAULTS['fc_hz'],
-                   help=f'FIR cut-off [Hz] (default {DESIGN_DEFAULTS["fc_hz"]:g}, as rths design)')
+    p.add_argument('--fc', type=float, default=None,
+                   help=f'FIR cut-off [Hz] (default as rths design: {DESIGN_DEFAULTS["fc_hz"]:g}, '
+                        'higher for a plant with a long dead time)')
     p.add_argument('--taps', type=int, default=DESIGN_DEFAULTS['n_taps'],
                    help=f'FIR taps n (default {DESIGN_DEFAULTS["n_taps"]}, as rths design)')
     p.add_argument('--ident-na-max', type=int, default=None,
@@ -633,9 +634,11 @@ def _run(args) -> int:
             if code:
                 raise RuntimeError('identification failed')
             _check_fit(plant, args.accept_poor_fit)
-        _say(f'step 2: design {args.scheme} n={args.taps} fc={args.fc} Hz (rths design)')
+        fc = ['--fc', str(args.fc)] if args.fc is not None else []
+        _say(f'step 2: design {args.scheme} n={args.taps} '
+             + (f'fc={args.fc} Hz' if fc else 'fc by the plant\'s dead time') + ' (rths design)')
         code = rths_main(['design', '--plant', str(plant), '--scheme', args.scheme,
-                          '--taps', str(args.taps), '--fc', str(args.fc),
+                          '--taps', str(args.taps), *fc,
                           '--limits', str(config / 'bridge.yaml'), '--out', str(comp_file)])
         if code:
             raise RuntimeError('compensator design failed')
@@ -686,7 +689,7 @@ def _run(args) -> int:
 
 
 def identification_numerical(args, base_numerical: dict, fs: float) -> dict:
-    """The identification run's numerical parameters: the excitation replaces the building.
+    """Return the identification run's numerical parameters (the excitation, not the building).
 
     Only the excitation's own keys apply.  Its own dict, never the RTHS phase's: from
     2026-11-25 to this fix the RTHS phase reused this one (a reassigned variable), so
