@@ -89,7 +89,7 @@ def register(commands, benches):
     p.set_defaults(func=cmd_identify)
 
     from .schemes import DESIGN_DEFAULTS as DD
-    from .schemes import LONG_DEAD_TIME_FC_HZ, LONG_DEAD_TIME_S
+    from .schemes import LONG_DEAD_TIME_FC_HZ, LONG_DEAD_TIME_S, LOW_RATE_HZ
     p = commands.add_parser(
         'design', help='design a delay compensator from plant.yaml -> ROS 2 parameters file',
         description='Design the FIR compensator (ls, wls, mm; eq. 28-36) or a comparison '
@@ -97,7 +97,8 @@ def register(commands, benches):
                     'eq. 14) for the plant and write the compensator node parameters. '
                     f'Defaults (also rths run\'s): {DD["scheme"]}, n={DD["n_taps"]}, '
                     f'fc={DD["fc_hz"]:g} Hz ({LONG_DEAD_TIME_FC_HZ:g} Hz from a dead time of '
-                    f'{1e3 * LONG_DEAD_TIME_S:g} ms), epsilon={DD["epsilon"]}, gain weight '
+                    f'{1e3 * LONG_DEAD_TIME_S:g} ms at up to {LOW_RATE_HZ:g} Hz), '
+                    f'epsilon={DD["epsilon"]}, gain weight '
                     f'{DD["gain_weight"]:g}. Prints and records the predictions: the '
                     'compensator alone (gain peak, high-frequency gain, command for a unit step '
                     'and for the record), the compensated loop on the model and on the '
@@ -119,8 +120,8 @@ def register(commands, benches):
     p.add_argument('--fc', type=float, default=None,
                    help=f'FIR passband edge fc [Hz] (default {DD["fc_hz"]:g}, the seed\'s; '
                         f'{LONG_DEAD_TIME_FC_HZ:g} for a plant whose dead time is '
-                        f'{1e3 * LONG_DEAD_TIME_S:g} ms or more: the FIR\'s error rises past fc '
-                        'the faster the longer the delay)')
+                        f'{1e3 * LONG_DEAD_TIME_S:g} ms or more at a rate up to {LOW_RATE_HZ:g} '
+                        'Hz: the FIR\'s error rises past fc the faster the longer the delay)')
     p.add_argument('--epsilon', type=float, default=None,
                    help=f'FIR passband tolerance on |T_com - 1| ({DD["epsilon"]})')
     p.add_argument('--gain-weight', type=float, default=None,

@@ -83,14 +83,15 @@ def design_default(plant, **overrides) -> 'Design':
     """Design with :data:`DESIGN_DEFAULTS` (``overrides`` replace single entries).
 
     Without an ``fc_hz`` override (or with None) fc is :func:`.schemes.default_fc_hz` of the
-    plant's dead time: the seed's 10 Hz, 12.5 Hz from a dead time of 7.5 ms.
+    plant's dead time and rate: the seed's 10 Hz, 12.5 Hz from a dead time of 7.5 ms at rates
+    up to 1500 Hz.
     """
     opts = dict(DESIGN_DEFAULTS, **{k: v for k, v in overrides.items()
                                     if not (k == 'fc_hz' and v is None)})
     scheme = opts.pop('scheme')
     _, _, d, fs = plant_polynomials(plant, opts.pop('fs_hz', None))
     if overrides.get('fc_hz') is None:
-        opts['fc_hz'] = default_fc_hz(d / fs)
+        opts['fc_hz'] = default_fc_hz(d / fs, fs)
     if 'gain_weight' in SCHEMES.entry(scheme).options:      # the least-squares schemes
         opts.setdefault('n_grid', default_grid(fs))
     else:

@@ -256,19 +256,17 @@ def test_design_defaults_predict_and_stay_within_limits(lab_csv, tmp_path, capsy
     assert 'compensator alone: gain peak' in text and 'loop on the record' in text
     params = load_compensator_params(out)
     prov = params['provenance']
-    # a 9 ms actuator: its identified dead time (~18 samples) is long, fc 12.5 Hz (schemes)
-    assert params['scheme'] == 'wls' and prov['n_taps'] == 400 and prov['fc_hz'] == 12.5
+    assert params['scheme'] == 'wls' and prov['n_taps'] == 400 and prov['fc_hz'] == 10.0
     assert prov['limits_exceeded'] == ''
     true_pct = tracking(act, params['taps'], params['denominator'],
                         tracking_signals(2000.0)['noise'])['tracking_pct']
     assert true_pct < 0.5
     # predicted from the record's held-out part alone, without the model, for the reference
-    # (the record's motion in the design band, 0-fc): within 0.2 % of the true actuator's
-    # tracking of it
+    # (the record's motion in 0-10 Hz): within 0.2 % of the true actuator's tracking of it
     from rths_common.columns import read_columns
     from rths_compensator.assessment import reference_signal
     measured = read_columns(lab_csv[0], ('measured',))['measured']
-    reference, _ = reference_signal(2000.0, prov['fc_hz'], measured)
+    reference, _ = reference_signal(2000.0, 10.0, measured)
     true_ref = tracking(act, params['taps'], params['denominator'], reference)['tracking_pct']
     assert prov['record_tracking_pct'] == pytest.approx(true_ref, abs=0.2)
 

@@ -1,6 +1,7 @@
 """The design defaults (:data:`rths_compensator.schemes.DESIGN_DEFAULTS`, one definition).
 
-fc follows the plant's dead time (:func:`rths_compensator.schemes.default_fc_hz`), and the
+fc follows the plant's dead time and rate (:func:`rths_compensator.schemes.default_fc_hz`),
+and the
 default design on a plant behind a 3-step delay line (``command_delay_steps`` = 3, the
 plant of test/test_delay_line.py) keeps the loop ``P G`` and the command bounded above the
 band.
@@ -26,9 +27,11 @@ def _delayed_3pole(steps):
 
 
 def test_default_fc_is_the_seeds_below_a_long_dead_time():
-    assert default_fc_hz(0.0) == DESIGN_DEFAULTS['fc_hz'] == 10.0
-    assert default_fc_hz(0.0074) == 10.0
-    assert default_fc_hz(0.0075) == default_fc_hz(0.02) == LONG_DEAD_TIME_FC_HZ
+    assert default_fc_hz(0.0, FS) == DESIGN_DEFAULTS['fc_hz'] == 10.0
+    assert default_fc_hz(0.0074, FS) == 10.0
+    assert default_fc_hz(0.0075, FS) == default_fc_hz(0.02, FS) == LONG_DEAD_TIME_FC_HZ
+    # at higher rates the 400 taps span less time: 12.5 Hz gains little or loses (schemes)
+    assert default_fc_hz(0.02, 2000.0) == default_fc_hz(0.0125, 4096.0) == 10.0
     # the project's own plant (dead time 0) keeps the seed's design bit for bit
     plant = _delayed_3pole(0)
     comp = dsg.design_default(plant, n_taps=100)
@@ -43,9 +46,9 @@ def test_default_fc_is_the_seeds_below_a_long_dead_time():
 def test_long_dead_time_default_tracks_the_band_edge():
     """Track 0-10 Hz noise to its top at a long dead time (fc 12.5 Hz instead of 10).
 
-    1024 Hz, 12.5 ms, 3 poles (rths bench identification's case 4, seed 36, its true model): 0-10 Hz noise
-    tracked at 0.55 % with fc = 10 Hz and 0.26 % with the default (measured), the 1+5 Hz
-    sine unchanged, the command no larger.
+    1024 Hz, 12.5 ms, 3 poles (rths bench identification's case 4, seed 36, its true
+    model): 0-10 Hz noise tracked at 0.55 % with fc = 10 Hz and 0.26 % with the default
+    (measured), the 1+5 Hz sine unchanged, the command no larger.
     """
     act = random_actuator(np.random.default_rng(36), FS, 0.0125, 3)
     model = act.model()
