@@ -10,18 +10,17 @@ so no assertion depends on the machine's speed; time bounds are the stated
 ones (``Launcher.safe_stop_bound_s``), with hold and ramp counted in steps.
 """
 
-from pathlib import Path
 import re
 import threading
 import time
 
 import numpy as np
 import pytest
-import yaml
 
 from rths_system_tests import (
     REPO,
     Drain,
+    config_copy,
     graph_env,
     launch_background,
     rths,
@@ -36,16 +35,6 @@ STOPPED = 3
 #: runs on the 2-core CI VM on 2026-11-27: the loop stalled ~1.5 s within its first 13
 #: steps, at start-up, before any node was killed.)
 WATCHDOG_S = 5.0
-
-
-def copy_config(directory: Path, **changes) -> Path:
-    """Copy config/ to ``directory`` with ``{node: {key: value}}`` changes."""
-    directory.mkdir(parents=True, exist_ok=True)
-    for name in ('bridge', 'compensator', 'numerical'):
-        data = yaml.safe_load((CONFIG / f'{name}.yaml').read_text())
-        data[name]['ros__parameters'].update(changes.get(name, {}))
-        (directory / f'{name}.yaml').write_text(yaml.safe_dump(data, sort_keys=False))
-    return directory
 
 
 def test_fault_wrapper_drops_duplicates_and_delays_the_chosen_steps():
@@ -108,7 +97,7 @@ def check_recording(bag):
 @pytest.mark.parametrize('victim', ['compensator', 'numerical', 'bridge'])
 def test_sigkill_mid_run_reaches_the_safe_state_and_keeps_the_bag(tmp_path, victim):
     """SIGKILL of any loop node: the plant ends safe within the stated time; the bag holds."""
-    config = copy_config(tmp_path / 'config', bridge={'watchdog_timeout_s': WATCHDOG_S},
+    config = config_copy(tmp_path / 'config', bridge={'watchdog_timeout_s': WATCHDOG_S},
                          numerical={'duration_s': 600.0})
     bag = tmp_path / 'bag'
     proc = launch_background(config, bag)
@@ -193,7 +182,7 @@ class ForeignPublisher:
 def test_foreign_publisher_and_duplicate_steps_are_logged_and_ignored(tmp_path):
     """A foreign node on /rths/command and duplicated steps change nothing in the run."""
     duration = 2.0
-    config = copy_config(tmp_path / 'config', numerical={'duration_s': duration})
+    config = config_copy(tmp_path / 'config', numerical={'duration_s': duration})
     bag = tmp_path / 'bag'
     intruder = ForeignPublisher(int(graph_env()['ROS_DOMAIN_ID']))
     try:
@@ -347,7 +336,7 @@ def test_emergency_stop_mid_run_holds_ramps_and_stops(tmp_path, how):
     Issue 4: an operator's emergency stop (topic or service) mid-run: hold, ramp to the
     safe position, STOPPED, exit 3; the reason is in the status; the bag keeps every step.
     """
-    config = copy_config(tmp_path / 'config', numerical={'duration_s': 600.0})
+    config = config_copy(tmp_path / 'config', numerical={'duration_s': 600.0})
     bag = tmp_path / 'bag'
     proc = launch_background(config, bag)
     reason = f'operator pressed stop ({how})'

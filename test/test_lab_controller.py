@@ -22,7 +22,7 @@ import json
 import numpy as np
 import pytest
 
-from rths_system_tests import rths
+from rths_system_tests import config_copy, rths
 from rths_system_tests.labcontroller import LabController
 
 FS = 1024.0
@@ -59,27 +59,13 @@ def _within_limits(applied, stroke, velocity, acceleration):
     assert np.max(np.abs(a)) <= acceleration * (1 + 1e-9)
 
 
-def _config(tmp_path, max_invalid):
-    """Copy the repo's config with ``max_invalid_measurements`` set; return its directory."""
-    import shutil
-
-    import yaml
-
-    from rths_system_tests import REPO
-    config = tmp_path / 'config'
-    shutil.copytree(REPO / 'config', config)
-    data = yaml.safe_load((config / 'bridge.yaml').read_text())
-    data['bridge']['ros__parameters']['max_invalid_measurements'] = max_invalid
-    (config / 'bridge.yaml').write_text(yaml.safe_dump(data, sort_keys=False))
-    return config
-
-
 def _run(tmp_path, lab, duration, code, max_invalid=3):
     out = tmp_path / 'run'
+    config = config_copy(tmp_path / 'config', bridge={'max_invalid_measurements': max_invalid})
     try:
         proc = rths('run', '--backend', 'udp', '--controller', f'127.0.0.1:{lab.port}',
                     '--mode', 'realtime', '--duration', duration, '--no-compensation',
-                    '--config', _config(tmp_path, max_invalid), '--out', out, '--quiet',
+                    '--config', config, '--out', out, '--quiet',
                     timeout=900, check=False)
     finally:
         lab.stop()

@@ -25,19 +25,17 @@ trip once.  What this test is about, the supervisor's death, is the same either
 way.
 """
 
-from pathlib import Path
-import shutil
 import subprocess
 import time
 
 import numpy as np
 import pytest
-import yaml
 
 from rths_bench.bench_lab import run_processes
 from rths_system_tests import (
     REPO,
     Drain,
+    config_copy,
     graph_env,
     rths,
     rths_executable,
@@ -50,22 +48,15 @@ HOLD, RAMP, STOPPED = 1, 2, 3
 START_GAP_STEPS = 256
 
 
-def tolerant_config(directory: Path) -> Path:
-    """config/ copied to ``directory`` with the bridge's watchdog_steps = START_GAP_STEPS."""
-    shutil.copytree(REPO / 'config', directory)
-    bridge = yaml.safe_load((directory / 'bridge.yaml').read_text())
-    bridge['bridge']['ros__parameters']['watchdog_steps'] = START_GAP_STEPS
-    (directory / 'bridge.yaml').write_text(yaml.safe_dump(bridge, sort_keys=False))
-    return directory
-
-
 @pytest.mark.parametrize('layout', ['composed', 'processes'])
 def test_sigkill_of_the_supervisor_mid_run_stops_everything_safely(tmp_path, layout):
     from rths_common import bagio, runinfo, topics
 
     out = tmp_path / 'run'
     extra = [] if layout == 'composed' else [
-        '--config', str(tolerant_config(tmp_path / 'config')), '--no-compensation']
+        '--config', str(config_copy(tmp_path / 'config',
+                                    bridge={'watchdog_steps': START_GAP_STEPS})),
+        '--no-compensation']
     proc = subprocess.Popen(
         [rths_executable(), 'run', '--mode', 'realtime', '--layout', layout, '--duration', '20',
          '--plant', str(REPO / 'config' / 'plant.yaml'), '--out', str(out), *extra],

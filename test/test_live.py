@@ -15,6 +15,7 @@ import struct
 import subprocess
 
 import numpy as np
+import pytest
 
 from rths_system_tests import REPO, graph_env, rths_executable
 
@@ -130,3 +131,33 @@ def test_launch_live_streams_the_run_and_the_bag_still_starts_at_step_0(tmp_path
     for topic, data in read_loop(bag)['steps'].items():
         check = step_check(data['step'])
         assert (check['first'], check['last'], check['gaps']) == (0, 2047, 0), (topic, check)
+
+
+def test_live_view_opened_to_the_network_wants_the_printed_token(tmp_path):
+    import websockets
+
+    bag = tmp_path / 'bag'
+    _write_bag(bag)
+    port = _free_port()
+    proc = subprocess.Popen([rths_executable(), 'replay', str(bag), '--live', '--port',
+                             str(port), '--host', '0.0.0.0'], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=graph_env())
+
+    async def connect(query):
+        uri = f'ws://127.0.0.1:{port}/{query}'
+        async with websockets.connect(uri, subprotocols=['foxglove.sdk.v1']) as ws:
+            return json.loads(await asyncio.wait_for(ws.recv(), 10))['op']
+    try:
+        for line in proc.stdout:
+            if line.startswith('live view: serving'):
+                break
+        url = line.split()[3]
+        assert url.startswith(f'ws://0.0.0.0:{port}/?token='), line
+        with pytest.raises(websockets.InvalidStatus, match='401'):
+            asyncio.run(connect(''))
+        with pytest.raises(websockets.InvalidStatus, match='401'):
+            asyncio.run(connect('?token=guess'))
+        assert asyncio.run(connect(url[url.index('?'):])) == 'serverInfo'
+        assert proc.wait(30) == 0
+    finally:
+        proc.kill()

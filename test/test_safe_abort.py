@@ -31,13 +31,12 @@ import functools
 import html
 import json
 import re
-import shutil
 
 import numpy as np
 import pytest
 import yaml
 
-from rths_system_tests import REPO, rths
+from rths_system_tests import REPO, config_copy, rths
 
 CONFIG = REPO / 'config'
 DURATION_S = 18.0
@@ -102,14 +101,6 @@ def test_offline_uncompensated_loop_grows_until_the_bridge_trips():
     assert offline_fault_step(dtm='valve4') is None
 
 
-def copy_config(directory):
-    """Return the repo's config/ (three params files and the identified plant) in ``directory``."""
-    directory.mkdir(parents=True)
-    for name in ('bridge', 'compensator', 'numerical', 'plant'):
-        shutil.copyfile(CONFIG / f'{name}.yaml', directory / f'{name}.yaml')
-    return directory
-
-
 def bridge_status(bag):
     """``{step: (safety state, fault)}`` of the bridge's status messages in a bag."""
     from rths_common import bagio, topics
@@ -123,7 +114,7 @@ def test_uncompensated_unstable_run_ends_in_the_bridges_safe_abort(tmp_path):
     from rths_common import bagio, topics
     from rths_review.review import read_loop, step_check
 
-    config, out = copy_config(tmp_path / 'config'), tmp_path / 'run'
+    config, out = config_copy(tmp_path / 'config'), tmp_path / 'run'
     proc = rths('run', '--no-compensation', *UNSTABLE, '--config', config, '--out', out,
                 timeout=300, check=False)
     text = proc.stdout + proc.stderr
@@ -187,7 +178,7 @@ def test_uncompensated_unstable_run_ends_in_the_bridges_safe_abort(tmp_path):
 
 
 def test_compensated_run_of_the_same_configuration_completes(tmp_path):
-    config, out = copy_config(tmp_path / 'config'), tmp_path / 'run'
+    config, out = config_copy(tmp_path / 'config'), tmp_path / 'run'
     proc = rths('run', '--plant', config / 'plant.yaml', *UNSTABLE, '--config', config,
                 '--out', out, timeout=300)
     assert 'safety stop' not in proc.stdout and 'ABORTED' not in proc.stdout

@@ -44,6 +44,25 @@ def rths(*args, timeout=300, check=True, faults=None, **kwargs) -> subprocess.Co
     return proc
 
 
+def config_copy(directory: Path, **changes) -> Path:
+    """Copy the repository's config/ to ``directory`` with ``{node: {key: value}}`` changes.
+
+    ``config_copy(tmp_path / 'config', bridge={'watchdog_steps': 256})`` sets one key of
+    bridge.yaml's ``ros__parameters``; every other file is copied as it is.
+    """
+    import shutil
+
+    import yaml
+
+    shutil.copytree(REPO / 'config', directory)
+    for node, keys in changes.items():
+        path = directory / f'{node}.yaml'
+        doc = yaml.safe_load(path.read_text())
+        doc[node]['ros__parameters'].update(keys)
+        path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return directory
+
+
 def graph_env(faults=None) -> dict:
     """Environment of a test run: a private ROS domain per pytest process, localhost only.
 

@@ -96,7 +96,7 @@ def param_schema(node_params) -> dict:
         choices.update(cls.choices)
     ranges.update(safety.SAFETY_RANGES, command_delay_steps=(0, MAX_DELAY_STEPS))
     return node_schema(node_params, {**params, **safety.SAFETY_PARAMS, **PARAMS}, ranges,
-                       choices)
+                       choices, per_channel=safety.PER_CHANNEL)
 
 
 #: Plausibility bounds of the limits [SI]: a larger value is almost surely in the wrong unit
@@ -125,8 +125,10 @@ def check_core_params(core: dict, node_keys=()) -> dict:
     safety.SafetyLimits.from_params(rig.bridge_params(core) if rig else core)
     DelayLine(core.get('command_delay_steps', 0))
     for key, (bound, unit, other) in PLAUSIBLE_MAX.items():
-        value = core.get(key)
-        if isinstance(value, (int, float)) and abs(value) > bound:
+        given = core.get(key)
+        for value in (given if isinstance(given, (list, tuple)) else [given]):
+            if not isinstance(value, (int, float)) or abs(value) <= bound:
+                continue
             raise ValueError(f'parameter {key} = {value} {unit} is beyond any lab actuator '
                              f'(> {bound:g} {unit}): it looks like {other}; give it in {unit}')
     return core

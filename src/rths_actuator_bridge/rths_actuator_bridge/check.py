@@ -19,6 +19,9 @@ The checks, in order:
 ``heartbeat``  (version 2) a HEARTBEAT is answered with the session and status ACTIVE.
 ``deactivate`` DEACTIVATE is acknowledged; a COMMAND after it is not answered as ACTIVE.
 
+The channel count is ``--channels`` or, with ``--rig-file``, the rig file's number of
+actuators (:func:`rig_channels`), the count the bridge's UDP backend uses for that file.
+
 The commands hold the actuator where the ACK says it is (version 1: at 0 m), plus an
 optional sine of ``amplitude_m``.  Reply times are taken from the kernel's receive time
 stamps (SO_TIMESTAMPNS), so the checker's own scheduling does not make a reply late; the
@@ -135,6 +138,32 @@ class Client:
     def close(self):
         """Close the socket."""
         self.sock.close()
+
+
+def rig_channels(rig_file: str = '', channels: int = None, amplitude_m: float = 0.0):
+    """``(channels, actuator names)`` of the check: the rig file's, or ``channels`` (1).
+
+    With a rig file (``rths_common.rig``, docs/multi_actuator.md) the channel count is its
+    number of actuators, as the bridge's UDP backend uses it; a ``channels`` given as well
+    must agree, and ``amplitude_m`` must stay within every actuator's stroke limit.  The
+    errors name the file or the option and the fix.
+    """
+    if not rig_file:
+        return (1 if channels is None else int(channels)), None
+    from rths_common.rig import load_rig
+    try:
+        rig = load_rig(rig_file)
+    except OSError as err:
+        raise ValueError(f'--rig-file: {err}; give the path of a rig file '
+                         '(config/rig_two_actuators.yaml)') from None
+    if channels is not None and int(channels) != rig.n:
+        raise ValueError(f'--channels {channels} but {rig.where} has {rig.n} actuators '
+                         f'({", ".join(rig.actuators)}); drop --channels (the file sets it)')
+    for name, stroke in zip(rig.actuators, rig.limits['stroke_m'], strict=True):
+        if stroke is not None and amplitude_m > stroke:
+            raise ValueError(f'--amplitude-m {amplitude_m:g} exceeds actuator {name}\'s '
+                             f'stroke_m {stroke:g} m in {rig.where}; give a smaller amplitude')
+    return rig.n, list(rig.actuators)
 
 
 def _entry(name, passed, detail, **figures):

@@ -96,16 +96,22 @@ def run_emulator(args) -> int:
 
 def run_check(args) -> int:
     """Check a servo controller's conformance; print and (--out) save the report."""
-    from .check import check_controller, report_text
+    from .check import check_controller, report_text, rig_channels
     host, sep, port = args.address.rpartition(':')
     if not sep or not port.isdigit() or not 1 <= int(port) <= 65535:
         raise ValueError(f'{args.address!r}: give the controller as HOST:PORT '
                          '(e.g. 192.168.1.20:5005)')
-    report = check_controller(host or '127.0.0.1', int(port), channels=args.channels,
+    channels, actuators = rig_channels(args.rig_file, args.channels, args.amplitude_m)
+    if actuators:
+        _progress(f'rig file {args.rig_file}: {channels} channels (actuators '
+                  f'{", ".join(actuators)})')
+    report = check_controller(host or '127.0.0.1', int(port), channels=channels,
                               fs_hz=args.fs_hz, steps=args.steps, version=args.version,
                               amplitude_m=args.amplitude_m, timeout_s=args.timeout_s,
                               late_tolerance=args.late_tolerance_pct / 100,
                               rt_priority=args.rt_priority, progress=_progress)
+    if actuators:
+        report.update(rig_file=args.rig_file, actuators=actuators)
     print(report_text(report), end='', flush=True)
     if args.out:
         _write_json(args.out, report)
@@ -334,7 +340,12 @@ def register(commands, benches):
                     '0 m) plus --amplitude-m. Prints pass/fail per check with figures, naming '
                     'the fault; exit code 0 pass, 1 fail, 2 bad input.')
     p.add_argument('address', metavar='HOST:PORT', help='the controller')
-    p.add_argument('--channels', type=int, default=1, help='actuators (default 1)')
+    p.add_argument('--channels', type=int, default=None,
+                   help='actuators (default 1, or the rig file\'s)')
+    p.add_argument('--rig-file', default='', metavar='RIG.yaml',
+                   help='the multi-actuator rig file the bridge gets as rig_file '
+                        '(docs/multi_actuator.md): the channels are its actuators, and '
+                        '--amplitude-m must stay within each actuator\'s stroke_m')
     p.add_argument('--fs-hz', type=float, default=1024.0, help='loop rate [Hz] (default 1024)')
     p.add_argument('--steps', type=int, default=2048,
                    help='COMMANDs of the sequence (default 2048: 2 s at 1024 Hz)')

@@ -20,8 +20,6 @@ import math
 import warnings
 
 import numpy as np
-from scipy import signal
-from scipy.linalg import matrix_balance
 
 from rths_common.coupler import Coupler
 from rths_common.marths_data import load_config
@@ -152,6 +150,11 @@ def draw_plant_params(cfg: dict, rng) -> dict:
 
 def plant_state_space(pp: dict):
     """Continuous ``(A, B, C, D)`` of the plant (one SIMO realisation per column)."""
+    # lazy: start-up cost: scipy.signal (~1.5 s) for every bridge and `rths` command that
+    # only lists this backend; a rig run pays it here
+    from scipy import signal
+    from scipy.linalg import matrix_balance
+
     els = _zpk_elements(pp)
     blocks = []
     for j in range(2):

@@ -80,8 +80,11 @@ mass on the table: ``specimen_damping_error_n_s_m`` (c_d + dc), ``specimen_stiff
 friction's sub-steps, and, outside the library (the control of a test that must end in
 ``unexplained``), ``specimen_quadratic_damping_n_s2_m2`` (c2 v|v|); on the sensors:
 ``rel_disp_bias_m`` (the DTM displacement sensor),
-``force_offset_n`` (the load cells) and ``displacement_bias_m`` (the actuator's displacement
-sensor); in the command path the bridge's ``command_delay_steps``.
+``force_offset_n`` (the load cells: their reading, the measured force the bridge returns to
+the numerical substructure, is ``R + force_offset_n``; the same physical thing and sign as
+the library's ``force_offset`` F_0, which eq. 45's force ``m_f xdd_s - R`` shows as ``-F_0``)
+and ``displacement_bias_m`` (the actuator's displacement sensor); in the command path the
+bridge's ``command_delay_steps``.
 
 Sensors: Gaussian noise of standard deviation ``displacement_noise_m``,
 ``force_noise_n``, ``rel_disp_noise_m``, ``accel_noise_m_s2`` from a seeded
@@ -95,7 +98,6 @@ import math
 
 import numpy as np
 from scipy.linalg import expm
-from scipy.signal import lfilter, tf2ss
 
 from rths_common.params import LOOP_RATE_RANGE_HZ, renamed
 from rths_common.timebase import same_rate
@@ -188,7 +190,9 @@ SIM_PARAMS = {
                                            'library: quadratic damping c2 v|v| on the DTM '
                                            'moving mass'),
     'rel_disp_bias_m': (float, 0.0, '[m] hidden: offset of the DTM relative-displacement sensor'),
-    'force_offset_n': (float, 0.0, '[N] hidden: offset of the load cells'),
+    'force_offset_n': (float, 0.0, '[N] hidden: offset of the load-cell reading (the measured '
+                       'force reads R + force_offset_n): the force_offset F_0 of the discrepancy '
+                       'library, same sign'),
     'displacement_bias_m': (float, 0.0, "[m] hidden: offset of the actuator's displacement "
                             'sensor'),
     **specimen_params()[0],
@@ -297,6 +301,10 @@ def _actuator_ss(kind: str, scales: dict = None):
     poles = np.where(poles.imag != 0, poles * scales.get('actuator_mode_frequency', 1.0), poles)
     den = np.real(np.poly(poles))
     num = np.array([np.real(np.prod(-poles)) * scales.get('actuator_gain', 1.0)])
+    # lazy: start-up cost: scipy.signal (~1.5 s) for every `rths` command that only lists
+    # the backends; the plant's construction pays it here
+    from scipy.signal import tf2ss
+
     a, b, c, d = tf2ss(num, den)
     if np.any(np.abs(d) > 0) or abs((c @ b).item()) > 1e-9 * np.abs(c).max():
         raise ValueError(f'actuator model {kind!r} must have relative degree >= 2')
@@ -651,6 +659,9 @@ class SimulatedPlant:
         """
         if len(u) == 0:
             return {key: np.zeros(0) for key in CHANNELS}
+        # lazy: start-up cost: scipy.signal (~1.5 s), as in _actuator_ss
+        from scipy.signal import lfilter
+
         lam, vec = np.linalg.eig(self._ad)
         g = np.linalg.solve(vec, self._bd[:, 0].astype(complex))
         z0 = np.linalg.solve(vec, self.x.astype(complex))

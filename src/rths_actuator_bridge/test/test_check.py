@@ -11,6 +11,7 @@ whatever the tolerance.  (The default tolerance, 0.1 %, is for a real-time contr
 
 import json
 import os
+from pathlib import Path
 import re
 import subprocess
 import sys
@@ -18,7 +19,7 @@ import sys
 from conftest import PLANT
 import pytest
 
-from rths_actuator_bridge.check import check_controller, pattern, periodic
+from rths_actuator_bridge.check import check_controller, pattern, periodic, rig_channels
 from rths_actuator_bridge.emulator import ControllerEmulator
 
 STEPS = 1200
@@ -120,3 +121,31 @@ def test_the_commands_a_lab_types(tmp_path):
     bad = subprocess.run(cli + ['controller-check', 'localhost'], capture_output=True,
                          text=True, env=env, timeout=60)
     assert bad.returncode == 2 and 'HOST:PORT' in bad.stderr
+
+
+def test_the_channels_follow_the_rig_file(tmp_path):
+    """``--rig-file``: the channel count is the rig's (2 here), as the bridge's UDP backend."""
+    rig = str(Path(__file__).resolve().parents[3] / 'config' / 'rig_two_actuators.yaml')
+    assert rig_channels() == (1, None) and rig_channels('', 3) == (3, None)
+    assert rig_channels(rig) == (2, ['lower', 'upper'])
+    assert rig_channels(rig, 2, 0.01) == (2, ['lower', 'upper'])
+    with pytest.raises(ValueError, match=r'--channels 1 but rig file .* has 2 actuators '
+                                         r'\(lower, upper\); drop --channels'):
+        rig_channels(rig, 1)
+    with pytest.raises(ValueError, match="exceeds actuator upper's stroke_m 0.0296 m"):
+        rig_channels(rig, None, 0.0298)
+    with pytest.raises(ValueError, match='--rig-file: .*give the path of a rig file'):
+        rig_channels(str(tmp_path / 'missing.yaml'))
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('rig: {dofs: [x, theta]}\n')
+    with pytest.raises(ValueError, match=f'rig file {bad}: rig.coupler is missing'):
+        rig_channels(str(bad))
+    channels, _ = rig_channels(rig)
+    emu = ControllerEmulator(PLANT, n_channels=2).start()
+    try:
+        report = check_controller('127.0.0.1', emu.address[1], channels=channels, steps=200,
+                                  late_tolerance=0.5)
+    finally:
+        emu.stop()
+    activate = report['checks'][0]
+    assert activate['passed'] and activate['controller_channels'] == 2, activate

@@ -77,6 +77,26 @@ def test_the_example_rig_file_loads_with_per_actuator_limits():
     check_core_params({'backend': 'simulated_rig', 'rig_file': str(RIG_FILE)})
 
 
+def test_a_list_parameter_gives_each_actuator_its_own_limit_beside_the_rig_file():
+    """A limit the rig file leaves out: a list parameter gives one value per actuator."""
+    data = _rig_dict()
+    for act in data['rig']['actuators']:
+        act.pop('velocity_m_s')
+    rig = Rig.from_dict(data, 'rig file r.yaml')
+    params = rig.bridge_params({'velocity_m_s': [0.4, 0.3], 'stroke_m': 0.5})
+    assert params['velocity_m_s'] == [0.4, 0.3]
+    assert params['stroke_m'] == [0.0299, 0.0296]          # the file's values win
+    assert rig.bridge_params({'velocity_m_s': 0.2})['velocity_m_s'] == 0.2   # all alike
+    with pytest.raises(ValueError, match=r'parameter velocity_m_s lists 3 values but rig file '
+                                         r'r.yaml has 2 actuators \(lower, upper\)'):
+        rig.bridge_params({'velocity_m_s': [0.4, 0.3, 0.2]})
+    with pytest.raises(ValueError, match=r'parameter stroke_m = 25.4 m is beyond any lab '
+                                         'actuator'):
+        check_core_params({'backend': 'udp', 'n_channels': 2, 'stroke_m': [0.03, 25.4]})
+    lim = check_core_params({'backend': 'udp', 'n_channels': 2, 'stroke_m': [0.03, 0.02]})
+    assert lim['stroke_m'] == [0.03, 0.02]
+
+
 @pytest.mark.parametrize('edit, field', [
     (lambda r: r['actuators'][1].update(stroke_m='3 cm'), r'rig.actuators\[1\].stroke_m'),
     (lambda r: r['actuators'][0].update(strok_m=0.1), r'rig.actuators\[0\]: unknown key'),

@@ -23,8 +23,9 @@ Pieces:
 * controllers: ``none`` (command = target); ``decentralised_fir`` (one FIR per
   actuator, designed with :func:`rths_compensator.design.design_fir` on an ARX model
   identified from a BLWN test of that actuator alone, the other held at zero); ``mimo``
-  (the four transfer functions identified one actuator at a time, a 2 x 2 least-squares
-  FIR, :func:`design_mimo_fir`); ``rls_fir``, ``ats``, ``amb`` (the project's adaptive
+  (the 2 x 2 plant identified from both actuators excited at once with uncorrelated
+  signals, a subspace state-space model, :mod:`rths_compensator.multichannel`; a 2 x 2
+  least-squares FIR, :func:`design_mimo_fir`); ``rls_fir``, ``ats``, ``amb`` (the project's adaptive
   methods, one per actuator, started from the decentralised identification and design,
   :class:`DecentralisedAdaptive`).
 
@@ -71,6 +72,7 @@ from rths_bench.rths_benchmark import DATA_ENV, ground_acceleration, target_lowp
 from rths_common.coupler import Coupler
 from rths_common.marths_data import DATA_FILE, load_config  # noqa: F401 (re-exported)
 from rths_common.progress import Progress
+from rths_compensator import multichannel as mc
 from rths_compensator.adaptive import make_method
 from rths_compensator.design import design_fir, predict
 from rths_compensator.identification import identify
@@ -305,15 +307,9 @@ def identify_and_design(cfg: dict, seed: int = 11, record_s: float = 20.0,
 def _excite(cfg: dict, channel: int, rng, record_s: float, band_hz: float, peak_mm: float):
     """Command actuator ``channel`` alone with BLWN; return ``(u, y)`` (samples x 2) [mm]."""
     fs = cfg['fs_hz']['value']
-    noise = math.sqrt(cfg['channels']['noise_power'] * fs)
     u = np.zeros((int(record_s * fs), 2))
     u[:, channel] = blwn(record_s, fs, band_hz, peak_mm, rng, 0.5)
-    plant = PlantBatch([plant_params(cfg)], 1.0 / fs, noise, rng)
-    y = np.empty_like(u)
-    for k in range(u.shape[0]):
-        y[k] = plant.output(u[k][None])[0]
-        plant.advance(u[k][None])
-    return u, y
+    return u, _run_plant(cfg, u, rng)
 
 
 class MimoFir:
@@ -371,47 +367,57 @@ def design_mimo_fir(freq_resp, fs_hz: float, n_taps: int, fc_hz: float, lowpass_
     return taps
 
 
+def _run_plant(cfg: dict, u, rng) -> np.ndarray:
+    """Measured strokes [mm] (samples x 2) of the nominal plant commanded with ``u``."""
+    fs = cfg['fs_hz']['value']
+    noise = math.sqrt(cfg['channels']['noise_power'] * fs)
+    plant = PlantBatch([plant_params(cfg)], 1.0 / fs, noise, rng)
+    y = np.empty_like(u)
+    for k in range(u.shape[0]):
+        y[k] = plant.output(u[k][None])[0]
+        plant.advance(u[k][None])
+    return y
+
+
 def identify_mimo(cfg: dict, seed: int = 11, record_s: float = 20.0, band_hz: float = 40.0,
                   peak_mm: float = 3.0, n_taps: int = 48, fc_hz: float = 30.0,
                   lowpass_hz: float = 100.0, stop_weight: float = 0.03,
-                  gain_weight: float = 1e-3, log=_log):
-    """Identify the 2 x 2 plant (one actuator excited at a time) and design a MIMO FIR.
+                  gain_weight: float = 1e-3, excitation: str = 'blwn', n_max: int = 10,
+                  log=_log):
+    """Identify the 2 x 2 plant from both actuators excited at once; design a MIMO FIR.
 
-    Each of the four transfer functions is an ARX model from the project's grid (BIC);
-    the cross-coupling is reported as the ratio of the off-diagonal to the diagonal DC
-    gains.  Returns ``(taps, info)``.
+    Three tests of ``record_s`` seconds, each actuator driven by its own uncorrelated
+    signal (``excitation``: ``blwn`` or ``multisine``, 0-``band_hz`` Hz, peak ``peak_mm``;
+    :func:`rths_compensator.multichannel.excitation`); two train and one is held out for the
+    order selection of the subspace state-space model (orders 1-``n_max``,
+    :func:`rths_compensator.multichannel.identify_multichannel`).  The cross-coupling is
+    reported per pair (DC and peak gain over the band, relative to the diagonal).
+    Returns ``(taps, info)``.
     """
     fs = cfg['fs_hz']['value']
     rng = np.random.default_rng(seed)
-    tests = [[_excite(cfg, j, rng, record_s, band_hz, peak_mm) for _ in range(3)]
-             for j in range(2)]
-    models = [[None, None], [None, None]]
-    for i in range(2):
-        for j in range(2):
-            recs = [(u[:, j], y[:, i]) for u, y in tests[j]]
-            models[i][j] = identify(recs[:2], recs[2:], fs, na_max=6, nb_max=4, d_max=2)[0]
-
-    def freq_resp(f):
-        out = np.empty((f.size, 2, 2), complex)
-        for i in range(2):
-            for j in range(2):
-                m = models[i][j]
-                out[:, i, j] = signal.freqz(m.num, m.a, worN=f, fs=fs)[1]
-        return out
-
-    taps = design_mimo_fir(freq_resp, fs, n_taps, fc_hz, lowpass_hz, stop_weight,
+    tests = []
+    for _ in range(3):
+        u = mc.excitation(excitation, 2, record_s, fs, band_hz, peak_mm, rng)
+        tests.append((u, _run_plant(cfg, u, rng)))
+    model = mc.identify_multichannel(tests[:2], tests[2:], fs, n_max=n_max)
+    taps = design_mimo_fir(model.freq_resp, fs, n_taps, fc_hz, lowpass_hz, stop_weight,
                            gain_weight)
-    dc = np.array([[models[i][j].dc_gain() for j in range(2)] for i in range(2)])
-    info = {'dc_gain': dc.round(4).tolist(),
-            'cross_coupling': [round(float(dc[0, 1] / dc[0, 0]), 4),
-                               round(float(dc[1, 0] / dc[1, 1]), 4)],
-            'orders': [[{'na': models[i][j].na, 'nb': models[i][j].nb, 'd': models[i][j].d}
-                        for j in range(2)] for i in range(2)],
+    coupling = mc.cross_coupling(model, band_hz)
+    info = {'identification': {'excitation': excitation, 'simultaneous': True,
+                               'tests': 3, 'record_s': record_s, 'blwn_band_hz': band_hz,
+                               'peak_mm': peak_mm, 'order': model.order,
+                               'horizon': model.selection['horizon'],
+                               'validation_fit': next(
+                                   round(r['fit'], 5) for r in model.selection['grid']
+                                   if r['order'] == model.order)},
+            'dc_gain': coupling['dc_gain'],
+            'cross_coupling': coupling,
             'n_taps': n_taps, 'fc_hz': fc_hz, 'lowpass_hz': lowpass_hz,
-            'stop_weight': stop_weight, 'gain_weight': gain_weight, 'blwn_band_hz': band_hz,
-            'peak_mm': peak_mm}
-    log(f'  2 x 2 plant identified: DC gains {info["dc_gain"]}, cross-coupling '
-        f'{info["cross_coupling"]}; MIMO FIR n={n_taps}')
+            'stop_weight': stop_weight, 'gain_weight': gain_weight}
+    log(f'  2 x 2 plant identified at once ({excitation}, state-space order {model.order}): '
+        f'DC gains {coupling["dc_gain"]}, coupling relative to the diagonal (DC) '
+        f'{coupling["dc_rel"]}; MIMO FIR n={n_taps}')
     return taps, info
 
 
@@ -700,7 +706,9 @@ def register(commands, benches):
                    help='none: command = target stroke; decentralised_fir: one FIR per '
                         "actuator from the project's ARX identification (BLWN on that "
                         'actuator alone) and least-squares FIR design; mimo: the 2 x 2 '
-                        'plant identified one actuator at a time and a 2 x 2 '
+                        'plant identified from both actuators excited at once '
+                        '(uncorrelated BLWN, state-space, order chosen on a held-out '
+                        'test, cross-coupling reported) and a 2 x 2 '
                         'least-squares FIR; rls_fir, ats, amb: the adaptive method per '
                         'actuator, started from the decentralised design (docs/adaptive.md)')
     p.add_argument('--out', required=True, help='output directory')

@@ -42,8 +42,6 @@ import sys
 import time
 
 import numpy as np
-from scipy import signal
-from scipy.linalg import expm
 
 from rths_actuator_bridge.bridge import DEFAULT_BACKEND
 from rths_common import datasets
@@ -154,6 +152,10 @@ def _foh(a, b, dt):
 
     ``x_{k+1} = Phi x_k + Gamma1 u_k + Gamma2 (u_{k+1} - u_k)``.
     """
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command: this module
+    # registers `rths bench rths-benchmark` when the parser is built
+    from scipy.linalg import expm
+
     n, m = b.shape
     big = np.zeros((n + 2 * m, n + 2 * m))
     big[:n, :n] = a * dt
@@ -180,6 +182,10 @@ def structure_matrices(model, dt):
 
 def reference_response(case: str, ag, dt):
     """Displacements [m] (N x 3) of the whole reference structure under ``ag``."""
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command: this module
+    # registers `rths bench rths-benchmark` when the parser is built
+    from scipy import signal
+
     from rths_numerical.silva2020 import reference_model
     phi, _, b0, b1 = structure_matrices(reference_model(case), dt)
     # z_{k+1} = phi z_k + b0 a_k + b1 a_{k+1}: a linear filter of the input, state by state
@@ -199,6 +205,10 @@ class _Discrete:
     """Batch of identical SISO discrete state-space filters (one per run)."""
 
     def __init__(self, num, den, dt, batch):
+        # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command: this module
+        # registers `rths bench rths-benchmark` when the parser is built
+        from scipy import signal
+
         a, b, c, d, _ = signal.cont2discrete(signal.tf2ss(num, den), dt, method='bilinear')
         self.a, self.b, self.c, self.d = a, b.ravel(), c.ravel(), float(d.ravel()[0])
         self.x = np.zeros((batch, a.shape[0]))
@@ -282,6 +292,10 @@ class FirController:
 
 def target_lowpass(order: int, cutoff_hz: float, fs_hz: float):
     """All-pole unit-DC-gain low-pass ``g / aL(z^-1)``: Butterworth poles mapped by e^{sT}."""
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command: this module
+    # registers `rths bench rths-benchmark` when the parser is built
+    from scipy import signal
+
     _, poles, _ = signal.butter(order, 2 * np.pi * cutoff_hz, analog=True, output='zpk')
     a_l = np.real(np.poly(np.exp(poles / fs_hz)))
     return float(np.sum(a_l)), a_l
@@ -319,6 +333,10 @@ def _identify_once(seed: int = 7, record_s: float = 20.0, band_hz: float = 50.0,
     quantisation of the desired displacement into a saturated command; ``L`` keeps
     ``|G|`` bounded for the price of its passband lag (~1 ms at 400 Hz, order 4).
     """
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command: this module
+    # registers `rths bench rths-benchmark` when the parser is built
+    from scipy import signal
+
     from rths_actuator_bridge.silva2020 import FS_HZ, converter
     from rths_actuator_bridge.simulated import silva2020_plant
     from rths_compensator.design import design_fir, predict

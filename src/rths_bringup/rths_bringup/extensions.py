@@ -57,7 +57,9 @@ def schema_table() -> str:
                 continue
             low, high = (v if isinstance(v, int) else f'{v:g}' for v in spec.range)
             kind = 'integer' if isinstance(spec.range[0], int) else 'float'
-            rows.append(f'| {node} | `{key}` | {kind} [{low}, {high}] | {spec.description} |')
+            what = spec.description + ('; one number for every actuator or a list of one '
+                                       'per actuator' if spec.per_channel else '')
+            rows.append(f'| {node} | `{key}` | {kind} [{low}, {high}] | {what} |')
     return '\n'.join(rows) + '\n'
 
 

@@ -153,6 +153,41 @@ def test_descriptors_carry_ranges_and_no_parameter_can_be_added_at_run_time(tmp_
         rclpy.shutdown()
 
 
+def test_bridge_limits_per_actuator_are_lists_in_the_params_file(tmp_path):
+    """A per-channel limit: one number for all, or a list of one per actuator channel."""
+    from rcl_interfaces.msg import ParameterType
+
+    from rths_actuator_bridge.bridge import param_schema
+    from rths_actuator_bridge.node import NODE_PARAMS, check_bridge_params
+    from rths_common import node_support as ns
+
+    _init_with(tmp_path, 'bridge', {'backend': 'udp', 'n_channels': 2,
+                                    'stroke_m': [0.03, 0.02], 'velocity_m_s': [1, 2],
+                                    'force_n': 40000.0})
+    try:
+        node = ns.make_node('bridge', param_schema(NODE_PARAMS), NODE_PARAMS)
+        stroke = node.describe_parameter('stroke_m')
+        assert stroke.type == ParameterType.PARAMETER_DOUBLE_ARRAY
+        assert 'a list of one per actuator' in stroke.description
+        assert stroke.floating_point_range[0].to_value == 1.0
+        # a list of ints for a float limit becomes a list of floats
+        assert node.describe_parameter('velocity_m_s').type == \
+            ParameterType.PARAMETER_DOUBLE_ARRAY
+        params = check_bridge_params(ns.parameters(node))
+        assert params['stroke_m'] == [0.03, 0.02] and params['velocity_m_s'] == [1.0, 2.0]
+        node.destroy_node()
+    finally:
+        rclpy.shutdown()
+    _init_with(tmp_path, 'bridge', {'backend': 'udp', 'n_channels': 2,
+                                    'stroke_m': [0.03, 2.0]})
+    try:
+        with pytest.raises(ValueError, match=r'parameter stroke_m\[1\] = 2.0 is outside its '
+                                             r'range \[0, 1\] \[m\]'):
+            ns.make_node('bridge', param_schema(NODE_PARAMS), NODE_PARAMS)
+    finally:
+        rclpy.shutdown()
+
+
 #: Taps designed at 512 Hz (a FIR of three taps).
 TAPS_512 = {'scheme': 'wls', 'fs_hz': 512.0, 'taps': [2.0, -1.5, 0.5], 'denominator': [1.0]}
 

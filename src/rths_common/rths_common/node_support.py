@@ -62,13 +62,21 @@ def _describe(node: Node, key: str, spec) -> None:
     An integer given for a float parameter (``fs_hz: 1024``) becomes a float.
     """
     value = node.get_parameter(key)
-    check_spec(key, value.value, spec)
+    check_spec(key, list(value.value) if _is_array(value.value) else value.value, spec)
     type_, alternative = value.type_, None
-    if (spec.range is not None and isinstance(spec.range[0], float)
-            and type_ == Parameter.Type.INTEGER):
-        type_ = Parameter.Type.DOUBLE
-        alternative = Parameter(key, type_, float(value.value)).get_parameter_value()
+    if spec.range is not None and isinstance(spec.range[0], float):
+        if type_ == Parameter.Type.INTEGER:
+            type_ = Parameter.Type.DOUBLE
+            alternative = Parameter(key, type_, float(value.value)).get_parameter_value()
+        elif type_ == Parameter.Type.INTEGER_ARRAY:   # a per-channel list written as ints
+            type_ = Parameter.Type.DOUBLE_ARRAY
+            alternative = Parameter(key, type_, [float(v) for v in value.value]
+                                    ).get_parameter_value()
     node.set_descriptor(key, descriptor(key, type_, spec), alternative)
+
+
+def _is_array(value) -> bool:
+    return isinstance(value, (list, tuple)) or type(value).__name__ == 'array'
 
 
 def descriptor(key: str, type_: Parameter.Type, spec) -> ParameterDescriptor:
@@ -79,7 +87,7 @@ def descriptor(key: str, type_: Parameter.Type, spec) -> ParameterDescriptor:
         low, high = spec.range
         if type_ == Parameter.Type.INTEGER:
             out.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=0)]
-        elif type_ == Parameter.Type.DOUBLE:
+        elif type_ in (Parameter.Type.DOUBLE, Parameter.Type.DOUBLE_ARRAY):
             out.floating_point_range = [FloatingPointRange(from_value=float(low),
                                                            to_value=float(high), step=0.0)]
     return out
@@ -94,7 +102,7 @@ def parameters(node: Node) -> dict:
         if name in ROS_BUILTIN_PARAMS or name.startswith('qos_overrides.'):
             continue
         value = param.value
-        if isinstance(value, (list, tuple)) or type(value).__name__ == 'array':
+        if _is_array(value):
             value = list(value)
         out[name] = value
     return out

@@ -81,12 +81,16 @@ class Spec(NamedTuple):
     description: str
     range: tuple | None = None   # inclusive (low, high); ints: an integer parameter
     choices: tuple | None = None  # the allowed values (None: any value of the type)
+    per_channel: bool = False    # a list of one value per actuator channel is allowed too
 
     def text(self) -> str:
         """Return the description with the allowed values (what ``ros2 param describe`` shows)."""
+        text = self.description
+        if self.per_channel:
+            text += ' (one number for every actuator, or a list of one per actuator)'
         if not self.choices:
-            return self.description
-        return f'{self.description} (one of: {choices_text(self.choices)})'
+            return text
+        return f'{text} (one of: {choices_text(self.choices)})'
 
 
 def choices_text(choices, sep: str = ', ') -> str:
@@ -100,13 +104,14 @@ def core_params(params: dict) -> dict:
 
 
 def node_schema(node_params, core: dict, ranges: dict | None = None,
-                choices: dict | None = None) -> dict:
+                choices: dict | None = None, per_channel=()) -> dict:
     """Return the schema (key -> :class:`Spec`) of a node: its node-level keys and its core's.
 
     ``core`` maps a key to a description, or to a tuple whose last item is
     the description (the packages' registries); ``ranges`` and ``choices`` are
     the core's (the node-level keys take theirs from :data:`NODE_RANGES` and
-    :data:`NODE_CHOICES`).
+    :data:`NODE_CHOICES`); the core's keys in ``per_channel`` take a list of one
+    value per actuator channel as well as one number (each value in the range).
     """
     ranges = {**NODE_RANGES, **(ranges or {})}
     allowed = {**NODE_CHOICES, **(choices or {})}
@@ -114,7 +119,8 @@ def node_schema(node_params, core: dict, ranges: dict | None = None,
               for key in node_params}
     for key, spec in core.items():
         text = spec[-1] if isinstance(spec, tuple) else str(spec)
-        schema[key] = Spec(text, ranges.get(key), _tuple(allowed.get(key)))
+        schema[key] = Spec(text, ranges.get(key), _tuple(allowed.get(key)),
+                           key in per_channel)
     return schema
 
 
@@ -133,9 +139,18 @@ def check_spec(key: str, value, spec: Spec) -> None:
 def check_range(key: str, value, spec: Spec) -> None:
     """Refuse a value outside ``spec.range`` (ValueError naming the parameter, range and fix).
 
-    A non-number for a ranged parameter is refused too (a bool is not a number).
+    A non-number for a ranged parameter is refused too (a bool is not a number).  A
+    per-channel parameter (:attr:`Spec.per_channel`) may be a non-empty list: each value
+    is checked, the message names it as ``key[i]``.
     """
     if spec.range is None:
+        return
+    if spec.per_channel and isinstance(value, (list, tuple)):
+        if not value:
+            raise ValueError(f'parameter {key} is an empty list; give one number for every '
+                             f'actuator or one per actuator ({spec.description})')
+        for i, item in enumerate(value):
+            check_range(f'{key}[{i}]', item, spec._replace(per_channel=False))
         return
     low, high = spec.range
     span = f'[{_num(low)}, {_num(high)}]'

@@ -139,10 +139,16 @@ class Rig:
     def bridge_params(self, params: dict) -> dict:
         """Return the bridge's flat ``params`` with this rig's per-actuator limits as lists.
 
-        An actuator that does not give a limit takes the one-number parameter (or its default,
-        left to the bridge when the parameter is absent too).
+        An actuator that does not give a limit takes the parameter (one number for all, or
+        its own entry of a list of one per actuator; the parameter's default when it is
+        absent too, left to the bridge).
         """
         out = dict(params)
+        for key, given in params.items():
+            if key in self.limits and isinstance(given, (list, tuple)) and len(given) != self.n:
+                raise ValueError(f'parameter {key} lists {len(given)} values but {self.where} '
+                                 f'has {self.n} actuators ({", ".join(self.actuators)}); give '
+                                 'one value per actuator, or one number for all')
         for key, values in self.limits.items():
             if all(v is None for v in values):
                 continue
@@ -151,7 +157,9 @@ class Rig:
                 raise ValueError(f'{self.where}: {key} is given for some actuators but not for '
                                  f'{", ".join(missing)}, and the bridge parameters give none; '
                                  'give it for every actuator')
-            out[key] = [params[key] if v is None else v for v in values]
+            given = params.get(key)
+            per = (list(given) if isinstance(given, (list, tuple)) else [given] * self.n)
+            out[key] = [per[i] if v is None else v for i, v in enumerate(values)]
         return out
 
     # ------------------------------------------------------------ kinematics

@@ -36,6 +36,24 @@ def test_spec_choices_checked_and_described():
     check_spec('x', 5, Spec('[-] x', (0, 10)))
 
 
+def test_a_per_channel_parameter_takes_a_number_or_a_list_each_in_range():
+    schema = node_schema((), {'stroke_m': '[m] stroke', 'fs_hz': '[Hz] rate'},
+                         ranges={'stroke_m': (0.0, 1.0), 'fs_hz': (1.0, 1e5)},
+                         per_channel=('stroke_m',))
+    stroke, fs = schema['stroke_m'], schema['fs_hz']
+    assert stroke.per_channel and not fs.per_channel
+    assert 'a list of one per actuator' in stroke.text()
+    check_spec('stroke_m', 0.2, stroke)
+    check_spec('stroke_m', [0.2, 0.03], stroke)
+    with pytest.raises(ValueError, match=r'parameter stroke_m\[1\] = 3.0 is outside its range '
+                                         r'\[0, 1\] \[m\]'):
+        check_spec('stroke_m', [0.2, 3.0], stroke)
+    with pytest.raises(ValueError, match='stroke_m is an empty list'):
+        check_spec('stroke_m', [], stroke)
+    with pytest.raises(ValueError, match=r'fs_hz = \[1024.0\] must be a number'):
+        check_spec('fs_hz', [1024.0], fs)
+
+
 def test_renamed_key_is_accepted_with_one_note(capsys):
     out = renamed({'dtm': 'valve1', 'seed': 1}, 'dtm', 'specimen', 'bridge.yaml')
     assert out == {'specimen': 'valve1', 'seed': 1}

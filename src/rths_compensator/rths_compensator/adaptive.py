@@ -218,7 +218,7 @@ class AdaptiveMethod:
         else:
             self.status = Status('adapting', '')
             self._record(measured, adapt=True)
-        if not np.all(np.isfinite(self.coefficients())):
+        if not math.isfinite(float(np.sum(self._adapted()))):
             self._fall_back('non-finite coefficients')
 
     def _fall_back(self, reason, fir_cmd=None):
@@ -239,11 +239,29 @@ class AdaptiveMethod:
         """Return the current coefficients of the method."""
         raise NotImplementedError
 
+    def _adapted(self):
+        """Return the adapted coefficients as they are (no copy; checked finite each step).
+
+        A sum is non-finite exactly when one of them is (or when they overflow it, which
+        is a fault too), so the check costs one reduction and no copy.
+        """
+        return self.coefficients()
+
 
 def _clip_step(new, old, lower, upper, max_step):
-    """Limit ``new`` to ``old +- max_step`` and to ``[lower, upper]`` (arrays, in place)."""
-    np.clip(new, old - max_step, old + max_step, out=new)
-    np.clip(new, lower, upper, out=new)
+    """Limit ``new`` to ``old +- max_step`` and to ``[lower, upper]`` (arrays, in place).
+
+    A NaN stays NaN (as with ``np.clip``).  A few coefficients (ats, amb) are clipped in
+    Python floats: two ``np.clip`` calls cost more than the whole rest of their step.
+    """
+    if new.size > 8:
+        np.clip(new, old - max_step, old + max_step, out=new)
+        np.clip(new, lower, upper, out=new)
+        return new
+    steps = np.broadcast_to(max_step, new.shape).tolist()
+    new[:] = [min(max(min(max(v, o - m), o + m), lo), hi) for v, o, m, lo, hi
+              in zip(new.tolist(), old.tolist(), steps, lower.tolist(), upper.tolist(),
+                     strict=True)]
     return new
 
 
@@ -405,6 +423,9 @@ class RlsFir(AdaptiveMethod):
         self.P -= np.outer(pphi, pphi * (eps / (self.lam * (1.0 + r))))
         return new
 
+    def _adapted(self):
+        return self.c if self.correction else self.h
+
     def coefficients(self):
         """Return the current taps of H, the adapted part of G.
 
@@ -442,6 +463,71 @@ def _difference_responses(order, fs_hz, freqs):
     return np.array([d ** i for i in range(order + 1)])
 
 
+def _largest_eigenvalue_sym3(a00, a01, a02, a11, a12, a22):
+    """Return the largest eigenvalue of a symmetric 3 x 3 (closed form, Smith 1961).
+
+    Accurate for the largest eigenvalue only (the smallest loses digits when they spread).
+    """
+    q = (a00 + a11 + a22) / 3.0
+    off = a01 * a01 + a02 * a02 + a12 * a12
+    p2 = (a00 - q) ** 2 + (a11 - q) ** 2 + (a22 - q) ** 2 + 2.0 * off
+    if not p2 > 0.0:
+        return q                                  # a multiple of the identity
+    p = math.sqrt(p2 / 6.0)
+    b00, b11, b22 = (a00 - q) / p, (a11 - q) / p, (a22 - q) / p
+    b01, b02, b12 = a01 / p, a02 / p, a12 / p
+    r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02)
+               + b02 * (b01 * b12 - b11 * b02))
+    return q + 2.0 * p * math.cos(math.acos(min(1.0, max(-1.0, r))) / 3.0)
+
+
+def solve_spd3(a, b, max_cond=1e12):
+    """Solve the symmetric positive definite 3 x 3 system ``a x = b`` in Python floats.
+
+    Returns None when ``a`` is not positive definite or its condition number exceeds
+    ``max_cond``.  Cholesky (backward stable); the condition number is the largest
+    eigenvalue of ``a`` times that of its inverse (the closed form is accurate for the
+    largest eigenvalue, not for the smallest).  A few microseconds where numpy's
+    small-matrix calls cost tens: this runs inside a real-time step.
+    """
+    (a00, a01, a02), (_, a11, a12), (_, _, a22) = a
+    if not a00 > 0.0:
+        return None
+    l00 = math.sqrt(a00)
+    l10, l20 = a01 / l00, a02 / l00
+    d1 = a11 - l10 * l10
+    if not d1 > 0.0:
+        return None
+    l11 = math.sqrt(d1)
+    l21 = (a12 - l20 * l10) / l11
+    d2 = a22 - l20 * l20 - l21 * l21
+    if not d2 > 0.0:
+        return None
+    l22 = math.sqrt(d2)
+    # inverse of L (lower triangular), then of a: M = inv(L)' inv(L)
+    m00, m11, m22 = 1.0 / l00, 1.0 / l11, 1.0 / l22
+    m10 = -l10 * m00 * m11
+    m21 = -l21 * m11 * m22
+    m20 = -(l20 * m00 + l21 * m10) * m22
+    i00 = m00 * m00 + m10 * m10 + m20 * m20
+    i01 = m10 * m11 + m20 * m21
+    i02 = m20 * m22
+    i11 = m11 * m11 + m21 * m21
+    i12 = m21 * m22
+    i22 = m22 * m22
+    cond = (_largest_eigenvalue_sym3(a00, a01, a02, a11, a12, a22)
+            * _largest_eigenvalue_sym3(i00, i01, i02, i11, i12, i22))
+    if not cond <= max_cond:
+        return None
+    y0 = b[0] / l00
+    y1 = (b[1] - l10 * y0) / l11
+    y2 = (b[2] - l20 * y0 - l21 * y1) / l22
+    x2 = y2 / l22
+    x1 = (y1 - l21 * x2) / l11
+    x0 = (y0 - l10 * x1 - l20 * x2) / l00
+    return x0, x1, x2
+
+
 class Ats(AdaptiveMethod):
     """Adaptive time-series compensator ``u = a0 x + a1 xd + a2 xdd`` (see module doc).
 
@@ -474,6 +560,11 @@ class Ats(AdaptiveMethod):
         self._p = 0
         self._filled = 0
         self._since = 0
+        # the window's normal equations [phi' phi | phi' u] (3 x 4), kept by adding the
+        # new row and removing the one it overwrites: a fit costs a 3 x 3 solve, not a pass
+        # over the window; summed anew from the window once per window against rounding drift
+        self._normal = np.zeros((3, 4))
+        self._pushed = 0
         self._u_prev = 0.0
         self._pair = np.zeros(2)
 
@@ -494,25 +585,36 @@ class Ats(AdaptiveMethod):
             p = n - 1
         self._p = p
         row = self._rows[p]
+        normal = self._normal
+        normal -= np.outer(row[:3], row)         # the row leaving the window (zeros at first)
         row[:3] = dy
         row[3] = uf
+        normal += np.outer(row[:3], row)
         self._rows[p + n] = row
         self._filled = min(self._filled + 1, n)
+        self._pushed += 1
+        if self._pushed % n == 0:
+            w = self._rows[p:p + n]
+            normal[:] = w[:, :3].T @ w
         self._since += 1
         if adapt and self._filled == n and self._since >= self.every:
             self._since = 0
             self._fit()
 
     def _fit(self):
-        w = self._rows[self._p:self._p + self.n_window]
-        phi, u = w[:, :3], w[:, 3]
-        scale = np.array([1.0, self.a0[1] or 1e-3, self.a0[2] or 1e-6])
-        gram = (phi * scale).T @ (phi * scale)
-        if np.linalg.cond(gram) > 1e12:
+        scale = (1.0, float(self.a0[1] or 1e-3), float(self.a0[2] or 1e-6))
+        g = self._normal.tolist()
+        gram = [[g[i][j] * scale[i] * scale[j] for j in range(3)] for i in range(3)]
+        rhs = [g[i][3] * scale[i] for i in range(3)]
+        sol = solve_spd3(gram, rhs, max_cond=1e12)
+        if sol is None:
             return                     # window not informative enough: keep the coefficients
-        sol = np.linalg.solve(gram, (phi * scale).T @ u) * scale
-        if np.all(np.isfinite(sol)):
-            self.a = _clip_step(sol, self.a, self.lower, self.upper, self.max_step)
+        sol = [sol[i] * scale[i] for i in range(3)]
+        if all(map(math.isfinite, sol)):
+            self.a = _clip_step(np.array(sol), self.a, self.lower, self.upper, self.max_step)
+
+    def _adapted(self):
+        return self.a
 
     def coefficients(self):
         """Return the current [a0, a1 (s), a2 (s^2)]."""
@@ -587,6 +689,9 @@ class Amb(AdaptiveMethod):
         """As :meth:`AdaptiveMethod.step`; keeps the plant-filtered regressor of step k-1."""
         self._psi_prev[:] = self._psi_now
         return super().step(target, measured_prev)
+
+    def _adapted(self):
+        return self.theta
 
     def coefficients(self):
         """Return the current theta [-, s, s^2, s^3]."""

@@ -22,7 +22,6 @@ seed's ~41 Hz and ~42 Hz (Figure I.1).
 """
 
 import numpy as np
-from scipy import optimize, signal
 
 #: Table 1 poles [rad/s].  The 4-pole model prints +186.346j and -186.34j for
 #: one pair; a real system has conjugate poles, so 186.34 is used for both.
@@ -62,6 +61,10 @@ def discrete_actuator(kind: str = '3pole', fs_hz: float = 1024.0):
     if not fs_hz > 0:
         raise ValueError(f'sampling frequency must be > 0 Hz, got {fs_hz}')
     num, den = continuous_actuator(kind)
+    # lazy: start-up cost: scipy.signal (~1.5 s) for the bridge and every `rths` command
+    # that imports this module for actuator_poles only
+    from scipy import signal
+
     bz, az, _ = signal.cont2discrete((num, den), 1.0 / float(fs_hz), method='zoh')
     bz = np.asarray(bz, dtype=float).ravel()
     az = np.asarray(az, dtype=float).ravel()
@@ -93,4 +96,7 @@ def unstable_zero_threshold_hz(kind: str = '3pole', lo_hz: float = 5.0,
 
     if excess(lo_hz) >= 0 or excess(hi_hz) <= 0:
         raise ValueError(f'no unstable-zero threshold for {kind} between {lo_hz} and {hi_hz} Hz')
+    # lazy: start-up cost: scipy.optimize, needed by this study function only
+    from scipy import optimize
+
     return float(optimize.brentq(excess, lo_hz, hi_hz, xtol=1e-6))

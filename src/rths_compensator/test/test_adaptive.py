@@ -263,3 +263,54 @@ def test_rls_fir_up_to_n_full_taps_adapts_every_tap(setup):
     assert not RlsFir(design, plant).correction and RlsFir(design, plant, n_full=16).correction
     with pytest.raises(ValueError, match='n_correction'):
         RlsFir(design, plant, n_full=16, n_correction=0)
+
+
+def test_solve_spd3_matches_numpy_and_refuses_ill_conditioned_systems():
+    from rths_compensator.adaptive import solve_spd3
+    rng = np.random.default_rng(3)
+    for cond in (1.0, 1e3, 1e8, 1e11, 0.9e12):
+        q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+        a = q @ np.diag([1.0, math.sqrt(cond), cond]) @ q.T * 7.5
+        a = (a + a.T) / 2
+        b = rng.standard_normal(3)
+        x = solve_spd3(a.tolist(), b.tolist())
+        assert x is not None
+        np.testing.assert_allclose(a @ np.array(x), b, atol=1e-12 * cond * np.abs(b).max())
+    np.testing.assert_allclose(solve_spd3(np.diag([2.0, 2.0, 2.0]).tolist(), [2.0, 4.0, 6.0]),
+                               [1.0, 2.0, 3.0], rtol=1e-15)
+    assert solve_spd3(np.diag([1.0, 1.0, 1e-13]).tolist(), [1.0, 1.0, 1.0]) is None
+    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    rotated = q @ np.diag([1.0, 1e6, 1.1e12]) @ q.T      # cond 1.1e12: just over the limit
+    assert solve_spd3(((rotated + rotated.T) / 2).tolist(), [1.0, 1.0, 1.0]) is None
+    assert solve_spd3(np.diag([1.0, -1.0, 1.0]).tolist(), [1.0, 1.0, 1.0]) is None
+    assert solve_spd3(np.zeros((3, 3)).tolist(), [1.0, 1.0, 1.0]) is None
+
+
+def test_ats_keeps_its_window_normal_equations_exact(setup):
+    """The rank-1 kept normal equations equal the window's, summed anew, at any step."""
+    plant, design = setup
+    method = Ats.from_design(design, plant)
+    b, a = plant
+    sim = Plant(b, a, seed=4)
+    x = target(3.3)
+    prev = None
+    for k in range(x.size):
+        prev = sim.step(method.step(x[k], prev))
+        if k in (100, method.n_window - 1, method.n_window + 7, 2 * method.n_window + 300):
+            w = method._rows[method._p:method._p + method.n_window]
+            exact = w[:, :3].T @ w
+            np.testing.assert_allclose(method._normal, exact, rtol=1e-9,
+                                       atol=1e-12 * np.abs(exact).max())
+
+
+@pytest.mark.parametrize('size', [3, 4, 40])
+def test_clip_step_is_np_clip_on_short_and_long_vectors(size):
+    from rths_compensator.adaptive import _clip_step
+    rng = np.random.default_rng(size)
+    old, new = rng.standard_normal(size), 3 * rng.standard_normal(size)
+    lower, upper = old - rng.uniform(0, 2, size), old + rng.uniform(0, 2, size)
+    for max_step in (0.5, rng.uniform(0, 1, size)):
+        want = np.clip(np.clip(new, old - max_step, old + max_step), lower, upper)
+        np.testing.assert_array_equal(_clip_step(new.copy(), old, lower, upper, max_step), want)
+    new[1] = np.nan
+    assert np.isnan(_clip_step(new.copy(), old, lower, upper, 0.5)[1])

@@ -223,7 +223,8 @@ def run_discrepancy_cmd(args) -> int:
         with Progress(3, 'reference simulations') as bar:
             cmp = rerun.compare(args.measured, models.model_from_dict('specimen',
                                                                       res['updated_model']),
-                                config=args.config, nominal_model=model, progress=bar.report)
+                                config=args.config, nominal_model=model, progress=bar.report,
+                                cache_dir=args.reference_cache)
         _write_reference(cmp, args.out)
     return 0
 
@@ -256,7 +257,8 @@ def reference_cmd(args) -> int:
 
     updated = models.load_model('specimen', args.specimen_model)
     with Progress(3, 'reference simulations') as bar:
-        cmp = rerun.compare(args.bag, updated, config=args.config, progress=bar.report)
+        cmp = rerun.compare(args.bag, updated, config=args.config, progress=bar.report,
+                            cache_dir=args.reference_cache)
     _write_reference(cmp, args.out or os.path.join(os.path.dirname(
         os.path.abspath(args.specimen_model)), 'reference'))
     return 0
@@ -379,6 +381,11 @@ def register(commands, benches):
                         'bridge.yaml), used only for a bag whose run information lacks the '
                         "run's parameters (a recorder started by hand); bags of rths launch "
                         '--bag and rths run carry them')
+    p.add_argument('--reference-cache', metavar='DIR',
+                   help='directory sharing the reference simulations among runs with the same '
+                        'numerical side and specimen model (a study, a benchmark): each is '
+                        'simulated once, keyed by what it depends on; use a new directory '
+                        'after changing the code (default: no cache)')
     p.add_argument('--out', required=True, metavar='DIR', help='output directory')
     p.set_defaults(func=run_discrepancy_cmd)
 
@@ -411,6 +418,11 @@ def register(commands, benches):
     r.add_argument('--config', metavar='DIR',
                    help="params directory of the launch, only for a bag whose run information "
                         "lacks the run's parameters")
+    r.add_argument('--reference-cache', metavar='DIR',
+                   help='directory sharing the reference simulations among runs with the same '
+                        'numerical side and specimen model (a study, a benchmark): each is '
+                        'simulated once, keyed by what it depends on; use a new directory '
+                        'after changing the code (default: no cache)')
     r.add_argument('--out', metavar='DIR',
                    help='output directory (default: reference/ next to the model file)')
     r.set_defaults(func=reference_cmd)

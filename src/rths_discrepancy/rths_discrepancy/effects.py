@@ -26,10 +26,18 @@ backlash               k_d (dz(x, b) - x), clearance +-b          b [m]
 velocity_saturation    c_d (clip(xd, -v_sat, v_sat) - xd)         v_sat [m/s]
 time_delay             outputs read tau late: y(t - tau)          tau [s]
 sensor_bias            rel_disp offset: x_meas = x + bias         bias [m]
-force_offset           load-cell offset: F_meas = F + F_0         F_0 [N]
+force_offset           load-cell offset: R_read = R + F_0         F_0 [N]
 =====================  =========================================  ==========
 
 ``dz(x, b) = sign(x) max(|x| - b, 0)`` (the spring engages after a clearance).
+
+``force_offset`` is an offset of the load-cell *reading* ``R`` (the force the load cells
+under the frame measure, the force a bridge returns to the numerical substructure, the
+simulated lab's ``force_offset_n``): ``R_read = R + F_0``, one convention for every
+scenario.  The specimen scenario's ``force`` channel is eq. 45's force the damper exerts
+on its frame, derived from that reading as ``F = m_f xdd_s - R`` (the load cells also
+carry the frame's inertia; :func:`rths_common.bagio.read_specimen`), so a reading offset
+``+F_0`` shows in it as ``-F_0``: ``F_read = F - F_0``.
 
 Actuator (Table 1 model or ARX, seed eq. 3 / 26): ``y = G(s) (u - q)``, where
 ``q`` is the displacement-equivalent load that the specimen and the rod put on
@@ -107,7 +115,8 @@ _SPECIMEN = {
     'sensor_bias': Effect('sensor_bias', 'bias', 'm', 'output', True,
                           'constant offset of the displacement sensor'),
     'force_offset': Effect('force_offset', 'F_0', 'N', 'output', True,
-                           'constant offset (bias) of the load cell: force read F + F_0'),
+                           'constant offset (bias) of the load-cell reading R + F_0 (eq. 45 '
+                           'force, derived m_f xdd_s - R: F - F_0)'),
 }
 
 _ACTUATOR = {
@@ -390,5 +399,6 @@ def apply_output_ops(scenario: str, y, effects: dict, fs: float, channel: str = 
     if 'sensor_bias' in effects and channel == 'x':
         out = out + effects['sensor_bias']
     if 'force_offset' in effects and channel == 'force':
-        out = out + effects['force_offset']
+        # eq. 45's force m_f xdd_s - R from a load-cell reading R + F_0 (module docstring)
+        out = out - effects['force_offset']
     return out

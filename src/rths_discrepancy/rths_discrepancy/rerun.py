@@ -10,9 +10,22 @@ in lock-step to a *numerical* DTM on a perfect table
 specimen model (the run's Table 4 damper, linear) and once with the updated
 model, i.e. the nominal one plus the effects the discrepancy workflow named
 (``updated_model.yaml``: loop forces such as ``coulomb_friction`` and a
-``mass_error``; the sensor effects ``time_delay``, ``sensor_bias`` and ``force_offset`` change
-what is measured, not the physics, and are left out).  Both use the same
-coupling, so the difference between them is the specimen model alone.
+``mass_error``, and ``force_offset``: an offset of the load-cell reading is in the force
+the bridge returns to the numerical substructure, so the reference returns the reading
+``R + F_0`` too).  The other sensor effects are left out, each with its reason in
+the result (:data:`LEFT_OUT`, printed): ``sensor_bias`` offsets the DTM displacement
+sensor, which is not in the loop; the specimen scenario's ``time_delay`` is a lag of the
+measured specimen channels against the table acceleration that the record does not
+place in the load cells or the accelerometer, so the reading returned cannot be rebuilt
+from it.  Both references use the same coupling, so the difference between them is the
+specimen model alone.
+
+A cache directory (``cache_dir``, ``--reference-cache DIR``) shares the simulations among
+the runs of one study: every reference is stored as ``.npy`` under a key of everything it
+depends on (the run's numerical parameters, its ground-motion samples, the specimen model,
+the frame mass, the integrator), so runs with the same numerical side and nominal specimen
+(a benchmark's cases) simulate the nominal and whole-numerical references once.  The key
+does not cover this code: use a fresh directory after changing it.
 
 Reported: the relative RMS error [%] (seed Table 9 metric) of the RTHS
 against each reference, and against the linear whole-numerical reference of
@@ -26,6 +39,7 @@ information lacks them (a recorder started by hand) needs the params
 directory of its launch (``--config DIR``: numerical.yaml and bridge.yaml).
 """
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -48,6 +62,15 @@ from rths_numerical.substructure import make_substructure
 
 #: Sub-steps per sample of the DTM integration when the model has a non-linear force.
 SUBSTEPS = 16
+
+#: Effects of an updated specimen model that the reference leaves out, and why.
+LEFT_OUT = {
+    'sensor_bias': 'an offset of the DTM displacement sensor: the bridge returns the '
+                   'load-cell force, so it changes what is measured, not the RTHS',
+    'time_delay': 'a lag of the measured specimen channels against the table acceleration; '
+                  'the record does not tell whether the load cells or the accelerometer lag, '
+                  'so the force the bridge returned cannot be rebuilt from it',
+}
 
 
 def run_parameters(bag, config=None) -> tuple:
@@ -90,14 +113,42 @@ def run_damper_model(bridge: dict) -> models.SpecimenModel:
     return models.SpecimenModel(p.m_d, p.c_d, p.k_d)
 
 
+class LoadCellReading:
+    """A specimen of the reference whose load-cell reading is offset: ``R + F_0``.
+
+    ``F_0`` is the library's ``force_offset`` (an offset of the reading, the force the
+    bridge returns to the numerical substructure; :mod:`.effects`).
+    """
+
+    def __init__(self, specimen, offset_n: float):
+        """Wrap ``specimen`` (table displacement -> ``[R]``) with the reading offset [N]."""
+        self.specimen = specimen
+        self.offset_n = float(offset_n)
+
+    def __call__(self, table_disp):
+        """Return ``[R + F_0]`` [N] for this step's table displacement [m]."""
+        return self.specimen(table_disp) + self.offset_n
+
+
 def specimen(model: models.SpecimenModel, dt: float, frame_mass_kg=None):
-    """Return a :class:`rths_numerical.reference.DTMSpecimen` simulating ``model``'s effects."""
+    """Return the reference's specimen simulating ``model``'s effects (but :data:`LEFT_OUT`).
+
+    A :class:`rths_numerical.reference.DTMSpecimen` with the loop forces and the mass
+    error, read through :class:`LoadCellReading` when the model has a ``force_offset``.
+    """
     loop = {k: v for k, v in model.effects.items()
-            if k not in ('time_delay', 'sensor_bias', 'force_offset', 'mass_error')}
+            if k not in ('force_offset', 'mass_error', *LEFT_OUT)}
     force = fx.specimen_force(loop, model) if loop else None
     frame = FRAME_MASS_KG if frame_mass_kg is None else float(frame_mass_kg)
-    return DTMSpecimen(DTMParameters(model.m_d, model.c_d, model.k_d), dt, frame, force=force,
-                       mass_error=model.effects.get('mass_error', 0.0), substeps=SUBSTEPS)
+    dtm = DTMSpecimen(DTMParameters(model.m_d, model.c_d, model.k_d), dt, frame, force=force,
+                      mass_error=model.effects.get('mass_error', 0.0), substeps=SUBSTEPS)
+    offset = model.effects.get('force_offset', 0.0)
+    return LoadCellReading(dtm, offset) if offset else dtm
+
+
+def left_out(model: models.SpecimenModel) -> dict:
+    """Return {effect: reason} for the effects of ``model`` the reference leaves out."""
+    return {k: LEFT_OUT[k] for k in model.effects if k in LEFT_OUT}
 
 
 def _frame_mass(bridge):
@@ -147,12 +198,31 @@ def _whole_steps(steps, values, bag) -> np.ndarray:
     return np.interp(whole, steps, values) if missing.size else values
 
 
-def compare(bag, updated_model, config=None, nominal_model=None, progress=None) -> dict:
+def _cached(cache_dir, hits, label, key, compute) -> np.ndarray:
+    """Return ``compute()``, stored in ``cache_dir`` under the hash of ``key`` (None: no cache)."""
+    if cache_dir is None:
+        return compute()
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
+    path = Path(cache_dir) / f'{label}-{digest[:32]}.npy'
+    if path.is_file():
+        hits.append(label)
+        return np.load(path)
+    values = np.asarray(compute(), dtype=float)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f'{path.stem}.{os.getpid()}.tmp.npy')
+    np.save(tmp, values)
+    os.replace(tmp, path)
+    return values
+
+
+def compare(bag, updated_model, config=None, nominal_model=None, progress=None,
+            cache_dir=None) -> dict:
     """RTHS-vs-reference relative RMS error [%] with the nominal and the updated specimen model.
 
     ``updated_model`` is a :class:`.models.SpecimenModel` or a YAML path;
     ``nominal_model`` defaults to the run's Table 4 damper.  ``progress(done, 3)``
-    follows the three simulations (nominal, updated, whole numerical).
+    follows the three simulations (nominal, updated, whole numerical); ``cache_dir``
+    shares them among runs (module docstring).
     """
     numerical, bridge = run_parameters(bag, config)
     if not isinstance(updated_model, models.SpecimenModel):
@@ -167,22 +237,33 @@ def compare(bag, updated_model, config=None, nominal_model=None, progress=None) 
         raise ValueError(f'{bag}: fewer than 2 steps recorded')
     frame = _frame_mass(bridge)
     out = {'bag': str(bag), 'steps': n, 'duration_s': n * sub.dt,
-           'nominal_model': nominal.to_dict(), 'updated_model': updated_model.to_dict()}
+           'nominal_model': nominal.to_dict(), 'updated_model': updated_model.to_dict(),
+           'left_out_of_reference': left_out(updated_model)}
+    hits = []
+    side = {'numerical': numerical, 'frame_mass_kg': frame, 'dt': sub.dt,
+            'ground_motion_sha256': hashlib.sha256(
+                np.ascontiguousarray(sub.ag, dtype=float).tobytes()).hexdigest()}
     refs = {}
     for k, (label, model) in enumerate((('nominal', nominal), ('updated', updated_model))):
         if progress:
             progress(k, 3)
-        hist = coupled_rths(make_substructure(numerical), specimen(model, sub.dt, frame))
-        refs[label] = hist['output_disp'][:n]
+        refs[label] = _cached(
+            cache_dir, hits, 'coupled', {**side, 'specimen': model.to_dict(),
+                                         'substeps': SUBSTEPS},
+            lambda m=model: coupled_rths(make_substructure(numerical),
+                                         specimen(m, sub.dt, frame))['output_disp'])[:n]
         out[f'rths_vs_{label}_reference_rel_rms_pct'] = relative_rms_error(floor2, refs[label])
         out[f'{label}_reference_max_disp_2nd_m'] = float(np.max(np.abs(refs[label])))
     if progress:
         progress(2, 3)
-    whole = simulate_reference(sub.model, sub.ag, sub.dt, damper=_params(nominal),
-                               n_dtm=sub.force_scale, frame_mass_kg=frame or FRAME_MASS_KG,
-                               integrator=numerical.get('integrator', 'cr'))
-    out['rths_vs_linear_whole_numerical_rel_rms_pct'] = relative_rms_error(
-        floor2, whole['disp'][:n])
+    whole = _cached(
+        cache_dir, hits, 'whole', {**side, 'damper': nominal.to_dict()},
+        lambda: simulate_reference(sub.model, sub.ag, sub.dt, damper=_params(nominal),
+                                   n_dtm=sub.force_scale, frame_mass_kg=frame or FRAME_MASS_KG,
+                                   integrator=numerical.get('integrator', 'cr'))['disp'])
+    out['rths_vs_linear_whole_numerical_rel_rms_pct'] = relative_rms_error(floor2, whole[:n])
+    if cache_dir is not None:
+        out['reference_cache'] = {'dir': str(cache_dir), 'reused': hits}
     if progress:
         progress(3, 3)
     out['rths_max_disp_2nd_m'] = float(np.max(np.abs(floor2)))
@@ -210,7 +291,8 @@ def summary_lines(res: dict) -> list:
         f"{res['rths_vs_updated_reference_rel_rms_pct']:.3f} %",
         f"  (linear whole-numerical reference, seed 6.3.4: "
         f"{res['rths_vs_linear_whole_numerical_rel_rms_pct']:.3f} %)",
-    ]
+    ] + [f'  left out of the updated reference: {k}: {why}'
+         for k, why in res.get('left_out_of_reference', {}).items()]
 
 
 REPORT_HEADING = '## The RTHS re-run with the updated model'
@@ -230,6 +312,10 @@ def report_section(res: dict) -> str:
     lines += ['', f"(linear whole-numerical reference, seed 6.3.4: "
               f"{res['rths_vs_linear_whole_numerical_rel_rms_pct']:.3f} %; plot: "
               'reference.png)', '']
+    lines += [f'Left out of the updated reference: `{k}`: {why}.'
+              for k, why in res.get('left_out_of_reference', {}).items()]
+    if res.get('left_out_of_reference'):
+        lines.append('')
     return '\n'.join(lines)
 
 

@@ -39,7 +39,8 @@ parameter each (a grid and a bounded search, relative to the data's own scales):
     coulomb_friction       + F_c tanh(v / v_eps)                     (v_eps searched)
     asymmetric_friction    + F_p tanh+(v / v_eps) + F_n tanh-(v / v_eps)
     stribeck               + (F_c + (F_s - F_c) exp(-(v / v_s)^2)) tanh(v / v_eps)
-    force_offset           + F_0 (load-cell bias)
+    force_offset           + F_0 (offset of the load-cell reading: as in the specimen
+                             scenario, rths_discrepancy.effects)
     cubic_stiffness        + k3 x^3
     quadratic_damping      + c2 v |v|   (a fluid damper, drag: the velocity-squared law)
     backlash               + k_b dz(x, b) + F_b tanh(z' / v_eps), a clearance (play)

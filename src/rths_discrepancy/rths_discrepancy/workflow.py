@@ -145,7 +145,7 @@ class Context:
                 {k: v for k, v in model.effects.items() if k not in ops}, model))
             self.e_r = data['force'] - (model.c_d * st['v'] + model.k_d * st['x']
                                         + force_nl(st['x'], st['v'])
-                                        + model.effects.get('force_offset', 0.0))
+                                        - model.effects.get('force_offset', 0.0))
             self.sigma2_f = max(sg.noise_variance(self.e_r, self.fs),
                                 (ROUND_OFF * float(np.std(data['force']))) ** 2)
             self.force_nuisance = self._force_lag_columns(data, st['fc'])
@@ -239,7 +239,8 @@ class Context:
         """Restoring-force term [N] of effect ``name`` at the measured states (eq. 45).
 
         ``F_meas - (c_d xd + k_d x) = psi``: zero for mass_error and time_delay,
-        ``-k_d bias`` for a displacement-sensor bias.
+        ``-k_d bias`` for a displacement-sensor bias, ``-F_0`` for an offset ``F_0`` of
+        the load-cell reading (``F_meas = m_f xdd_s - R``; :mod:`.effects`).
         """
         st, m = self.states, self.model
         if name in ('mass_error', 'time_delay'):
@@ -247,7 +248,7 @@ class Context:
         if name == 'sensor_bias':
             return np.full(self.n, -m.k_d * params)
         if name == 'force_offset':
-            return np.full(self.n, float(params))
+            return np.full(self.n, -float(params))
         if self.lib[name].linear:
             return params * m.m_d * fx.loop_regressor(self.scenario, name, st, m)
         return m.m_d * fx.loop_term_nonlinear(name, params, st, m)

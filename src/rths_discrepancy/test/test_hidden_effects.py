@@ -86,3 +86,30 @@ def test_a_damping_error_behind_the_anti_alias_filter_is_found_unbiased():
     res = run_discrepancy('specimen', data, plots=False)
     assert res['effect'] == 'viscous_damping_error'
     assert res['parameters']['viscous_damping_error']['dc'] == pytest.approx(150.0, rel=0.02)
+
+
+@pytest.mark.parametrize('offset_n', [12.0, -15.0])
+def test_a_hidden_load_cell_offset_is_found_with_its_sign(offset_n):
+    """Issue 35: ``force_offset_n: +X`` hidden in the lab is named force_offset, F_0 = +X.
+
+    The bridge key and the library's F_0 are the same thing: an offset of the load-cell
+    reading R (the force the bridge returns).  The specimen scenario reads eq. 45's force
+    ``m_f xdd_s - R`` from a bag (as ``rths_common.bagio.read_specimen`` does), where the
+    offset shows as -X; the detective must still report +X.
+    """
+    from rths_discrepancy.workflow import run_discrepancy
+
+    plant = SimulatedPlant(specimen='valve4', force_offset_n=offset_n)
+    rng = np.random.default_rng(5)
+    t = np.arange(int(12 * FS)) / FS
+    drive = np.convolve(rng.standard_normal(t.size), np.ones(64) / 64, mode='same')
+    y = plant.simulate(3e-3 * drive / np.std(drive) + np.resize(_command(), t.size))
+    data = {'time': t, 'base_accel': y['table_accel'], 'rel_disp': y['rel_disp'],
+            'force': plant.frame_mass * y['table_accel'] - y['force']}
+    res = run_discrepancy('specimen', data, plots=False)
+    assert res['effect'] == 'force_offset'
+    assert res['parameters']['force_offset']['F_0'] == pytest.approx(offset_n, rel=0.01)
+    # the library's operator on the force channel is the lab's, sign included
+    model = models.with_effects(models.default_model('specimen'), {'force_offset': offset_n})
+    shifted = fx.apply_output_ops('specimen', np.zeros(3), model.effects, FS, 'force')
+    np.testing.assert_allclose(shifted, -offset_n)

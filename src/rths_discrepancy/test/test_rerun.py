@@ -76,8 +76,15 @@ def test_specimen_effects_and_sensor_effects():
         return np.array([spec(x)[0] for x in table])
 
     f0 = forces(nominal)
-    sensor = forces(models.with_effects(nominal, {'time_delay': 0.01, 'sensor_bias': 1e-3}))
-    assert np.array_equal(f0, sensor)
+    sensor = models.with_effects(nominal, {'time_delay': 0.01, 'sensor_bias': 1e-3})
+    assert np.array_equal(f0, forces(sensor))
+    # left out, each with its reason (never silently)
+    assert set(rerun.left_out(sensor)) == {'time_delay', 'sensor_bias'}
+    # a load-cell offset is in the reading the bridge returns: R + F_0, as the lab's
+    # force_offset_n (rths_actuator_bridge.simulated) adds it
+    offset = models.with_effects(nominal, {'force_offset': 15.0})
+    np.testing.assert_allclose(forces(offset) - f0, 15.0, atol=1e-9)
+    assert rerun.left_out(offset) == {}
     for eff in ({'coulomb_friction': 20.0}, {'stiffness_error': 4000.0}, {'mass_error': 10.0}):
         f1 = forces(models.with_effects(nominal, eff))
         assert np.sqrt(np.mean((f1 - f0) ** 2)) > 0.01 * np.sqrt(np.mean(f0 ** 2)), eff
@@ -90,3 +97,26 @@ def test_run_parameters_need_run_information_or_config(tmp_path):
         rerun.run_parameters(bag)
     with pytest.raises(ValueError, match='dtm: none'):
         rerun.run_damper_model({'dtm': 'none'})
+
+
+def test_the_reference_cache_simulates_each_reference_once(tmp_path):
+    """Cases with the same numerical side share a reference: computed once, then reused."""
+    calls = []
+
+    def simulate(value):
+        calls.append(value)
+        return np.full(4, value)
+
+    key = {'numerical': {'record': 'kobe', 'scale': 0.135}, 'specimen': {'m_d': 258.35}}
+    hits = []
+    first = rerun._cached(tmp_path, hits, 'coupled', key, lambda: simulate(1.0))
+    again = rerun._cached(tmp_path, hits, 'coupled', dict(key), lambda: simulate(2.0))
+    np.testing.assert_array_equal(again, first)
+    assert calls == [1.0] and hits == ['coupled']
+    # anything the reference depends on changes its key: simulated anew
+    other = rerun._cached(tmp_path, hits, 'coupled', {**key, 'specimen': {'m_d': 270.0}},
+                          lambda: simulate(3.0))
+    assert calls == [1.0, 3.0] and other[0] == 3.0
+    # no cache directory: always simulated
+    rerun._cached(None, hits, 'coupled', key, lambda: simulate(4.0))
+    assert calls[-1] == 4.0 and hits == ['coupled']

@@ -19,6 +19,11 @@ connect too.  What it streams:
   when the compensator runs one: docs/monitor.md) and ``run_state`` (``running``,
   then ``stopped`` when the run ends and the server closes).
 
+It listens on 127.0.0.1 unless ``--host`` says otherwise; off loopback a client
+must give the access token (``$RTHS_LIVE_TOKEN``, else a new one printed at
+start) as ``ws://HOST:PORT/?token=...``, and ``--live-tls-cert`` serves ``wss://``
+(:class:`SubprotocolBridge` is the door; docs/lab_network.md).
+
 The layout ``foxglove/rths_live.json`` (installed under
 ``share/rths_live/foxglove``) plots target vs measured displacement, force,
 tracking error and deadline misses; :func:`layout` generates it.
@@ -28,14 +33,19 @@ import argparse
 import asyncio
 from collections import deque
 import contextlib
+import hmac
+import ipaddress
 import json
 import os
 from pathlib import Path
+import secrets
 import signal
+import ssl
 import subprocess
 import sys
 import threading
 import time
+from urllib.parse import parse_qsl, urlencode, urlsplit
 
 from rths_common import bagio, cdr, topics
 
@@ -66,6 +76,8 @@ LIVE_SCHEMA = {
     },
 }
 READY_LINE = 'live view: serving'
+#: Environment variable carrying the access token to the live-view process (never its argv).
+TOKEN_ENV = 'RTHS_LIVE_TOKEN'
 
 
 class Decimator:
@@ -166,6 +178,48 @@ def rewrite_handshake(head: bytes, old: str, new: str) -> tuple:
     return head, False
 
 
+def is_loopback(host: str) -> bool:
+    """Return True if ``host`` is reachable from this machine only (127.0.0.0/8, ::1, localhost)."""
+    if host.strip().lower() == 'localhost':
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def check_token(head: bytes, token: str) -> tuple:
+    """Return ``(head, allowed)``: is ``token`` in the handshake, and the head without it.
+
+    The client gives the token as the URL's query ``?token=...`` (what a
+    Foxglove connection URL carries) or as ``Authorization: Bearer ...``.  The
+    comparison takes constant time.  The token is removed from the request line
+    before the head goes on to the server.  An empty ``token`` allows everyone.
+    """
+    lines = head.split(b'\r\n')
+    method, _, rest = lines[0].partition(b' ')
+    target, _, version = rest.partition(b' ')
+    url = urlsplit(target.decode('latin-1'))
+    query = parse_qsl(url.query, keep_blank_values=True)
+    given = [v for k, v in query if k == 'token']
+    for text in lines[1:]:
+        name, sep, value = text.partition(b':')
+        scheme, _, credential = value.strip().partition(b' ')
+        if sep and name.strip().lower() == b'authorization' and scheme.lower() == b'bearer':
+            given.append(credential.strip().decode('latin-1'))
+    allowed = not token or any(hmac.compare_digest(g.encode(), token.encode()) for g in given)
+    rest_query = urlencode([(k, v) for k, v in query if k != 'token'])
+    path = (url.path or '/') + (f'?{rest_query}' if rest_query else '')
+    lines[0] = b' '.join((method, path.encode('latin-1'), version))
+    return b'\r\n'.join(lines), allowed
+
+
+_REFUSAL = b'rths live view: give the token as ws://HOST:PORT/?token=TOKEN\n'
+#: The answer to a handshake without the token.
+UNAUTHORIZED = (b'HTTP/1.1 401 Unauthorized\r\nContent-Type: text/plain\r\nConnection: close\r\n'
+                + f'Content-Length: {len(_REFUSAL)}\r\n\r\n'.encode() + _REFUSAL)
+
+
 class SubprotocolBridge:
     """Accept clients that offer only ``foxglove.websocket.v1`` (older Foxglove, Lichtblick).
 
@@ -174,17 +228,23 @@ class SubprotocolBridge:
     the user's port, renames the subprotocol in the handshake (request and
     answer) when a client offers only the old name, and copies every other byte
     between the client and the server on its private port.
+
+    It is also the door of the live view: with a ``token`` a client whose
+    handshake does not carry it gets HTTP 401 and never reaches the server
+    (:func:`check_token`); with ``tls`` (an ``ssl.SSLContext``) clients connect
+    with ``wss://``.
     """
 
-    def __init__(self, host: str, port: int, target_port: int):
+    def __init__(self, host: str, port: int, target_port: int, token: str = '', tls=None):
         self.target_port = target_port
+        self.token = token
         self.loop = asyncio.new_event_loop()
         started = threading.Event()
         self.error = None
 
         async def start():
             try:
-                self.server = await asyncio.start_server(self._client, host, port)
+                self.server = await asyncio.start_server(self._client, host, port, ssl=tls)
             except OSError as err:
                 self.error = err
             started.set()
@@ -203,6 +263,11 @@ class SubprotocolBridge:
     async def _client(self, reader, writer):
         try:
             head = await reader.readuntil(b'\r\n\r\n')
+            head, allowed = check_token(head, self.token)
+            if not allowed:
+                writer.write(UNAUTHORIZED)
+                await writer.drain()
+                return
             head, legacy = rewrite_handshake(head, LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL)
             up_reader, up_writer = await asyncio.open_connection('127.0.0.1', self.target_port)
             up_writer.write(head)
@@ -211,7 +276,8 @@ class SubprotocolBridge:
                 answer, _ = rewrite_handshake(answer, SDK_SUBPROTOCOL, LEGACY_SUBPROTOCOL)
             writer.write(answer)
             await asyncio.gather(self._pipe(reader, up_writer), self._pipe(up_reader, writer))
-        except (OSError, asyncio.IncompleteReadError, asyncio.LimitOverrunError):
+        except (OSError, asyncio.IncompleteReadError, asyncio.LimitOverrunError,
+                ssl.SSLError):
             pass
         finally:
             writer.close()
@@ -291,7 +357,7 @@ def _status_fields(data: bytes) -> tuple:
 
 
 def add_arguments(p, replay: bool = False):
-    """Add ``--live``, ``--port``, ``--host`` and ``--live-rate`` to a command's parser."""
+    """Add ``--live``, ``--port``, ``--host``, ``--live-rate`` and the TLS files to a parser."""
     p.add_argument('--live', action='store_true',
                    help='start a Foxglove WebSocket server streaming the loop topics and the '
                         'run status at the display rate (open ws://HOST:PORT in Foxglove with '
@@ -300,9 +366,43 @@ def add_arguments(p, replay: bool = False):
                    help=f'port of the live view (default {DEFAULT_PORT})')
     p.add_argument('--host', default='127.0.0.1',
                    help='address the live view listens on (default 127.0.0.1: this machine '
-                        'only; 0.0.0.0 opens it to the network)')
+                        'only; 0.0.0.0 opens it to the network, and then a client must give '
+                        f'the access token: ${TOKEN_ENV} if set, else a new one printed at '
+                        'start, as ws://HOST:PORT/?token=TOKEN)')
     p.add_argument('--live-rate', type=float, default=DEFAULT_RATE_HZ,
                    help=f'display rate of the live view [Hz] (default {DEFAULT_RATE_HZ:g})')
+    p.add_argument('--live-tls-cert', default='', metavar='PEM',
+                   help='certificate of the live view (PEM): clients connect with wss://')
+    p.add_argument('--live-tls-key', default='', metavar='PEM',
+                   help='private key of --live-tls-cert (PEM; omit it if the certificate '
+                        'file holds it)')
+
+
+def access_token(host: str, environ=None) -> str:
+    """Return the live view's access token: ``$RTHS_LIVE_TOKEN``, else a new one off loopback.
+
+    On 127.0.0.1 (the default) there is none unless the variable sets one;
+    anywhere else a client always needs one.
+    """
+    given = (os.environ if environ is None else environ).get(TOKEN_ENV, '').strip()
+    if given or is_loopback(host):
+        return given
+    return secrets.token_urlsafe(18)
+
+
+def tls_context(cert: str, key: str = ''):
+    """Return the live view's server SSL context (None without ``cert``), or refuse the files."""
+    if not cert:
+        if key:
+            raise ValueError('--live-tls-key needs --live-tls-cert (the certificate, PEM)')
+        return None
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+    try:
+        ctx.load_cert_chain(cert, key or None)
+    except (OSError, ssl.SSLError) as err:
+        raise ValueError(f'--live-tls-cert {cert} --live-tls-key {key or "(none)"}: {err}; give '
+                         'a PEM certificate and its private key') from None
+    return ctx
 
 
 @contextlib.contextmanager
@@ -314,9 +414,14 @@ def session(args, fs_hz: float = 0.0, timeout_s: float = 30.0):
     if not 0 < args.port < 65536:
         raise ValueError(f'--port {args.port}: give a TCP port 1-65535')
     Decimator(args.live_rate)   # validates the rate before anything starts
+    cert, key = getattr(args, 'live_tls_cert', ''), getattr(args, 'live_tls_key', '')
+    tls_context(cert, key)      # and the TLS files
     cmd = [sys.executable, '-m', 'rths_live.live', '--port', str(args.port), '--host',
-           args.host, '--rate', str(args.live_rate), '--fs', str(fs_hz or 0.0)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+           args.host, '--rate', str(args.live_rate), '--fs', str(fs_hz or 0.0),
+           '--tls-cert', cert, '--tls-key', key]
+    # the token goes by environment, not argv (which every user of the machine can list)
+    env = dict(os.environ, **{TOKEN_ENV: access_token(args.host)})
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env)
     try:
         _wait_ready(proc, timeout_s)
         yield proc
@@ -352,7 +457,8 @@ def _stop(proc):
 class LiveView:
     """The server and the subscriptions of the live-view process."""
 
-    def __init__(self, host: str, port: int, rate_hz: float, fs_hz: float):
+    def __init__(self, host: str, port: int, rate_hz: float, fs_hz: float, token: str = '',
+                 tls=None):
         # lazy: optional dependency (foxglove)
         import foxglove
 
@@ -366,7 +472,7 @@ class LiveView:
         # the SDK server on a private port; the bridge on the user's also takes the old name
         self.server = foxglove.start_server(name='rths live view', host='127.0.0.1', port=0)
         try:
-            self.bridge = SubprotocolBridge(host, port, self.server.port)
+            self.bridge = SubprotocolBridge(host, port, self.server.port, token, tls)
         except OSError:
             self.server.stop()
             raise
@@ -441,17 +547,23 @@ def main(argv=None) -> int:
     p.add_argument('--rate', type=float, default=DEFAULT_RATE_HZ)
     p.add_argument('--fs', type=float, default=0.0, help='loop rate [Hz] for time_s (0: none)')
     p.add_argument('--nice', type=int, default=10, help='niceness of this process (default 10)')
+    p.add_argument('--tls-cert', default='', help='certificate (PEM): wss:// instead of ws://')
+    p.add_argument('--tls-key', default='', help='private key of --tls-cert (PEM)')
     parent = os.getppid()          # first: the rths process may die while this one starts
     args = p.parse_args(argv)
     if args.nice:
         os.nice(args.nice)
+    token = access_token(args.host)
     try:
-        view = LiveView(args.host, args.port, args.rate, args.fs)
+        tls = tls_context(args.tls_cert, args.tls_key)
+        view = LiveView(args.host, args.port, args.rate, args.fs, token, tls)
     except (OSError, RuntimeError, ValueError) as err:
         print(f'live view: error: {err}', file=sys.stderr, flush=True)
         return 2
-    print(f'{READY_LINE} ws://{args.host}:{view.bridge.port} (Foxglove: Open connection -> '
-          f'Foxglove WebSocket; layout {layout_path()})', flush=True)
+    scheme = 'wss' if tls else 'ws'
+    query = f'/?token={token}' if token else ''
+    print(f'{READY_LINE} {scheme}://{args.host}:{view.bridge.port}{query} (Foxglove: Open '
+          f'connection -> Foxglove WebSocket; layout {layout_path()})', flush=True)
     view.spin(parent)
     with contextlib.suppress(OSError):      # the rths process (our stdout) may be gone
         print('live view: stopped', flush=True)

@@ -71,3 +71,97 @@ def test_shipped_layout_is_the_generated_one_and_plots_the_four_quantities():
                   'stability_delay_ms', 'stability_error_pct', 'stability_level'):
         assert f'/rths/live.{field}' in text
         assert field in live.LIVE_SCHEMA['properties']
+
+
+REQUEST = (b'GET /?token=s3cret&x=1 HTTP/1.1\r\nHost: h\r\nSec-WebSocket-Protocol: foxglove.sdk.v1'
+           b'\r\n\r\n')
+
+
+def test_the_token_is_checked_in_the_query_or_the_bearer_header_and_never_forwarded():
+    head, allowed = live.check_token(REQUEST, 's3cret')
+    assert allowed and head.startswith(b'GET /?x=1 HTTP/1.1\r\n') and b's3cret' not in head
+    assert not live.check_token(REQUEST, 'other')[1]
+    assert not live.check_token(REQUEST.replace(b'?token=s3cret&x=1', b''), 's3cret')[1]
+    bearer = REQUEST.replace(b'?token=s3cret&x=1', b'').replace(
+        b'Host: h', b'Host: h\r\nAuthorization: Bearer s3cret')
+    assert live.check_token(bearer, 's3cret')[1]
+    assert live.check_token(bearer, 's3cre')[1] is False        # no prefix match
+    assert live.check_token(REQUEST, '')[1]                      # no token: everyone
+
+
+def test_off_loopback_a_client_always_needs_a_token():
+    assert live.access_token('127.0.0.1', {}) == '' and live.access_token('::1', {}) == ''
+    assert live.access_token('localhost', {}) == ''
+    first, second = live.access_token('0.0.0.0', {}), live.access_token('10.0.0.5', {})
+    assert len(first) >= 20 and first != second                 # a new one each start
+    assert live.access_token('0.0.0.0', {live.TOKEN_ENV: 'mine'}) == 'mine'
+    assert live.access_token('127.0.0.1', {live.TOKEN_ENV: 'mine'}) == 'mine'
+
+
+def test_tls_files_are_checked_before_anything_starts(tmp_path):
+    assert live.tls_context('', '') is None
+    with pytest.raises(ValueError, match='--live-tls-key needs --live-tls-cert'):
+        live.tls_context('', 'key.pem')
+    with pytest.raises(ValueError, match='--live-tls-cert .*missing.pem'):
+        live.tls_context(str(tmp_path / 'missing.pem'))
+    bad = tmp_path / 'bad.pem'
+    bad.write_text('not a certificate')
+    with pytest.raises(ValueError, match='PEM certificate'):
+        live.tls_context(str(bad))
+
+
+def _through_bridge(token, request, tls_server=None, tls_client=None):
+    """Send ``request`` through a SubprotocolBridge to a stand-in server; return both ends' view."""
+    import asyncio
+    import socket
+    import threading
+
+    seen = []
+    upstream = socket.create_server(('127.0.0.1', 0))
+
+    def serve():
+        conn, _ = upstream.accept()
+        with conn:
+            seen.append(conn.recv(4096))
+            conn.sendall(b'HTTP/1.1 101 Switching Protocols\r\n\r\n')
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    bridge = live.SubprotocolBridge('127.0.0.1', 0, upstream.getsockname()[1], token, tls_server)
+    try:
+        async def client():
+            reader, writer = await asyncio.open_connection(
+                '127.0.0.1', bridge.port, ssl=tls_client,
+                server_hostname='localhost' if tls_client else None)
+            writer.write(request)
+            answer = await asyncio.wait_for(reader.read(4096), 5)
+            writer.close()
+            return answer
+        answer = asyncio.run(client())
+    finally:
+        bridge.stop()
+        upstream.close()
+    thread.join(1)
+    return answer, seen
+
+
+def test_a_client_without_the_token_gets_401_and_never_reaches_the_server():
+    answer, seen = _through_bridge('s3cret', REQUEST.replace(b'token=s3cret', b'token=guess'))
+    assert answer.startswith(b'HTTP/1.1 401') and b'?token=' in answer and seen == []
+    answer, seen = _through_bridge('s3cret', REQUEST)
+    assert answer.startswith(b'HTTP/1.1 101') and seen[0].startswith(b'GET /?x=1 ')
+    assert b's3cret' not in seen[0]
+
+
+def test_with_a_certificate_the_live_view_speaks_tls(tmp_path):
+    import shutil
+    import ssl
+    import subprocess
+    if shutil.which('openssl') is None:
+        pytest.skip('openssl is not installed (it makes the test certificate)')
+    subprocess.run(['openssl', 'req', '-x509', '-newkey', 'rsa:2048', '-nodes', '-keyout', 'k.pem',
+                    '-out', 'c.pem', '-days', '1', '-subj', '/CN=localhost'],
+                   cwd=tmp_path, check=True, capture_output=True)
+    server = live.tls_context(str(tmp_path / 'c.pem'), str(tmp_path / 'k.pem'))
+    client = ssl.create_default_context(cafile=str(tmp_path / 'c.pem'))
+    answer, seen = _through_bridge('s3cret', REQUEST, server, client)
+    assert answer.startswith(b'HTTP/1.1 101') and seen[0].startswith(b'GET /?x=1 ')

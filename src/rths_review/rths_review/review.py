@@ -642,8 +642,10 @@ def _updated_reference(bag, specimen, path):
     updated = models.load_model('specimen', path)
     cmp = rerun.compare(bag, updated, nominal_model=updated)
     effects = ', '.join(f'{k} {v:.4g}' for k, v in updated.effects.items()) or 'no effects'
+    left = ''.join(f'; {k} left out: {why}' for k, why in cmp['left_out_of_reference'].items())
     return ({'disp': cmp['_series']['updated']},
-            f'updated specimen model {path} ({effects}; lock-step reference, perfect actuator)')
+            f'updated specimen model {path} ({effects}; lock-step reference, perfect actuator'
+            f'{left})')
 
 
 def _site_text(s: dict) -> str:
