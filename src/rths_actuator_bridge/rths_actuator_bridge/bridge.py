@@ -262,6 +262,11 @@ class Bridge:
         if rig is not None:
             params = rig.bridge_params(params)
             if 'n_channels' in backend_class(params).params:
+                given = params.get('n_channels')
+                if given not in (None, 1, rig.n):      # 1: the one-actuator default
+                    raise ValueError(f"parameter 'n_channels' = {given} disagrees with "
+                                     f'{rig.where}, which lists {rig.n} actuators; remove '
+                                     'n_channels (it follows the rig file) or fix the file')
                 params['n_channels'] = rig.n
         self.backend = make_backend(params)
         if rig is not None:

@@ -5,7 +5,6 @@ Shared by :mod:`.simulated` (the plant) and the specimens it can carry
 """
 
 import numpy as np
-from scipy.linalg import expm
 
 #: Specimen-scenario channels exposed by :meth:`SimulatedPlant.channels`.
 CHANNELS = ('table_disp', 'table_vel', 'table_accel', 'rel_disp', 'rel_vel', 'force')
@@ -17,5 +16,8 @@ def zoh(a: np.ndarray, b: np.ndarray, dt: float):
     big = np.zeros((n + m, n + m))
     big[:n, :n] = a
     big[:n, n:] = b
+    # lazy: start-up cost: scipy.linalg (~0.4 s) for every `rths` command (the CLI lists this)
+    from scipy.linalg import expm
+
     e = expm(big * dt)
     return e[:n, :n], e[:n, n:]

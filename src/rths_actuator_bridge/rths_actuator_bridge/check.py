@@ -37,6 +37,8 @@ import time
 
 import numpy as np
 
+from rths_common.rig import load_rig
+
 from . import protocol as p
 
 #: A reply later than this many sample periods after its COMMAND is late (it missed the tick).
@@ -150,7 +152,6 @@ def rig_channels(rig_file: str = '', channels: int = None, amplitude_m: float = 
     """
     if not rig_file:
         return (1 if channels is None else int(channels)), None
-    from rths_common.rig import load_rig
     try:
         rig = load_rig(rig_file)
     except OSError as err:

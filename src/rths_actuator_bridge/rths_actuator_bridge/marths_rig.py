@@ -150,8 +150,7 @@ def draw_plant_params(cfg: dict, rng) -> dict:
 
 def plant_state_space(pp: dict):
     """Continuous ``(A, B, C, D)`` of the plant (one SIMO realisation per column)."""
-    # lazy: start-up cost: scipy.signal (~1.5 s) for every bridge and `rths` command that
-    # only lists this backend; a rig run pays it here
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
     from scipy import signal
     from scipy.linalg import matrix_balance
 

@@ -97,7 +97,6 @@ from dataclasses import dataclass, field, replace
 import math
 
 import numpy as np
-from scipy.linalg import expm
 
 from rths_common.params import LOOP_RATE_RANGE_HZ, renamed
 from rths_common.timebase import same_rate
@@ -301,8 +300,7 @@ def _actuator_ss(kind: str, scales: dict = None):
     poles = np.where(poles.imag != 0, poles * scales.get('actuator_mode_frequency', 1.0), poles)
     den = np.real(np.poly(poles))
     num = np.array([np.real(np.prod(-poles)) * scales.get('actuator_gain', 1.0)])
-    # lazy: start-up cost: scipy.signal (~1.5 s) for every `rths` command that only lists
-    # the backends; the plant's construction pays it here
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
     from scipy.signal import tf2ss
 
     a, b, c, d = tf2ss(num, den)
@@ -493,6 +491,9 @@ class SimulatedPlant:
         a4[0, 1] = 1.0
         a4[1] = [a_m[1, 0], a_m[1, 1], -a_m[1, 0], -a_m[1, 1]]
         a4[2, 3] = 1.0
+        # lazy: start-up cost: scipy.linalg (~0.4 s) for every `rths` command (the CLI lists this)
+        from scipy.linalg import expm
+
         self._arx_dtm = expm(a4 * self.dt)
 
     def retune(self, **scales):

@@ -196,6 +196,14 @@ def test_a_two_channel_servo_controller_over_udp_takes_its_channel_count_from_th
         emu.stop()
 
 
+def test_an_n_channels_that_disagrees_with_the_rig_file_is_refused(tmp_path):
+    from conftest import PLANT
+
+    with pytest.raises(ValueError, match=r"'n_channels' = 3 disagrees with .*lists 2 actuators"):
+        Bridge().configure(dict(PLANT, backend='udp', port=1, n_channels=3,
+                                rig_file=_stiff_rig(tmp_path)))
+
+
 def test_a_fault_brings_each_actuator_to_its_own_safe_position_within_its_own_limits():
     lim = safety.SafetyLimits.from_params({
         'stroke_m': [0.03, 0.02], 'velocity_m_s': [0.05, 0.02],

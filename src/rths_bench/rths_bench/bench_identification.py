@@ -57,7 +57,7 @@ def cases(seed: int = 32):
 def run_case(case: dict, limits) -> tuple:
     """Identify, design and track one case; return ``(row, detail)`` (row: the JSON fields)."""
     from rths_compensator.assessment import assess, exceeded_limits
-    from rths_compensator.design import DESIGN_DEFAULTS, design_default
+    from rths_compensator.design import design_default
     from rths_compensator.estimation import identify_record
     from rths_compensator.synthetic import (
         identification_record,
@@ -72,7 +72,6 @@ def run_case(case: dict, limits) -> tuple:
     ident = identify_record(u, y, case['fs_hz'])
     ident_s = time.perf_counter() - t0
     model = ident.model
-    band = DESIGN_DEFAULTS['fc_hz']
     tests = tracking_signals(case['fs_hz'])
     row = {'fs_hz': case['fs_hz'], 'delay_s': case['delay_s'], 'noise_pct': case['noise_pct'],
            'model': {'na': model.na, 'nb': model.nb, 'd': model.d},
@@ -87,7 +86,9 @@ def run_case(case: dict, limits) -> tuple:
                                                   x)['tracking_pct'], 4)
     try:
         comp = design_default(model)
-        pred, violations, _ = assess(model, comp, band, (u, y, ident.info['split']), limits)
+        detail['fc_hz'] = comp.info['fc_hz']
+        pred, violations, _ = assess(model, comp, comp.info['fc_hz'],
+                                     (u, y, ident.info['split']), limits)
     except ValueError as err:
         comp, violations, pred = None, [str(err)], {}
     row['refused'] = bool(violations)

@@ -53,7 +53,6 @@ import sys
 import time
 
 import numpy as np
-from scipy import signal
 
 from rths_actuator_bridge.marths_rig import (  # noqa: F401 (the rig's physics, re-exported)
     INCH,
@@ -72,11 +71,6 @@ from rths_bench.rths_benchmark import DATA_ENV, ground_acceleration, target_lowp
 from rths_common.coupler import Coupler
 from rths_common.marths_data import DATA_FILE, load_config  # noqa: F401 (re-exported)
 from rths_common.progress import Progress
-from rths_compensator import multichannel as mc
-from rths_compensator.adaptive import make_method
-from rths_compensator.design import design_fir, predict
-from rths_compensator.identification import identify
-from rths_numerical.signals import blwn
 
 #: Adaptive methods of the project run decentralised (one per actuator).
 ADAPTIVE = ('rls_fir', 'ats', 'amb')
@@ -243,6 +237,9 @@ class DecentralisedAdaptive:
 
     def __init__(self, name: str, designs: list, models: list, batch: int, info: list = None):
         """Build ``batch`` x 2 methods ``name``."""
+        # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
+        from rths_compensator.adaptive import make_method
+
         self.name = name
         self.methods = [[make_method(name, designs[i], models[i]) for i in range(2)]
                         for _ in range(batch)]
@@ -279,6 +276,10 @@ def identify_and_design(cfg: dict, seed: int = 11, record_s: float = 20.0,
     other actuator's coupling is left out by design: this is the decentralised scheme.
     Returns ``(designs, info, models)`` (the ARX models, in mm).
     """
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
+    from rths_compensator.design import design_fir, predict
+    from rths_compensator.identification import identify
+
     fs = cfg['fs_hz']['value']
     rng = np.random.default_rng(seed)
     gain, a_l = target_lowpass(4, lowpass_hz, fs)
@@ -306,6 +307,9 @@ def identify_and_design(cfg: dict, seed: int = 11, record_s: float = 20.0,
 
 def _excite(cfg: dict, channel: int, rng, record_s: float, band_hz: float, peak_mm: float):
     """Command actuator ``channel`` alone with BLWN; return ``(u, y)`` (samples x 2) [mm]."""
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
+    from rths_numerical.signals import blwn
+
     fs = cfg['fs_hz']['value']
     u = np.zeros((int(record_s * fs), 2))
     u[:, channel] = blwn(record_s, fs, band_hz, peak_mm, rng, 0.5)
@@ -394,6 +398,9 @@ def identify_mimo(cfg: dict, seed: int = 11, record_s: float = 20.0, band_hz: fl
     reported per pair (DC and peak gain over the band, relative to the diagonal).
     Returns ``(taps, info)``.
     """
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
+    from rths_compensator import multichannel as mc
+
     fs = cfg['fs_hz']['value']
     rng = np.random.default_rng(seed)
     tests = []
@@ -499,6 +506,9 @@ def run_batch(cfg: dict, ag, plant_list: list, controller, seed: int = 0,
 # ----------------------------------------------------------------------------- criteria
 def find_delay(x, y) -> int:
     """Lag [samples] of ``y`` behind ``x`` at the largest |cross-correlation| (finddelay)."""
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
+    from scipy import signal
+
     x = np.asarray(x, float)
     y = np.asarray(y, float)
     c = signal.correlate(y, x, mode='full', method='fft')

@@ -152,8 +152,7 @@ def _foh(a, b, dt):
 
     ``x_{k+1} = Phi x_k + Gamma1 u_k + Gamma2 (u_{k+1} - u_k)``.
     """
-    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command: this module
-    # registers `rths bench rths-benchmark` when the parser is built
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
     from scipy.linalg import expm
 
     n, m = b.shape
@@ -182,8 +181,7 @@ def structure_matrices(model, dt):
 
 def reference_response(case: str, ag, dt):
     """Displacements [m] (N x 3) of the whole reference structure under ``ag``."""
-    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command: this module
-    # registers `rths bench rths-benchmark` when the parser is built
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
     from scipy import signal
 
     from rths_numerical.silva2020 import reference_model
@@ -205,8 +203,7 @@ class _Discrete:
     """Batch of identical SISO discrete state-space filters (one per run)."""
 
     def __init__(self, num, den, dt, batch):
-        # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command: this module
-        # registers `rths bench rths-benchmark` when the parser is built
+        # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
         from scipy import signal
 
         a, b, c, d, _ = signal.cont2discrete(signal.tf2ss(num, den), dt, method='bilinear')
@@ -292,8 +289,7 @@ class FirController:
 
 def target_lowpass(order: int, cutoff_hz: float, fs_hz: float):
     """All-pole unit-DC-gain low-pass ``g / aL(z^-1)``: Butterworth poles mapped by e^{sT}."""
-    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command: this module
-    # registers `rths bench rths-benchmark` when the parser is built
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
     from scipy import signal
 
     _, poles, _ = signal.butter(order, 2 * np.pi * cutoff_hz, analog=True, output='zpk')
@@ -333,8 +329,7 @@ def _identify_once(seed: int = 7, record_s: float = 20.0, band_hz: float = 50.0,
     quantisation of the desired displacement into a saturated command; ``L`` keeps
     ``|G|`` bounded for the price of its passband lag (~1 ms at 400 Hz, order 4).
     """
-    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command: this module
-    # registers `rths bench rths-benchmark` when the parser is built
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
     from scipy import signal
 
     from rths_actuator_bridge.silva2020 import FS_HZ, converter

@@ -147,8 +147,9 @@ def register(commands, benches):
                    help='simulated seconds of the RTHS run (default 0: the whole record)')
     p.add_argument('--scheme', default=DEFAULT_SCHEME, choices=designed(),
                    help=f'compensator scheme (default {DEFAULT_SCHEME}; rths design --help)')
-    p.add_argument('--fc', type=float, default=DESIGN_DEFAULTS['fc_hz'],
-                   help=f'FIR cut-off [Hz] (default {DESIGN_DEFAULTS["fc_hz"]:g}, as rths design)')
+    p.add_argument('--fc', type=float, default=None,
+                   help=f'FIR cut-off [Hz] (default as rths design: {DESIGN_DEFAULTS["fc_hz"]:g}, '
+                        'higher for a plant with a long dead time)')
     p.add_argument('--taps', type=int, default=DESIGN_DEFAULTS['n_taps'],
                    help=f'FIR taps n (default {DESIGN_DEFAULTS["n_taps"]}, as rths design)')
     p.add_argument('--ident-na-max', type=int, default=None,
@@ -626,32 +627,18 @@ def _run(args) -> int:
         plant = Path(args.plant) if args.plant else out / 'plant.yaml'
         if not args.plant:
             ident = out / 'identification'
-            numerical = {'mode': args.mode, 'executor': base['numerical'].get('executor',
-                                                                              'events'),
-                         'model': 'excitation', 'fs_hz': fs,
-                         'duration_s': float(args.ident_duration),
-                         'excitation_band_hz': 64.0, 'excitation_peak_m': 0.00254, 'seed': 7}
-            # the excitation replaces the building: only its own keys apply
-            cfg = _phase_config(ident, {
-                'numerical': numerical, 'bridge': base['bridge'],
-                'compensator': {**base['compensator'], **_identity(fs)}})
-            stop = _launch_phase('identification', cfg, ident / 'bag', 'identification', fs,
-                                 args.mode, {'numerical': numerical, 'bridge': base['bridge']},
-                                 storage=args.storage, live=args.live, layout=args.layout)
-            if stop is not None:
-                _write_identification_stop(stop, out)
-                raise RuntimeError(f'the identification run ended in the bridge\'s safety stop '
-                                   f'({stop["safety_stop"]}); check the excitation against the '
-                                   f'limits in {config / "bridge.yaml"}')
+            _identification_run(args, base, fs, ident, out, config)
             _say('step 2: identification (rths identify)')
             code = rths_main(['identify', '--bag', str(ident / 'bag'), '--out', str(plant)]
                              + _identify_args(args))
             if code:
                 raise RuntimeError('identification failed')
             _check_fit(plant, args.accept_poor_fit)
-        _say(f'step 2: design {args.scheme} n={args.taps} fc={args.fc} Hz (rths design)')
+        fc = ['--fc', str(args.fc)] if args.fc is not None else []
+        _say(f'step 2: design {args.scheme} n={args.taps} '
+             + (f'fc={args.fc} Hz' if fc else 'fc by the plant\'s dead time') + ' (rths design)')
         code = rths_main(['design', '--plant', str(plant), '--scheme', args.scheme,
-                          '--taps', str(args.taps), '--fc', str(args.fc),
+                          '--taps', str(args.taps), *fc,
                           '--limits', str(config / 'bridge.yaml'), '--out', str(comp_file)])
         if code:
             raise RuntimeError('compensator design failed')
@@ -699,6 +686,35 @@ def _run(args) -> int:
          f'plots {out}/*.png, '
          f'bags {out}/*/bag')
     return 0
+
+
+def identification_numerical(args, base_numerical: dict, fs: float) -> dict:
+    """Return the identification run's numerical parameters (the excitation, not the building).
+
+    Only the excitation's own keys apply.  Its own dict, never the RTHS phase's: from
+    2026-11-25 to this fix the RTHS phase reused this one (a reassigned variable), so
+    ``rths run`` drove the 0-64 Hz identification excitation through the compensator
+    designed for 0-10 Hz instead of the building (test_delay_line's "70 Hz oscillation").
+    """
+    return {'mode': args.mode, 'executor': base_numerical.get('executor', 'events'),
+            'model': 'excitation', 'fs_hz': fs, 'duration_s': float(args.ident_duration),
+            'excitation_band_hz': 64.0, 'excitation_peak_m': 0.00254, 'seed': 7}
+
+
+def _identification_run(args, base: dict, fs: float, ident: Path, out: Path, config: Path):
+    """Step 1: the identification run (the excitation through the identity compensator)."""
+    excitation = identification_numerical(args, base['numerical'], fs)
+    cfg = _phase_config(ident, {
+        'numerical': excitation, 'bridge': base['bridge'],
+        'compensator': {**base['compensator'], **_identity(fs)}})
+    stop = _launch_phase('identification', cfg, ident / 'bag', 'identification', fs,
+                         args.mode, {'numerical': excitation, 'bridge': base['bridge']},
+                         storage=args.storage, live=args.live, layout=args.layout)
+    if stop is not None:
+        _write_identification_stop(stop, out)
+        raise RuntimeError(f'the identification run ended in the bridge\'s safety stop '
+                           f'({stop["safety_stop"]}); check the excitation against the '
+                           f'limits in {config / "bridge.yaml"}')
 
 
 def _numerical_params(args, base: dict, model_param: str, bridge: dict, remote: bool) -> dict:

@@ -89,13 +89,16 @@ def register(commands, benches):
     p.set_defaults(func=cmd_identify)
 
     from .schemes import DESIGN_DEFAULTS as DD
+    from .schemes import LONG_DEAD_TIME_FC_HZ, LONG_DEAD_TIME_S, LOW_RATE_HZ
     p = commands.add_parser(
         'design', help='design a delay compensator from plant.yaml -> ROS 2 parameters file',
         description='Design the FIR compensator (ls, wls, mm; eq. 28-36) or a comparison '
                     'compensator (inverse eq. 2, mff eq. 4, npz eq. 8, zpetc eq. 12, zmetc '
                     'eq. 14) for the plant and write the compensator node parameters. '
                     f'Defaults (also rths run\'s): {DD["scheme"]}, n={DD["n_taps"]}, '
-                    f'fc={DD["fc_hz"]:g} Hz, epsilon={DD["epsilon"]}, gain weight '
+                    f'fc={DD["fc_hz"]:g} Hz ({LONG_DEAD_TIME_FC_HZ:g} Hz from a dead time of '
+                    f'{1e3 * LONG_DEAD_TIME_S:g} ms at up to {LOW_RATE_HZ:g} Hz), '
+                    f'epsilon={DD["epsilon"]}, gain weight '
                     f'{DD["gain_weight"]:g}. Prints and records the predictions: the '
                     'compensator alone (gain peak, high-frequency gain, command for a unit step '
                     'and for the record), the compensated loop on the model and on the '
@@ -114,8 +117,11 @@ def register(commands, benches):
                    help=f'compensator scheme ({DD["scheme"]})')
     p.add_argument('--taps', type=int, default=DD['n_taps'],
                    help=f'FIR length n of H ({DD["n_taps"]})')
-    p.add_argument('--fc', type=float, default=DD['fc_hz'],
-                   help=f'FIR passband edge fc [Hz] ({DD["fc_hz"]:g})')
+    p.add_argument('--fc', type=float, default=None,
+                   help=f'FIR passband edge fc [Hz] (default {DD["fc_hz"]:g}, the seed\'s; '
+                        f'{LONG_DEAD_TIME_FC_HZ:g} for a plant whose dead time is '
+                        f'{1e3 * LONG_DEAD_TIME_S:g} ms or more at a rate up to {LOW_RATE_HZ:g} '
+                        'Hz: the FIR\'s error rises past fc the faster the longer the delay)')
     p.add_argument('--epsilon', type=float, default=None,
                    help=f'FIR passband tolerance on |T_com - 1| ({DD["epsilon"]})')
     p.add_argument('--gain-weight', type=float, default=None,
@@ -437,7 +443,8 @@ def _design_one(args, plant, scheme, zero_tol):
     if entry.fir:
         from .params import check_filter_cost
         check_filter_cost(args.taps, plant.fs_hz, f'--taps {args.taps}')
-        return dsg.design_default(plant, scheme=scheme, **opts), args.fc
+        comp = dsg.design_default(plant, scheme=scheme, **opts)
+        return comp, comp.info['fc_hz']
     return dsg.design(plant, scheme, **opts), args.band
 
 

@@ -40,6 +40,7 @@ import math
 
 import numpy as np
 from scipy import linalg
+from scipy.signal import lfilter
 
 from rths_numerical.signals import blwn
 
@@ -147,7 +148,6 @@ def _modes(a):
 
 def _mode_filter(lam, w):
     """``xi_l(k+1) = lam_l xi_l(k) + w_l(k)`` from rest for every mode l (w: samples x n)."""
-    from scipy.signal import lfilter
     out = np.empty(w.shape, complex)
     for col, lam_l in enumerate(lam):
         out[:, col] = lfilter([0.0, 1.0], [1.0, -lam_l], w[:, col])

@@ -61,8 +61,7 @@ def discrete_actuator(kind: str = '3pole', fs_hz: float = 1024.0):
     if not fs_hz > 0:
         raise ValueError(f'sampling frequency must be > 0 Hz, got {fs_hz}')
     num, den = continuous_actuator(kind)
-    # lazy: start-up cost: scipy.signal (~1.5 s) for the bridge and every `rths` command
-    # that imports this module for actuator_poles only
+    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
     from scipy import signal
 
     bz, az, _ = signal.cont2discrete((num, den), 1.0 / float(fs_hz), method='zoh')

@@ -22,7 +22,6 @@ exactly as the ROS lock-step loop does.
 """
 
 import numpy as np
-from scipy.linalg import expm
 
 from .dtm import FRAME_MASS_KG, SEED_CONFIGURATION, DTMParameters, dtm_configuration
 from .integrators import make_integrator
@@ -152,6 +151,9 @@ class DTMSpecimen:
         A, B = self.dtm.state_space(mass_error)   # inputs: a_table, force
         big = np.zeros((4, 4))
         big[:2, :2], big[:2, 2:] = A, B
+        # lazy: start-up cost: scipy.linalg (~0.4 s) for every `rths` command (the CLI lists this)
+        from scipy.linalg import expm
+
         E = expm(big * self.dt / self.substeps)
         self._Ad, self._Bd = E[:2, :2], E[:2, 2:]
         self._x = [None, None]
