@@ -128,10 +128,10 @@ def test_arx_grid_warmup_scores_only_the_samples_after_it():
     k = 2000
     g = arx_grid([(u[:k], y[:k])], [(u, y)], range(1, 3), range(1, 3), (0, 1), fs_hz=100.0,
                  warmup=k)
-    for i, (na, nb, d) in enumerate(g['orders']):
+    for i, (na, _nb, d) in enumerate(g['orders']):
         th = g['thetas'][i]
         sim = signal.lfilter(np.r_[np.zeros(d), th[na:]], np.r_[1.0, th[:na]], u)
-        assert g['scores']['mse'][0, i] == pytest.approx(np.mean((y - sim)[k:] ** 2), rel=1e-9,
-                                                          abs=1e-30)
+        tail = np.mean((y - sim)[k:] ** 2)
+        assert g['scores']['mse'][0, i] == pytest.approx(tail, rel=1e-9, abs=1e-30)
     with pytest.raises(ValueError, match='warmup'):
         arx_grid([(u[:k], y[:k])], [(u, y)], range(1, 2), range(1, 2), (0,), warmup=[k, k])
