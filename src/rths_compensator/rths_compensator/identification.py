@@ -259,7 +259,7 @@ def fit_arx(records, na: int, nb: int, d: int = 0, fs_hz: float = 1024.0,
 
 def arx_grid(train, validation, na_range=range(1, 30), nb_range=range(1, 30), d_range=(0,),
              fs_hz: float = 1024.0, error: str = 'simulation', ridge: float = 0.0,
-             progress=None) -> dict:
+             progress=None, warmup=None) -> dict:
     """Fit every ARX order of the grid on ``train`` and score it on each validation record.
 
     ``train`` and ``validation`` are lists of ``(u, y)`` arrays.  ``error`` is
@@ -267,7 +267,12 @@ def arx_grid(train, validation, na_range=range(1, 30), nb_range=range(1, 30), d_
     'prediction' (one-step-ahead, from Gram matrices only; very fast, but at 1024 Hz it
     is dominated by measurement noise and favours over-parameterised models).
     ``ridge`` is a relative Tikhonov term on the column-scaled normal equations that
-    keeps the band-limited (rank-deficient) lag regressions solvable.  Returns a dict with
+    keeps the band-limited (rank-deficient) lag regressions solvable.  ``warmup`` (simulation
+    error only; one int per validation record, or one for all) is the number of leading
+    samples of a validation record that are simulated but not scored: where the validation
+    part continues a record, the input before it brings the model to the state the system
+    was in (from rest, a lightly damped model's start-up transient would be scored as its
+    error and decide the orders).  Returns a dict with
     ``orders`` (K x 3 array of na, nb, d), ``thetas`` (list), ``scores`` (criterion ->
     V x K array, lower is better; nan/inf for failed models), ``winners`` (criterion ->
     index per record), ``histogram`` (criterion -> {(na, nb, d): count}) and ``best``
@@ -294,9 +299,15 @@ def arx_grid(train, validation, na_range=range(1, 30), nb_range=range(1, 30), d_
     else:
         u_val = [np.asarray(u, dtype=float) for u, _ in validation]
         y_val = [np.asarray(y, dtype=float) for _, y in validation]
-        nv = np.array([y.size for y in y_val], dtype=float)
-        var_v = np.array([np.var(y) for y in y_val])
-        same_length = len(set(nv)) == 1
+        warm = ([0] * len(y_val) if warmup is None else
+                [int(warmup)] * len(y_val) if np.isscalar(warmup) else [int(w) for w in warmup])
+        if len(warm) != len(y_val) or any(not 0 <= w < y.size for w, y in
+                                          zip(warm, y_val, strict=True)):
+            raise ValueError('warmup: one count per validation record, each below its length')
+        nv = np.array([y.size - w for y, w in zip(y_val, warm, strict=True)], dtype=float)
+        var_v = np.array([np.var(y[w:]) for y, w in zip(y_val, warm, strict=True)])
+        same_length = len(set(y.size for y in y_val)) == 1 and len(set(warm)) == 1
+        w0 = warm[0]
         if same_length:
             u_mat, y_mat = np.stack(u_val), np.stack(y_val)
     orders, thetas, mse_rows = [], [], []
@@ -316,10 +327,11 @@ def arx_grid(train, validation, na_range=range(1, 30), nb_range=range(1, 30), d_
                     with np.errstate(all='ignore'):
                         if same_length:
                             e = y_mat - signal.lfilter(num, a, u_mat, axis=-1)
-                            mse = np.mean(e ** 2, axis=-1)
+                            mse = np.mean(e[:, w0:] ** 2, axis=-1)
                         else:
-                            mse = np.array([np.mean((y - signal.lfilter(num, a, u)) ** 2)
-                                            for u, y in zip(u_val, y_val, strict=True)])
+                            mse = np.array([np.mean((y - signal.lfilter(num, a, u))[w:] ** 2)
+                                            for u, y, w in zip(u_val, y_val, warm,
+                                                               strict=True)])
                     mse = np.where(np.isfinite(mse), mse, np.inf)
                 orders.append((na, nb, d))
                 thetas.append(theta)

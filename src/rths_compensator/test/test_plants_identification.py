@@ -116,3 +116,22 @@ def test_plant_yaml_roundtrip(tmp_path):
     path.write_text('kind: arx\nfs_hz: 1024.0\nb: [1.0]\n')
     with pytest.raises(ValueError, match='field a'):
         load_plant(path)
+
+
+def test_arx_grid_warmup_scores_only_the_samples_after_it():
+    # a lightly damped plant: the validation record is the whole record, scored from
+    # sample k on (simulated through the samples before it, as the later part of a
+    # record is); the score is the mean square error of the tail only
+    rng = np.random.default_rng(3)
+    u = rng.standard_normal(3000)
+    y = signal.lfilter([0.0, 0.02], [1.0, -1.96, 0.98], u)
+    k = 2000
+    g = arx_grid([(u[:k], y[:k])], [(u, y)], range(1, 3), range(1, 3), (0, 1), fs_hz=100.0,
+                 warmup=k)
+    for i, (na, _nb, d) in enumerate(g['orders']):
+        th = g['thetas'][i]
+        sim = signal.lfilter(np.r_[np.zeros(d), th[na:]], np.r_[1.0, th[:na]], u)
+        tail = np.mean((y - sim)[k:] ** 2)
+        assert g['scores']['mse'][0, i] == pytest.approx(tail, rel=1e-9, abs=1e-30)
+    with pytest.raises(ValueError, match='warmup'):
+        arx_grid([(u[:k], y[:k])], [(u, y)], range(1, 2), range(1, 2), (0,), warmup=[k, k])

@@ -11,8 +11,10 @@ criterion below is relative to the record's own band, spread and length):
 * Orders from the data.  The ARX grid of the project's identification
   (:func:`rths_compensator.identification.arx_grid`: na 1..NA_MAX, nb 1..NB_MAX,
   dead time 0..D_MAX) is scored by *simulation* error on a validation part (the last
-  ``VALIDATION`` of each training record) and the BIC winner is refitted on the
-  whole training data.
+  ``VALIDATION`` of each training record, simulated after the input before it, so
+  from the state the system was in, not from rest) and the BIC winner (the fewest
+  parameters among orders within ``BIC_TIE`` of the best) is refitted on the whole
+  training data.
 * Output error.  The ARX winner starts Steiglitz-McBride iterations (the ARX refitted
   on the data filtered by ``1 / A``: the equation error tends to the simulation
   error, an output-error model of the same orders); the best iterate replaces the
@@ -41,6 +43,10 @@ D_MAX = 2
 VALIDATION = 0.3
 #: Relative ridge of the ARX normal equations (band-limited lag regressions are near-singular).
 RIDGE = 1e-10
+#: BIC difference (validation samples' units) below which two order sets are not told
+#: apart by the data (Raftery 1995: "not worth more than a bare mention"); the fewer
+#: parameters win.
+BIC_TIE = 2.0
 #: Orders of the plain reference ARX at the record's own rate.
 REF_MAX = 12
 
@@ -96,26 +102,48 @@ class LinearModel:
 
 
 def _split(records):
-    """Training and validation parts of each (u, y) record."""
+    """Training parts and validation records ``(u, y, k)`` of each (u, y) record.
+
+    A validation record is the whole record scored from sample ``k`` on: the model is
+    simulated through the training part, so the validation part starts in the state the
+    input brought the system to (from rest, the start-up transient of a lightly damped
+    model was scored as its error and chose the orders).
+    """
     tr, va = [], []
     for u, y in records:
         k = int((1 - VALIDATION) * u.size)
         tr.append((u[:k], y[:k]))
-        va.append((u[k:], y[k:]))
+        va.append((u, y, k))
     return tr, va
 
 
 def _grid(train, val, fs, na_max, nb_max, d_max):
-    n_min = min(u.size for u, _ in train + val)
+    n_min = min([u.size for u, _ in train] + [u.size - k for u, _, k in val])
     cap = max(1, n_min // 12)     # the regression needs a few rows per lag
     na_max, nb_max = min(na_max, cap), min(nb_max, cap)
-    g = idf.arx_grid(train, val, range(1, na_max + 1), range(1, nb_max + 1),
-                     range(0, d_max + 1), fs_hz=fs, error='simulation', ridge=RIDGE)
-    return idf.model_from_grid(g, 'bic')
+    g = idf.arx_grid(train, [(u, y) for u, y, _ in val], range(1, na_max + 1),
+                     range(1, nb_max + 1), range(0, d_max + 1), fs_hz=fs, error='simulation',
+                     ridge=RIDGE, warmup=[k for _, _, k in val])
+    # BIC in units of the validation samples (n ln mse + p ln n, summed over records);
+    # orders within BIC_TIE of the best are not told apart by the data: the fewest
+    # parameters among them (parsimony), so a lag more or less does not hang on noise
+    nv = np.array([float(u.size - k) for u, _, k in val])[:, None]
+    with np.errstate(invalid='ignore'):
+        total = np.sum(np.where(np.isfinite(g['scores']['bic']), g['scores']['bic'], np.inf) * nv,
+                       axis=0)
+    if not np.any(np.isfinite(total)):
+        return idf.model_from_grid(g, 'bic')
+    dim = g['orders'][:, 0] + g['orders'][:, 1]
+    tied = np.flatnonzero(total <= np.min(total) + BIC_TIE)
+    k = int(min(tied, key=lambda i: (dim[i], total[i])))
+    na, nb, d = (int(v) for v in g['orders'][k])
+    theta = g['thetas'][k]
+    return idf.ArxModel(a=np.r_[1.0, theta[:na]], b=theta[na:], d=d, fs_hz=fs)
 
 
 def _sim_error(model, records):
-    e = [y - model.simulate(u) for u, y in records]
+    """Mean squared simulation error over ``(u, y)`` or ``(u, y, k)`` (scored from ``k``)."""
+    e = [(r[1] - model.simulate(r[0]))[(r[2] if len(r) > 2 else 0):] for r in records]
     return float(np.mean(np.concatenate(e) ** 2))
 
 
