@@ -49,6 +49,10 @@ def test_pattern_names_a_regular_fault_among_scattered_outliers():
                                                  '1 other(s))'
 
 
+# Real timing at 2048 Hz: beside make test's system tests (their loops run SCHED_FIFO 80, above
+# the emulator's 50 and the checker's 40) a loop's periodic bursts can make replies late in a
+# regular pattern, which the check rightly fails; a rerun 10 s later is outside the burst.
+@pytest.mark.flaky(reruns=2, reruns_delay=10)
 @pytest.mark.parametrize('version', [1, 2])
 def test_the_reference_controller_passes(version):
     report = _check(version=version)
