@@ -24,7 +24,12 @@ else
     colcon --log-base log/units test --packages-skip rths_system_tests "${args[@]}" \
     > log/units.txt 2>&1 &
   units=$!
-  colcon test --packages-select rths_system_tests "${args[@]}" || rc_system=$?
+  # a failed system test runs once more (pytest-rerunfailures): node graphs, real time and
+  # DDS discovery on a shared 2-core VM fail now and then on timing alone (CI runs of
+  # 2026-11-28: a 5 s lock-step stall, an e-stop message the recorder missed); a regression
+  # fails both times, and the rerun is printed ('R' and 'rerun' in the summary)
+  PYTEST_ADDOPTS="--reruns 1" colcon test --packages-select rths_system_tests "${args[@]}" \
+    || rc_system=$?
   wait "$units" || rc_units=$?
   echo "--- unit tests of every package (ran beside the system tests at nice 19) ---"
   cat log/units.txt
