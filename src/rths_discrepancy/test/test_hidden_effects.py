@@ -21,6 +21,16 @@ def _command():
     return 4e-3 * np.sin(2 * np.pi * 2.7 * t) + 2e-3 * np.sin(2 * np.pi * 5.3 * t)
 
 
+def _lab_record(plant, seed):
+    """12 s of the lab's specimen channels (eq. 45's force) under a smoothed random drive."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(12 * FS)) / FS
+    drive = np.convolve(rng.standard_normal(t.size), np.ones(64) / 64, mode='same')
+    y = plant.simulate(3e-3 * drive / np.std(drive) + np.resize(_command(), t.size))
+    return {'time': t, 'base_accel': y['table_accel'], 'rel_disp': y['rel_disp'],
+            'force': plant.frame_mass * y['table_accel'] - y['force']}
+
+
 @pytest.mark.parametrize('key,size', [
     ('specimen_damping_error_n_s_m', 200.0),
     ('specimen_stiffness_error_n_m', 4000.0),
@@ -77,13 +87,7 @@ def test_a_damping_error_behind_the_anti_alias_filter_is_found_unbiased():
 
     plant = SimulatedPlant(specimen='valve4', daq_filter_hz=200.0,
                            specimen_damping_error_n_s_m=150.0)
-    rng = np.random.default_rng(3)
-    t = np.arange(int(12 * FS)) / FS
-    drive = np.convolve(rng.standard_normal(t.size), np.ones(64) / 64, mode='same')
-    y = plant.simulate(3e-3 * drive / np.std(drive) + np.resize(_command(), t.size))
-    data = {'time': t, 'base_accel': y['table_accel'], 'rel_disp': y['rel_disp'],
-            'force': plant.frame_mass * y['table_accel'] - y['force']}
-    res = run_discrepancy('specimen', data, plots=False)
+    res = run_discrepancy('specimen', _lab_record(plant, 3), plots=False)
     assert res['effect'] == 'viscous_damping_error'
     assert res['parameters']['viscous_damping_error']['dc'] == pytest.approx(150.0, rel=0.02)
 
@@ -100,13 +104,7 @@ def test_a_hidden_load_cell_offset_is_found_with_its_sign(offset_n):
     from rths_discrepancy.workflow import run_discrepancy
 
     plant = SimulatedPlant(specimen='valve4', force_offset_n=offset_n)
-    rng = np.random.default_rng(5)
-    t = np.arange(int(12 * FS)) / FS
-    drive = np.convolve(rng.standard_normal(t.size), np.ones(64) / 64, mode='same')
-    y = plant.simulate(3e-3 * drive / np.std(drive) + np.resize(_command(), t.size))
-    data = {'time': t, 'base_accel': y['table_accel'], 'rel_disp': y['rel_disp'],
-            'force': plant.frame_mass * y['table_accel'] - y['force']}
-    res = run_discrepancy('specimen', data, plots=False)
+    res = run_discrepancy('specimen', _lab_record(plant, 5), plots=False)
     assert res['effect'] == 'force_offset'
     assert res['parameters']['force_offset']['F_0'] == pytest.approx(offset_n, rel=0.01)
     # the library's operator on the force channel is the lab's, sign included
