@@ -7,7 +7,9 @@ parser accepts it, or it raises ValueError/OSError whose message (as ``rths``
 prints it: :func:`rths_bringup.cli.error_line`) is one line naming the file.
 Anything else fails the test: another exception (a traceback for the user), a
 case running longer than :data:`HANG_S` (a hang), or a file changed outside
-the case's own directory.
+the case's own directory (a sentinel tree beside it, and the valid inputs the
+cases are made from).  Each case runs in-process, through the function the
+``rths`` command calls, in a directory on tmpfs (/dev/shm) where there is one.
 
 ``make test`` runs a fixed-seed corpus of :data:`EXAMPLES` cases per parser;
 ``make fuzz`` runs ``RTHS_FUZZ_EXAMPLES`` (10 000) per parser and writes the
@@ -37,6 +39,10 @@ REPORT = os.environ.get('RTHS_FUZZ_REPORT', '')
 HANG_S = float(os.environ.get('RTHS_FUZZ_HANG_S', '20'))
 CONFIG = Path(__file__).resolve().parents[1] / 'config'
 STATS: dict = {}
+#: Where the cases' directories go: tmpfs when the machine has one (no disk I/O per case).
+SCRATCH = '/dev/shm' if os.access('/dev/shm', os.W_OK) else None
+#: What the report counts for each parser; the last three must stay 0 (the test fails first).
+COUNTS = ('cases', 'accepted', 'refused', 'max_ms', 'tracebacks', 'hangs', 'changed_outside')
 
 FUZZ = settings(max_examples=EXAMPLES, deadline=None, derandomize=True, database=None,
                 suppress_health_check=list(HealthCheck))
@@ -76,7 +82,7 @@ def _report():
 @contextlib.contextmanager
 def _case(name: str):
     """Give one case a fresh directory, beside a sentinel tree nobody may touch."""
-    root = Path(tempfile.mkdtemp(prefix='rths-fuzz-'))
+    root = Path(tempfile.mkdtemp(prefix='rths-fuzz-', dir=SCRATCH))
     (root / 'outside').mkdir()
     (root / 'outside' / 'recorded.txt').write_text('a recording nobody may touch\n')
     case = root / 'case'
@@ -88,24 +94,46 @@ def _case(name: str):
         yield case
     finally:
         os.chdir(cwd)
-        assert _snapshot(root / 'outside') == before, f'{name}: a file outside the case changed'
+        changed = _snapshot(root / 'outside') != before
         shutil.rmtree(root, ignore_errors=True)
+        _stats(name)['changed_outside'] += changed
+        assert not changed, f'{name}: a file outside the case changed'
+
+
+@contextlib.contextmanager
+def _unchanged(name: str, *roots: Path):
+    """Fail ``name`` if a case changed the valid inputs it was made from (``roots``)."""
+    before = [_snapshot(r) for r in roots]
+    yield
+    changed = [str(r) for r, b in zip(roots, before, strict=True) if _snapshot(r) != b]
+    _stats(name)['changed_outside'] += len(changed)
+    assert not changed, f'{name}: the cases changed {changed}'
+
+
+def _stats(name: str) -> Counter:
+    return STATS.setdefault(name, Counter({k: 0 for k in COUNTS}))
 
 
 def check(name: str, func, *args, where=None):
     """Run ``func(*args)``; accepted, or refused with one line naming ``where``; count it."""
-    stats = STATS.setdefault(name, Counter())
+    stats = _stats(name)
     stats['cases'] += 1
     start = time.monotonic()
     try:
         with _alarm(HANG_S):
             func(*args)
+    except Hang:
+        stats['hangs'] += 1
+        raise
     except (ValueError, OSError) as err:
         line = error_line(err)
         assert line and '\n' not in line, f'{name}: empty or multi-line error {err!r}'
         if where is not None:
             assert str(where) in line, f'{name}: error does not name {where}: {line}'
         stats['refused'] += 1
+    except BaseException:
+        stats['tracebacks'] += 1
+        raise
     else:
         stats['accepted'] += 1
     finally:
@@ -215,7 +243,8 @@ def test_params_files(name):
         with _case(f'params {name}') as case:
             config = _config_case(case, name, data)
             check(f'params {name}', preflight.check_config, config, where=name)
-    run()
+    with _unchanged(f'params {name}', CONFIG):
+        run()
 
 
 def test_plant_file():
@@ -230,7 +259,8 @@ def test_plant_file():
             path = case / 'plant.yaml'
             path.write_bytes(data)
             check('plant.yaml', load_plant, path, where=path)
-    run()
+    with _unchanged('plant.yaml', CONFIG):
+        run()
 
 
 MODEL = {'M': [[1000.0, 0.0], [0.0, 1000.0]], 'K': [[2e6, -1e6], [-1e6, 1e6]],
@@ -313,11 +343,16 @@ def _valid_bag(root: Path, storage: str) -> Path:
 
 
 def _read_bag(bag: Path):
+    """``rths bag info``'s read: every message, through one open of the bag.
+
+    :func:`bagio.info` reads every message with the generator :func:`bagio.read_messages`
+    uses and keeps its BagDamaged line in ``damaged``: raised here as the reader raises it.
+    """
     from rths_common import bagio
 
-    bagio.info(bag)
-    for _ in bagio.read_messages(bag):
-        pass
+    out = bagio.info(bag)
+    if out['damaged']:
+        raise bagio.BagDamaged(out['damaged'])
 
 
 @pytest.fixture(scope='module')
@@ -348,7 +383,8 @@ def test_bag(valid_bags, storage, part):
             if part == 'data' and drop_metadata:   # as a SIGKILL leaves it: reindexed on read
                 (bag / 'metadata.yaml').unlink()
             check(name, _read_bag, bag, where=bag)
-    run()
+    with _unchanged(name, valid):
+        run()
 
 
 # -- packets: the UDP servo controller and the TCP site -----------------------------------------

@@ -386,32 +386,37 @@ def info(bag) -> dict:
             'topics': {c.topic: {'type': c.msgtype, 'count': 0} for c in reader.connections},
             'damaged': None,
         }
+        try:   # the reader just opened: one open (one metadata parse) per call
+            for topic, _, _ in _messages(reader, bag, None):
+                out['topics'][topic]['count'] += 1
+        except BagDamaged as err:
+            out['damaged'] = str(err)
     finally:
         reader.close()
-    try:
-        for topic, _, _ in read_messages(bag):
-            out['topics'][topic]['count'] += 1
-    except BagDamaged as err:
-        out['damaged'] = str(err)
     out['message_count'] = sum(t['count'] for t in out['topics'].values())
     return out
 
 
 def read_messages(bag, topic_names=None):
     """Yield ``(topic, timestamp_ns, msg)`` in time order, deserialized with :func:`typestore`."""
-    store = typestore()
     reader = open_reader(bag)
     try:
-        conns = [c for c in reader.connections if topic_names is None or c.topic in topic_names]
-        for conn, timestamp, raw in raw_messages(reader, bag, conns):
-            try:
-                msg = store.deserialize_cdr(raw, conn.msgtype)
-            except (*_reader_errors(), ValueError) as err:
-                raise BagDamaged(f'{bag}: a damaged {conn.topic} message ({str(err)[:120]}); '
-                                 'the bag cannot be read past it') from None
-            yield conn.topic, timestamp, msg
+        yield from _messages(reader, bag, topic_names)
     finally:
         reader.close()
+
+
+def _messages(reader, bag, topic_names):
+    """:func:`read_messages` from an open ``reader``."""
+    store = typestore()
+    conns = [c for c in reader.connections if topic_names is None or c.topic in topic_names]
+    for conn, timestamp, raw in raw_messages(reader, bag, conns):
+        try:
+            msg = store.deserialize_cdr(raw, conn.msgtype)
+        except (*_reader_errors(), ValueError) as err:
+            raise BagDamaged(f'{bag}: a damaged {conn.topic} message ({str(err)[:120]}); '
+                             'the bag cannot be read past it') from None
+        yield conn.topic, timestamp, msg
 
 
 def raw_messages(reader, bag, connections):

@@ -13,7 +13,7 @@ from pathlib import Path
 import yaml
 
 
-class _Loader(yaml.SafeLoader):
+class _Loader(getattr(yaml, 'CSafeLoader', yaml.SafeLoader)):   # libyaml: ~12x faster
     """SafeLoader that refuses a key given twice in one mapping."""
 
 
@@ -23,13 +23,15 @@ def _mapping(loader, node, deep=False):
         key = loader.construct_object(key_node, deep=True)
         line = key_node.start_mark.line + 1
         try:
-            first = seen.setdefault(key, line)
+            first = seen.get(key)
         except TypeError:                     # an unhashable key: the base class says so
             break
-        if first != line:
+        if first is not None:                 # also on one line: {a: 1, a: 2}
+            where = f'line {line}' if first == line else f'lines {first} and {line}'
             raise yaml.constructor.ConstructorError(
-                None, None, f'key {key!r} is given twice (lines {first} and {line}); keep one',
+                None, None, f'key {key!r} is given twice ({where}); keep one',
                 key_node.start_mark)
+        seen[key] = line
     return loader.construct_mapping(node, deep)
 
 
@@ -56,6 +58,9 @@ def load(path) -> object:
 
 def describe(err: yaml.YAMLError) -> str:
     """Return one line for a YAML error: where in the file, what, and the fix."""
+    if isinstance(err, yaml.reader.ReaderError):   # a byte or character YAML does not allow
+        return (f'not valid YAML at character {err.position + 1}: {err.reason}; '
+                'write the file as UTF-8 text without control characters')
     mark = getattr(err, 'problem_mark', None)
     problem = getattr(err, 'problem', None) or str(err)
     if problem.startswith('key ') and 'given twice' in problem:

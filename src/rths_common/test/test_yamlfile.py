@@ -26,3 +26,17 @@ def test_equal_keys_in_different_mappings_and_plain_files_load():
     assert yamlfile.loads(text, 'f') == {'a': {'x': 1, 'y': 2}, 'b': {'x': 3}, 'c': [1, 2]}
     with pytest.raises(OSError, match='cannot read the file'):
         yamlfile.load('/nonexistent/x.yaml')
+
+
+def test_a_key_given_twice_on_one_line_is_refused():
+    with pytest.raises(ValueError, match=r"^f.yaml: key 'a' is given twice \(line 1\); keep one$"):
+        yamlfile.loads('{a: 1, a: 2}\n', 'f.yaml')
+
+
+@pytest.mark.parametrize('text', ['x: "\x00"\n', '\x01: 1\n', 'a: \x7f\n'])
+def test_a_control_character_is_one_line_naming_the_file(text):
+    with pytest.raises(ValueError) as err:
+        yamlfile.loads(text, 'f.yaml')
+    assert '\n' not in str(err.value)
+    assert str(err.value).startswith('f.yaml: not valid YAML at character ')
+    assert str(err.value).endswith('without control characters')
