@@ -26,7 +26,7 @@ import signal
 import tempfile
 import time
 
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 import numpy as np
 import pytest
@@ -140,6 +140,15 @@ def check(name: str, func, *args, where=None):
         stats['max_ms'] = max(stats['max_ms'], round(1e3 * (time.monotonic() - start)))
 
 
+def _examples(found):
+    """Return a decorator: hypothesis runs each ``data`` of ``found`` before generated ones."""
+    def wrap(func):
+        for data in reversed(found):
+            func = example(data=data)(func)
+        return func
+    return wrap
+
+
 # -- mutations of a valid input ------------------------------------------------------------------
 
 def _overwrite(data: bytes, at: int, junk: bytes) -> bytes:
@@ -247,6 +256,14 @@ def test_params_files(name):
         run()
 
 
+#: Findings of the long run, kept as cases of every run: each gave a traceback.
+PLANT_FOUND = [b'kind: arx\nfs_hz: null\na: [1.0, -0.5]\nb: [0.1]\n',   # TypeError in float()
+               b'fs_hz: 1024.0\na: [1.0, -0.5]\nb: [0.1]\nna: [1]\n',    # int() of a list
+               b'fs_hz: 1024.0\na: [1.0, null]\nb: [0.1]\n',
+               b'fs_hz: 1024.0\na: [1.0]\nb: [0.1]\nd: 1.0e+300\n',      # zeros(d) later
+               b'fs_hz: true\na: [1.0]\nb: {x: 1}\nd: 1.5\n']
+
+
 def test_plant_file():
     from rths_compensator.identification import load_plant
 
@@ -254,6 +271,7 @@ def test_plant_file():
 
     @FUZZ
     @given(data=file_input(valid, yaml.safe_load(valid)))
+    @_examples(PLANT_FOUND)
     def run(data):
         with _case('plant.yaml') as case:
             path = case / 'plant.yaml'

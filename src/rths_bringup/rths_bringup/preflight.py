@@ -33,7 +33,7 @@ from rths_common.params import NODE_KEYS, check_spec
 from rths_compensator.params import (
     check_compensator_params,
     check_sampling_rate,
-    load_compensator_params,
+    compensator_params_from,
 )
 
 _UNITS = ('m', 'mm', 'cm', 'in', 'inch', 'inches', 'ft', 's', 'ms', 'us', 'sec', 'hz', 'khz',
@@ -45,8 +45,11 @@ _NUMBER_WITH_UNIT = re.compile(
 
 def load_params_file(path, node: str) -> dict:
     """``ros__parameters`` of ``node`` in the params file ``path`` (ValueError/OSError)."""
-    path = Path(path)
-    doc = yamlfile.load(path)
+    return params_of(Path(path), yamlfile.load(path), node)
+
+
+def params_of(path: Path, doc, node: str) -> dict:
+    """:func:`load_params_file` of the file ``path`` already parsed into ``doc``."""
     section = doc.get(node) if isinstance(doc, dict) else None
     if not isinstance(section, dict) or not isinstance(section.get('ros__parameters'), dict):
         raise ValueError(f"{path}: expected '{node}:' then 'ros__parameters:' at the top; "
@@ -96,9 +99,10 @@ def check_numerical(path) -> dict:
 
 def check_compensator(path) -> dict:
     """Validate ``compensator.yaml`` (known keys, taps, denominator, fs_hz)."""
-    params = load_params_file(path, 'compensator')
+    doc = yamlfile.load(path)   # parsed once (the largest file: the taps)
+    params = params_of(Path(path), doc, 'compensator')
     check_compensator_params({k: v for k, v in params.items() if k not in NODE_KEYS}, str(path))
-    loaded = _wrap(path, 'compensator', load_compensator_params, path)
+    loaded = _wrap(path, 'compensator', compensator_params_from, doc, str(path))
     # the node's own keys (mode, executor, ...) count for check_modes
     return {**loaded, **{k: v for k, v in params.items() if k in NODE_KEYS}}
 

@@ -120,7 +120,24 @@ class ArxModel:
         for field in ('fs_hz', 'a', 'b'):
             if field not in data:
                 raise ValueError(f'{where}: field {field} missing; re-run rths identify')
-        model = cls(a=data['a'], b=data['b'], d=data.get('d', 0), fs_hz=data['fs_hz'])
+        fs_hz = data['fs_hz']
+        if not _is_real(fs_hz) or not (np.isfinite(fs_hz) and fs_hz > 0):
+            raise ValueError(f'{where}: field fs_hz = {fs_hz!r}; give the sampling rate in Hz, '
+                             'a finite number > 0')
+        for field in ('a', 'b'):
+            value = data[field]
+            if not (_is_real(value) or (isinstance(value, list) and value
+                                        and all(_is_real(v) for v in value))):
+                raise ValueError(f'{where}: field {field} = {str(value)[:60]}; give a '
+                                 'non-empty list of numbers')
+        for field in ('d', 'na', 'nb'):
+            value = data.get(field, 0)
+            if not (_is_real(value) and float(value).is_integer()):
+                raise ValueError(f'{where}: field {field} = {value!r}; give a whole number >= 0')
+        if not 0 <= data.get('d', 0) <= fs_hz:   # a dead time of samples: at most 1 s
+            raise ValueError(f"{where}: field d = {data.get('d', 0)!r}; give the dead time in "
+                             f'samples, 0 to {fs_hz:g} (1 s at fs_hz)')
+        model = cls(a=data['a'], b=data['b'], d=data.get('d', 0), fs_hz=fs_hz)
         for field, value in (('na', model.na), ('nb', model.nb)):
             if field in data and int(data[field]) != value:
                 raise ValueError(f'{where}: field {field} = {data[field]} does not match the '
@@ -130,6 +147,11 @@ class ArxModel:
                                    where)
             model = cls(a=a, b=b, d=d, fs_hz=model.fs_hz)
         return model
+
+
+def _is_real(value) -> bool:
+    """Return True for a plain number as YAML gives it (an int or float; no bool, no text)."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
 
 
 def save_plant(path, model: ArxModel, selection_info: dict = None) -> str:

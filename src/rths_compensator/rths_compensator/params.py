@@ -208,7 +208,11 @@ def load_compensator_params(path) -> dict:
     if not os.path.isfile(path):
         raise OSError(f'{path}: compensator parameters file not found; create it with '
                       "'rths design' or use identity_params()")
-    doc = yamlfile.load(path)
+    return compensator_params_from(yamlfile.load(path), path)
+
+
+def compensator_params_from(doc, path) -> dict:
+    """:func:`load_compensator_params` of the file ``path`` already parsed into ``doc``."""
     if not isinstance(doc, dict) or 'compensator' not in doc:
         raise ValueError(f"{path}: top-level key 'compensator' missing; the file must start "
                          "with 'compensator:' then 'ros__parameters:'")
