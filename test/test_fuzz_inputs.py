@@ -240,14 +240,22 @@ def _config_case(case: Path, name: str, data: bytes) -> Path:
     return config
 
 
+#: Findings of the long run, kept as cases of every run: each gave a traceback.
+PARAMS_FOUND = {'numerical.yaml': [   # fs_hz: null reached the rate check: TypeError
+    (CONFIG / 'numerical.yaml').read_bytes().replace(b'fs_hz: 1024.0', b'fs_hz: null')]}
+
+
 @pytest.mark.parametrize('name', ['numerical.yaml', 'compensator.yaml', 'bridge.yaml'])
 def test_params_files(name):
     from rths_bringup import preflight
 
     valid = (CONFIG / name).read_bytes()
+    with _case('warm-up') as case:   # imports SciPy, rclpy: outside the cases' hang alarm
+        preflight.check_config(_config_case(case, name, valid))
 
     @FUZZ
     @given(data=file_input(valid, yaml.safe_load(valid)))
+    @_examples(PARAMS_FOUND.get(name, []))
     def run(data):
         with _case(f'params {name}') as case:
             config = _config_case(case, name, data)

@@ -186,9 +186,10 @@ def check_config(config_dir, overrides: dict = None) -> None:
         checked[name] = check(path)
     check_modes(config_dir, {n.removesuffix('.yaml'): p for n, p in checked.items()},
                 overrides or {})
-    check_rates(config_dir, checked['numerical.yaml'], checked['compensator.yaml'])
     for name, params in checked.items():
         check_ranges(config_dir / name, name.removesuffix('.yaml'), params)
+    # after the ranges: fs_hz: null (the default for make_substructure) is refused there
+    check_rates(config_dir, checked['numerical.yaml'], checked['compensator.yaml'])
 
 
 def node_schema_of(node: str) -> dict:
