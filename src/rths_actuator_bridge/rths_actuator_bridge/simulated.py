@@ -251,6 +251,8 @@ def plant_config(params: dict) -> PlantConfig:
         if key in own:
             continue
         raw = params.get(key, default)
+        if typ is str and not isinstance(raw, str):   # str(None) would be the path 'None'
+            raise ValueError(f'parameter {key!r} = {raw!r} is not text; set it to {meaning}')
         try:
             val = typ(raw)
         except (TypeError, ValueError):

@@ -76,11 +76,11 @@ def check_value(path, key: str, value):
 def _wrap(path, node, func, *args):
     try:
         return func(*args)
-    except ValueError as err:
+    except (ValueError, OSError) as err:   # OSError: a file the params name (a plant.yaml)
         text = str(err)
         if str(path) in text:
             raise
-        raise ValueError(f'{path}: {node}: {text}') from None
+        raise type(err)(f'{path}: {node}: {text}') from None
 
 
 def check_numerical(path) -> dict:

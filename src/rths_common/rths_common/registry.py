@@ -50,6 +50,13 @@ class Registry(Mapping):
         """Return the entry of ``name`` (KeyError if unknown; :meth:`entry` explains)."""
         return self._entries[name]
 
+    def __contains__(self, name) -> bool:
+        """Return True if ``name`` is registered (False for any other value, a list too)."""
+        try:
+            return name in self._entries
+        except TypeError:                     # unhashable: a YAML list or mapping
+            return False
+
     def __iter__(self) -> Iterator[str]:
         """Iterate over the names in registration order."""
         return iter(self._entries)
