@@ -57,6 +57,8 @@ def params_of(path: Path, doc, node: str) -> dict:
     params = dict(section['ros__parameters'])
     for key, value in params.items():
         check_value(path, key, value)
+    # before anything is built from them (duration_s: 1e9 allocated 37 GiB in make_substructure)
+    check_ranges(path, node, params)
     return params
 
 
