@@ -21,13 +21,10 @@ import warnings
 
 import numpy as np
 
-from rths_common.coupler import Coupler
-from rths_common.marths_data import load_config
+from rths_common.marths_data import INCH, load_config, rig_coupler  # noqa: F401 (re-exported)
 
 from .backend import Backend
 from .channels import zoh as discretise
-
-INCH = 0.0254
 
 
 def _frame_element(e, area, inertia, length, angle):
@@ -239,11 +236,6 @@ class FrameForce:
             self.started = True
         self.q_prev, self.v_prev = q, vel
         return q @ self.k.T + vel @ self.c.T + acc @ self.m.T
-
-
-def rig_coupler(cfg: dict) -> Coupler:
-    """Return the rig's coupler (``fcn_coupler_geometry.m``: the two attachment offsets)."""
-    return Coupler.from_offsets(cfg['coupler']['offsets_m'])
 
 
 def rig_plants(cfg: dict, n_draws: int, seed: int) -> list:
