@@ -306,11 +306,7 @@ class SimulatedRigBackend(Backend):
         strokes = self.plant.output(u_mm)[0] / 1000.0
         x, theta = self.coupler.dofs(strokes, iterations=2)
         f5 = self.frame.step(x, theta)[0]
-        jac = np.column_stack([np.ones(self.coupler.n),
-                               -np.asarray(self.coupler.d) * np.sin(
-                                   float(theta) + np.asarray(self.coupler.alpha))])
-        axial = np.linalg.solve(jac.T, f5[:2])
-        self._last = (strokes, axial)
+        self._last = (strokes, self.coupler.axial_forces(f5[0], f5[1], theta))
 
     def _read(self, wait_s=None):
         if self._last is None:

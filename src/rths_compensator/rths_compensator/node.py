@@ -112,7 +112,9 @@ class CompensatorNode:
                                       self.on_displacement, qos, raw=raw)
         self.log.info(f"compensator ready: scheme {self.params['scheme']}, "
                       f"{len(self.params['taps'])} taps, "
-                      f"{len(self.params['denominator']) - 1} denominator order")
+                      f"{len(self.params['denominator']) - 1} denominator order"
+                      + (f', coupled N x N FIR of {coupled.size} taps (coupled_taps)'
+                         if coupled is not None else ''))
 
     @property
     def expected(self) -> int:
