@@ -20,7 +20,9 @@ def test_marths_mimo_through_the_lockstep_graph_equals_the_offline_loop(tmp_path
     for key, value in graph_env().items():
         monkeypatch.setenv(key, value)
     t = np.arange(0, 3.0, 0.005)
-    acc = 1.2 * np.sin(2 * np.pi * 2.0 * t) * np.sin(np.pi * t / 3.0)
+    # 0.6 m/s^2: inside the rig file's interface limits (1.2 m/s^2 trips its 8000 N m moment
+    # limit, and the bridge holds: the offline loop has no limits)
+    acc = 0.6 * np.sin(2 * np.pi * 2.0 * t) * np.sin(np.pi * t / 3.0)
     rec = tmp_path / 'pulse.txt'
     np.savetxt(rec, np.column_stack([t, acc]))
     s = mg.run_graph('mimo', str(rec), out_dir=str(tmp_path / 'run'), seed=5,
@@ -28,8 +30,8 @@ def test_marths_mimo_through_the_lockstep_graph_equals_the_offline_loop(tmp_path
     n = s['steps']
     assert s['samples_lost'] == 0 and n == 3067          # 0 .. 2.995 s at 1024 Hz
     assert s['j_within_5pct'], s['j_relative_difference']
-    # the comparison can fail: the compensator tracks, the uncompensated rig lags 20-40 ms
-    assert max(s['nominal']['J1']) < 5.0 and max(s['nominal']['J2']) < 30.0
+    # the compensator tracks (uncompensated the rig lags 20-40 ms, J2 30-55 %)
+    assert max(s['nominal']['J1']) < 10.0 and max(s['nominal']['J2']) < 30.0
     assert s['realizable']
     # the bag carries both actuators' channels at every step
     meas = bagio.step_arrays(s['settings']['bag'], topics.MEASUREMENT,
@@ -37,3 +39,6 @@ def test_marths_mimo_through_the_lockstep_graph_equals_the_offline_loop(tmp_path
     for name in ('applied', 'displacement', 'force'):
         assert meas[name].shape == (n, 2) and np.all(np.isfinite(meas[name])), name
     assert np.all(np.max(np.abs(meas['displacement']), axis=0) > 1e-4)   # both moved
+    faults = [msg.fault for _, msg in bagio.read_topic(s['settings']['bag'], topics.STATUS)
+              if msg.node == 'bridge' and msg.fault]
+    assert not faults, faults[:1]
