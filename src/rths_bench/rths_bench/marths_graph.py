@@ -93,6 +93,7 @@ def graph_params(cfg: dict, record_at2: str, taps, seed: int, rig: str) -> dict:
 
 def graph_histories(run: dict, cfg: dict, reference: dict) -> dict:
     """Return the offline loop's histories (one run, strokes in mm) of a graph run."""
+    # lazy: bagio pulls rosbag2_py; only reading a graph run's bag needs it
     from rths_common import bagio, topics
     hist = run['history']
     n = len(hist['command'])
