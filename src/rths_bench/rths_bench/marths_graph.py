@@ -27,6 +27,7 @@ import time
 import numpy as np
 
 from . import marths as mb
+from .bench_loop import machine_info
 from .rths_benchmark import (
     BENCHMARK_SCHEME,
     RT_WATCHDOG_STEPS,
@@ -186,6 +187,8 @@ def run_graph(controller: str = 'none', record: str = 'elcentro', duration_s: fl
     }
     if 'realtime' in run:
         summary['realtime'] = run['realtime']
+    summary['date'] = time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())
+    summary['machine'] = machine_info()
     summary['_histories'] = h
     return summary
 
