@@ -325,7 +325,12 @@ def _reader_errors():
     # lazy: start-up cost: rosbags (~0.2 s), which this module needs only to read
     from rosbags.rosbag2.errors import ReaderError
     from rosbags.serde import SerdeError
-    return (ReaderError, SerdeError, *_READ_ERRORS)
+    try:   # rosbags reads sqlite3 bags with apsw when it is installed
+        # lazy: optional, as in rosbags
+        from apsw import Error as ApswError
+    except ImportError:
+        return (ReaderError, SerdeError, *_READ_ERRORS)
+    return (ReaderError, SerdeError, ApswError, *_READ_ERRORS)
 
 
 def open_reader(bag):
@@ -350,6 +355,10 @@ def open_reader(bag):
         reader = Reader(bag)
         try:
             reader.open()
+            for conn in reader.connections:   # metadata.yaml's own fields, read exactly
+                if not (isinstance(conn.topic, str) and isinstance(conn.msgtype, str)):
+                    raise ValueError(f'topic {conn.topic!r} of type {conn.msgtype!r} is not '
+                                     'a name')
             return reader
         except (*errors, ValueError) as err:
             if attempt:
