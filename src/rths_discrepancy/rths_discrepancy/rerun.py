@@ -216,13 +216,15 @@ def _cached(cache_dir, hits, label, key, compute) -> np.ndarray:
 
 
 def compare(bag, updated_model, config=None, nominal_model=None, progress=None,
-            cache_dir=None) -> dict:
+            cache_dir=None, updated_only=False) -> dict:
     """RTHS-vs-reference relative RMS error [%] with the nominal and the updated specimen model.
 
     ``updated_model`` is a :class:`.models.SpecimenModel` or a YAML path;
     ``nominal_model`` defaults to the run's Table 4 damper.  ``progress(done, 3)``
     follows the three simulations (nominal, updated, whole numerical); ``cache_dir``
-    shares them among runs (module docstring).
+    shares them among runs (module docstring).  ``updated_only``: simulate only the
+    reference with the updated model (``rths review --specimen-model``); the result then
+    has no nominal and whole-numerical figures.
     """
     numerical, bridge = run_parameters(bag, config)
     if not isinstance(updated_model, models.SpecimenModel):
@@ -244,7 +246,8 @@ def compare(bag, updated_model, config=None, nominal_model=None, progress=None,
             'ground_motion_sha256': hashlib.sha256(
                 np.ascontiguousarray(sub.ag, dtype=float).tobytes()).hexdigest()}
     refs = {}
-    for k, (label, model) in enumerate((('nominal', nominal), ('updated', updated_model))):
+    pairs = (('nominal', nominal), ('updated', updated_model))
+    for k, (label, model) in enumerate(pairs[1:] if updated_only else pairs):
         if progress:
             progress(k, 3)
         refs[label] = _cached(
@@ -254,6 +257,9 @@ def compare(bag, updated_model, config=None, nominal_model=None, progress=None,
                                          specimen(m, sub.dt, frame))['output_disp'])[:n]
         out[f'rths_vs_{label}_reference_rel_rms_pct'] = relative_rms_error(floor2, refs[label])
         out[f'{label}_reference_max_disp_2nd_m'] = float(np.max(np.abs(refs[label])))
+    if updated_only:
+        out['_series'] = {'rths': floor2, **refs}
+        return out
     if progress:
         progress(2, 3)
     whole = _cached(

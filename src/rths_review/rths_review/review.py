@@ -640,7 +640,7 @@ def _updated_reference(bag, specimen, path):
         raise ValueError(f'--specimen-model {path}: the run\'s specimen is no mass on the '
                          'table; an updated DTM model does not apply to it')
     updated = models.load_model('specimen', path)
-    cmp = rerun.compare(bag, updated, nominal_model=updated)
+    cmp = rerun.compare(bag, updated, updated_only=True)
     effects = ', '.join(f'{k} {v:.4g}' for k, v in updated.effects.items()) or 'no effects'
     left = ''.join(f'; {k} left out: {why}' for k, why in cmp['left_out_of_reference'].items())
     return ({'disp': cmp['_series']['updated']},
