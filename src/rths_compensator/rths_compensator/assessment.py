@@ -104,7 +104,7 @@ def _response(taps, denominator, x):
 
 
 def noise_targets(fs_hz: float, band_hz: float, peak: float) -> list:
-    """The noise-like desired motions of the limit check: band-limited noise over the band.
+    """Return the noise-like desired motions of the limit check: noise over the band.
 
     20 s of white noise band-limited to ``band_hz`` faded in and out over 0.5 s (as an
     RTHS target starts from rest) with a peak of ``peak``, one per :data:`NOISE_SEEDS`.
@@ -123,7 +123,7 @@ def command_figures(comp, x) -> dict:
 
 
 def noise_figures(comp, band_hz: float, peak: float) -> dict:
-    """The worst command figures over :func:`noise_targets` (``noise_command_*`` keys)."""
+    """Return the worst command figures over :func:`noise_targets` (``noise_command_*``)."""
     worst = {}
     for x in noise_targets(comp.fs_hz, band_hz, peak):
         for key, value in command_figures(comp, x).items():
@@ -266,9 +266,10 @@ def design_within_limits(plant, design_fn, band_of, record=None,
 
     ``design_fn(gain_weight)`` returns a design (``gain_weight`` None: its default);
     ``band_of(comp)`` the band of its predictions.  With ``adapt`` (a least-squares scheme
-    whose gain weight the user did not choose) and limits given, a design whose command for the reference or a noise-like
-    target exceeds a limit is redesigned with the next of :data:`ADAPT_GAIN_WEIGHTS` (more
-    weight on the compensator's own gain above the band) until it is within every limit.
+    whose gain weight the user did not choose) and limits given, a design whose command for
+    the reference or a noise-like target exceeds a limit is redesigned with the next of
+    :data:`ADAPT_GAIN_WEIGHTS` (more weight on the compensator's own gain above the band)
+    until it is within every limit.
     Returns ``(comp, band, pred, violations, text, note)``; ``note`` says what was adapted
     ('' if nothing), ``violations`` those of the last design tried.
     """
@@ -284,8 +285,7 @@ def design_within_limits(plant, design_fn, band_of, record=None,
         comp = design_fn(weight)
         band = band_of(comp)
         pred, violations, text = assess(plant, comp, band, record, limits)
-        note = (f'gain weight raised from {start:g} to {weight:g} (the default design\'s '
-                f'{first})')
+        note = f'gain weight raised from {start:g} to {weight:g} (at {start:g}, {first})'
         if not violations:
             break
     return comp, band, pred, violations, text, note

@@ -255,7 +255,8 @@ def _order_by_design(scored, u, y, fs: float, split: int, say):
     of ``rths bench identification`` the BIC chose na=2 nb=7 d=25 (zeros at modulus 1.31),
     whose default design tracks 0-10 Hz noise through the true actuator at 2.4 %, the
     true plant's design at 0.77 %.  Each is designed with the defaults
-    (:func:`.design.design_default` on :data:`SCORE_GRID` points) and tracks :func:`design_score_target` through the
+    (:func:`.design.design_default` on :data:`SCORE_GRID` points) and tracks
+    :func:`design_score_target` through the
     record's own impulse response on the held-out part (:func:`impulse_response`, 0.5 s:
     no model), as ``rths design`` predicts; the smallest predicted error comes first.
     Returns ``(scored, {candidate: predicted tracking [%]})``.
@@ -285,7 +286,7 @@ def _order_by_design(scored, u, y, fs: float, split: int, say):
 
 
 def design_score_target(fs_hz: float, band_hz: float, seed: int = 1) -> np.ndarray:
-    """The desired motion of the design score: band-limited noise 0-band, 0.5 s fades, 20 s.
+    """Return the design score's desired motion: noise 0-band, 0.5 s fades, 20 s, peak 1.
 
     Its fades start it from rest as an RTHS does; the little motion they put above the band
     is where the compensators of equally good fits differ most.
