@@ -282,7 +282,11 @@ def _order_by_design(scored, u, y, fs: float, split: int, say):
     if not tracking:
         return scored, {}
     ranked = sorted((c for c in close if _key(c) in tracking), key=lambda c: tracking[_key(c)])
-    return ranked + [c for c in scored if c not in ranked], tracking
+    # within 1 % of the best prediction the designs are as good: the smaller BIC first
+    tie = [c for c in close if _key(c) in tracking
+           and tracking[_key(c)] <= 1.01 * tracking[_key(ranked[0])]]
+    ranked = tie[:1] + [c for c in ranked if c is not tie[0]]
+    return ranked + [c for c in scored if not any(c is r for r in ranked)], tracking
 
 
 def design_score_target(fs_hz: float, band_hz: float, seed: int = 1) -> np.ndarray:
@@ -357,13 +361,14 @@ def identify_record(u, y, fs_hz: float, options: IdentOptions = None, progress=N
                          'measured displacement) and the record')
     n_val = u.size - split
     scored = []
-    seen = set()
-    for mse, na, nb, d, a, b in cands:
-        if len(seen) >= (opt.n_refine if opt.refine else 1):
-            break
-        if na in seen:          # the best of each na: the ten best are often one na's d's
-            continue
-        seen.add(na)
+    # the n_refine best, and the best of each na (the best are often one na's dead times)
+    picked, per_na = [], set()
+    for cand in cands:
+        if len(picked) < (opt.n_refine if opt.refine else 1) or (
+                opt.refine and cand[1] not in per_na):
+            picked.append(cand)
+        per_na.add(cand[1])
+    for mse, na, nb, d, a, b in picked:
         if opt.refine:
             a, b = refine_oe(uf[:split], yf[:split], a, b, d)
             mse = _sim_error(a, b, d, uf, yf, split)
