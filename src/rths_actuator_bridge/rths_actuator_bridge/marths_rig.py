@@ -21,13 +21,10 @@ import warnings
 
 import numpy as np
 
-from rths_common.coupler import Coupler
-from rths_common.marths_data import load_config
+from rths_common.marths_data import INCH, load_config, rig_coupler  # noqa: F401 (re-exported)
 
 from .backend import Backend
 from .channels import zoh as discretise
-
-INCH = 0.0254
 
 
 def _frame_element(e, area, inertia, length, angle):
@@ -241,11 +238,6 @@ class FrameForce:
         return q @ self.k.T + vel @ self.c.T + acc @ self.m.T
 
 
-def rig_coupler(cfg: dict) -> Coupler:
-    """Return the rig's coupler (``fcn_coupler_geometry.m``: the two attachment offsets)."""
-    return Coupler.from_offsets(cfg['coupler']['offsets_m'])
-
-
 def rig_plants(cfg: dict, n_draws: int, seed: int) -> list:
     """Return the nominal plant then ``n_draws`` uncertain ones drawn from ``seed``.
 
@@ -314,11 +306,7 @@ class SimulatedRigBackend(Backend):
         strokes = self.plant.output(u_mm)[0] / 1000.0
         x, theta = self.coupler.dofs(strokes, iterations=2)
         f5 = self.frame.step(x, theta)[0]
-        jac = np.column_stack([np.ones(self.coupler.n),
-                               -np.asarray(self.coupler.d) * np.sin(
-                                   float(theta) + np.asarray(self.coupler.alpha))])
-        axial = np.linalg.solve(jac.T, f5[:2])
-        self._last = (strokes, axial)
+        self._last = (strokes, self.coupler.axial_forces(f5[0], f5[1], theta))
 
     def _read(self, wait_s=None):
         if self._last is None:

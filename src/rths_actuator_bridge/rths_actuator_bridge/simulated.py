@@ -84,7 +84,20 @@ friction's sub-steps, and, outside the library (the control of a test that must 
 the numerical substructure, is ``R + force_offset_n``; the same physical thing and sign as
 the library's ``force_offset`` F_0, which eq. 45's force ``m_f xdd_s - R`` shows as ``-F_0``)
 and ``displacement_bias_m`` (the actuator's displacement sensor); in the command path the
-bridge's ``command_delay_steps``.
+bridge's ``command_delay_steps``; ``specimen_velocity_saturation_m_s`` (a choked DTM valve:
+the damping force ``c_d clip(xd, -v_sat, v_sat)``).  On the actuator, the library's loads on
+the servo loop ``y = G (u - q)`` (seed eq. 3 with control-structure interaction;
+``q`` [m] from the table's displacement y, velocity and acceleration, sub-stepped like the
+friction): ``actuator_friction_m`` (d_c tanh(yd / friction_v_m_s)),
+``actuator_velocity_load_s`` (tau_v yd), ``actuator_stiffness_load`` (kappa y),
+``actuator_cubic_load_1_m2`` (k3 y^3), ``actuator_inertia_load_s2`` (mu ydd), and the two
+operators the library writes on the actuator's output y, applied to what its displacement
+sensor reads: ``actuator_backlash_m`` (a play of half-width b between the rod and the
+sensor) and ``actuator_velocity_limit_m_s`` (the reading follows y at most v_max fast; the
+table's own motion under the specimen stays the linear model's).  The library's specimen
+``time_delay`` has no key: it delays eq. 45's derived force ``m_f xdd_s - R`` behind the
+table acceleration, which no lag of one physical sensor produces (a load-cell lag delays
+``R`` but not ``m_f xdd_s``); an actuator delay is the bridge's ``command_delay_steps``.
 
 Sensors: Gaussian noise of standard deviation ``displacement_noise_m``,
 ``force_noise_n``, ``rel_disp_noise_m``, ``accel_noise_m_s2`` from a seeded
@@ -149,6 +162,14 @@ class PlantConfig:
     rel_disp_bias_m: float = 0.0
     force_offset_n: float = 0.0
     displacement_bias_m: float = 0.0
+    specimen_velocity_saturation_m_s: float = 0.0
+    actuator_friction_m: float = 0.0
+    actuator_velocity_load_s: float = 0.0
+    actuator_stiffness_load: float = 0.0
+    actuator_cubic_load_1_m2: float = 0.0
+    actuator_inertia_load_s2: float = 0.0
+    actuator_backlash_m: float = 0.0
+    actuator_velocity_limit_m_s: float = 0.0
     specimen_settings: dict = field(default_factory=dict)   # the specimen's own parameters
 
 
@@ -194,6 +215,24 @@ SIM_PARAMS = {
                        'library, same sign'),
     'displacement_bias_m': (float, 0.0, "[m] hidden: offset of the actuator's displacement "
                             'sensor'),
+    'specimen_velocity_saturation_m_s': (float, 0.0, '[m/s] hidden: the DTM damping force '
+                                         'saturates above this relative velocity (a choked '
+                                         'valve); 0 = off'),
+    'actuator_friction_m': (float, 0.0, '[m] hidden: Coulomb load on the servo loop, '
+                            'displacement-equivalent d_c tanh(yd / friction_v_m_s)'),
+    'actuator_velocity_load_s': (float, 0.0, '[s] hidden: velocity load tau_v yd on the servo '
+                                 'loop'),
+    'actuator_stiffness_load': (float, 0.0, '[-] hidden: stiffness load (gain error) kappa y '
+                                'on the servo loop'),
+    'actuator_cubic_load_1_m2': (float, 0.0, '[1/m^2] hidden: cubic stiffness load k3 y^3 on '
+                                 'the servo loop'),
+    'actuator_inertia_load_s2': (float, 0.0, '[s^2] hidden: inertia load mu ydd on the servo '
+                                 'loop'),
+    'actuator_backlash_m': (float, 0.0, "[m] hidden: play of half-width b between the rod and "
+                            "the actuator's displacement sensor; 0 = off"),
+    'actuator_velocity_limit_m_s': (float, 0.0, "[m/s] hidden: the actuator's displacement "
+                                    'reading follows y at most this fast (servo-valve flow '
+                                    'limit, as the library writes it); 0 = off'),
     **specimen_params()[0],
 }
 
@@ -210,8 +249,19 @@ HIDDEN_EFFECTS = {
     'force_offset_n': ('specimen', 'force_offset'),
     'displacement_bias_m': ('actuator', 'sensor_bias'),
     'command_delay_steps': ('actuator', 'time_delay'),
+    'specimen_velocity_saturation_m_s': ('specimen', 'velocity_saturation'),
+    'actuator_friction_m': ('actuator', 'coulomb_friction'),
+    'actuator_velocity_load_s': ('actuator', 'viscous_damping_error'),
+    'actuator_stiffness_load': ('actuator', 'stiffness_error'),
+    'actuator_cubic_load_1_m2': ('actuator', 'cubic_stiffness'),
+    'actuator_inertia_load_s2': ('actuator', 'mass_error'),
+    'actuator_backlash_m': ('actuator', 'backlash'),
+    'actuator_velocity_limit_m_s': ('actuator', 'velocity_saturation'),
     'specimen_quadratic_damping_n_s2_m2': ('specimen', None),   # outside the library
 }
+#: The actuator's loads on its servo loop (sub-stepped: ``q`` from the table's state).
+ACTUATOR_LOADS = ('actuator_friction_m', 'actuator_velocity_load_s', 'actuator_stiffness_load',
+                  'actuator_cubic_load_1_m2', 'actuator_inertia_load_s2')
 #: Ranges of the rates, counts and specimen settings of :data:`SIM_PARAMS` (inclusive).
 SIM_RANGES = {
     'fs_hz': LOOP_RATE_RANGE_HZ,
@@ -228,6 +278,14 @@ SIM_RANGES = {
     'rel_disp_bias_m': (-0.254, 0.254),
     'force_offset_n': (-1.0e5, 1.0e5),
     'displacement_bias_m': (-0.254, 0.254),
+    'specimen_velocity_saturation_m_s': (0.0, 100.0),
+    'actuator_friction_m': (0.0, 0.1),
+    'actuator_velocity_load_s': (-1.0, 1.0),
+    'actuator_stiffness_load': (-0.9, 10.0),
+    'actuator_cubic_load_1_m2': (-1.0e9, 1.0e9),
+    'actuator_inertia_load_s2': (-1.0, 1.0),
+    'actuator_backlash_m': (0.0, 0.1),
+    'actuator_velocity_limit_m_s': (0.0, 100.0),
     **specimen_params()[1],
 }
 #: Allowed values of the plant's parameters that name a choice.
@@ -264,7 +322,8 @@ def plant_config(params: dict) -> PlantConfig:
     for key in ('daq_filter_hz', 'displacement_noise_m', 'force_noise_n', 'rel_disp_noise_m',
                 'accel_noise_m_s2',
                 'displacement_range_m', 'force_range_n', 'rel_disp_range_m', 'accel_range_m_s2',
-                'friction_n', 'specimen_backlash_m'):
+                'friction_n', 'specimen_backlash_m', 'specimen_velocity_saturation_m_s',
+                'actuator_friction_m', 'actuator_backlash_m', 'actuator_velocity_limit_m_s'):
         if not (getattr(cfg, key) >= 0 and math.isfinite(getattr(cfg, key))):
             raise ValueError(f'parameter {key!r} = {getattr(cfg, key)} must be finite and >= 0')
     if not 0 <= cfg.adc_bits <= 32:
@@ -273,7 +332,9 @@ def plant_config(params: dict) -> PlantConfig:
         raise ValueError("parameters 'friction_substeps' must be >= 1 and 'friction_v_m_s' > 0")
     for key in ('specimen_damping_error_n_s_m', 'specimen_stiffness_error_n_m',
                 'specimen_mass_error_kg', 'specimen_cubic_stiffness_n_m3', 'rel_disp_bias_m',
-                'force_offset_n', 'displacement_bias_m', 'specimen_quadratic_damping_n_s2_m2'):
+                'force_offset_n', 'displacement_bias_m', 'specimen_quadratic_damping_n_s2_m2',
+                'actuator_velocity_load_s', 'actuator_stiffness_load', 'actuator_cubic_load_1_m2',
+                'actuator_inertia_load_s2'):
         if not math.isfinite(getattr(cfg, key)):
             raise ValueError(f'parameter {key!r} = {getattr(cfg, key)} must be finite')
     if not (math.isnan(cfg.frame_mass_kg) or cfg.frame_mass_kg >= 0):
@@ -353,16 +414,24 @@ class SimulatedPlant:
         on_mass = [k for k in ('friction_n', 'specimen_damping_error_n_s_m',
                                'specimen_stiffness_error_n_m', 'specimen_mass_error_kg',
                                'specimen_cubic_stiffness_n_m3', 'specimen_backlash_m',
-                               'specimen_quadratic_damping_n_s2_m2', 'rel_disp_bias_m')
+                               'specimen_quadratic_damping_n_s2_m2', 'rel_disp_bias_m',
+                               'specimen_velocity_saturation_m_s')
                    if getattr(cfg, k)]
         if on_mass and self.dtm is None:
             raise ValueError(f"parameter(s) {', '.join(on_mass)}: specimen {cfg.specimen} has "
                              'no mass on the table; set them to 0')
-        if self.arx is not None and self._nonlinear:
-            raise ValueError("parameters friction_n / specimen_cubic_stiffness_n_m3 / "
-                             "specimen_backlash_m / specimen_quadratic_damping_n_s2_m2 need "
-                             "the continuous actuator model "
-                             "(actuator_model '3pole' or '4pole'), not an ARX plant.yaml")
+        stepped = [k for k in ('friction_n', 'specimen_cubic_stiffness_n_m3',
+                               'specimen_backlash_m', 'specimen_quadratic_damping_n_s2_m2',
+                               'specimen_velocity_saturation_m_s', *ACTUATOR_LOADS,
+                               'actuator_backlash_m', 'actuator_velocity_limit_m_s')
+                   if getattr(cfg, k)]
+        if stepped and cfg.actuator_model not in ('3pole', '4pole'):
+            raise ValueError(f"parameter(s) {', '.join(stepped)} need the continuous actuator "
+                             "model (actuator_model '3pole' or '4pole'), not "
+                             f"{cfg.actuator_model!r}; set them to 0")
+        if stepped and self.specimen.make_device(cfg.specimen_settings)[0] is not None:
+            raise ValueError(f"parameter(s) {', '.join(stepped)}: not simulated with the device "
+                             f'specimen {cfg.specimen}; set them to 0')
 
     def _table_mass(self) -> DTMParameters:
         """Return the mass on the table as built and retuned (a massless placeholder if none)."""
@@ -417,7 +486,13 @@ class SimulatedPlant:
         d[5, 0] = self.frame_mass * d_acc
         d[5, 1] = -1.0 if self.dtm is not None else 0.0
         self._i_rel_vel = n + 1
-        self._set_linear(*self._add_daq_filter(a, b, c, d))
+        # the table's displacement, velocity and acceleration before the DAQ filter (the
+        # actuator's loads on its servo loop read them), padded to the filtered state
+        a, b, c_f, d_f = self._add_daq_filter(a, b, c, d)
+        self._c_table = np.zeros((3, a.shape[0]))
+        self._c_table[:, :n + 2] = c[:3]
+        self._d_table = d[:3, 0].copy()
+        self._set_linear(a, b, c_f, d_f)
 
     def _build_silva2020(self):
         """Build the benchmark plant of :mod:`.silva2020` (it carries its own SDOF specimen)."""
@@ -545,14 +620,49 @@ class SimulatedPlant:
         if getattr(self, 'mr', None) is not None:   # (reset() runs before mr is set)
             self.mr.reset()
         self.true = dict.fromkeys(CHANNELS, 0.0)
+        self._rate_out = self._play_out = 0.0
+        self._rod_read = (self.config.actuator_backlash_m > 0
+                          or self.config.actuator_velocity_limit_m_s > 0)
 
     @property
     def _nonlinear(self) -> bool:
         """Return True if a force on the moving mass needs the sub-stepped integration."""
         cfg = self.config
-        return self.dtm is not None and (cfg.friction_n > 0 or cfg.specimen_backlash_m > 0
-                                         or cfg.specimen_cubic_stiffness_n_m3 != 0
-                                         or cfg.specimen_quadratic_damping_n_s2_m2 != 0)
+        on_mass = self.dtm is not None and (cfg.friction_n > 0 or cfg.specimen_backlash_m > 0
+                                            or cfg.specimen_cubic_stiffness_n_m3 != 0
+                                            or cfg.specimen_quadratic_damping_n_s2_m2 != 0
+                                            or cfg.specimen_velocity_saturation_m_s > 0)
+        return on_mass or self._loaded
+
+    @property
+    def _loaded(self) -> bool:
+        """Return True if a hidden load acts on the actuator's servo loop."""
+        return any(getattr(self.config, k) for k in ACTUATOR_LOADS)
+
+    def _load(self, x, u: float) -> float:
+        """Return the displacement-equivalent load q [m] on the servo loop: ``y = G (u - q)``."""
+        cfg = self.config
+        y, v, a = (self._c_table @ x + self._d_table * u).tolist()
+        q = (cfg.actuator_velocity_load_s * v + cfg.actuator_stiffness_load * y
+             + cfg.actuator_cubic_load_1_m2 * y * y * y + cfg.actuator_inertia_load_s2 * a)
+        if cfg.actuator_friction_m:
+            q += cfg.actuator_friction_m * math.tanh(v / cfg.friction_v_m_s)
+        return q
+
+    def _read_rod(self, y: float) -> float:
+        """Return the actuator's displacement reading of the rod at ``y`` (rate limit, play)."""
+        cfg = self.config
+        out = y
+        if cfg.actuator_velocity_limit_m_s > 0:
+            step = cfg.actuator_velocity_limit_m_s * self.dt
+            last = self._rate_out
+            out = last + min(max(out - last, -step), step)
+            self._rate_out = out
+        if cfg.actuator_backlash_m > 0:
+            b, last = cfg.actuator_backlash_m, self._play_out
+            out = min(max(last, out - b), out + b)
+            self._play_out = out
+        return out
 
     def _friction(self, rel_disp: float, rel_vel: float) -> float:
         """Return the force [N] on the moving mass: friction and the hidden nonlinear forces."""
@@ -563,6 +673,9 @@ class SimulatedPlant:
         if cfg.specimen_backlash_m > 0:
             dz = math.copysign(max(abs(rel_disp) - cfg.specimen_backlash_m, 0.0), rel_disp)
             f += self._table_mass().k_d * (dz - rel_disp)
+        if cfg.specimen_velocity_saturation_m_s > 0:
+            vs = cfg.specimen_velocity_saturation_m_s
+            f += self._table_mass().c_d * (min(max(rel_vel, -vs), vs) - rel_vel)
         return f
 
     def step(self, command: float) -> dict:
@@ -573,12 +686,14 @@ class SimulatedPlant:
         if self.arx is not None:
             return self._step_arx(u)
         if self._nonlinear:
-            fc = 0.0
+            fc = ue = 0.0
+            loaded = self._loaded
             for _ in range(self.config.friction_substeps):
                 fc = self._friction(self.x[self._i_rel_vel - 1], self.x[self._i_rel_vel])
-                self.x = self._ad_h @ self.x + self._bd_h @ np.array([u, fc])
+                ue = u - self._load(self.x, u) if loaded else u
+                self.x = self._ad_h @ self.x + self._bd_h @ np.array([ue, fc])
             fc = self._friction(self.x[self._i_rel_vel - 1], self.x[self._i_rel_vel])
-            y = self.c @ self.x + self.d @ np.array([u, fc])
+            y = self.c @ self.x + self.d @ np.array([ue if loaded else u, fc])
         else:
             # x' = Ad x + Bd u, y = C x' + D u: the same operations as
             # ``self._ad @ self.x + self._bd[:, 0] * u``, into preallocated buffers
@@ -594,6 +709,8 @@ class SimulatedPlant:
             np.add(y, tmp, out=y)
         self.k += 1
         self.true = dict(zip(CHANNELS, y.tolist(), strict=True))
+        if self._rod_read:
+            self.true['table_disp'] = self._read_rod(self.true['table_disp'])
         return self.true
 
     def _step_arx(self, u: float) -> dict:
@@ -645,7 +762,7 @@ class SimulatedPlant:
         linear case runs as one vectorised state-space filter.
         """
         u = np.asarray(commands, float).ravel()
-        if self.arx is None and self.mr is None and not self._nonlinear:
+        if self.arx is None and self.mr is None and not (self._nonlinear or self._rod_read):
             true = self._simulate_linear(u)
         else:
             rows = [self.step(ui) for ui in u]

@@ -71,6 +71,15 @@ from rths_bench.rths_benchmark import DATA_ENV, ground_acceleration, target_lowp
 from rths_common.coupler import Coupler
 from rths_common.marths_data import DATA_FILE, load_config  # noqa: F401 (re-exported)
 from rths_common.progress import Progress
+from rths_numerical.marths import (  # noqa: F401 (the structures, re-exported)
+    Newmark,
+    interface_dofs,
+    newmark_constants,
+    numerical_matrices,
+    physical_ideal,
+    rayleigh,
+    reference_matrices,
+)
 
 #: Adaptive methods of the project run decentralised (one per actuator).
 ADAPTIVE = ('rls_fir', 'ats', 'amb')
@@ -83,98 +92,6 @@ UNSTABLE_FACTOR = 10.0
 
 def _log(msg):
     print(msg, file=sys.stderr, flush=True)
-
-
-# ----------------------------------------------------------------------------- structures
-def newmark_constants(dt: float, gamma: float = 0.5, beta: float = 0.25) -> tuple:
-    """Return ``a0..a7`` of Newmark's method (average acceleration by default)."""
-    return (1 / (beta * dt ** 2), gamma / (beta * dt), 1 / (beta * dt), 1 / (2 * beta) - 1,
-            gamma / beta - 1, dt / 2 * (gamma / beta - 2), dt * (1 - gamma), gamma * dt)
-
-
-def rayleigh(m, k, w_i: float, w_j: float, zeta: float):
-    """``alpha M + beta K`` with damping ratio ``zeta`` at ``w_i`` and ``w_j`` [rad/s]."""
-    alpha, beta = np.linalg.solve(0.5 * np.array([[1 / w_i, w_i], [1 / w_j, w_j]]),
-                                  [zeta, zeta])
-    return alpha * m + beta * k
-
-
-def reference_matrices(cfg: dict):
-    """``(K, M, C, l)`` of the reference frame; ``l`` the ground-motion influence vector."""
-    ref = cfg['reference']
-    k = np.asarray(ref['K'], float)
-    m = np.diag(ref['M_diag'])
-    c = rayleigh(m, k, *ref['rayleigh_rad_s'], ref['damping'])
-    ell = np.zeros(k.shape[0])
-    ell[np.asarray(ref['ground_dofs']) - 1] = 1.0
-    return k, m, c, ell
-
-
-def interface_dofs(cfg: dict) -> np.ndarray:
-    """0-based DOFs of the physical part in the reference model: x, theta(node 2), theta."""
-    d = cfg['reference']['dofs']
-    return np.array([d['x'], d['theta_node2'], d['theta']]) - 1
-
-
-def physical_ideal(cfg: dict):
-    """``(K, M, C)`` of the ideal 3-DOF physical frame (x, two beam-end rotations)."""
-    p = cfg['physical_ideal']
-    lb, lc, e = p['Lb_m'], p['Lc_m'], p['E_pa']
-    ic, ib = p['Ic_in4'] * INCH ** 4, p['Ib_in4'] * INCH ** 4
-    ac, ab = p['Ac_in2'] * INCH ** 2, p['Ab_in2'] * INCH ** 2
-    kc = 3 * e * ic
-    k = np.array([[2 * kc / lc ** 3, -kc / lc ** 2, -kc / lc ** 2],
-                  [-kc / lc ** 2, kc / lc + 4 * e * ib / lb, -2 * e * ib / lb],
-                  [-kc / lc ** 2, -2 * e * ib / lb, kc / lc + 4 * e * ib / lb]])
-    mass_b, mass_c = p['rho_kg_m3'] * ab * lb, p['rho_kg_m3'] * ac * lc
-    rot = mass_b / 2 * lb ** 2 / 12 + mass_c / 2 * lc ** 2 / 12
-    m = np.diag([mass_b + mass_c, rot, rot])
-    w = np.sqrt(np.sort(np.real(np.linalg.eigvals(np.linalg.solve(m, k)))))
-    c = rayleigh(m, k, w[0], w[2], p['damping'])
-    return k, m, c
-
-
-def numerical_matrices(cfg: dict):
-    """``(K, M, C, l)`` of the numerical substructure: reference minus the ideal frame.
-
-    As the benchmark does, only the translational mass of the ideal frame is removed.
-    """
-    k, m, c, ell = reference_matrices(cfg)
-    kp, mp, cp = physical_ideal(cfg)
-    idx = interface_dofs(cfg)
-    k, m, c = k.copy(), m.copy(), c.copy()
-    k[np.ix_(idx, idx)] -= kp
-    c[np.ix_(idx, idx)] -= cp
-    m[idx[0], idx[0]] -= mp[0, 0]
-    return k, m, c, ell
-
-
-class Newmark:
-    """Batch of Newmark integrations of one linear structure (``M, C, K``, ground ``l``)."""
-
-    def __init__(self, k, m, c, ell, dt, batch):
-        """Prepare the effective stiffness for ``batch`` runs."""
-        self.m, self.c, self.ell = m, c, ell
-        self.a = newmark_constants(dt)
-        self.kbar_inv = np.linalg.inv(k + self.a[0] * m + self.a[1] * c)
-        n = k.shape[0]
-        self.u = np.zeros((batch, n))
-        self.v = np.zeros((batch, n))
-        self.acc = np.zeros((batch, n))
-
-    def step(self, ag: float, force=None):
-        """Advance one step under ground acceleration ``ag`` and nodal forces (batch, n)."""
-        a0, a1, a2, a3, a4, a5, a6, a7 = self.a
-        u, v, acc = self.u, self.v, self.acc
-        rhs = ((a0 * u + a2 * v + a3 * acc) @ self.m.T + (a1 * u + a4 * v + a5 * acc) @ self.c.T
-               - ag * (self.m @ self.ell))
-        if force is not None:
-            rhs = rhs - force
-        u1 = rhs @ self.kbar_inv.T
-        acc1 = a0 * (u1 - u) - a2 * v - a3 * acc
-        self.v = v + a6 * acc + a7 * acc1
-        self.u, self.acc = u1, acc1
-        return u1
 
 
 # ----------------------------------------------------------------------------- controllers
@@ -567,11 +484,12 @@ def mean_criteria(rows: list) -> dict:
 # ----------------------------------------------------------------------------- benchmark
 def run_benchmark(controller: str = 'none', record: str = 'elcentro', n_draws: int = 20,
                   seed: int = 2023, duration_s: float = None, data_dir: str = None,
-                  cfg: dict = None, options: dict = None, log=_log) -> dict:
+                  cfg: dict = None, options: dict = None, log=_log, built=None) -> dict:
     """Nominal plant plus ``n_draws`` uncertain plants; return the summary dict.
 
     ``options``: identification and design settings of the controller
-    (:func:`make_controller`).
+    (:func:`make_controller`); ``built``: the controller already built for the
+    ``n_draws + 1`` runs (it is not identified again).
     """
     t0, c0 = time.perf_counter(), time.process_time()
     cfg = cfg or load_config()
@@ -582,7 +500,7 @@ def run_benchmark(controller: str = 'none', record: str = 'elcentro', n_draws: i
     _, ag = ground_acceleration(record, fs, scale, data_dir, duration_s)
     rng = np.random.default_rng(seed)
     plants = [plant_params(cfg)] + [draw_plant_params(cfg, rng) for _ in range(n_draws)]
-    ctrl = make_controller(controller, cfg, len(plants), options, log=log)
+    ctrl = built or make_controller(controller, cfg, len(plants), options, log=log)
     log(f'maRTHS: {controller}, {record}, {len(ag)} samples at {fs:g} Hz, nominal + '
         f'{n_draws} uncertain plants')
     t_loop = time.perf_counter()
@@ -687,7 +605,31 @@ def write_outputs(summary: dict, directory: str, plots: bool = True) -> list:
     return files
 
 
+def _cmd_graph(args) -> int:
+    # lazy: marths_graph imports this module (the loop's pieces)
+    from . import marths_graph
+    if args.draws != parse_defaults['draws']:
+        raise ValueError('--draws: --via graph runs the nominal plant only; drop --draws')
+    summary = marths_graph.run_graph(args.controller, args.record, args.duration or None,
+                                     args.data_dir, args.out, args.mode, args.seed)
+    print(marths_graph.table_markdown(summary))
+    for f in marths_graph.write_outputs(summary, args.out):
+        print(f'wrote {f}')
+    st = summary['settings']
+    print(f"total {st['total_s']} s (CPU {st['cpu_s']} s), load average "
+          f"{st['load_average_1min']}")
+    return 0
+
+
+#: Defaults of the options ``--via graph`` does not take.
+parse_defaults = {'draws': 20}
+
+
 def _cmd(args) -> int:
+    if args.via == 'graph':
+        return _cmd_graph(args)
+    if args.mode != 'lockstep':
+        raise ValueError('--mode realtime runs through the node graph: add --via graph')
     summary = run_benchmark(args.controller, args.record, args.draws, args.seed,
                             args.duration or None, args.data_dir)
     print(table_markdown(summary))
@@ -727,9 +669,22 @@ def register(commands, benches):
                         'directory), gmspy:NAME (unscaled) or a file path (unscaled)')
     p.add_argument('--data-dir', default=None, help=f'directory of the records (default '
                                                     f'${DATA_ENV})')
-    p.add_argument('--draws', type=int, default=20, help='uncertain plants (>= 20 for the '
-                   'benchmark)')
+    p.add_argument('--draws', type=int, default=parse_defaults['draws'],
+                   help='uncertain plants (>= 20 for the benchmark)')
     p.add_argument('--seed', type=int, default=2023, help='seed of the draws and the noise')
     p.add_argument('--duration', type=float, default=0.0, help='shorten the record [s]; 0 = all')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG plot')
+    p.add_argument('--via', default='loop', choices=('loop', 'graph'),
+                   help='loop: the vectorised offline loop (default); graph: the nominal plant '
+                        'through the ROS 2 node graph (numerical node model marths, the '
+                        'compensator node, the bridge with backend simulated_rig and '
+                        'config/rig_two_actuators.yaml; none, decentralised_fir or mimo), '
+                        'beside the offline loop of the same controller: DIR/summary.json '
+                        'gains both J1-J10, j_max_relative_difference, samples_lost and, in '
+                        'realtime, realtime (deadline misses, recorder loss); the bag is '
+                        'DIR/graph/bag')
+    p.add_argument('--mode', default='lockstep', choices=('lockstep', 'realtime'),
+                   help='with --via graph: lockstep (default; ~10 min for the 30 s record '
+                        'here, use --duration) or realtime: the composed graph at 1024 Hz '
+                        'on its clocks (SCHED_FIFO where allowed)')
     p.set_defaults(func=_cmd)

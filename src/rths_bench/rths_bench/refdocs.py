@@ -130,6 +130,8 @@ MAIN = 'The main job (rths run, Kobe x 0.135, valve 4, real time, 20 s)'
 SILVA = 'RTHS benchmark (Silva et al. 2020), case 1'
 FAULTS = 'Load and faults (composed 1024 Hz, 10 s each; rths bench faults)'
 FAULTS_JSON = 'faults_1024hz_10s.json'
+MARTHS = 'maRTHS (two actuators) through the node graph, mimo, El Centro x 0.4'
+MARTHS_RT = 'marths_graph/realtime_mimo_elcentro.json'
 FIGURES = (
     (MAIN, 'actuator delay before compensation',
      'run_realtime_kobe_20s_summary.json', 'delay_ms_before', 'ms', ''),
@@ -165,6 +167,15 @@ FIGURES = (
      FAULTS_JSON, 'cases/kill_container/loss_before_kill_ms', 'ms', '<= 100 ms'),
     (FAULTS, 'SIGKILL of the recorder: repaired bag ends before the kill',
      FAULTS_JSON, 'cases/kill_recorder/loss_before_kill_ms', 'ms', '<= 100 ms'),
+    (MARTHS, 'realtime composed 1024 Hz: deadline misses', MARTHS_RT,
+     'realtime/deadline_miss_pct', '%', '<= 0.1 %'),
+    (MARTHS, 'realtime: late or missed ticks', MARTHS_RT, 'realtime/late_or_missed_pct', '%', ''),
+    (MARTHS, 'realtime: samples lost from the bag', MARTHS_RT, 'samples_lost', '', '0'),
+    (MARTHS, 'realtime: largest J difference from the offline loop', MARTHS_RT,
+     'j_max_relative_difference', '', '<= 0.05'),
+    (MARTHS, 'lock-step, first 10 s: largest J difference from the offline loop',
+     'marths_graph/lockstep_mimo_elcentro_10s.json', 'j_max_relative_difference', '',
+     '<= 0.05'),
     (SILVA, 'example controller (the published one): J1',
      'rths_benchmark_example/summary.json', 'cases/1/J1', 'ms', 'Table 3: 4.6 ms'),
     (SILVA, 'example controller: J2',

@@ -535,12 +535,16 @@ GRAPH_SAFETY = {'force_n': 8900.0, 'instability_force_n': 1e5, 'stroke_m': 0.007
                 'velocity_m_s': 2.0, 'acceleration_m_s2': 20000.0}
 
 
-def write_at2(path: str, t, acc) -> str:
-    """Write an acceleration record [m/s^2] sampled at ``t`` as a PEER AT2 file (in g)."""
+def write_at2(path: str, t, acc, dt_decimals: int = 6) -> str:
+    """Write an acceleration record [m/s^2] sampled at ``t`` as a PEER AT2 file (in g).
+
+    ``dt_decimals``: of the header's DT (10 writes 1/1024 s exactly).
+    """
     from rths_numerical.ground_motion import G
     dt = float(t[1] - t[0])
     lines = ['rths: benchmark record converted for the numerical node', 'not for redistribution',
-             'ACCELERATION TIME SERIES IN UNITS OF G', f'NPTS= {len(acc)}, DT= {dt:.6f} SEC']
+             'ACCELERATION TIME SERIES IN UNITS OF G',
+             f'NPTS= {len(acc)}, DT= {dt:.{dt_decimals}f} SEC']
     vals = np.asarray(acc, float) / G
     lines += [' '.join(f'{v:.8e}' for v in vals[i:i + 5]) for i in range(0, len(vals), 5)]
     with open(path, 'w') as fh:
@@ -618,10 +622,46 @@ def launch_graph(params: dict, out_dir: str, log=_log, mode: str = 'lockstep') -
     their clocks (SCHED_FIFO, the composed layout) after a platform floor measurement,
     and the result also holds ``realtime`` (:func:`realtime_figures`).
     """
+    from rths_common import bagio, topics
+    run = run_node_graph(params, out_dir, log, mode)
+    hist = run['history']
+    meas = bagio.step_arrays(run['bag'], topics.MEASUREMENT, ('displacement',))
+    x_m = np.full(len(hist['displacements']), np.nan)
+    inside = meas['step'] < x_m.size
+    x_m[meas['step'][inside]] = meas['displacement'][inside, 0]
+    res = {'x_m': x_m, 'y_n': hist['displacements'], 'ag': hist['ground_accel']}
+    if 'realtime' in run:
+        res['realtime'] = run['realtime']
+    return res
+
+
+def _bridge_base(base: dict, params: dict) -> dict:
+    """Return the repository's bridge keys that the backend of ``params`` takes.
+
+    Another backend's keys (e.g. ``specimen`` beside ``backend: simulated_rig``) are
+    refused by the bridge.
+    """
+    # lazy: the bridge node module pulls rclpy; only a graph run needs its keys
+    from rths_actuator_bridge import bridge, safety
+    from rths_actuator_bridge.node import NODE_PARAMS as BRIDGE_NODE_PARAMS
+    core = {**base, **params}
+    known = {*bridge.PARAMS, *safety.SAFETY_PARAMS, *bridge.backend_class(core).params,
+             *BRIDGE_NODE_PARAMS}
+    return {k: v for k, v in base.items() if k in known}
+
+
+def run_node_graph(params: dict, out_dir: str, log=_log, mode: str = 'lockstep',
+                   watchdog_steps: int = RT_WATCHDOG_STEPS) -> dict:
+    """Launch the three nodes with ``params`` on top of the repository's config files.
+
+    Returns ``history`` (the numerical node's, loaded), ``bag`` (its path) and, in
+    realtime, ``realtime`` (:func:`realtime_figures`); ``watchdog_steps``: the bridge
+    watchdog's consecutive misses in realtime.
+    """
     from rths_bringup.commands import default_config_dir, run_info_of
     from rths_bringup.launcher import Launcher
     from rths_bringup.run import NODE_FILES
-    from rths_common import bagio, runinfo, topics
+    from rths_common import runinfo
 
     from .bench_loop import domain_id, platform_floor
     if mode not in ('lockstep', 'realtime'):
@@ -638,12 +678,14 @@ def launch_graph(params: dict, out_dir: str, log=_log, mode: str = 'lockstep') -
                        if k in ('mode', 'executor', 'remote_graph')}
         if node == 'compensator':
             section = {k: v for k, v in section.items() if k in ('executor',)}
+        if node == 'bridge':
+            section = _bridge_base(section, params[node])
         section.update(params[node], mode=mode)
         if realtime:
             section.update(executor='events', gc='freeze',
                            rt_priority=RT_PRIORITY - (node != 'bridge'))
             if node == 'bridge':
-                section['watchdog_steps'] = RT_WATCHDOG_STEPS
+                section['watchdog_steps'] = int(watchdog_steps)
         runinfo.write_params(cfg / fname, node, section)
     history = (out / 'numerical_history.npz').resolve()
     timing = {name: (out / f'{name}_timing.npz').resolve() for name in ('bridge', 'numerical')}
@@ -661,16 +703,12 @@ def launch_graph(params: dict, out_dir: str, log=_log, mode: str = 'lockstep') -
     code = launcher.run()
     if code != 0 and not (realtime and timing['bridge'].exists() and history.exists()):
         raise RuntimeError(f'the node graph run failed (launcher exit {code}); see {out}')
-    hist = np.load(history)
-    meas = bagio.step_arrays(out / 'bag', topics.MEASUREMENT, ('displacement',))
-    x_m = np.full(len(hist['displacements']), np.nan)
-    inside = meas['step'] < x_m.size
-    x_m[meas['step'][inside]] = meas['displacement'][inside, 0]
-    res = {'x_m': x_m, 'y_n': hist['displacements'], 'ag': hist['ground_accel']}
+    with np.load(history) as data:
+        run = {'history': {k: data[k] for k in data.files}, 'bag': out / 'bag'}
     if realtime:
-        res['realtime'] = realtime_figures(timing, launcher, out / 'bag', floor,
+        run['realtime'] = realtime_figures(timing, launcher, out / 'bag', floor,
                                            params['bridge']['fs_hz'], code)
-    return res
+    return run
 
 
 def realtime_figures(timing: dict, launcher, bag, floor: dict, rate_hz: float, code: int):

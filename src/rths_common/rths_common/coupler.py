@@ -23,6 +23,7 @@ actuators' axis) is refused when built.
 
 from dataclasses import dataclass
 from functools import cached_property
+import math
 
 import numpy as np
 
@@ -89,6 +90,12 @@ class Coupler:
             raise ValueError(f'coupler: {s.shape[0]} strokes given for {self.n} actuators')
         if self.n < 2:
             raise ValueError('coupler: one actuator cannot resolve x and theta')
+        if s.ndim == 1 and not linear:
+            key = (tuple(s.tolist()), iterations)
+            memo = self.__dict__.get('_memo')   # the bridge asks three times per reading
+            if memo is None or memo[0] != key:
+                memo = self.__dict__['_memo'] = (key, self._dofs_one(list(key[0]), iterations))
+            return memo[1][0].copy(), memo[1][1].copy()
         flat = s.reshape(self.n, -1)
         q = self._pinv @ flat
         if not linear:
@@ -106,12 +113,63 @@ class Coupler:
         shape = s.shape[1:]
         return q[0].reshape(shape), q[1].reshape(shape)
 
+    @cached_property
+    def _one(self) -> tuple:
+        """Python floats of the geometry for :meth:`_dofs_one`: pinv rows, d, alpha, cos alpha."""
+        return (tuple(tuple(float(v) for v in row) for row in self._pinv),
+                tuple(float(v) for v in self.d), tuple(float(v) for v in self.alpha),
+                tuple(math.cos(float(v)) for v in self.alpha))
+
+    def _dofs_one(self, s: list, iterations: int):
+        """:meth:`dofs` of one sample in Python floats (the bridge's per-step call).
+
+        The same steps as the array path (same values to round-off) at a few microseconds
+        instead of ~100 (numpy's per-call cost on two-element arrays).
+        """
+        (p0, p1), d, a, cos_a = self._one
+        n = len(d)
+        x = sum(p0[i] * s[i] for i in range(n))
+        th = sum(p1[i] * s[i] for i in range(n))
+        for _ in range(iterations):
+            s1 = s2 = r0 = r1 = 0.0
+            for i in range(n):
+                r = x + d[i] * (math.cos(th + a[i]) - cos_a[i]) - s[i]
+                j = -d[i] * math.sin(th + a[i])
+                s1 += j
+                s2 += j * j
+                r0 += r
+                r1 += j * r
+            det = n * s2 - s1 * s1
+            x, th = x - (s2 * r0 - s1 * r1) / det, th - (n * r1 - s1 * r0) / det
+        return np.asarray(x), np.asarray(th)
+
     def interface_forces(self, forces, theta=0.0):
         """``(F_x [N], M [N m])`` at the node of the axial ``forces`` (shape ``(n, ...)``)."""
         f = np.asarray(forces, float)
         if f.shape[0] != self.n:
             raise ValueError(f'coupler: {f.shape[0]} forces given for {self.n} actuators')
+        if f.ndim == 1 and np.ndim(theta) == 0:      # one reading: Python floats
+            _, d, a, _ = self._one
+            th = float(theta)
+            fl = f.tolist()
+            return (np.float64(sum(fl)),
+                    np.float64(sum(-d[i] * math.sin(th + a[i]) * fl[i] for i in range(self.n))))
         theta = np.asarray(theta, float)
         d = np.asarray(self.d, float).reshape((-1,) + (1,) * (f.ndim - 1))
         a = np.asarray(self.alpha, float).reshape(d.shape)
         return f.sum(axis=0), (-d * np.sin(theta + a) * f).sum(axis=0)
+
+    def axial_forces(self, force, moment, theta=0.0) -> np.ndarray:
+        """Return the axial forces [N] that apply ``force`` [N] and ``moment`` [N m] at the node.
+
+        The inverse of :meth:`interface_forces` at rotation ``theta`` (two actuators: exact;
+        more: the least-norm solution).
+        """
+        _, d, a, _ = self._one
+        th = float(theta)
+        if self.n == 2:     # one 2 x 2 solve in Python floats (the rig's per-step call)
+            j0, j1 = -d[0] * math.sin(th + a[0]), -d[1] * math.sin(th + a[1])
+            det = j1 - j0
+            return np.array([(j1 * force - moment) / det, (moment - j0 * force) / det])
+        jac = np.column_stack([np.ones(self.n), -np.asarray(d) * np.sin(th + np.asarray(a))])
+        return np.linalg.pinv(jac.T) @ np.array([force, moment], float)

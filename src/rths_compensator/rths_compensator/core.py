@@ -3,7 +3,8 @@
 ``CompensatorCore(params).step(k, x)``: the interface displacement of step k
 in, the command of step k out (a :class:`rths_common.stepping.StepResult`),
 through the designed filter ``G = taps / denominator`` per interface DOF
-(:class:`~rths_compensator.filters.MultiChannelFilter`) or an adaptive
+(:class:`~rths_compensator.filters.MultiChannelFilter`), a coupled N x N FIR
+(``coupled_taps``, :class:`~rths_compensator.filters.CoupledFir`) or an adaptive
 method started from it (:mod:`rths_compensator.adaptive`) or the reference
 feedback controller (:mod:`rths_compensator.feedback`), parameter ``method``.
 The compensator node and :mod:`rths_common.replay` step it.
@@ -26,9 +27,10 @@ import numpy as np
 
 from rths_common.gaps import DISPLACEMENT_ORDER
 from rths_common.stepping import GapPolicy, StaleStep, StepResult
-from rths_compensator.filters import MultiChannelFilter
+from rths_compensator.filters import CoupledFir, MultiChannelFilter
 
 from .methods import method_of, uses_measurement
+from .params import coupled_taps_of
 
 
 class CompensatorCore:
@@ -59,6 +61,9 @@ class CompensatorCore:
             # lazy: start-up cost: SciPy (~1 s), which this module needs only here
             from rths_compensator.adaptive import methods_from_params
             return methods_from_params(self.params, n_channels)
+        coupled = coupled_taps_of(self.params)
+        if coupled is not None:
+            return CoupledFir.from_flat(coupled, n_channels)
         return MultiChannelFilter(self.params['taps'], self.params['denominator'],
                                   n_channels=n_channels)
 

@@ -127,3 +127,59 @@ class MultiChannelFilter:
         """Filter ``x`` of shape ``(n_samples, n_channels)`` sample by sample."""
         x = np.asarray(x, dtype=float)
         return np.array([self.step(row) for row in x]).reshape(x.shape)
+
+
+class CoupledFir:
+    """An N x N matrix of FIR filters: command i = sum over l of ``taps[i, l]`` on target l.
+
+    The coupled (MIMO) compensator of a multi-actuator rig (the maRTHS benchmark's ``mimo``
+    controller, ``rths_bench.marths.design_mimo_fir``): each actuator's command answers
+    every actuator's target, so the specimen's coupling between them can be cancelled.
+    Same doubled ring buffer as :class:`MultiChannelFilter`; one matrix-vector product
+    (N x N n) per step.
+    """
+
+    def __init__(self, taps):
+        """Use ``taps`` of shape (N, N, n): ``taps[i, l, j]`` is the lag-j tap l -> i."""
+        t = np.asarray(taps, dtype=float)
+        if t.ndim != 3 or t.shape[0] != t.shape[1] or t.shape[2] < 1:
+            raise ValueError(f'coupled FIR taps must have the shape (N, N, n), got {t.shape}')
+        if not np.all(np.isfinite(t)):
+            raise ValueError('coupled FIR taps hold non-finite values (nan/inf)')
+        self.taps = t
+        self.n_channels, _, self._nb = t.shape
+        # W[i, j N + l] = taps[i, l, j]: the history rows x_k, x_k-1, ... flattened
+        self._w = np.ascontiguousarray(t.transpose(0, 2, 1).reshape(self.n_channels, -1))
+        self._xbuf = np.zeros((2 * self._nb, self.n_channels))
+        self._px = 0
+
+    @classmethod
+    def from_flat(cls, values, n_channels: int, where: str = 'coupled_taps') -> 'CoupledFir':
+        """Build it from N^2 n values (N = ``n_channels``): entry ``(i N + l) n + j``."""
+        v = np.asarray(values, dtype=float).ravel()
+        n = int(n_channels)
+        if n < 1 or v.size == 0 or v.size % (n * n):
+            raise ValueError(f'{where}: {v.size} values are not N x N x n taps for N = {n} '
+                             f'actuator channels; give N * N * n values (entry (i N + l) n + j '
+                             'maps target l to command i at lag j)')
+        return cls(v.reshape(n, n, -1))
+
+    def reset(self) -> None:
+        """Return to rest."""
+        self._xbuf[:] = 0.0
+        self._px = 0
+
+    def step(self, x) -> np.ndarray:
+        """Feed one target per channel and return one command per channel."""
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.n_channels,):
+            raise ValueError(f'CoupledFir.step expects shape ({self.n_channels},), got {x.shape}')
+        nb = self._nb
+        p = self._px - 1
+        if p < 0:
+            p = nb - 1
+        self._px = p
+        xb = self._xbuf
+        xb[p] = x
+        xb[p + nb] = x
+        return self._w @ xb[p:p + nb].reshape(-1)

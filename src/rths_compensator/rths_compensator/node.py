@@ -32,7 +32,9 @@ from rths_compensator.core import CompensatorCore
 from rths_compensator.monitor import STOP, StabilityMonitor, settings_from_params
 from rths_compensator.params import (
     check_compensator_params,
+    check_filter_cost,
     check_sampling_rate,
+    coupled_taps_of,
     param_schema,
     validate_filter,
 )
@@ -69,6 +71,10 @@ class CompensatorNode:
         check_sampling_rate(self.params, self.own['loop_fs_hz'], 'compensator node parameters',
                             'loop_fs_hz: the fs_hz of numerical.yaml and bridge.yaml, which '
                             'rths launch passes')
+        coupled = coupled_taps_of(self.params, 'compensator node parameters')
+        if coupled is not None:
+            check_filter_cost(coupled.size, self.own['loop_fs_hz'], 'compensator node '
+                              'parameters (coupled_taps)')
         self.lockstep = self.own['mode'] == 'lockstep'
         self.core = CompensatorCore(self.params, realtime=not self.lockstep)
         self.driver = Driver(self.core, self.lockstep, self.on_reject)
@@ -106,7 +112,9 @@ class CompensatorNode:
                                       self.on_displacement, qos, raw=raw)
         self.log.info(f"compensator ready: scheme {self.params['scheme']}, "
                       f"{len(self.params['taps'])} taps, "
-                      f"{len(self.params['denominator']) - 1} denominator order")
+                      f"{len(self.params['denominator']) - 1} denominator order"
+                      + (f', coupled N x N FIR of {coupled.size} taps (coupled_taps)'
+                         if coupled is not None else ''))
 
     @property
     def expected(self) -> int:

@@ -58,6 +58,9 @@ METHOD_PARAMS = {
     'pi_lead_num': ([50.8316, 8570.4], '[s, -] pi_lead: lead numerator b1, b0 of '
                                        '(b1 s + b0) / (a1 s + a0)'),
     'pi_lead_den': ([1.0, 8570.4], '[s, -] pi_lead: lead denominator a1, a0'),
+    'coupled_taps': ([0.0], '[-] fir with several actuators: a coupled N x N FIR instead of '
+                            'taps per channel (filters.CoupledFir; entry (i N + l) n + j maps '
+                            'target l to command i at lag j); one value: not used'),
 }
 #: The online stability monitor (rths_compensator.monitor, docs/monitor.md): key ->
 #: (default, meaning); the thresholds' defaults are MonitorSettings'.
@@ -267,3 +270,25 @@ def identity_params(fs_hz: float = 1024.0) -> dict:
     b, a, fs = _check('identity_params', [1.0], [1.0], fs_hz, 'identity')
     return {'scheme': 'identity', 'fs_hz': fs, 'taps': b.tolist(), 'denominator': a.tolist(),
             PROVENANCE: {}}
+
+
+def coupled_taps_of(params: dict, where: str = 'compensator parameters'):
+    """Return the coupled FIR's flat taps (``coupled_taps``), or None when it is not used.
+
+    Used when it holds more than one value; refused (ValueError naming the fix) when a value
+    is not finite or the method is not the fixed filter ``fir``.
+    """
+    values = params.get('coupled_taps')
+    if values is None or np.size(values) <= 1:
+        return None
+    try:
+        v = np.asarray(values, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise ValueError(f'{where}: coupled_taps must be a list of numbers') from None
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f'{where}: coupled_taps holds nan/inf; redesign the compensator')
+    method = str(params.get('method') or DEFAULT_METHOD)
+    if method != DEFAULT_METHOD:
+        raise ValueError(f'{where}: coupled_taps runs as the fixed filter; set method: '
+                         f'{DEFAULT_METHOD} (not {method}) or drop coupled_taps')
+    return v

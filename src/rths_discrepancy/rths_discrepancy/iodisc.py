@@ -32,7 +32,10 @@ nonlinear output leave most of a Duffing's gap.
 Every block is scored by *free-run simulation* (no measured output is fed back) over
 the training records (the baseline's orders were chosen on their last
 ``linear.VALIDATION``); the winner minimises ``N ln(mse) + p ln N`` and must remove
-``MIN_REL_GAIN`` of the baseline's error, else the answer is ``none``.  The gap before/after is
+``MIN_REL_GAIN`` of the baseline's error, else the answer is ``none``; where the measured
+output plateaus (a saturation candidate exists), a hysteresis loop is named over the
+best saturation reading only if it removes ``LOOP_OVER_LIMIT`` of that reading's
+training error (a Bouc-Wen variable saturates too).  The gap before/after is
 then measured on the held-out records (given, or the later ``1 - TRAIN_FRACTION`` of
 each record), never seen while fitting or choosing.
 """
@@ -63,6 +66,9 @@ HARD_LIMIT_MARGIN = 0.1
 #: a limit that clips only the highest peaks of a broadband response holds few samples,
 #: and the vanishing derivative there is what tells it from a peak.
 PLATEAU_MIN_SAMPLES = 8
+#: Share of the best saturation reading's training error a hysteresis loop must remove
+#: to be named on a record whose output plateaus (:func:`_loop_or_limit`).
+LOOP_OVER_LIMIT = 0.5
 #: Lags of the restoring-force term ``C(q)``.
 NC = 3
 SHAPES = {'hysteresis': (0.05, 0.1, 0.2, 0.4, 0.8, 1.6),
@@ -789,6 +795,27 @@ def _hard_limit(scores, best, train):
     return best
 
 
+def _loop_or_limit(scores, best):
+    """Keep a hysteresis answer over a hard limit only where the loop clearly beats it.
+
+    A saturation candidate exists only where the measured output plateaus, which is
+    direct evidence of a limit; a Bouc-Wen variable saturates smoothly too (``z`` to
+    +-1) and, with its extra memory parameters, can imitate a plateau.  On such a
+    record the loop must remove ``LOOP_OVER_LIMIT`` of the training error the best
+    saturation reading leaves, else that reading is chosen.
+    """
+    if best is None or 'hysteresis' not in scores[best]['cand'].name.split('+'):
+        return best
+    limits = [k for k, s in scores.items() if 'saturation' in s['cand'].name.split('+')
+              and math.isfinite(s['mse'])]
+    if not limits:
+        return best
+    lim = min(limits, key=lambda k: scores[k]['ic'])
+    if scores[best]['mse'] <= (1.0 - LOOP_OVER_LIMIT) * scores[lim]['mse']:
+        return best
+    return lim
+
+
 def _nrmse(y, pred):
     return float(np.sqrt(np.mean((y - pred) ** 2)) / np.std(y))
 
@@ -836,6 +863,7 @@ def run_output(train, test, j, progress=None):
         mse0_cmp = mse_ode
     best = min(scores, key=lambda k: scores[k]['ic']) if scores else None
     best = _hard_limit(scores, best, train)
+    best = _loop_or_limit(scores, best)
     after = None
     if best is not None and scores[best]['ic'] < ic0 \
             and scores[best]['mse'] <= (1 - MIN_REL_GAIN) * mse0_cmp:

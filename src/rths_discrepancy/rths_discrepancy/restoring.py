@@ -43,10 +43,14 @@ parameter each (a grid and a bounded search, relative to the data's own scales):
                              scenario, rths_discrepancy.effects)
     cubic_stiffness        + k3 x^3
     quadratic_damping      + c2 v |v|   (a fluid damper, drag: the velocity-squared law)
-    backlash               + k_b dz(x, b) + F_b tanh(z' / v_eps), a clearance (play)
-                             of half-width b: a spring engaging beyond it, friction
-                             through it (z = play(x, b), its far side: no force while
-                             the clearance is crossed after each reversal)
+    backlash               + k_b dz(x, b) + F_b e(x, z, v) tanh(v / v_eps), a clearance
+                             (play) of half-width b: a spring engaging beyond it,
+                             friction through it (z = play(x, b), its far side: no
+                             force while the clearance is crossed after each reversal;
+                             e = 1 where the sample is at the clearance's edge pushing
+                             the far side, x - z = b sign(v), else 0); v_eps chosen by
+                             the data (training error of the backlash candidate over
+                             BACKLASH_EPS x rms(v))
     hysteresis             + alpha z, Bouc-Wen with beta = gamma = 1/2, n = 1:
                              dz = dx / x_y (1 - |z| (1 + sign(dx z)) / 2)   (x_y searched)
     time_delay             the model's force lags its states by tau (|tau| beyond
@@ -131,6 +135,11 @@ PAIR_REL_GAIN = 0.02
 UNEXPLAINED_LEFT = 0.5
 #: A clearance this wide (of the displacement's spread) is no reading of friction.
 CLEARANCE_MIN = 0.1
+#: What friction through a clearance must explain of Coulomb friction's held-out error
+#: where the reversals show no plateau (:func:`clearance_seen`).
+CLEARANCE_GAIN = 0.5
+#: The friction-through-play smoothing scales tried (x rms(v)); the data choose one.
+BACKLASH_EPS = (1e-3, 3e-3, 1e-2, 3e-2)
 #: Composite effects and their decomposition into elementary ones (the same law while sliding).
 EQUIVALENT = {'asymmetric_friction': ('coulomb_friction', 'force_offset')}
 
@@ -342,6 +351,7 @@ class Fit:
         # white noise is read above the states' band (fs / 4 for slow records)
         self.noise_from = min(max(0.25 * self.fs, 1.25 * self.st['fc']), 0.45 * self.fs)
         self._bw = {}
+        self.backlash_eps = 1e-2    # x rms(v); chosen by the data in select()
 
     def shape_bounds(self, name):
         """Search interval of the shape parameter of ``name`` (from the data's own scales)."""
@@ -374,9 +384,12 @@ class Fit:
         if name == 'backlash':
             xc = x - np.mean(x)
             z = fx.play(x, p)           # the far side of the clearance
-            vz = np.gradient(z, 1.0 / self.fs)
+            e = x - z
+            # sliding at this sample: at the clearance's edge, moving into it (a
+            # difference of z would smear each engagement over a neighbouring sample)
+            edge = (np.abs(e) >= p * (1.0 - 1e-9)) & (np.sign(e) == np.sign(v))
             return [np.sign(xc) * np.maximum(np.abs(xc) - p, 0.0),
-                    np.tanh(vz / (1e-2 * self.scales['v']))]
+                    edge * np.tanh(v / (self.backlash_eps * self.scales['v']))]
         if name == 'hysteresis':
             key = (round(p, 15), id(st))
             if key not in self._bw:
@@ -495,9 +508,28 @@ def fit_candidate(fit, names, align0):
     if not delay:
         tau = _refine_alignment(fit, names, shapes, align0)
     theta, labels, pred = fit.solve(names, shapes, tau)
+    extra = 1 if 'backlash' in names else 0     # its friction's v_eps, chosen by the data
     return {'names': list(names), 'shapes': shapes, 'tau': tau, 'theta': theta,
             'labels': labels, 'pred': pred, 'mse_test': fit.mse(pred, fit.test),
-            'p': len(theta) + len(shapes) + 1}
+            'mse_train': fit.mse(pred, fit.train),
+            'backlash_eps': fit.backlash_eps * fit.scales['v'] if extra else None,
+            'p': len(theta) + len(shapes) + 1 + extra}
+
+
+def choose_backlash_eps(fit, align0):
+    """Set ``fit.backlash_eps`` to the scale of :data:`BACKLASH_EPS` that fits best.
+
+    The friction through a clearance switches on and off with each engagement; how
+    sharply is the data's (a damper's slider, a joint's bolt): the backlash candidate
+    is fitted at each scale and the lowest training error chooses.  Returns the
+    training mean square error per scale.
+    """
+    errs = {}
+    for eps in BACKLASH_EPS:
+        fit.backlash_eps = eps
+        errs[eps] = fit_candidate(fit, ['backlash'], align0)['mse_train']
+    fit.backlash_eps = min(errs, key=errs.get)
+    return errs
 
 
 def _params(cand):
@@ -514,6 +546,9 @@ def _params(cand):
         elif name in cand['shapes']:
             shape_name = PARAMS[name][-1][0]
             entry[shape_name] = float(cand['shapes'][name])
+        if name == 'backlash' and cand.get('backlash_eps') is not None:
+            entry['v_eps'] = float(cand['backlash_eps'])
+            spec['v_eps'] = 'm/s'
         entry['unit'] = {k: spec[k] for k in entry}
         out[name] = entry
     return out
@@ -530,14 +565,16 @@ def select(fit, progress=None, count=None):
     friction = {'coulomb_friction', 'asymmetric_friction', 'stribeck'}
     todo = [[name] for name in EFFECTS] + [   # friction laws of one kind are not combined
         [a, b] for a, b in itertools.combinations(EFFECTS, 2) if not {a, b} <= friction]
+    choose_backlash_eps(fit, align0)
     cands = {}
     for names in todo:
         cands['+'.join(names)] = fit_candidate(fit, names, align0)
         if count:
             count(len(cands), len(todo))
     say(f'fitted {len(cands)} candidates')
+    floor = sg.noise_variance(fit.f - nominal['pred'], fit.fs, fit.noise_from)
     unseen = [k for k, c in cands.items()
-              if 'backlash' in c['names'] and not clearance_seen(fit, c)]
+              if 'backlash' in c['names'] and not clearance_seen(fit, c, cands, floor)]
     for k in unseen:
         del cands[k]
     n_te = int(fit.test.sum())
@@ -558,7 +595,6 @@ def select(fit, progress=None, count=None):
     best2 = min(pairs, key=lambda k: ics[k])
     choice = best1
     # excess over the white-noise floor (periodogram of the nominal residual above the band)
-    floor = sg.noise_variance(fit.f - nominal['pred'], fit.fs, fit.noise_from)
     e1 = cands[best1]['mse_test'] - floor
     e2 = cands[best2]['mse_test'] - floor
     more = cands[best2]['p'] > cands[best1]['p']
@@ -581,7 +617,7 @@ def select(fit, progress=None, count=None):
             'clearance_not_seen': unseen}
 
 
-def clearance_seen(fit, cand):
+def clearance_seen(fit, cand, cands=None, floor=0.0):
     """Tell whether the clearance ``cand`` fits shows in the record (see :mod:`.reversals`).
 
     A clearance of half-width ``b`` crossed after each reversal leaves a near-zero-force
@@ -593,14 +629,27 @@ def clearance_seen(fit, cand):
     function of the position) shows instead as a wide clearance, at least
     ``CLEARANCE_MIN`` of the displacement's spread, whose spring carries more of the
     candidate's force than its friction does: no reading of Coulomb friction.
+
+    Under a broadband excitation most reversals are small and the plateaus are not
+    read; there a wide clearance shows on the held-out part instead (``cands`` given):
+    friction that stops for the clearance after each reversal must explain at least
+    ``CLEARANCE_GAIN`` of what Coulomb friction in its place leaves above the noise
+    ``floor`` (a Coulomb record fits best with ``b`` near zero, a smooth loop better
+    with Coulomb friction than with the clearance's on-off law).
     """
     b = cand['shapes']['backlash']
     amp = {par: v for (g, par), v in zip(cand['labels'], cand['theta'], strict=True)
            if g == 'backlash'}
     cols = fit.columns('backlash', b, fit.st)
-    if (b >= CLEARANCE_MIN * fit.scales['x']
-            and np.std(amp['k_b'] * cols[0]) >= np.std(amp['F_b'] * cols[1])):
+    wide = b >= CLEARANCE_MIN * fit.scales['x']
+    if wide and np.std(amp['k_b'] * cols[0]) >= np.std(amp['F_b'] * cols[1]):
         return True
+    if wide and cands is not None:
+        alt = label([n for n in cand['names'] if n != 'backlash'] + ['coulomb_friction'])
+        if alt in cands:
+            left = cand['mse_test'] - floor
+            if left <= (1.0 - CLEARANCE_GAIN) * (cands[alt]['mse_test'] - floor):
+                return True
     ev = play_evidence(fit, cand)
     width, growth = ev.get('plateau_width_median'), ev.get('growth')
     return bool(width is not None and width >= b

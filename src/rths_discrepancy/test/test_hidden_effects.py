@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from rths_actuator_bridge.simulated import HIDDEN_EFFECTS, SimulatedPlant
+from rths_compensator.plants import continuous_actuator
 from rths_discrepancy import effects as fx
 from rths_discrepancy import models
 
@@ -37,6 +38,7 @@ def _lab_record(plant, seed):
     ('specimen_cubic_stiffness_n_m3', 2e8),
     ('specimen_backlash_m', 1e-3),
     ('friction_n', 30.0),
+    ('specimen_velocity_saturation_m_s', 0.02),
 ])
 def test_a_hidden_force_is_the_library_force(key, size):
     scenario, name = HIDDEN_EFFECTS[key]
@@ -74,6 +76,41 @@ def test_a_hidden_sensor_offset_is_added_to_its_channel_only(key, channel):
 def test_an_effect_the_plant_cannot_simulate_is_refused():
     with pytest.raises(ValueError, match='no mass on the table'):
         SimulatedPlant(specimen='none', specimen_backlash_m=1e-3)
+    with pytest.raises(ValueError, match='actuator_stiffness_load need the continuous'):
+        SimulatedPlant(actuator_model='silva2020', actuator_stiffness_load=0.05)
+    with pytest.raises(ValueError, match='device specimen mr'):
+        SimulatedPlant(specimen='mr', actuator_backlash_m=1e-4)
+
+
+@pytest.mark.parametrize('key,size', [
+    ('actuator_friction_m', 2e-4),
+    ('actuator_velocity_load_s', 2e-3),
+    ('actuator_stiffness_load', 0.05),
+    ('actuator_cubic_load_1_m2', 2e3),
+    ('actuator_inertia_load_s2', 2e-5),
+    ('actuator_backlash_m', 2e-4),
+    ('actuator_velocity_limit_m_s', 0.05),
+])
+def test_a_hidden_actuator_effect_is_the_librarys_law(key, size):
+    """The lab's actuator with a hidden key equals the library's ``y = G (u - q)`` / operator.
+
+    The bare table (no specimen: the actuator is Table 1's 3-pole model alone) against
+    :class:`models.ActuatorModel` of the same continuous model with the named effect, at the
+    lab's 16 sub-steps: the difference is < 1 % of what the effect changes.
+    """
+    scenario, name = HIDDEN_EFFECTS[key]
+    assert scenario == 'actuator'
+    u = _command()[:2048]
+    lab = dict(specimen='none', daq_filter_hz=0.0, friction_v_m_s=fx.V_EPS)
+    base = SimulatedPlant(**lab).simulate(u)['table_disp']
+    hidden = SimulatedPlant(**lab, **{key: size}).simulate(u)['table_disp']
+    num, den = continuous_actuator('3pole')
+    law = models.ActuatorModel('continuous', num=np.asarray(num, float),
+                               den=np.asarray(den, float), effects={name: size})
+    expected = law.simulate(u, FS, substeps=16)['measured']
+    change = np.std(hidden - base)
+    assert change > 5e-3 * np.std(base)             # the effect is there
+    assert np.std(hidden - expected) < 0.01 * change
 
 
 def test_a_damping_error_behind_the_anti_alias_filter_is_found_unbiased():

@@ -221,3 +221,25 @@ def test_report_names_a_diverged_candidate_instead_of_printing_its_error():
     assert ioreport.nrmse_cell(float('nan')) == 'diverged (free run unstable)'
     assert ioreport.nrmse_cell(None) == '-'
     assert ioreport.nrmse_cell(0.21634) == '0.2163'
+
+
+def _scored(name, mse):
+    cand = iodisc.Candidate(name, lambda u, lev: u, 3, {})
+    return {'mse': mse, 'ic': 1000.0 * np.log(mse), 'cand': cand}
+
+
+def test_a_loop_must_clearly_beat_the_limit_on_a_record_that_plateaus():
+    # a Bouc-Wen variable saturates smoothly and imitated the plateau of a clipped
+    # output (issue 25, unseen io_output_clipping: named hysteresis, gap 0.09): on a
+    # record with a saturation reading the loop must remove half of its error
+    scores = {'hysteresis/bouc-wen-output-error': _scored('hysteresis', 0.8),
+              'saturation': _scored('saturation', 1.0),
+              'static_output_nonlinearity+saturation':
+                  _scored('static_output_nonlinearity+saturation', 0.95)}
+    best = 'hysteresis/bouc-wen-output-error'
+    assert iodisc._loop_or_limit(scores, best) == 'static_output_nonlinearity+saturation'
+    scores[best] = _scored('hysteresis', 0.4)      # a real loop: half the limit's error
+    assert iodisc._loop_or_limit(scores, best) == best
+    del scores['saturation'], scores['static_output_nonlinearity+saturation']
+    scores[best] = _scored('hysteresis', 0.99)     # no plateau: the criterion decides
+    assert iodisc._loop_or_limit(scores, best) == best

@@ -64,3 +64,17 @@ def test_quadratic_damping_is_named_in_kilonewtons_and_millimetres():
     assert 'quadratic_damping' in res['effect'].split('+')
     assert len(res['effect'].split('+')) <= 2
     assert res['gap_closed'] > 0.5
+
+
+def test_a_friction_damper_with_play_on_a_multisine_is_backlash():
+    # development seed 1: a friction slider behind a clearance of 0.44 rms(x), a
+    # multisine in integer counts with offsets (most reversals are small: no plateau
+    # is read after them).  Before issue 25's fix: coulomb_friction+force_offset+
+    # hysteresis, gap 0.35 (the friction law smeared each engagement over a sample
+    # and the clearance was not offered); now backlash with the record's offset
+    case = {c['name']: c for c in unseen.battery(1, per_effect=1)}['rf_friction_with_play_0']
+    row = unseen.run_case(case)
+    assert 'backlash' in row['named'].split('+')
+    assert set(row['named'].split('+')) <= {'backlash', 'force_offset'}
+    assert row['gap_closed_vs_true'] > 0.7
+    assert row['passed']

@@ -71,6 +71,7 @@ from .ground_motion import (
     read_record,
 )
 from .integrators import INTEGRATORS, make_integrator
+from .marths import MarthsSubstructure
 from .model import LinearModel, load_model_yaml, sdof_model
 from .opensees_backend import (
     OpenSeesSubstructure,
@@ -82,6 +83,8 @@ from .silva2020 import model_by_name
 from .stepping import BACKENDS, SteppedSubstructure
 
 FRAMES = ('absolute', 'relative')
+#: The ``model`` that runs the maRTHS benchmark's numerical substructure (:mod:`.marths`).
+MARTHS_MODEL = 'marths'
 #: Parameters every ROS node has; ignored here.
 ROS_KEYS = ('use_sim_time', 'start_type_description_service')
 #: The substructure's parameters: key -> (default, meaning [unit]); None = see the meaning.
@@ -89,8 +92,10 @@ PARAMS = {
     'backend': ('builtin', "'builtin' (this package's integrators) or 'opensees' (OpenSeesPy, "
                 'optional: opensees_backend)'),
     'model': ('sdof', "'sdof', 'building2story' (16-DOF), 'silva2020_case1'..4 (benchmark, "
-              'silva2020) or a model YAML path; opensees also: an OpenSeesPy model script '
-              "(.py path, or a name in config/models/, e.g. 'frame-steel01')"),
+              "silva2020), 'marths' (the maRTHS benchmark's frame, two actuators' strokes "
+              'and axial forces, marths.py) or a model YAML path; opensees also: an '
+              'OpenSeesPy model script (.py path, or a name in config/models/, e.g. '
+              "'frame-steel01')"),
     'integrator': (None, "builtin: 'cr' (default), 'kr_alpha', 'newmark', 'central_difference'; "
                    "opensees: 'central_difference' (default) or 'newmark'"),
     'rho_inf': (0.5, '[-] KR-alpha spectral radius at infinity, 0..1'),
@@ -368,6 +373,11 @@ def make_substructure(params: dict, model: Any = None, motion=None) -> SteppedSu
     if script:
         builder, ground_dof = script_builder(script)
         model = ScriptModel(script, gamma=1.0 if ground_dof == 1 else 0.0)
+    elif model is None and params.get('model') == MARTHS_MODEL:
+        if (str(params.get('record', DEFAULTS['record'])) in ('harmonic', 'blwn', 'none')
+                or backend != 'builtin'):
+            raise ValueError("parameter model = 'marths': give a record file and the builtin "
+                             'backend (its own Newmark integrator)')
     elif model is None:
         model = build_model(params)
     integ = str(params.get('integrator') or
@@ -420,6 +430,8 @@ def make_substructure(params: dict, model: Any = None, motion=None) -> SteppedSu
         except ValueError as err:
             raise ValueError(f'parameter record: {err}') from None
     ag = motion.accel
+    if params.get('model') == MARTHS_MODEL:
+        return MarthsSubstructure(ag, dt, motion)
     iface = params.get('interface_dofs')
     if iface is not None:
         iface = [int(i) for i in np.atleast_1d(iface)]

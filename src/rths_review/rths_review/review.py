@@ -413,6 +413,12 @@ def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None,
     bridge = runinfo.section(info, 'bridge')
     compensator = runinfo.section(info, 'compensator')
     sub = run_inputs(bag, numerical)
+    if getattr(sub, 'n_interface', 1) > 1 and getattr(sub, 'model', None) is None:
+        raise ValueError(f'{bag}: a run of {sub.n_interface} actuators (numerical model '
+                         f'{numerical.get("model")!r}): rths review rebuilds the one-actuator '
+                         'report (its reference and uncontrolled runs, Tables 5-9 per interface '
+                         'DOF) and not yet this one; rths bench marths --via graph writes its '
+                         'J1-J10 per actuator to summary.json')
     model = sub.model
     if dof is not None:
         model.output_dof = dof_index(model, dof)
