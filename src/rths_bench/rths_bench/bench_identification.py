@@ -14,9 +14,11 @@ no tracking.
 Per case the JSON holds exactly ``fs_hz, delay_s, noise_pct, model, validation_nrmse_pct,
 tracking_sine_pct, tracking_noise_pct, floor_sine_pct, floor_noise_pct, refused``; the
 case's ``details`` entry names every limit a command exceeds (``limits_exceeded``: the
-bridge parameter, the command's figure and the bound, and which command: ``reference`` for
-the design's own check, ``sine`` or ``noise`` for the tracking commands); the summary and
-the issue's targets follow.
+bridge parameter, the command's figure and the bound, and which command: ``reference`` and
+``noise`` for the design's own checks, ``sine`` or ``noise`` for the tracking commands); a
+design whose command exceeds a limit is redesigned with more weight on its own gain
+(:func:`rths_compensator.assessment.design_within_limits`, ``adapted_to_limits``); the
+summary and the issue's targets follow.
 """
 
 import json
@@ -56,7 +58,7 @@ def cases(seed: int = 32):
 
 def run_case(case: dict, limits) -> tuple:
     """Identify, design and track one case; return ``(row, detail)`` (row: the JSON fields)."""
-    from rths_compensator.assessment import assess, exceeded_limits
+    from rths_compensator.assessment import design_within_limits, exceeded_limits
     from rths_compensator.design import design_default
     from rths_compensator.estimation import identify_record
     from rths_compensator.synthetic import (
@@ -85,20 +87,22 @@ def run_case(case: dict, limits) -> tuple:
         row[f'floor_{name}_pct'] = round(tracking(act, floor.taps, floor.denominator,
                                                   x)['tracking_pct'], 4)
     try:
-        comp = design_default(model)
+        comp, _, pred, violations, _, adapted = design_within_limits(
+            model, lambda w: design_default(model, **({'gain_weight': w} if w else {})),
+            lambda c: c.info['fc_hz'], (u, y, ident.info['split']), limits)
         detail['fc_hz'] = comp.info['fc_hz']
-        pred, violations, _ = assess(model, comp, comp.info['fc_hz'],
-                                     (u, y, ident.info['split']), limits)
+        detail['gain_weight'] = comp.info['gain_weight']
+        detail['adapted_to_limits'] = adapted
     except ValueError as err:
         comp, violations, pred = None, [str(err)], {}
     row['refused'] = bool(violations)
     detail['violations'] = violations
-    # which limit each command exceeds: the design's prediction for the reference (a
-    # refusal) and the tracking signals' commands through the written design
-    detail['limits_exceeded'] = ([dict(e, command='reference') for e in exceeded_limits(
-        {k: pred[f'reference_command_{k}'] for k in ('peak_m', 'velocity_m_s',
-                                                     'acceleration_m_s2')}, limits)]
-        if pred else [])
+    # which limit each command exceeds: the design's predictions for the reference and the
+    # noise-like targets (a refusal) and the tracking signals' commands through the design
+    detail['limits_exceeded'] = [
+        dict(e, command=target) for target in ('reference', 'noise') if pred
+        for e in exceeded_limits({k: pred[f'{target}_command_{k}'] for k in (
+            'peak_m', 'velocity_m_s', 'acceleration_m_s2')}, limits)]
     for name, x in tests.items():
         if comp is None or violations:
             row[f'tracking_{name}_pct'] = None
@@ -114,6 +118,9 @@ def run_case(case: dict, limits) -> tuple:
     if pred:
         detail['predicted_record_tracking_pct'] = round(pred.get('record_tracking_pct', np.nan), 4)
         detail['gain_peak_db'] = round(pred['gain_peak_db'], 2)
+        detail['predicted_noise_command_acceleration_m_s2'] = round(
+            pred['noise_command_acceleration_m_s2'], 1)
+    detail['predicted_tracking_pct'] = ident.info.get('predicted_tracking_pct', {})
     order = ('fs_hz', 'delay_s', 'noise_pct', 'model', 'validation_nrmse_pct',
              'tracking_sine_pct', 'tracking_noise_pct', 'floor_sine_pct', 'floor_noise_pct',
              'refused')

@@ -401,9 +401,10 @@ def cmd_design(args) -> int:
                          'drop it')
     if args.auto:
         comp, band = _design_auto(args, plant, zero_tol)
+        make, band_of, adapt = (lambda weight: comp), (lambda c: band), False
     else:
-        comp, band = _design_one(args, plant, scheme, zero_tol)
-    return _assess_and_write(args, plant, comp, band)
+        make, band_of, adapt = _design_one(args, plant, scheme, zero_tol)
+    return _assess_and_write(args, plant, make, band_of, adapt)
 
 
 def _design_auto(args, plant, zero_tol):
@@ -443,9 +444,15 @@ def _design_one(args, plant, scheme, zero_tol):
     if entry.fir:
         from .params import check_filter_cost
         check_filter_cost(args.taps, plant.fs_hz, f'--taps {args.taps}')
-        comp = dsg.design_default(plant, scheme=scheme, **opts)
-        return comp, comp.info['fc_hz']
-    return dsg.design(plant, scheme, **opts), args.band
+
+        def make(weight):
+            return dsg.design_default(plant, scheme=scheme, **dict(
+                opts, **({'gain_weight': weight} if weight is not None else {})))
+        # the gain weight adapts to the limits unless the user chose it
+        adapt = 'gain_weight' in entry.options and 'gain_weight' not in opts
+        return make, (lambda comp: comp.info['fc_hz']), adapt
+    comp = dsg.design(plant, scheme, **opts)
+    return (lambda weight: comp), (lambda c: args.band), False
 
 
 def _limits(args):
@@ -476,17 +483,20 @@ def _plant_record(plant_path):
     return u, y, split, f'record {record["path"]}'
 
 
-def _assess_and_write(args, plant, comp, band) -> int:
+def _assess_and_write(args, plant, make, band_of, adapt) -> int:
     import numpy as np
 
-    from .assessment import assess
+    from .assessment import design_within_limits
     from .params import write_compensator_params
     limits = _limits(args)
     u, y, split, note = _plant_record(args.plant)
     record = (u, y, split) if u is not None else None
-    pred, violations, ref_text = assess(plant, comp, band, record, limits)
+    comp, band, pred, violations, ref_text, adapted = design_within_limits(
+        plant, make, band_of, record, limits, adapt=adapt and u is not None)
     if not all(np.isfinite(v) for v in pred.values() if isinstance(v, float)):
         raise ValueError(f'{comp.scheme} design has non-finite predicted indicators; refused')
+    if adapted:
+        print(f'adapted to the limits: {adapted}')
     print(design_text(comp, band, pred, ref_text, note))
     if limits is None:
         print('limits: no bridge params file (--limits); the command was not checked')
@@ -512,6 +522,9 @@ def _assess_and_write(args, plant, comp, band) -> int:
             'reference': ref_text,
             'reference_command_ratio': pred['reference_command_ratio'],
             'record_tracking_pct': pred.get('record_tracking_pct'),
+            'noise_command_peak_m': pred['noise_command_peak_m'],
+            'noise_command_acceleration_m_s2': pred['noise_command_acceleration_m_s2'],
+            'adapted_to_limits': adapted,
             'limits': limits.source if limits else None,
             'limits_exceeded': '; '.join(violations)}
     for key in SCHEMES.entry(comp.scheme).options + DESIGN_RESULTS:
@@ -533,7 +546,11 @@ def design_text(comp, band, pred, ref_text, record_note) -> str:
         f'({ref_text}) at {pred["reference_command_ratio"]:.3g} x its peak '
         f'({1e3 * pred["reference_command_peak_m"]:.3g} mm, '
         f'{pred["reference_command_velocity_m_s"]:.3g} m/s, '
-        f'{pred["reference_command_acceleration_m_s2"]:.3g} m/s^2)',
+        f'{pred["reference_command_acceleration_m_s2"]:.3g} m/s^2); for band-limited noise '
+        f'over the band ({1e3 * pred["noise_peak_m"]:.3g} mm peak, 0.5 s fades, worst of '
+        f'{pred["noise_draws"]}) at {1e3 * pred["noise_command_peak_m"]:.3g} mm, '
+        f'{pred["noise_command_velocity_m_s"]:.3g} m/s, '
+        f'{pred["noise_command_acceleration_m_s2"]:.3g} m/s^2',
         f'  loop P G on the model over 0-{band:g} Hz: delay {pred["delay_ms"]:+.3f} ms, gain '
         f'error {pred["gain_error_db"]:.3f} dB; loop gain above the band up to '
         f'{pred["loop_gain_above_band_db"]:.1f} dB',

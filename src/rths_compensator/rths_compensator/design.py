@@ -598,6 +598,7 @@ def design_fir(plant, n_taps: int = 100, fc_hz: float = 64.0, scheme: str = 'ls'
     info = {
         'n_taps': n_taps, 'fc_hz': float(fc_hz), 'epsilon': float(epsilon),
         'zero_tol': float(zero_tol), 'solver': solver, 'design_s': design_s,
+        'gain_weight': float(gain_weight),
         'passband_max_error': float(np.max(np.abs(tpass - 1.0))),
         'max_error_all': float(np.max(np.abs(tcom - 1.0))),
         'dc_gain_error': float(abs(np.sum(g) - 1.0)),
