@@ -21,16 +21,18 @@ else
   # (env --default-signal: a background command of a script ignores SIGINT and SIGQUIT, and
   # so would every test process under it; tests that stop a program with SIGINT hang then)
   # (a failed unit test runs once more too: CI of 2026-11-28 had a CPython "AST constructor
-  # recursion depth mismatch" SystemError in a pep257 check and late replies beside real time)
-  env --default-signal=INT,QUIT PYTEST_ADDOPTS="--reruns 1" nice -n 19 \
-    colcon --log-base log/units test --packages-skip rths_system_tests "${args[@]}" \
+  # recursion depth mismatch" SystemError in a pep257 check and late replies beside real time;
+  # colcon's --retest-until-pass, since colcon sets PYTEST_ADDOPTS itself and drops ours)
+  env --default-signal=INT,QUIT nice -n 19 \
+    colcon --log-base log/units test --packages-skip rths_system_tests --retest-until-pass 1 \
+    "${args[@]}" \
     > log/units.txt 2>&1 &
   units=$!
   # a failed system test runs once more (pytest-rerunfailures): node graphs, real time and
   # DDS discovery on a shared 2-core VM fail now and then on timing alone (CI runs of
   # 2026-11-28: a 5 s lock-step stall, an e-stop message the recorder missed); a regression
   # fails both times, and the rerun is printed ('R' and 'rerun' in the summary)
-  PYTEST_ADDOPTS="--reruns 1" colcon test --packages-select rths_system_tests "${args[@]}" \
+  colcon test --packages-select rths_system_tests --retest-until-pass 1 "${args[@]}" \
     || rc_system=$?
   wait "$units" || rc_units=$?
   echo "--- unit tests of every package (ran beside the system tests at nice 19) ---"

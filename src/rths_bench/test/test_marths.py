@@ -219,7 +219,7 @@ def test_perfect_actuators_reproduce_the_reference_up_to_the_specimen_model(
 
 
 def test_the_node_graphs_substructure_in_the_rigs_loop_gives_the_offline_j_values(tmp_path):
-    """MarthsSubstructure (the numerical node's model: marths) against the offline loop.
+    """The numerical node's model marths (MarthsSubstructure) against the offline loop.
 
     The rig of the bridge's simulated_rig backend (plant, noise, frame, axial forces through
     the coupler) stepped by hand in the graph's order; the frame's far-end moment, which the
