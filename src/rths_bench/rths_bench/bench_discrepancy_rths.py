@@ -119,10 +119,6 @@ SPECIMEN_CASES = (
 )
 
 
-#: Actuator effects that change what is measured, not the loop: no re-run with them.
-SENSOR_ONLY = {'sensor_bias'}
-
-
 def _refused_by_design(named: str):
     """Return why ``rths design`` refuses an updated actuator model with ``named``, or None.
 
@@ -264,11 +260,8 @@ def run_case(case, base_cfg: Path, plant: Path, out: Path, duration: float,
                log=out / 'reference.log')
         ref = json.loads((out / 'reference' / 'reference.json').read_text())
         before = after = ref['rths_vs_nominal_reference_rel_rms_pct']
-    elif named not in ('none', 'unexplained') and set(named.split('+')) <= SENSOR_ONLY:
-        row['rerun'] = 'none: an offset of the displacement sensor leaves the dynamics the ' \
-                       'compensator inverts unchanged (rths design refuses it)'
-    elif named not in ('none', 'unexplained') and _refused_by_design(named):
-        row['rerun'] = 'none: ' + _refused_by_design(named)
+    elif named not in ('none', 'unexplained') and (why := _refused_by_design(named)):
+        row['rerun'] = 'none: ' + why     # e.g. a sensor offset, a non-linear load
     elif named not in ('none', 'unexplained'):
         rerun = out / 'rerun'
         _timed(times, 'rerun', 'run', '--config', cfg, '--plant', disc / 'updated_model.yaml',
