@@ -57,9 +57,15 @@ def params_of(path: Path, doc, node: str) -> dict:
     params = dict(section['ros__parameters'])
     for key, value in params.items():
         check_value(path, key, value)
-    # before anything is built from them (duration_s: 1e9 allocated 37 GiB in make_substructure)
-    check_ranges(path, node, params)
+    # what sizes the build, before anything is built from it (duration_s: 1e9 allocated 37 GiB
+    # in make_substructure); the other ranges after the file's own checks, whose messages say
+    # more ('inches or mm?'), in check_config
+    check_ranges(path, node, {k: v for k, v in params.items() if k in SIZING_KEYS})
     return params
+
+
+#: Parameters that size what a file's check builds: their ranges are checked first.
+SIZING_KEYS = ('duration_s', 'fs_hz')
 
 
 def check_value(path, key: str, value):
