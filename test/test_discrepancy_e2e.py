@@ -20,7 +20,7 @@ from rths_system_tests import REPO, rths
 
 #: Coulomb friction of the lab DTM [N]: mu ~ 0.012 on the 258 kg moving mass (Table 4).
 FRICTION_N = 30.0
-DURATION_S = 20.0
+DURATION_S = 15.0
 
 
 def _write_config(cfg):

@@ -108,6 +108,7 @@ def test_sigkill_mid_run_reaches_the_safe_state_and_keeps_the_bag(tmp_path, vict
             proc.kill()
     assert proc.returncode == 1, out[-3000:]
     assert f'node {victim} died (killed by SIGKILL)' in out
+    assert f'FAILED: node {victim}' in out
     status, meas = read_bag(bag)
     check_recording(bag)
     if victim == 'bridge':

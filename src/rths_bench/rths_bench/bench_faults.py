@@ -19,7 +19,8 @@ the same config, clock and analysis) at ``--rate`` Hz for ``--duration`` s, with
 * ``kill_container`` / ``kill_recorder``: SIGKILL of the composed process or of
   the recorder half way through the run; the bag is read as the launcher left
   it (reindexed) and ``loss_before_kill_ms`` is the time from the last bridge
-  tick in the bag to the kill.
+  tick in the bag to the last tick the loop produced before the kill
+  (:func:`loss_before_kill`).
 
 Per case: ``deadline_misses``, ``late_or_missed_pct``, ``stalled_ticks``,
 ``command_peak_m`` / ``velocity_peak_m_s`` / ``acceleration_peak_m_s2`` of what
@@ -28,7 +29,8 @@ the bridge wrote (``Measurement.applied``) against the bridge's ``stroke_m``,
 against ``expected_safety_state`` (:data:`EXPECTED_STATE`, documented in
 docs/reliability.md; ``state_as_documented``), and ``samples_produced`` (bridge
 ticks of the run) against ``samples_in_bag`` (its measurements in the bag,
-``samples_lost``).
+``samples_lost``; ``bag_prefix_complete``: no sample is missing before the last
+one in the bag).
 """
 
 import argparse
@@ -342,11 +344,34 @@ def bag_side(bag, fs_hz: float, limits: dict) -> dict:
     out['final_safety_state'] = states[-1] if states else None
     out['worst_safety_state'] = max((s for s in states if s != 4), default=None)
     out['last_bridge_stamp_ns'] = max(stamps) if stamps else None
-    out['samples_in_bag'] = len(set(bagio.step_arrays(bag, topics.MEASUREMENT, ())['step']
-                                    .tolist()))
+    steps = set(bagio.step_arrays(bag, topics.MEASUREMENT, ())['step'].tolist())
+    out['samples_in_bag'] = len(steps)
+    # every sample up to the last one in the bag is there (a killed recorder loses a tail only)
+    out['bag_prefix_complete'] = not steps or len(steps) == max(steps) + 1
     report = verify(bag)
     out['verify_problems'] = report['problems']
     return out
+
+
+def loss_before_kill(result: dict, bridge_timing: Path) -> dict:
+    """Return ``loss_before_kill_ms``: how much of what the loop produced before the kill the bag lacks.
+
+    The span from the last bridge tick in the bag to the last tick the loop
+    produced before the kill (``last_produced_before_kill_ns``).  A killed
+    recorder leaves the loop running: its ticks come from the bridge's timing
+    file (wall clock, as the stamps), so a kill that lands after the loop's end
+    loses nothing.  A killed container writes no timing file: its last tick is
+    taken as the kill itself (an upper bound).
+    """
+    kill_ns, in_bag_ns = result['kill_wall_ns'], result['last_bridge_stamp_ns']
+    last_ns = kill_ns
+    if bridge_timing.exists():
+        ticks = np.load(bridge_timing)['tick_wall_ns']
+        before = ticks[ticks <= kill_ns]
+        if before.size:
+            last_ns = int(before.max())
+    return {'last_produced_before_kill_ns': last_ns,
+            'loss_before_kill_ms': round(max(last_ns - in_bag_ns, 0) * 1e-6, 1)}
 
 
 def run_case(name: str, args, workdir: Path, log) -> dict:
@@ -407,8 +432,7 @@ def run_case(name: str, args, workdir: Path, log) -> dict:
         result['samples_produced'] = produced
         result['samples_lost'] = max(produced - result['samples_in_bag'], 0)
     if 'kill_wall_ns' in result and result.get('last_bridge_stamp_ns'):
-        result['loss_before_kill_ms'] = round(
-            (result['kill_wall_ns'] - result['last_bridge_stamp_ns']) * 1e-6, 1)
+        result.update(loss_before_kill(result, workdir / 'bridge_timing.npz'))
     if kind == 'stall':
         result['expected_safety_state'] = expected_state(stall_ms)
         result['state_as_documented'] = result.get('final_safety_state') == \
