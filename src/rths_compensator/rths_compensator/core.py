@@ -117,8 +117,11 @@ class CompensatorCore:
         return self._ff_last
 
     def _method_applied(self, applied):
-        """The applied commands of the previous step without its feed-forward (what the
-        adaptive method commanded: it compares them with its own to see a bridge's hold)."""
+        """Return the previous step's applied commands without their feed-forward.
+
+        That is what the adaptive method commanded: it compares them with its own
+        commands to see a bridge's hold, ramp or limit.
+        """
         if applied is None or self.feedforward is None or self._ff_last is None:
             return applied
         return np.asarray(applied, dtype=float) - self._ff_last

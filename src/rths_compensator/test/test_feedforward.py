@@ -6,10 +6,16 @@ import numpy as np
 import pytest
 
 from rths_compensator.core import CompensatorCore
-from rths_compensator.feedforward import LoadFeedForward, feedforward_params, \
-    feedforward_settings
-from rths_compensator.params import identity_params, load_compensator_params, \
-    write_compensator_params
+from rths_compensator.feedforward import (
+    LoadFeedForward,
+    feedforward_params,
+    feedforward_settings,
+)
+from rths_compensator.params import (
+    identity_params,
+    load_compensator_params,
+    write_compensator_params,
+)
 
 FS = 1024.0
 
@@ -47,8 +53,8 @@ def test_a_lost_displacement_steps_the_feed_forward_like_the_filter():
     core = CompensatorCore(params)
     core.step(0, [1e-3])
     out = core.step(2, [3e-3])            # step 1 lost: interpolated, then step 2
-    assert out.arrays[0][0] == pytest.approx(3e-3 + 1e3 * (0.5 * (3e-3 + 2e-3)) ** 3,
-                                               rel=1e-6)
+    expected = 3e-3 + 1e3 * (0.5 * (3e-3 + 2e-3)) ** 3
+    assert out.arrays[0][0] == pytest.approx(expected, rel=1e-6)
 
 
 def test_the_params_file_carries_the_feed_forward(tmp_path):
