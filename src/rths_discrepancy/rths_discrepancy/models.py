@@ -157,8 +157,9 @@ class ActuatorModel:
         """Simulate the full model; return dict with 'measured'.
 
         The loop load ``q`` (friction, stiffness, damping, inertia loads) is
-        evaluated on the output history at the start of each (sub)step and
-        held with the command over it; output operators are applied after.
+        evaluated at the middle of each (sub)step (centred differences of the
+        output, :func:`_loop_filter`) and held with the command over it; output
+        operators are applied after.
         """
         u = np.asarray(command, dtype=float)
         load = fx.actuator_load(self.effects)
