@@ -43,7 +43,9 @@ LOADS = ('coulomb_friction', 'cubic_stiffness')
 _WHY = {
     'coulomb_friction': 'friction is non-linear; a linear compensator cannot hold it',
     'cubic_stiffness': 'a cubic load is non-linear; a linear compensator cannot hold it',
-    'backlash': 'play is non-linear; a linear compensator cannot hold it',
+    'backlash': 'play is non-linear, and the library puts it between the rod and the '
+                'displacement sensor: the table follows the command, only the reading '
+                'lags; a compensator that inverted it would move the table off its target',
     'velocity_saturation': 'a rate limit is non-linear; a linear compensator cannot hold it',
     'sensor_bias': 'a constant offset does not change the dynamics the compensator inverts; '
                    'zero the displacement sensor instead',
