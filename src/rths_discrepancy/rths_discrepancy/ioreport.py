@@ -77,7 +77,11 @@ def _measure_lines(name, p):
         out.append(f"Output `{name}`: `{c['block']}` was chosen on the training records "
                    f"(error -{100 * c['training_relative_gain']:.0f} %) but the held-out part "
                    f"does not confirm it (-{100 * c['heldout_relative_gain']:.0f} %): not named.")
-    if 'unexplained' in p.get('effects', []):
+    if p.get('limit_only_in_heldout_part'):
+        out.append(f"Output `{name}`: the whole record's output plateaus where the training "
+                   'part does not (a limit the training records cannot show): `unexplained`, '
+                   'not a name read into a few clipped samples.')
+    elif 'unexplained' in p.get('effects', []):
         out.append(f"Output `{name}`: the baseline misses the held-out part far more than the "
                    'training records and no block explains it: `unexplained` (the training '
                    'part does not show what the later part holds).')

@@ -98,3 +98,5 @@ def test_a_miss_the_training_part_does_not_show_is_unexplained_not_a_name():
     assert res['effect'] == 'unexplained'
     p = res['per_output']['y']
     assert p['nrmse_after'] == p['nrmse_baseline']
+    assert p['limit_only_in_heldout_part']
+    assert iodisc.plateaus(y[:int(0.6 * n)])[0] == [None, None]
