@@ -278,6 +278,16 @@ def _tracking(bag, fs):
     and its measurement are in the bag (not filled).
     ValueError if the bag holds under 2 s before its end or a safety stop.
     """
+    desired, applied, measured, *rest = tracking_channels(bag, fs, channels=1)
+    return (desired[:, 0], applied[:, 0], measured[:, 0], *rest)
+
+
+def tracking_channels(bag, fs, channels: int = None):
+    """:func:`_tracking` of every actuator: desired, applied, measured are (steps x N).
+
+    ``channels``: the first N actuators (default every one the bag's measurements hold);
+    a step counts only when every one of them has a finite command and measurement.
+    """
     recording, series = {}, {}
     for topic, fields in ((topics.INTERFACE_DISPLACEMENT, ('displacement',)),
                           (topics.MEASUREMENT, ('applied', 'displacement', 'force'))):
@@ -286,12 +296,13 @@ def _tracking(bag, fs):
     disp, meas = series[topics.INTERFACE_DISPLACEMENT], series[topics.MEASUREMENT]
     recorded = len(meas['force'])                   # bridge ticks in the bag
     n = int(min(len(disp['displacement']), recorded))
-    desired = disp['displacement'][:n, 0]
-    applied = meas['applied'][:, 0]
+    width = channels or min(disp['displacement'].shape[1], meas['applied'].shape[1])
+    desired = disp['displacement'][:n, :width]
+    applied = meas['applied'][:, :width]
     shift = bagio.delay_steps(bag)  # the command of step k was written at tick k + D
-    applied = np.concatenate([applied[shift:], np.full(shift, np.nan)])[:n]
-    measured = meas['displacement'][:n, 0]
-    ok = np.isfinite(applied) & np.isfinite(measured)
+    applied = np.concatenate([applied[shift:], np.full((shift, width), np.nan)])[:n]
+    measured = meas['displacement'][:n, :width]
+    ok = np.all(np.isfinite(applied) & np.isfinite(measured), axis=1)
     status = read_loop(bag)['status'].get('bridge', {})
     tripped = [k for k, state in zip(status.get('step', []), status.get('safety_state', []),
                                      strict=False) if state != 0]
@@ -414,11 +425,12 @@ def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None,
     compensator = runinfo.section(info, 'compensator')
     sub = run_inputs(bag, numerical)
     if getattr(sub, 'n_interface', 1) > 1 and getattr(sub, 'model', None) is None:
-        raise ValueError(f'{bag}: a run of {sub.n_interface} actuators (numerical model '
-                         f'{numerical.get("model")!r}): rths review rebuilds the one-actuator '
-                         'report (its reference and uncontrolled runs, Tables 5-9 per interface '
-                         'DOF) and not yet this one; rths bench marths --via graph writes its '
-                         'J1-J10 per actuator to summary.json')
+        if specimen_model is not None or dof is not None:
+            raise ValueError(f'{bag}: a run of {sub.n_interface} actuators: its review is per '
+                             'actuator and interface DOF; drop --specimen-model and --dof')
+        # lazy: the several-actuator review imports this module
+        from rths_review.actuators import review_actuators
+        return review_actuators(bag, out_dir, info, fs, sub, stage, limits)
     model = sub.model
     if dof is not None:
         model.output_dof = dof_index(model, dof)
@@ -694,6 +706,10 @@ def review_text(s: dict) -> str:
     """Return the review as text, in the layout of the seed's tables 5-9."""
     if s.get('kind') == 'site':
         return _site_text(s)
+    if s.get('kind') == 'actuators':
+        # lazy: the several-actuator review imports this module
+        from rths_review.actuators import actuators_text
+        return actuators_text(s)
     inch = 0.0254
     lines = [
         f"RTHS review: {s['record']} x {s['scale']}, specimen {specimen_title(s)}, {s['mode']}, "
