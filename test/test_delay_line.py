@@ -39,7 +39,7 @@ def test_identification_through_the_delay_line_lets_the_compensator_absorb_it(tm
     out = tmp_path / 'run'
     # composed: the lock-step history is bit for bit the processes layout's (test_composed),
     # in about half the time
-    rths('run', '--config', config, '--duration', 12, '--ident-duration', 30, '--out', out,
+    rths('run', '--config', config, '--duration', 8, '--ident-duration', 15, '--out', out,
          '--layout', 'composed',
          '--storage', 'sqlite3', timeout=900)
 

@@ -179,8 +179,10 @@ def test_uncompensated_unstable_run_ends_in_the_bridges_safe_abort(tmp_path):
 
 def test_compensated_run_of_the_same_configuration_completes(tmp_path):
     config, out = config_copy(tmp_path / 'config'), tmp_path / 'run'
+    # composed: the lock-step history is bit for bit the processes layout's (test_composed),
+    # in about half the time
     proc = rths('run', '--plant', config / 'plant.yaml', *UNSTABLE, '--config', config,
-                '--out', out, timeout=300)
+                '--layout', 'composed', '--out', out, timeout=300)
     assert 'safety stop' not in proc.stdout and 'ABORTED' not in proc.stdout
     _assert_progress_in_a_log(proc, 'RTHS run', int(DURATION_S * FS))
     summary = json.loads((out / 'summary.json').read_text())

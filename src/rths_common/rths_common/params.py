@@ -54,6 +54,23 @@ NODE_KEYS = {
 #: almost surely in the wrong unit or a typo.
 LOOP_RATE_RANGE_HZ = (1.0, 100_000.0)
 
+#: Most steps one run may have (``duration_s`` x ``fs_hz``): 2**24, 4.5 h at 1024 Hz or 68 min
+#: at 4096 Hz, 134 MB for each per-step float64 array the run holds.  The ranges of the two
+#: alone allowed 1e6 s at 1024 Hz: ~8 GB for one array, allocated before anything could fail.
+MAX_RUN_STEPS = 2 ** 24
+
+
+def check_run_steps(duration_s: float, fs_hz: float, where: str = 'parameter') -> int:
+    """Return the steps of a run of ``duration_s`` at ``fs_hz``; ValueError beyond MAX_RUN_STEPS."""
+    steps = int(round(float(duration_s) * float(fs_hz)))
+    if steps > MAX_RUN_STEPS:
+        raise ValueError(
+            f'{where} duration_s = {duration_s:g} s at fs_hz = {fs_hz:g} Hz is {steps} steps, '
+            f'more than one run holds ({MAX_RUN_STEPS}, {MAX_RUN_STEPS / fs_hz / 3600:.2g} h at '
+            'this rate): split the test into several runs or check the unit (s, not ms)')
+    return steps
+
+
 #: Ranges of the node-level keys (inclusive; ints for an integer parameter).
 NODE_RANGES = {
     'wait_for_subscribers': (0, 64),

@@ -27,6 +27,39 @@ def _as_coefficients(values, name: str) -> np.ndarray:
     return arr
 
 
+class History:
+    """The last ``n`` samples of ``n_channels`` channels in a doubled ring buffer (module doc).
+
+    :meth:`push` writes the newest sample at ``p`` and ``p + n``; :meth:`window` is then
+    the contiguous view ``x_k, x_{k-1}, ..., x_{k-n+1}`` (one row per sample), no copy.
+    """
+
+    def __init__(self, n: int, n_channels: int):
+        self.n = int(n)
+        self.buf = np.zeros((2 * self.n, int(n_channels)))
+        self.p = 0
+
+    def reset(self) -> None:
+        """Forget every sample (all zero)."""
+        self.buf[:] = 0.0
+        self.p = 0
+
+    def window(self) -> np.ndarray:
+        """Return the last ``n`` samples, newest first (a view of the buffer)."""
+        return self.buf[self.p:self.p + self.n]
+
+    def push(self, x) -> np.ndarray:
+        """Write the newest sample ``x`` (one value per channel); return :meth:`window`."""
+        n, p = self.n, self.p - 1
+        if p < 0:
+            p = n - 1
+        self.p = p
+        buf = self.buf
+        buf[p] = x
+        buf[p + n] = x
+        return buf[p:p + n]
+
+
 class CausalFilter:
     """Causal rational filter ``G(z^-1) = B(z^-1)/A(z^-1)`` on one channel, one sample per step.
 
@@ -83,17 +116,13 @@ class MultiChannelFilter:
         self._nb = self.taps.size
         self._na = self.denominator.size - 1
         self._a_rest = np.ascontiguousarray(self.denominator[1:])
-        self._xbuf = np.zeros((2 * self._nb, self.n_channels))
-        self._ybuf = np.zeros((2 * max(self._na, 1), self.n_channels))
-        self._px = 0
-        self._py = 0
+        self._x = History(self._nb, self.n_channels)
+        self._y = History(max(self._na, 1), self.n_channels)
 
     def reset(self) -> None:
         """Return all channels to rest."""
-        self._xbuf[:] = 0.0
-        self._ybuf[:] = 0.0
-        self._px = 0
-        self._py = 0
+        self._x.reset()
+        self._y.reset()
 
     def step(self, x) -> np.ndarray:
         """Feed one sample per channel and return one output per channel."""
@@ -101,26 +130,10 @@ class MultiChannelFilter:
         if x.shape != (self.n_channels,):
             raise ValueError(f'MultiChannelFilter.step expects shape ({self.n_channels},), '
                              f'got {x.shape}')
-        nb = self._nb
-        p = self._px - 1
-        if p < 0:
-            p = nb - 1
-        self._px = p
-        xb = self._xbuf
-        xb[p] = x
-        xb[p + nb] = x
-        y = self.taps @ xb[p:p + nb]
-        na = self._na
-        if na:
-            q = self._py
-            yb = self._ybuf
-            y = y - self._a_rest @ yb[q:q + na]
-            q -= 1
-            if q < 0:
-                q = na - 1
-            yb[q] = y
-            yb[q + na] = y
-            self._py = q
+        y = self.taps @ self._x.push(x)
+        if self._na:
+            y = y - self._a_rest @ self._y.window()
+            self._y.push(y)
         return y
 
     def apply(self, x) -> np.ndarray:
@@ -135,7 +148,7 @@ class CoupledFir:
     The coupled (MIMO) compensator of a multi-actuator rig (the maRTHS benchmark's ``mimo``
     controller, ``rths_bench.marths.design_mimo_fir``): each actuator's command answers
     every actuator's target, so the specimen's coupling between them can be cancelled.
-    Same doubled ring buffer as :class:`MultiChannelFilter`; one matrix-vector product
+    The same :class:`History` as :class:`MultiChannelFilter`; one matrix-vector product
     (N x N n) per step.
     """
 
@@ -150,8 +163,7 @@ class CoupledFir:
         self.n_channels, _, self._nb = t.shape
         # W[i, j N + l] = taps[i, l, j]: the history rows x_k, x_k-1, ... flattened
         self._w = np.ascontiguousarray(t.transpose(0, 2, 1).reshape(self.n_channels, -1))
-        self._xbuf = np.zeros((2 * self._nb, self.n_channels))
-        self._px = 0
+        self._x = History(self._nb, self.n_channels)
 
     @classmethod
     def from_flat(cls, values, n_channels: int, where: str = 'coupled_taps') -> 'CoupledFir':
@@ -166,20 +178,11 @@ class CoupledFir:
 
     def reset(self) -> None:
         """Return to rest."""
-        self._xbuf[:] = 0.0
-        self._px = 0
+        self._x.reset()
 
     def step(self, x) -> np.ndarray:
         """Feed one target per channel and return one command per channel."""
         x = np.asarray(x, dtype=float)
         if x.shape != (self.n_channels,):
             raise ValueError(f'CoupledFir.step expects shape ({self.n_channels},), got {x.shape}')
-        nb = self._nb
-        p = self._px - 1
-        if p < 0:
-            p = nb - 1
-        self._px = p
-        xb = self._xbuf
-        xb[p] = x
-        xb[p + nb] = x
-        return self._w @ xb[p:p + nb].reshape(-1)
+        return self._w @ self._x.push(x).reshape(-1)

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from rths_common.params import LOOP_RATE_RANGE_HZ
+from rths_common.params import check_run_steps, LOOP_RATE_RANGE_HZ
 
 from .signals import blwn
 from .stepping import SteppedSubstructure
@@ -103,6 +103,7 @@ def make_excitation(params: dict) -> PrescribedExcitation:
         if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
             raise ValueError(f'parameter {key} = {value!r} must be a positive number')
     fs = float(p['fs_hz'])
+    check_run_steps(p['duration_s'], fs)
     x = blwn(float(p['duration_s']), fs, float(p['excitation_band_hz']),
              float(p['excitation_peak_m']), rng=int(p['seed']), taper_s=float(p['taper_s']))
     return PrescribedExcitation(x, 1.0 / fs)

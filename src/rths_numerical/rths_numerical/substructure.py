@@ -56,7 +56,7 @@ from typing import Any
 
 import numpy as np
 
-from rths_common.params import LOOP_RATE_RANGE_HZ, node_schema
+from rths_common.params import check_run_steps, LOOP_RATE_RANGE_HZ, node_schema
 
 from .building import BUILDING_MASS_KG, building_16dof
 from .dtm import FRAME_MASS_KG, SEED_CONFIGURATION, TABLE4
@@ -395,6 +395,8 @@ def make_substructure(params: dict, model: Any = None, motion=None) -> SteppedSu
     scale = _num(params, 'scale', positive=False)
     duration = params.get('duration_s')
     duration = None if duration in (None, 0, 0.0) else _num(params, 'duration_s')
+    if duration is not None:
+        check_run_steps(duration, fs)
     dt = 1.0 / fs
     if record == 'harmonic':
         f_h = params.get('harmonic_freq_hz')

@@ -157,3 +157,21 @@ def test_two_interface_dofs_reproduce_the_whole_numerical_model(integrator):
                             for i in range(3))
     assert errors['right'] < 1.0
     assert errors['swapped'] > 100.0
+
+
+@pytest.mark.parametrize('params', [
+    {'model': 'sdof', 'record': 'none', 'fs_hz': 1024.0, 'duration_s': 999_999.0},
+    {'model': 'excitation', 'fs_hz': 4096.0, 'duration_s': 5000.0},
+])
+def test_a_run_longer_than_one_run_holds_is_refused_before_it_is_built(params):
+    # 999 999 s lies in duration_s's range, but at 1024 Hz one float64 array is ~8 GB
+    with pytest.raises(ValueError, match=r'duration_s = .* steps, more than one run holds'):
+        make_substructure(params)
+
+
+def test_the_longest_run_allowed_is_its_steps():
+    from rths_common.params import check_run_steps, MAX_RUN_STEPS
+
+    assert check_run_steps(MAX_RUN_STEPS / 1024.0, 1024.0) == MAX_RUN_STEPS   # (not built: 1 GB)
+    with pytest.raises(ValueError, match='split the test into several runs'):
+        check_run_steps((MAX_RUN_STEPS + 1) / 1024.0, 1024.0)
