@@ -81,9 +81,8 @@ async def _client(port, topic='/rths/measurement'):
         return channels, received, closed, ws.subprotocol
 
 
-def test_replay_live_is_seen_by_a_foxglove_websocket_client(tmp_path):
-    bag = tmp_path / 'bag'
-    _write_bag(bag)
+def _replay_live(bag):
+    """``rths replay BAG --live`` seen by :func:`_client`; its results and the output."""
     port = _free_port()
     proc = subprocess.Popen([rths_executable(), 'replay', str(bag), '--live', '--port',
                              str(port)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
@@ -92,11 +91,18 @@ def test_replay_live_is_seen_by_a_foxglove_websocket_client(tmp_path):
         for line in proc.stdout:                      # the server is up before the replay
             if line.startswith('live view: serving'):
                 break
-        channels, received, closed, subprotocol = asyncio.run(_client(port))
+        seen = asyncio.run(_client(port))
         out = line + proc.stdout.read()
         assert proc.wait(30) == 0, out
     finally:
         proc.kill()
+    return (*seen, out)
+
+
+def test_replay_live_is_seen_by_a_foxglove_websocket_client(tmp_path):
+    bag = tmp_path / 'bag'
+    _write_bag(bag)
+    channels, received, closed, subprotocol, out = _replay_live(bag)
     assert subprotocol == 'foxglove.websocket.v1'
     assert {'/rths/interface_displacement', '/rths/command', '/rths/measurement',
             '/rths/status', '/rths/live'} <= set(channels)
@@ -116,19 +122,7 @@ def test_replay_live_of_two_actuators_shows_each(tmp_path):
     """A bag of a two-actuator rig: /rths/live carries both actuators, each paired by step."""
     bag = tmp_path / 'bag'
     _write_bag(bag, n_actuators=2)
-    port = _free_port()
-    proc = subprocess.Popen([rths_executable(), 'replay', str(bag), '--live', '--port',
-                             str(port)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, env=graph_env())
-    try:
-        for line in proc.stdout:
-            if line.startswith('live view: serving'):
-                break
-        _, received, closed, _ = asyncio.run(_client(port))
-        out = line + proc.stdout.read()
-        assert proc.wait(30) == 0, out
-    finally:
-        proc.kill()
+    _, received, closed, _, _ = _replay_live(bag)
     live = [json.loads(m) for m in received[1]]
     both = [m for m in live if m.get('n_actuators') == 2]
     assert both and all(len(m['actuators']) == 2 for m in both)

@@ -510,7 +510,7 @@ def read_identification(bag, loop: bool = True):
     return t, command[:, 0], measured[:, 0]
 
 
-def read_identification_channels(bag, loop: bool = True, channels: int = None):
+def read_identification_channels(bag, loop: bool = True, channels: int | None = None):
     """``(time [s], commands [m], measured [m])``, one column per actuator, of a bag.
 
     As :func:`read_identification` (the same pairing of command and measurement), for

@@ -26,13 +26,10 @@ from rths_common import runinfo
 from rths_common.rig import load_rig
 from rths_review import plots
 from rths_review.report_html import notes, write_report
-from rths_review.review import (
-    REALTIME_KEYS,
+from rths_review.tracking import (
     REVIEW_STAGES,
     bridge_realtime,
-    controller_counts,
-    recording_summary,
-    review_text,
+    run_account,
     table5_of,
     tracking_channels,
 )
@@ -134,7 +131,6 @@ def review_actuators(bag, out_dir, info: dict, fs: float, sub, stage, limits=Non
         interface_max = {'force_n': float(np.max(np.abs(pose['forces'][:, 0]))),
                          'moment_n_m': float(np.max(np.abs(pose['forces'][:, 1])))}
     stage(2, REVIEW_STAGES)
-    bridge_steps = max(len(status.get('step', [])), 1)
     summary = {
         'kind': 'actuators', 'record': numerical.get('record'), 'scale': numerical.get('scale'),
         'mode': info.get('mode'), 'fs_hz': fs, 'steps': n, 'duration_s': n / fs,
@@ -144,18 +140,8 @@ def review_actuators(bag, out_dir, info: dict, fs: float, sub, stage, limits=Non
         'n_actuators': n_act, 'rig': rig['rig_name'], 'rig_source': rig['source'],
         'actuators': actuators, 'interface': interface, 'interface_max': interface_max,
         'tables_6_9': NO_TABLES_6_9,
-        'deadline_misses': int(status.get('misses', 0)),
-        'deadline_miss_pct': 100.0 * status.get('misses', 0) / bridge_steps,
-        'safety_faults': status.get('faults', []),
-        'planned_steps': int(sub.n_steps), 'recorded_steps': recorded,
-        'cut_short': recorded < sub.n_steps,
-        **recording_summary(recording, kept),
+        **run_account(bag, status, sub.n_steps, recorded, recording, kept, timing),
     }
-    if timing is not None:
-        summary.update({key: timing[key] for key in REALTIME_KEYS})
-    counts = controller_counts(bag)
-    if counts is not None:
-        summary['controller'] = counts
     figures = []
     for i, name in enumerate(rig['names']):
         label = f'actuator {i + 1}' + (f' ({name})' if name != f'actuator {i + 1}' else '')
@@ -174,7 +160,7 @@ def review_actuators(bag, out_dir, info: dict, fs: float, sub, stage, limits=Non
                         'the node'))
     summary['plots'] = [list(f) for f in figures]
     (out_dir / 'summary.json').write_text(json.dumps(summary, indent=2))
-    (out_dir / 'review.txt').write_text(review_text(summary))
+    (out_dir / 'review.txt').write_text(actuators_text(summary))
     stage(3, REVIEW_STAGES)
     write_report(out_dir, summary)
     stage(4, REVIEW_STAGES)
