@@ -17,6 +17,12 @@ from .schemes import SCHEMES, designed
 # Imports of the commands' code sit in the command functions: rths imports this module
 # to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
+#: Defaults of the coupled N x N FIR (``rths design`` of an ``rths identify --channels`` plant):
+#: the maRTHS benchmark's ``mimo`` controller (``rths_bench.marths.identify_mimo``).
+COUPLED_DEFAULTS = {'n_taps': 48, 'fc_hz': 30.0, 'lowpass_hz': 100.0, 'stop_weight': 0.03,
+                    'gain_weight': 1e-3}
+#: The coupled FIR's options without a flag of their own (``--option KEY=VALUE``).
+COUPLED_OPTIONS = ('lowpass_hz', 'stop_weight', 'gain_weight')
 #: What a design reports beside its options, kept in the provenance.
 DESIGN_RESULTS = ('a_tilde', 'model', 'q', 'solver', 'auto_score', 'bandwidth_hz')
 #: Design option -> the ``rths design`` argument that gives it (``--option KEY=VALUE`` gives
@@ -134,8 +140,9 @@ def register(commands, benches):
                         'loads folded into the ARX; other effects refused)')
     p.add_argument('--scheme', default=None, choices=designed(),
                    help=f'compensator scheme ({DD["scheme"]})')
-    p.add_argument('--taps', type=int, default=DD['n_taps'],
-                   help=f'FIR length n of H ({DD["n_taps"]})')
+    p.add_argument('--taps', type=int, default=None,
+                   help=f'FIR length n of H ({DD["n_taps"]}; an N x N plant: '
+                        f'{COUPLED_DEFAULTS["n_taps"]} per pair)')
     p.add_argument('--fc', type=float, default=None,
                    help=f'FIR passband edge fc [Hz] (default {DD["fc_hz"]:g}, the seed\'s; '
                         f'{LONG_DEAD_TIME_FC_HZ:g} for a plant whose dead time is '
@@ -541,6 +548,10 @@ def cmd_design(args) -> int:
     from ._blas import limit_blas_threads
     from .identification import load_plant
     limit_blas_threads(1)
+    if _coupled_plant(args.plant):
+        return _design_coupled(args)
+    if args.taps is None:
+        args.taps = dsg.DESIGN_DEFAULTS['n_taps']
     plant = load_plant(args.plant)
     _snap_plant_rate(plant, args.plant)
     zero_tol = 1.0 if args.zero_tol is None else args.zero_tol
@@ -560,6 +571,77 @@ def cmd_design(args) -> int:
     else:
         make, band_of, adapt = _design_one(args, plant, scheme, zero_tol)
     return _assess_and_write(args, plant, make, band_of, adapt)
+
+
+def _coupled_plant(path) -> bool:
+    """Tell whether the plant file ``path`` holds an N x N plant (``kind: state_space``)."""
+    import os
+
+    from rths_common import yamlfile
+    if not os.path.isfile(path):
+        return False                  # load_plant says what is missing
+    data = yamlfile.load(path)
+    return isinstance(data, dict) and data.get('kind') == 'state_space'
+
+
+#: ``rths design`` options of one actuator's design, refused for an N x N plant (flag: default).
+SINGLE_DESIGN_OPTIONS = {'scheme': None, 'epsilon': None, 'zero_tol': None, 'gain_weight': None,
+                         'delay_ms': None, 'auto': False, 'bandwidth': None, 'alpha': 7.0,
+                         'mff_model': '3pole'}
+
+
+def _design_coupled(args) -> int:
+    """``rths design`` of an N x N plant: the coupled FIR (``coupled_taps``)."""
+    import numpy as np
+
+    from rths_common import yamlfile
+
+    from . import multichannel as mc
+    from .params import check_filter_cost, write_compensator_params
+    for name, default in SINGLE_DESIGN_OPTIONS.items():
+        if getattr(args, name) != default:
+            flag = '--' + name.replace('_', '-')
+            raise ValueError(f'{flag} belongs to one actuator\'s design; {args.plant} is an '
+                             'N x N plant: its coupled FIR takes --taps, --fc and --option '
+                             f'{"/".join(COUPLED_OPTIONS)}=VALUE')
+    doc = yamlfile.load(args.plant)
+    model = mc.model_from_dict(doc, args.plant)
+    n = model.b.shape[1]
+    if model.c.shape[0] != n:
+        raise ValueError(f'{args.plant}: {model.c.shape[0]} measured channels for {n} commands; '
+                         'a coupled FIR needs one of each per actuator')
+    opts = dict(COUPLED_DEFAULTS)
+    opts.update({k: v for k, v in (('n_taps', args.taps), ('fc_hz', args.fc)) if v is not None})
+    opts.update(_options(args.option, COUPLED_OPTIONS))
+    n_taps, fs = int(opts['n_taps']), model.fs_hz
+    if n_taps < 1:
+        raise ValueError(f'--taps must be >= 1, got {n_taps}')
+    for key in ('fc_hz', 'lowpass_hz'):
+        if not 0 < float(opts[key]) < fs / 2:
+            raise ValueError(f'{key} = {opts[key]}: give a frequency in (0, fs/2 = {fs / 2:g}) Hz')
+    check_filter_cost(n * n_taps, fs, f'--taps {n_taps} for {n} actuators')
+    taps = mc.design_coupled_fir(model.freq_resp, fs, n_taps, float(opts['fc_hz']),
+                                 float(opts['lowpass_hz']), float(opts['stop_weight']),
+                                 float(opts['gain_weight']))
+    pred = mc.coupled_prediction(model, taps, float(opts['lowpass_hz']), args.band)
+    if not np.all(np.isfinite(taps)):
+        raise ValueError(f'{args.plant}: the design gave non-finite taps; nothing written')
+    provenance = dict({k: float(v) for k, v in opts.items()}, plant=os.path.abspath(args.plant),
+                      n_actuators=n, **{k: v for k, v in pred.items()
+                                        if isinstance(v, (int, float))})
+    write_compensator_params(args.out, [1.0], [1.0], fs, 'ls', provenance,
+                             coupled_taps=taps)
+    print(f'coupled FIR: {n} x {n} actuators, n={n_taps} taps per pair, fc {opts["fc_hz"]:g} Hz, '
+          f'target low-pass {opts["lowpass_hz"]:g} Hz (order 4)')
+    print(f'predicted on the plant model over 0-{args.band:g} Hz: tracking error |(P G)_ii - L| '
+          f'up to {pred["tracking_error_pct"]:.2f} % of L, cross-coupling up to '
+          f'{pred["residual_coupling_pct"]:.2f} % of the diagonal (uncompensated '
+          f'{pred["plant_coupling_pct"]:.2f} %), compensator gain up to '
+          f'{pred["gain_peak"]:.3g} (at {pred["gain_peak_hz"]:.4g} Hz)')
+    print('limits: the bridge checks every actuator\'s command and the interface pose before '
+          'it is written (this design is not checked against them here)')
+    print(f'wrote {args.out}')
+    return 0
 
 
 def _design_auto(args, plant, zero_tol):

@@ -391,6 +391,93 @@ def cross_coupling(model: MimoModel, band_hz: float, n_freq: int = 400) -> dict:
             'peak_rel': (peak / diag_pk).round(5).tolist()}
 
 
+# ----------------------------------------------------------------------------- the design
+def design_coupled_fir(freq_resp, fs_hz: float, n_taps: int, fc_hz: float, lowpass_hz: float,
+                       stop_weight: float = 0.1, gain_weight: float = 1e-3) -> np.ndarray:
+    """Least-squares N x N FIR ``G`` with ``P G`` close to ``L I`` (L an order-4 low-pass).
+
+    ``freq_resp(f)`` gives the plant's N x N response at frequencies ``f`` [Hz] (shape
+    f x N x N, e.g. :meth:`MimoModel.freq_resp`).  The error ``P G - L I`` weighs 1 up to
+    ``fc_hz`` and ``stop_weight`` above; ``|G|`` above ``fc_hz`` weighs ``gain_weight`` (it
+    bounds the high-frequency gain, which the RTHS loop feeds back through the specimen's
+    inertia); ``L`` is :func:`rths_compensator.design.target_lowpass` at ``lowpass_hz``.
+    Returns the taps (N x N x ``n_taps``): ``taps[i, l]`` maps target l to command i, the
+    layout of :class:`rths_compensator.filters.CoupledFir` (``coupled_taps``).  One least-
+    squares problem per target l (its column of ``G``).
+    """
+    from .design import target_lowpass
+
+    f = np.linspace(0.0, fs_hz / 2, 513)
+    z1 = np.exp(-2j * np.pi * f / fs_hz)
+    p = freq_resp(f)
+    n = p.shape[1]
+    gain, a_l = target_lowpass(4, lowpass_hz, fs_hz)
+    ell = gain / np.polyval(a_l[::-1], z1)
+    e = z1[:, None] ** np.arange(n_taps)[None, :]
+    w = np.where(f <= fc_hz, 1.0, stop_weight)
+    reg = np.where(f > fc_hz, gain_weight, 0.0)[:, None] * e
+    zero = np.zeros_like(e)
+    taps = np.zeros((n, n, n_taps))
+    for j in range(n):
+        # unknowns: the taps of G[c, j] for every command c, one block each
+        rows = [w[:, None] * np.hstack([p[:, i, c, None] * e for c in range(n)])
+                for i in range(n)]
+        rhs = [w * (ell if i == j else 0.0 * ell) for i in range(n)]
+        rows += [np.hstack([reg if c == k else zero for c in range(n)]) for k in range(n)]
+        rhs += [np.zeros(f.size)] * n
+        a = np.vstack(rows)
+        b = np.concatenate(rhs)
+        sol = np.linalg.lstsq(np.vstack([a.real, a.imag]), np.concatenate([b.real, b.imag]),
+                              rcond=None)[0]
+        for c in range(n):
+            taps[c, j] = sol[c * n_taps:(c + 1) * n_taps]
+    return taps
+
+
+def coupled_response(model_resp, taps, f_hz, fs_hz: float) -> np.ndarray:
+    """Return ``P(f) G(f)`` (f x N x N): the compensated loop of plant response ``model_resp``."""
+    z1 = np.exp(-2j * np.pi * np.asarray(f_hz, float) / fs_hz)
+    g = np.einsum('ilk,fk->fil', np.asarray(taps, float),
+                  z1[:, None] ** np.arange(np.shape(taps)[2])[None, :])
+    return np.einsum('fij,fjl->fil', model_resp, g)
+
+
+def coupled_prediction(model: MimoModel, taps, lowpass_hz: float, band_hz: float) -> dict:
+    """Predicted figures of the coupled FIR ``taps`` on the plant ``model`` over the band.
+
+    ``tracking_error_pct``: the largest ``|(P G)_ii - L|`` as % of ``|L|`` (L the design's
+    target low-pass); ``residual_coupling_pct``: the largest ``|(P G)_ij| / |(P G)_ii|``
+    (i != j) in %; ``plant_coupling_pct`` the same of the plant alone; ``gain_peak`` and
+    ``gain_peak_hz``: the compensator's largest element gain up to fs/2 and where.
+    """
+    from .design import target_lowpass
+
+    fs = model.fs_hz
+    f = np.linspace(0.0, float(band_hz), 200)
+    p = model.freq_resp(f)
+    loop = coupled_response(p, taps, f, fs)
+    gain, a_l = target_lowpass(4, lowpass_hz, fs)
+    ell = gain / np.polyval(a_l[::-1], np.exp(-2j * np.pi * f / fs))
+    n = p.shape[1]
+    diag = np.stack([loop[:, i, i] for i in range(n)], axis=1)
+    off = ~np.eye(n, dtype=bool)
+
+    def coupling(m):
+        d = np.abs(np.stack([m[:, i, i] for i in range(n)], axis=1))[:, :, None]
+        return float(100.0 * np.max(np.abs(m)[:, off] / np.broadcast_to(d, m.shape)[:, off]))
+
+    f_all = np.linspace(0.0, fs / 2, 513)
+    g = np.abs(coupled_response(np.broadcast_to(np.eye(n), (f_all.size, n, n)), taps, f_all,
+                                fs))
+    k = int(np.argmax(np.max(g, axis=(1, 2))))
+    return {'band_hz': float(band_hz),
+            'tracking_error_pct': float(100.0 * np.max(np.abs(diag - ell[:, None])
+                                                       / np.abs(ell)[:, None])),
+            'residual_coupling_pct': coupling(loop) if n > 1 else 0.0,
+            'plant_coupling_pct': coupling(p) if n > 1 else 0.0,
+            'gain_peak': float(np.max(g)), 'gain_peak_hz': float(f_all[k])}
+
+
 # ----------------------------------------------------------------------------- one record
 #: Largest |correlation| between two commands the identification takes without a warning:
 #: beyond it the record cannot tell one actuator's effect from another's.
@@ -420,8 +507,8 @@ def identify_record(u, y, fs_hz: float, validation_fraction: float = 1.0 / 3.0,
     if min(split, u.shape[0] - split) < 2 * int(horizon) + 10:
         raise ValueError(f'{u.shape[0]} samples are too few for a horizon of {horizon} '
                          'samples on both the training and the held-out part; record longer')
-    band = float(band_hz) if band_hz else max(excited_band_hz(u[:, j], fs_hz)
-                                               for j in range(n_ch))
+    band = (float(band_hz) if band_hz
+            else max(excited_band_hz(u[:, j], fs_hz) for j in range(n_ch)))
     if not 0.0 < band <= fs_hz / 2:
         raise ValueError(f'band {band:g} Hz must lie in (0, fs/2 = {fs_hz / 2:g}] Hz')
     train, val = [(u[:split], y[:split])], [(u[split:], y[split:])]

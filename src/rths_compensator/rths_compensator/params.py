@@ -36,6 +36,7 @@ from rths_common.files import atomic_open
 from rths_common.params import LOOP_RATE_RANGE_HZ, node_schema
 from rths_common.timebase import format_hz, same_rate
 
+from .filters import CoupledFir
 from .methods import DEFAULT as DEFAULT_METHOD
 from .methods import METHODS
 from .schemes import SCHEMES
@@ -240,17 +241,22 @@ def compensator_params_from(doc, path) -> dict:
     return params
 
 
-def write_compensator_params(path, taps, denominator, fs_hz, scheme, provenance=None) -> str:
+def write_compensator_params(path, taps, denominator, fs_hz, scheme, provenance=None,
+                             coupled_taps=None) -> str:
     """Validate and atomically write a compensator parameters file; return its path.
 
     ``provenance`` maps names to scalars/strings (plant, n_taps, fc_hz, epsilon,
     predicted_delay_ms, ...); ``created`` (ISO time, UTC) is added if absent.
+    ``coupled_taps`` (N x N x n, several actuators): the coupled FIR the node runs
+    instead of ``taps`` (:class:`rths_compensator.filters.CoupledFir`).
     Nothing is written if validation fails.
     """
     path = os.fspath(path)
     b, a, fs = _check(path, taps, denominator, fs_hz, scheme)
     params = {'scheme': str(scheme), 'fs_hz': fs,
               'taps': [float(v) for v in b], 'denominator': [float(v) for v in a]}
+    if coupled_taps is not None:
+        params['coupled_taps'] = [float(v) for v in CoupledFir(coupled_taps).taps.ravel()]
     prov = dict(provenance or {})
     prov.setdefault('created', datetime.datetime.now(datetime.timezone.utc).isoformat(
         timespec='seconds'))
