@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from rths_common.params import check_run_steps, LOOP_RATE_RANGE_HZ
+from rths_common.params import LOOP_RATE_RANGE_HZ, check_run_steps
 
 from .signals import blwn
 from .stepping import SteppedSubstructure

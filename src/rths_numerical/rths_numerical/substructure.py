@@ -56,7 +56,7 @@ from typing import Any
 
 import numpy as np
 
-from rths_common.params import check_run_steps, LOOP_RATE_RANGE_HZ, node_schema
+from rths_common.params import LOOP_RATE_RANGE_HZ, check_run_steps, node_schema
 
 from .building import BUILDING_MASS_KG, building_16dof
 from .dtm import FRAME_MASS_KG, SEED_CONFIGURATION, TABLE4

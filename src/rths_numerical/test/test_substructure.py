@@ -170,7 +170,7 @@ def test_a_run_longer_than_one_run_holds_is_refused_before_it_is_built(params):
 
 
 def test_the_longest_run_allowed_is_its_steps():
-    from rths_common.params import check_run_steps, MAX_RUN_STEPS
+    from rths_common.params import MAX_RUN_STEPS, check_run_steps
 
     assert check_run_steps(MAX_RUN_STEPS / 1024.0, 1024.0) == MAX_RUN_STEPS   # (not built: 1 GB)
     with pytest.raises(ValueError, match='split the test into several runs'):
