@@ -330,3 +330,31 @@ def test_design_of_the_identified_plant_writes_a_coupled_fir(identified, tmp_pat
         _run(['design', '--plant', str(plant), '--scheme', 'ls', '--out', str(comp)])
     with pytest.raises(ValueError, match='--option n_taps=4: give KEY=VALUE with KEY one of'):
         _run(['design', '--plant', str(plant), '--option', 'n_taps=4', '--out', str(comp)])
+
+
+def test_identify_reads_the_bag_of_a_two_actuator_run(tmp_path, capsys):
+    """``--bag`` of a run with two actuators: each step's applied commands and strokes."""
+    from rths_common import cdr, topics
+    from rths_common.bagio import BagWriter
+
+    rng = np.random.default_rng(9)
+    u = mc.excitation('multisine', 2, 12.0, FS, 40.0, 3e-3, rng)      # [m]
+    y = _plant(u) + NOISE * 1e-3 * rng.standard_normal(u.shape)      # the noise in m
+    t0 = 1_800_000_000_000_000_000
+    with BagWriter(tmp_path / 'bag', topics.LOOP_TOPICS,
+                   run_info={'kind': 'rths', 'fs_hz': FS}) as bag:
+        for k in range(u.shape[0]):
+            stamp = t0 + int(k * 1e9 / FS)
+            bag.write(topics.MEASUREMENT, stamp, cdr.pack_step_arrays(
+                stamp, k, u[k], y[k], np.zeros(2)))
+    out = tmp_path / 'plant2.yaml'
+    assert _run(['identify', '--bag', str(tmp_path / 'bag'), '--channels', '2', '--no-plot',
+                 '--out', str(out)]) == 0
+    model = mc.model_from_dict(yaml.safe_load(out.read_text()))
+    dc = np.array(DC)
+    assert np.max(np.abs(model.dc_gain() - dc) / np.abs(np.diag(dc))[:, None]) < 0.01
+    assert 'command 2 -> actuator 1: 15.' in capsys.readouterr().out
+    with pytest.raises(ValueError, match='bag holds 2 actuator channels, not 3; give '
+                                         '--channels 2'):
+        _run(['identify', '--bag', str(tmp_path / 'bag'), '--channels', '3',
+              '--out', str(tmp_path / 'p3.yaml')])
