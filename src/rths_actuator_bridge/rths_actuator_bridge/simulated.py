@@ -554,6 +554,12 @@ class SimulatedPlant:
                              'needs rths_compensator.identification, which is not available; '
                              "use '3pole' or '4pole'") from None
         model = load_plant(path)
+        if model.loads:   # an updated model's non-linear loads: the lab cannot drop them
+            raise ValueError(f"parameter 'actuator_model' = {path!r} holds the loads "
+                             f'{", ".join(model.loads)} (an updated model of rths '
+                             'discrepancy): the ARX lab has no servo-loop load; hide a load '
+                             'with the actuator_* keys (actuator_friction_m, '
+                             'actuator_cubic_load_1_m2) on the 3pole/4pole lab instead')
         if not same_rate(model.fs_hz, self.config.fs_hz):
             raise ValueError(f'ARX plant {path}: fs_hz {model.fs_hz} differs from the loop '
                              f"fs_hz {self.config.fs_hz}; set 'fs_hz' to {model.fs_hz}")

@@ -122,16 +122,17 @@ SPECIMEN_CASES = (
 def _refused_by_design(named: str):
     """Return why ``rths design`` refuses an updated actuator model with ``named``, or None.
 
-    The compensator designs on a linear ARX plant: the effects it cannot fold in
-    (:mod:`rths_compensator.plant_effects`) are refused with this message, never dropped,
-    so such a case has no re-run (its row says why).
+    The compensator designs on a linear ARX plant: the effects it can neither fold in nor
+    apply as its load feed-forward (:mod:`rths_compensator.plant_effects`) are refused with
+    this message, never dropped, so such a case has no re-run (its row says why).
     """
     # lazy: this module is imported to build rths's parser (see the note above)
-    from rths_compensator.plant_effects import fold_effects
+    from rths_compensator.plant_effects import fold_effects, split_effects
 
     try:
-        fold_effects([1.0, -0.5], [0.5], 1, 1024.0,
-                     {name: 1e-3 for name in named.split('+')}, where='updated_model.yaml')
+        foldable, _ = split_effects({name: 1e-3 for name in named.split('+')},
+                                    where='updated_model.yaml')
+        fold_effects([1.0, -0.5], [0.5], 1, 1024.0, foldable, where='updated_model.yaml')
     except ValueError as err:
         return str(err)
     return None

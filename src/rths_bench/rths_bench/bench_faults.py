@@ -354,7 +354,7 @@ def bag_side(bag, fs_hz: float, limits: dict) -> dict:
 
 
 def loss_before_kill(result: dict, bridge_timing: Path) -> dict:
-    """Return ``loss_before_kill_ms``: what the loop produced before the kill and the bag lacks.
+    """Return ``loss_before_kill_ms``: what of the loop's output before the kill the bag lacks.
 
     The span from the last bridge tick in the bag to the last tick the loop
     produced before the kill (``last_produced_before_kill_ns``).  A killed

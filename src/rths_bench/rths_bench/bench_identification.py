@@ -19,6 +19,16 @@ bridge parameter, the command's figure and the bound, and which command: ``refer
 design whose command exceeds a limit is redesigned with more weight on its own gain
 (:func:`rths_compensator.assessment.design_within_limits`, ``adapted_to_limits``); the
 summary and the issue's targets follow.
+
+``--held-out N`` runs N labs drawn at random (``--seed``) in the ranges of issue 32's
+held-out target instead (:data:`HELD_OUT`: any rate 1024-2000 Hz, dead time 9-14 ms,
+noise 0.5-1 %, 2-4 poles), each as a lab does it: the record written as a DAQ CSV
+(``Time (s),Cmd (mm),Disp (mm)``, time to 6 decimals), then ``rths identify --csv F
+--columns 0,1,2 --out P`` and ``rths design --plant P --out C`` through the command
+line with their defaults, and the taps of C tracked through the true actuator.  Per lab:
+the case fields above plus ``n_poles``, ``fs_identified_hz`` and ``command_ratio_sine`` /
+``command_ratio_noise``; targets: tracking <= 0.5 % on both signals and the command peak
+<= 1.5x the desired.
 """
 
 import json
@@ -37,6 +47,13 @@ NOISE_PCT = (0.0, 0.5, 1.0, 2.0)
 RECORD_S = 60.0
 BAND_HZ = 40.0
 PEAK_M = 0.005
+
+
+#: Ranges of issue 32's held-out labs: rate [Hz], dead time [s], noise [% of the output RMS].
+HELD_OUT = {'fs_hz': (1024.0, 2000.0), 'delay_s': (0.009, 0.014), 'noise_pct': (0.5, 1.0)}
+#: Held-out targets: tracking through the true actuator [%] and command peak / desired peak.
+HELD_OUT_TRACKING_PCT = 0.5
+HELD_OUT_COMMAND_RATIO = 1.5
 
 
 def _log(msg):
@@ -194,6 +211,102 @@ def run(limits, seed: int = 32, only=None, progress=None) -> dict:
                       'seed': seed, 'machine_load': os.getloadavg()[0]}}
 
 
+def held_out_labs(n: int, seed: int) -> list:
+    """Draw ``n`` labs in the :data:`HELD_OUT` ranges (an integer rate, 2-4 poles)."""
+    rng = np.random.default_rng(seed)
+    return [{'fs_hz': float(round(rng.uniform(*HELD_OUT['fs_hz']))),
+             'delay_s': round(float(rng.uniform(*HELD_OUT['delay_s'])), 5),
+             'noise_pct': round(float(rng.uniform(*HELD_OUT['noise_pct'])), 3),
+             'n_poles': int(rng.integers(2, 5)), 'seed': seed * 1000 + i} for i in range(n)]
+
+
+def run_lab(lab: dict, workdir) -> dict:
+    """One held-out lab through ``rths identify`` and ``rths design`` (module doc); its row."""
+    from pathlib import Path
+
+    import yaml
+
+    from rths_bringup.cli import main as rths
+    from rths_compensator.params import load_compensator_params
+    from rths_compensator.synthetic import (
+        identification_record,
+        random_actuator,
+        tracking,
+        tracking_signals,
+    )
+
+    work = Path(workdir)
+    work.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(lab['seed'])
+    act = random_actuator(rng, lab['fs_hz'], lab['delay_s'], lab['n_poles'])
+    t, u, y = identification_record(act, RECORD_S, BAND_HZ, PEAK_M, lab['noise_pct'], rng)
+    csv = work / 'daq.csv'
+    np.savetxt(csv, np.column_stack([t, 1e3 * u, 1e3 * y]), fmt=['%.6f', '%.6f', '%.6f'],
+               delimiter=',', header='Time (s),Cmd (mm),Disp (mm)', comments='')
+    plant, taps_file = work / 'plant.yaml', work / 'compensator.yaml'
+    row = {k: lab[k] for k in ('fs_hz', 'delay_s', 'noise_pct', 'n_poles')}
+    code = rths(['identify', '--csv', str(csv), '--columns', '0,1,2', '--out', str(plant),
+                 '--no-plot', '--quiet'])
+    code = code or rths(['design', '--plant', str(plant), '--out', str(taps_file)])
+    row['refused'] = bool(code)
+    if code:
+        return row
+    info = yaml.safe_load(plant.read_text())
+    row['fs_identified_hz'] = info.get('fs_hz')
+    row['model'] = {k: info.get(k) for k in ('na', 'nb', 'd')}
+    row['validation_nrmse_pct'] = round(float(
+        info.get('selection', {}).get('validation', {}).get('nrmse_pct', np.nan)), 4)
+    comp = load_compensator_params(taps_file)
+    for name, x in tracking_signals(lab['fs_hz']).items():
+        tr = tracking(act, comp['taps'], comp.get('denominator', [1.0]), x)
+        row[f'tracking_{name}_pct'] = round(tr['tracking_pct'], 4)
+        row[f'command_ratio_{name}'] = round(tr['command_ratio'], 4)
+    return row
+
+
+def run_held_out(n: int, seed: int, workdir, progress=None) -> dict:
+    """Run ``n`` held-out labs; return the JSON document with the targets."""
+    from pathlib import Path
+
+    rows = []
+    for i, lab in enumerate(held_out_labs(n, seed)):
+        row = run_lab(lab, Path(workdir) / f'lab{i}')
+        rows.append(row)
+        _log(f"  lab {i}: {row['fs_hz']:.0f} Hz, {1e3 * row['delay_s']:.2f} ms, "
+             f"{row['noise_pct']} %, {row['n_poles']} poles: "
+             + ('REFUSED' if row['refused'] else
+                f"{row['model']}, tracking {row['tracking_sine_pct']} / "
+                f"{row['tracking_noise_pct']} %, command x{row['command_ratio_sine']} / "
+                f"x{row['command_ratio_noise']}"))
+        if progress is not None:
+            progress(i + 1, n)
+    done = [r for r in rows if not r['refused']]
+    worst_tracking = max((max(r['tracking_sine_pct'], r['tracking_noise_pct']) for r in done),
+                         default=None)
+    worst_ratio = max((max(r['command_ratio_sine'], r['command_ratio_noise']) for r in done),
+                      default=None)
+    targets = [
+        {'name': f'tracking through the true actuator <= {HELD_OUT_TRACKING_PCT} % (1+5 Hz '
+                 'sine and 0-10 Hz noise), every lab', 'measured': worst_tracking,
+         'limit': HELD_OUT_TRACKING_PCT, 'met': bool(
+             len(done) == n and worst_tracking is not None
+             and worst_tracking <= HELD_OUT_TRACKING_PCT)},
+        {'name': f'command peak <= {HELD_OUT_COMMAND_RATIO}x the desired, every lab',
+         'measured': worst_ratio, 'limit': HELD_OUT_COMMAND_RATIO, 'met': bool(
+             len(done) == n and worst_ratio is not None
+             and worst_ratio <= HELD_OUT_COMMAND_RATIO)}]
+    return {'bench': 'identification held-out labs', 'labs': rows,
+            'summary': {'labs': n, 'refused': n - len(done),
+                        'worst_tracking_pct': worst_tracking,
+                        'worst_command_ratio': worst_ratio, 'targets': targets},
+            'setup': {'ranges': HELD_OUT, 'record_s': RECORD_S,
+                      'excitation': f'BLWN 0-{BAND_HZ:g} Hz, peak {PEAK_M * 1e3:g} mm',
+                      'csv': 'Time (s),Cmd (mm),Disp (mm), time to 6 decimals',
+                      'commands': 'rths identify --csv F --columns 0,1,2 --out P; '
+                                  'rths design --plant P --out C (defaults otherwise)',
+                      'seed': seed, 'machine_load': os.getloadavg()[0]}}
+
+
 def register(commands, benches):
     """Add ``rths bench identification``."""
     p = benches.add_parser(
@@ -208,6 +321,11 @@ def register(commands, benches):
                    help='bridge params file of the limits (default: config/bridge.yaml)')
     p.add_argument('--seed', type=int, default=32, help='first random seed (32)')
     p.add_argument('--only', type=int, default=None, help='run only the first N cases')
+    p.add_argument('--held-out', type=int, default=None, metavar='N',
+                   help='instead: N labs drawn at random (--seed) in issue 32\'s held-out '
+                        'ranges (1024-2000 Hz, 9-14 ms, 0.5-1 %% noise), each written as a '
+                        'DAQ CSV in mm and run through rths identify and rths design with '
+                        'their defaults; targets: tracking <= 0.5 %%, command <= 1.5x')
     p.set_defaults(func=cmd_bench)
 
 
@@ -221,6 +339,8 @@ def cmd_bench(args) -> int:
     path = args.limits or os.path.join(os.environ.get('RTHS_ROOT', '.'), 'config',
                                        'bridge.yaml')
     limits = DesignLimits.from_bridge_params(path)
+    if args.held_out is not None:
+        return _cmd_held_out(args)
     with Progress(len(cases(args.seed)[:args.only] if args.only else cases(args.seed)),
                   'bench identification', 'cases') as bar:
         result = run(limits, args.seed, args.only, progress=bar.report)
@@ -229,6 +349,30 @@ def cmd_bench(args) -> int:
     s = result['summary']
     print(f"{s['cases']} cases, {s['refused']} refused; median tracking "
           f"{s['median_tracking_pct']:.3f} % (floor {s['median_floor_pct']:.3f} %)")
+    for t in s['targets']:
+        print(f"{'PASS' if t['met'] else 'MISS'}  {t['name']}: {t['measured']} "
+              f"(limit {t['limit']})")
+    print(f'wrote {args.out}')
+    return 0
+
+
+def _cmd_held_out(args) -> int:
+    """``rths bench identification --held-out N``."""
+    import tempfile
+
+    from rths_common.files import atomic_open
+    from rths_common.progress import Progress
+
+    if args.held_out < 1:
+        raise ValueError(f'--held-out {args.held_out}: give at least 1 lab')
+    with tempfile.TemporaryDirectory(prefix='rths-held-out-') as work, \
+            Progress(args.held_out, 'bench identification --held-out', 'labs') as bar:
+        result = run_held_out(args.held_out, args.seed, work, progress=bar.report)
+    with atomic_open(args.out) as handle:
+        json.dump(result, handle, indent=1)
+    s = result['summary']
+    print(f"{s['labs']} held-out labs, {s['refused']} refused; worst tracking "
+          f"{s['worst_tracking_pct']} %, worst command x{s['worst_command_ratio']}")
     for t in s['targets']:
         print(f"{'PASS' if t['met'] else 'MISS'}  {t['name']}: {t['measured']} "
               f"(limit {t['limit']})")

@@ -73,14 +73,17 @@ def test_specimen_summary_needs_both_valve_parameters_within_15_pct():
 
 
 def test_an_effect_the_compensator_cannot_use_has_no_rerun_and_says_why():
-    # a linear compensator folds the linear loads and the delay; the non-linear ones are
+    # a linear compensator folds the linear loads and the delay, and applies the Coulomb and
+    # cubic loads as its feed-forward; the play, the rate limit and a sensor offset are
     # refused by rths design (rths_compensator.plant_effects), so their case has no re-run
     assert b._refused_by_design('stiffness_error') is None
     assert b._refused_by_design('time_delay+mass_error') is None
-    why = b._refused_by_design('cubic_stiffness')
-    assert 'cubic_stiffness' in why and 'non-linear' in why
-    assert 'coulomb_friction' in b._refused_by_design('stiffness_error+coulomb_friction')
+    assert b._refused_by_design('cubic_stiffness') is None
+    assert b._refused_by_design('stiffness_error+coulomb_friction') is None
+    why = b._refused_by_design('backlash')
+    assert 'backlash' in why and 'reading' in why
+    assert 'backlash' in b._refused_by_design('coulomb_friction+backlash')
     rows = [_row('none', 'none', after=0.1),
-            dict(_row('cubic_stiffness', 'cubic_stiffness', 1.0, 3.5), rerun='none: ' + why)]
+            dict(_row('backlash', 'backlash', 1.0, 3.5), rerun='none: ' + why)]
     s = b.summarise(rows)
     assert s['rerun_refused'] == 1 and s['rerun_within_target'] == [0, 1]

@@ -137,7 +137,9 @@ def register(commands, benches):
     p.add_argument('--plant', required=True,
                    help='plant file from rths identify, or the updated_model.yaml of rths '
                         'discrepancy --scenario actuator (its time_delay and linear loop '
-                        'loads folded into the ARX; other effects refused)')
+                        'loads folded into the ARX; its Coulomb and cubic loads written as '
+                        "the compensator's load feed-forward, feedforward_*; other effects "
+                        'refused)')
     p.add_argument('--scheme', default=None, choices=designed(),
                    help=f'compensator scheme ({DD["scheme"]})')
     p.add_argument('--taps', type=int, default=None,
@@ -767,8 +769,14 @@ def _assess_and_write(args, plant, make, band_of, adapt) -> int:
     for key in SCHEMES.entry(comp.scheme).options + DESIGN_RESULTS:
         if key in comp.info:
             prov[key] = comp.info[key]
+    from .feedforward import feedforward_params
+    feedforward = feedforward_params(plant.loads)
+    if feedforward:
+        print('load feed-forward (the non-linear loads of the updated model, added to the '
+              'command on the desired trajectory): '
+              + ', '.join(f'{k} = {v:.6g}' for k, v in feedforward.items()))
     write_compensator_params(args.out, comp.taps, comp.denominator, comp.fs_hz, comp.scheme,
-                             prov)
+                             prov, feedforward=feedforward)
     print(f'wrote {args.out}')
     return 0
 

@@ -19,6 +19,11 @@ displacement.  Realtime (``realtime=True``): ``step`` never waits; it uses
 measurement k - 1 if it has arrived, else none (the method holds its last
 measurement and does not adapt on this step), and lost displacements are
 interpolated as for the designed filter.
+
+Load feed-forward (:mod:`.feedforward`, the ``feedforward_*`` parameters that
+``rths design`` writes from an updated actuator model's non-linear loads): the load
+evaluated on the interface displacements is added to every method's command; a lost
+displacement steps it like the filter.
 """
 
 from typing import Any
@@ -29,6 +34,7 @@ from rths_common.gaps import DISPLACEMENT_ORDER
 from rths_common.stepping import GapPolicy, StaleStep, StepResult
 from rths_compensator.filters import CoupledFir, MultiChannelFilter
 
+from .feedforward import from_params as feedforward_from
 from .methods import method_of, uses_measurement
 from .params import coupled_taps_of
 
@@ -50,6 +56,8 @@ class CompensatorCore:
         self.measured: dict = {}   # adaptive: step -> (measured displacement, applied)
         self.pending: tuple | None = None   # adaptive: (k, x) waiting for measurement k - 1
         self.last_target: np.ndarray | None = None   # the last step's interface displacement
+        self.feedforward = feedforward_from(params)   # None: no load feed-forward
+        self._ff_last = None   # the feed-forward of the last step
 
     @property
     def next_step(self) -> int:
@@ -96,9 +104,27 @@ class CompensatorCore:
             filt = self.filter = self._build(max(x.size, 1))
         for row in rows:   # lost displacements: interpolated (or x, if nothing came before)
             filt.step(row)
-        command = filt.step(x)
+            self._load(row)
+        command = filt.step(x) + self._load(x)
         self.policy.passed(k)
         return StepResult(k, (command,), len(rows))
+
+    def _load(self, x):
+        """Return the load feed-forward of the displacement ``x`` (0.0 when it is off)."""
+        if self.feedforward is None:
+            return 0.0
+        self._ff_last = self.feedforward.step(x)
+        return self._ff_last
+
+    def _method_applied(self, applied):
+        """Return the previous step's applied commands without their feed-forward.
+
+        That is what the adaptive method commanded: it compares them with its own
+        commands to see a bridge's hold, ramp or limit.
+        """
+        if applied is None or self.feedforward is None or self._ff_last is None:
+            return applied
+        return np.asarray(applied, dtype=float) - self._ff_last
 
     def _adaptive_step(self, k, x):
         if self.realtime:
@@ -114,7 +140,7 @@ class CompensatorCore:
         if self.filter is None:
             self.filter = self._build(max(x.size, 1))
         prev, applied = self.measured.pop(k - 1, (None, None))
-        command = self.filter.step(x, prev, applied)
+        command = self.filter.step(x, prev, self._method_applied(applied)) + self._load(x)
         status = self.filter.status
         self.policy.passed(k)
         return StepResult(k, (command,), 0,
@@ -130,9 +156,10 @@ class CompensatorCore:
         first = self.next_step
         for i, row in enumerate(rows):   # lost displacements: interpolated
             prev, applied = measured.pop(first + i - 1, (None, None))
-            filt.step(row, prev, applied)
+            filt.step(row, prev, self._method_applied(applied))
+            self._load(row)
         prev, applied = measured.pop(k - 1, (None, None))
-        command = filt.step(x, prev, applied)
+        command = filt.step(x, prev, self._method_applied(applied)) + self._load(x)
         for old in [j for j in measured if j < k]:   # late ones: never used
             del measured[old]
         self.policy.passed(k)

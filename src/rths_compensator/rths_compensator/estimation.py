@@ -330,26 +330,27 @@ def identify_record(u, y, fs_hz: float, options: IdentOptions = None, progress=N
     uf, yf = (prefilter(u0, fs, cutoff), prefilter(y0, fs, cutoff)) if opt.prefilter else (u0, y0)
     split = split_point(u.size, opt.validation_fraction)
     warnings = []
-    if opt.d_min is not None or opt.d_max is not None:
-        d_lo = int(opt.d_min or 0)
-        d_hi = int(opt.d_max if opt.d_max is not None else d_lo)
+    d_floor = int(opt.d_min or 0)      # no dead time below --d-min, wherever the window moves
+    if opt.d_max is not None:
+        d_lo, d_hi = d_floor, int(opt.d_max)
         if d_hi < d_lo:
             raise ValueError(f'dead-time range {d_lo}..{d_hi} is empty')
         d_est = None
-    else:
+    else:   # around the estimate (--d-min alone raises the window's lower end only)
         d_est = estimate_delay(uf, yf, fs, split, band, opt.max_delay_s)
         w = opt.delay_window
         if w is None:
             w = max(3, int(round(2e-3 * fs)), _decimation(fs, band) + 2)
-        d_lo, d_hi = max(0, d_est - w), d_est + w
+        d_lo = max(d_floor, d_est - w)
+        d_hi = max(d_est + w, d_lo)
     grid = (range(1, opt.na_max + 1), range(1, opt.nb_max + 1))
     cands = arx_candidates(uf, yf, split, *grid, range(d_lo, d_hi + 1), progress=progress)
     # searched around the estimate: a best dead time at an edge of the window moves it
     for _ in range(MAX_WINDOW_MOVES if d_est is not None else 0):
-        if not cands or cands[0][3] not in (d_lo, d_hi) or cands[0][3] == 0:
+        if not cands or cands[0][3] not in (d_lo, d_hi) or cands[0][3] == d_floor:
             break
         width = d_hi - d_lo
-        d_lo = max(0, cands[0][3] - width // 2)
+        d_lo = max(d_floor, cands[0][3] - width // 2)
         d_hi = d_lo + width
         cands = arx_candidates(uf, yf, split, *grid, range(d_lo, d_hi + 1),
                                progress=progress)

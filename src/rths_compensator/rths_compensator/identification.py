@@ -43,7 +43,7 @@ from rths_common import yamlfile
 from rths_common.files import atomic_open
 from rths_common.timebase import sampling_rate_hz
 
-from .plant_effects import fold_effects
+from .plant_effects import fold_effects, split_effects
 
 CRITERIA = ('mse', 'fit', 'aic', 'bic')
 
@@ -56,6 +56,9 @@ class ArxModel:
     b: np.ndarray
     d: int = 0
     fs_hz: float = 1024.0
+    #: non-linear loads on the servo loop ``{effect: value}`` of an updated model (not in
+    #: the coefficients: the compensator applies them as a feed-forward, .feedforward)
+    loads: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         self.a = np.atleast_1d(np.asarray(self.a, dtype=float)).ravel()
@@ -111,7 +114,9 @@ class ArxModel:
         """Build from :meth:`to_dict` output; ValueError names the missing/bad field.
 
         An ``effects`` mapping (an ``updated_model.yaml`` of ``rths discrepancy``) is
-        folded into the coefficients by :func:`.plant_effects.fold_effects`, or refused.
+        folded into the coefficients by :func:`.plant_effects.fold_effects`; its non-linear
+        loads on the servo loop are kept in ``loads`` (the compensator's feed-forward); any
+        other effect is refused.
         """
         if not isinstance(data, dict):
             raise ValueError(f'{where}: expected a mapping with kind, fs_hz, a, b, d')
@@ -147,9 +152,9 @@ class ArxModel:
                 raise ValueError(f'{where}: field {field} = {data[field]} does not match the '
                                  f'length of the coefficient list ({value})')
         if data.get('effects'):
-            a, b, d = fold_effects(model.a, model.b, model.d, model.fs_hz, data['effects'],
-                                   where)
-            model = cls(a=a, b=b, d=d, fs_hz=model.fs_hz)
+            foldable, loads = split_effects(data['effects'], where)
+            a, b, d = fold_effects(model.a, model.b, model.d, model.fs_hz, foldable, where)
+            model = cls(a=a, b=b, d=d, fs_hz=model.fs_hz, loads=loads)
         return model
 
 

@@ -13,7 +13,9 @@ Layout (``G(z^-1) = (b0 + b1 z^-1 + ...)/(a0 + a1 z^-1 + ...)``, see :mod:`.filt
           n_taps: 100
           ...
 
-The filter fields are :data:`FILTER_PARAMS`; the provenance has its own key, so
+The filter fields are :data:`FILTER_PARAMS`; a load feed-forward (the non-linear loads of
+an updated actuator model, :mod:`.feedforward`) adds its ``feedforward_*`` keys beside
+them.  The provenance has its own key, so
 the node rejects every other key (:func:`check_compensator_params`).  Files of an
 older ``rths design`` kept the provenance beside the filter fields:
 :func:`load_compensator_params` still reads them (their extra keys become the
@@ -36,6 +38,7 @@ from rths_common.files import atomic_open
 from rths_common.params import LOOP_RATE_RANGE_HZ, node_schema
 from rths_common.timebase import format_hz, same_rate
 
+from .feedforward import FEEDFORWARD_PARAMS, feedforward_settings
 from .filters import CoupledFir
 from .methods import DEFAULT as DEFAULT_METHOD
 from .methods import METHODS
@@ -82,7 +85,8 @@ PROVENANCE = 'provenance'
 
 def param_schema(node_params) -> dict:
     """Return the compensator node's parameter schema: its ``node_params`` and the filter's."""
-    return node_schema(node_params, {**FILTER_PARAMS, **METHOD_PARAMS, **MONITOR_PARAMS},
+    return node_schema(node_params, {**FILTER_PARAMS, **METHOD_PARAMS, **MONITOR_PARAMS,
+                                     **FEEDFORWARD_PARAMS},
                        FILTER_RANGES, CHOICES)
 
 
@@ -94,7 +98,8 @@ def check_compensator_params(params: dict, where: str) -> None:
     """
     unknown = sorted(k for k in params
                      if k not in FILTER_PARAMS and k not in METHOD_PARAMS
-                     and k not in MONITOR_PARAMS and k != PROVENANCE
+                     and k not in MONITOR_PARAMS and k not in FEEDFORWARD_PARAMS
+                     and k != PROVENANCE
                      and not k.startswith(PROVENANCE + '.'))
     if unknown:
         raise ValueError(f'{where}: unknown parameter(s) {", ".join(unknown)}; the compensator '
@@ -235,18 +240,22 @@ def compensator_params_from(doc, path) -> dict:
         raise ValueError(f'{path}: field {PROVENANCE} must be a mapping of names to values')
     # an older 'rths design' wrote the provenance beside the filter fields
     provenance.update({k: params.pop(k) for k in list(params)
-                       if k not in FILTER_PARAMS and k not in METHOD_PARAMS})
+                       if k not in FILTER_PARAMS and k not in METHOD_PARAMS
+                       and k not in FEEDFORWARD_PARAMS})
+    params.update({k: v for k, v in feedforward_settings(params, path).items() if k in params})
     params.update(taps=b.tolist(), denominator=a.tolist(), fs_hz=fs)
     params[PROVENANCE] = provenance
     return params
 
 
 def write_compensator_params(path, taps, denominator, fs_hz, scheme, provenance=None,
-                             coupled_taps=None) -> str:
+                             feedforward=None, coupled_taps=None) -> str:
     """Validate and atomically write a compensator parameters file; return its path.
 
     ``provenance`` maps names to scalars/strings (plant, n_taps, fc_hz, epsilon,
     predicted_delay_ms, ...); ``created`` (ISO time, UTC) is added if absent.
+    ``feedforward`` maps keys of :data:`.feedforward.FEEDFORWARD_PARAMS` to values (the
+    load feed-forward of an updated actuator model), written beside the filter fields.
     ``coupled_taps`` (N x N x n, several actuators): the coupled FIR the node runs
     instead of ``taps`` (:class:`rths_compensator.filters.CoupledFir`).
     Nothing is written if validation fails.
@@ -255,6 +264,13 @@ def write_compensator_params(path, taps, denominator, fs_hz, scheme, provenance=
     b, a, fs = _check(path, taps, denominator, fs_hz, scheme)
     params = {'scheme': str(scheme), 'fs_hz': fs,
               'taps': [float(v) for v in b], 'denominator': [float(v) for v in a]}
+    if feedforward:
+        unknown = sorted(set(feedforward) - set(FEEDFORWARD_PARAMS))
+        if unknown:
+            raise ValueError(f'{path}: unknown feed-forward key(s) {", ".join(unknown)}; use '
+                             f'{", ".join(FEEDFORWARD_PARAMS)}')
+        checked = feedforward_settings(feedforward, path)
+        params.update({k: checked[k] for k in feedforward})
     if coupled_taps is not None:
         params['coupled_taps'] = [float(v) for v in CoupledFir(coupled_taps).taps.ravel()]
     prov = dict(provenance or {})

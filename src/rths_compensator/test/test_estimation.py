@@ -131,3 +131,19 @@ def test_impulse_response_is_unbiased_by_output_noise():
     est = impulse_response(u, y, 20)
     np.testing.assert_allclose(est[:h.size], h, atol=0.02)
     assert np.max(np.abs(est[h.size:])) < 0.02
+
+
+def test_d_min_alone_raises_the_searched_window_without_collapsing_it(lab_record):
+    # --d-min alone once searched d_min..d_min only (a held-out lab: --d-min 4 gave '4..4');
+    # now the window around the estimate, starting no lower than d_min
+    act, u, y = lab_record
+    n = 20000
+    free = identify_record(u[:n], y[:n], 2000.0, IdentOptions(refine=False))
+    lo, hi = free.info['d_range']
+    floor = lo + 2
+    raised = identify_record(u[:n], y[:n], 2000.0, IdentOptions(refine=False, d_min=floor))
+    assert raised.info['d_range'][0] >= floor and raised.info['d_range'][1] >= hi
+    assert raised.model.d >= floor
+    fixed = identify_record(u[:n], y[:n], 2000.0, IdentOptions(refine=False, d_min=floor,
+                                                               d_max=floor))
+    assert fixed.info['d_range'] == [floor, floor]       # both bounds given: exactly them

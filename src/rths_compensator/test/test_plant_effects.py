@@ -61,8 +61,24 @@ def test_linear_loop_loads_fold_into_the_denominator():
     assert folded.dc_gain() == pytest.approx(plant.dc_gain() / (1 + 0.25 * plant.dc_gain()))
 
 
-@pytest.mark.parametrize('name', ['coulomb_friction', 'cubic_stiffness', 'backlash',
-                                  'velocity_saturation', 'sensor_bias', 'no_such_effect'])
+def test_the_non_linear_loads_are_kept_for_the_feed_forward(tmp_path):
+    """Coulomb and cubic loads leave the coefficients alone and ride along as ``loads``."""
+    nominal = _nominal()
+    updated = load_plant(_write(tmp_path, nominal, {'coulomb_friction': 5e-5,
+                                                    'cubic_stiffness': 200.0,
+                                                    'stiffness_error': 0.02}))
+    assert updated.loads == {'coulomb_friction': 5e-5, 'cubic_stiffness': 200.0}
+    a, b, d = fold_effects(nominal.a, nominal.b, nominal.d, FS, {'stiffness_error': 0.02})
+    assert np.allclose(updated.a, a) and np.allclose(updated.b, b) and updated.d == d
+
+
+def test_a_negative_coulomb_load_is_refused(tmp_path):
+    with pytest.raises(ValueError, match="'coulomb_friction' = -5e-05 is negative"):
+        load_plant(_write(tmp_path, _nominal(), {'coulomb_friction': -5e-5}))
+
+
+@pytest.mark.parametrize('name', ['backlash', 'velocity_saturation', 'sensor_bias',
+                                  'no_such_effect'])
 def test_an_effect_the_design_cannot_use_is_refused(tmp_path, name):
     path = _write(tmp_path, _nominal(), {name: 1e-4})
     with pytest.raises(ValueError, match=f"updated_model.yaml: effect '{name}' cannot be used"):

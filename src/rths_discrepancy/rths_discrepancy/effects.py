@@ -302,8 +302,8 @@ def loop_regressor(scenario: str, name: str, states: dict, nominal) -> np.ndarra
             'mass_error': lambda: (states['a'] + states['u']) / m,
         }
     else:
-        table = {
-            'coulomb_friction': lambda: np.tanh(v / V_EPS),
+        table = {   # the sign law on the velocity band-limited for it (workflow.Context)
+            'coulomb_friction': lambda: np.tanh(states.get('v_sign', v) / V_EPS),
             'viscous_damping_error': lambda: v,
             'stiffness_error': lambda: x,
             'cubic_stiffness': lambda: x ** 3,

@@ -63,6 +63,31 @@ def nrmse_cell(x):
     return f'{x:.4f}'
 
 
+def _measure_lines(name, p):
+    m = p.get('error_measure') or {}
+    out = []
+    if 'horizon_samples' in m:
+        out.append(f"Output `{name}`: {m['kind']}, every {m['horizon_samples']} samples "
+                   f"({m['horizon_periods']:.1f} periods of the {m['dominant_mode_hz']:.4g} Hz "
+                   f"mode); {m['why']}. Baseline here: {m.get('baseline_model', 'baseline')}; "
+                   f"free-run NRMSE {p['free_run_nrmse_baseline']:.4f} -> "
+                   f"{p['free_run_nrmse_after']:.4f}.")
+    c = p.get('heldout_confirmation')
+    if c and not c['confirmed']:
+        out.append(f"Output `{name}`: `{c['block']}` was chosen on the training records "
+                   f"(error -{100 * c['training_relative_gain']:.0f} %) but the held-out part "
+                   f"does not confirm it (-{100 * c['heldout_relative_gain']:.0f} %): not named.")
+    if p.get('limit_only_in_heldout_part'):
+        out.append(f"Output `{name}`: the whole record's output plateaus where the training "
+                   'part does not (a limit the training records cannot show): `unexplained`, '
+                   'not a name read into a few clipped samples.')
+    elif 'unexplained' in p.get('effects', []):
+        out.append(f"Output `{name}`: the baseline misses the held-out part far more than the "
+                   'training records and no block explains it: `unexplained` (the training '
+                   'part does not show what the later part holds).')
+    return out + ([''] if out else [])
+
+
 def markdown(result, files):
     """Return report.md of an io run."""
     lines = ['# Discrepancy report (input-output)', '',
@@ -77,10 +102,15 @@ def markdown(result, files):
     for name, p in result['per_output'].items():
         lines.append(f"| {name} | {p['nrmse_baseline']:.4f} | {p['nrmse_reference']:.4f} | "
                      f"{p['nrmse_after']:.4f} | {'+'.join(p['effects']) or 'none'} |")
-    lines += ['', 'Held-out NRMSE (free-run simulation; rms error / std of the measured '
-              'output). The baseline is the linear model of rths_discrepancy.linear '
-              '(orders from the data, output-error refined); the reference is the plain '
-              'ARX of the project\'s identification at the record\'s rate.', '']
+    lines += ['', 'Held-out NRMSE (rms error / std of the measured output) in the measure '
+              'stated per output: free-run simulation, or, where no model simulates the '
+              'training records free-run, simulation re-initialised from the measured '
+              'output every few periods. The baseline is the linear model of '
+              'rths_discrepancy.linear (orders from the data, output-error refined); the '
+              'reference is the plain ARX of the project\'s identification at the '
+              'record\'s rate.', '']
+    for name, p in result['per_output'].items():
+        lines += _measure_lines(name, p)
     for name, p in result['per_output'].items():
         lines += [f'## Output `{name}`', '',
                   f"Baseline: {p['baseline']['method']} na={p['baseline']['na']} "

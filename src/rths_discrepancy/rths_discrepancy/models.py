@@ -157,8 +157,9 @@ class ActuatorModel:
         """Simulate the full model; return dict with 'measured'.
 
         The loop load ``q`` (friction, stiffness, damping, inertia loads) is
-        evaluated on the output history at the start of each (sub)step and
-        held with the command over it; output operators are applied after.
+        evaluated at the middle of each (sub)step (centred differences of the
+        output, :func:`_loop_filter`) and held with the command over it; output
+        operators are applied after.
         """
         u = np.asarray(command, dtype=float)
         load = fx.actuator_load(self.effects)
@@ -180,30 +181,57 @@ class ActuatorModel:
 def _loop_filter(b, a, u, load, fs):
     """Difference equation ``a(z) y = b(z) (u - q)`` with ``q = load(y, v, acc)``.
 
-    ``q_k`` uses the outputs up to ``y_{k-1}`` (backward differences).
+    ``q_k``, held with ``u_k`` over sample k (from ``t_{k-1}`` to ``t_k``), is the load at
+    the middle of that sample, where a load that varies over the sample (the lab's, from
+    the continuous state) has its mean: displacement ``(y_k + y_{k-1}) / 2`` and velocity
+    ``(y_k - y_{k-1}) fs`` (centred differences), acceleration extrapolated from the last
+    two second differences (``1.5 a_{k-1} - 0.5 a_{k-2}``).  ``y_k`` depends on ``q_k``
+    through ``b_0``: the scalar equation is solved by Newton's method (a secant slope; one
+    step for a linear load, explicit when ``b_0 = 0``).  (A backward difference,
+    ``q_k`` from ``y_{k-1}, y_{k-2}``, read the velocity 1.5 samples late: a hidden
+    Coulomb load was fitted 16-25 % small, with a play absorbing the rest.)
     """
     a0 = float(a[0])
     b = [float(v) / a0 for v in b]
     a = [float(v) / a0 for v in a]
     nb, na = len(b), len(a)
+    b0 = b[0]
     n = u.size
     ul = u.tolist()
     ys = [0.0] * n
     ws = [0.0] * n
     y1 = y2 = y3 = 0.0
+    fs2 = fs * fs
+
+    def q_at(y):
+        acc = (1.5 * (y - 2.0 * y1 + y2) - 0.5 * (y1 - 2.0 * y2 + y3)) * fs2
+        return load(0.5 * (y + y1), (y - y1) * fs, acc)
+
     for k in range(n):
-        v = (y1 - y2) * fs
-        acc = (y1 - 2.0 * y2 + y3) * fs * fs
-        ws[k] = ul[k] - load(y1, v, acc)
         s = 0.0
-        for j in range(nb):
+        for j in range(1, nb):
             if k - j >= 0:
                 s += b[j] * ws[k - j]
         for i in range(1, na):
             if k - i >= 0:
                 s -= a[i] * ys[k - i]
-        ys[k] = s
-        y3, y2, y1 = y2, y1, s
+        uk = ul[k]
+        y = s + b0 * (uk - q_at(y1))
+        if b0 != 0.0:
+            for _ in range(30):   # g(y) = y - s - b0 (u_k - q(y)) = 0
+                qy = q_at(y)
+                g = y - s - b0 * (uk - qy)
+                h = 1e-7 * max(abs(y), 1e-6)
+                slope = 1.0 + b0 * (q_at(y + h) - qy) / h
+                step = g / slope if slope != 0.0 else g
+                y -= step
+                if abs(step) <= 1e-14 * max(abs(y), 1e-12):
+                    break
+        q = q_at(y)
+        ws[k] = uk - q
+        y = s + b0 * ws[k]
+        ys[k] = y
+        y3, y2, y1 = y2, y1, y
     return np.array(ys)
 
 

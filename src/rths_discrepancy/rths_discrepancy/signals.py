@@ -55,6 +55,23 @@ def states(y, fs: float, fc: float = None, u=None) -> dict:
     return {'x': x, 'v': v, 'a': a, 'fc': fc}
 
 
+def sign_band(fs: float, fc: float, noise_var: float, v_eps: float,
+              ratio: float = 0.25) -> float:
+    """Widest low-pass edge [Hz] (``fc`` .. fs/6) whose velocity noise stays <= ``ratio v_eps``.
+
+    A sign law ``tanh(v / v_eps)`` switches within a few samples at a reversal: a velocity
+    smoothed to the input's band moves the switch and rounds it.  White displacement noise
+    of variance ``s^2`` differentiated and band-limited to ``f`` has the velocity variance
+    ``s^2 (2 pi)^2 f^3 / (3 fs / 2)``; the edge is the largest ``f`` that keeps its standard
+    deviation at ``ratio v_eps`` (``ratio`` 1/4: the law's transition still resolved).
+    """
+    top = fs / 6.0
+    if noise_var <= 0.0:
+        return top
+    f = ((ratio * v_eps) ** 2 * 3.0 * fs / (2.0 * (2.0 * np.pi) ** 2 * noise_var)) ** (1.0 / 3.0)
+    return float(np.clip(f, fc, top))
+
+
 def noise_variance(residual, fs: float, f_lo: float = None) -> float:
     """White-noise variance of ``residual`` from its periodogram above ``f_lo`` (fs/4)."""
     r = signal.detrend(np.asarray(residual, float))
