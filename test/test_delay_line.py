@@ -27,7 +27,7 @@ FS_HZ = 1024.0
 
 def test_identification_through_the_delay_line_lets_the_compensator_absorb_it(tmp_path):
     from rths_common import bagio
-    from rths_review.review import weighted_delay_ms
+    from rths_review.tracking import weighted_delay_ms
 
     config = tmp_path / 'config'
     shutil.copytree(REPO / 'config', config)

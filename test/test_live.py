@@ -32,17 +32,23 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _write_bag(bag):
+#: Per actuator: its target's scale and its measured stroke's offset from the target [m].
+ACTUATORS = ((1.0, 1e-4), (-2.0, 3e-4))
+
+
+def _write_bag(bag, n_actuators=1):
     from rths_common import bagio, cdr, topics
 
     t0 = 1_700_000_000_000_000_000
+    acts = ACTUATORS[:n_actuators]
     with bagio.BagWriter(bag, run_info={'fs_hz': FS, 'kind': 'rths'}) as w:
         for k in range(int(SECONDS * FS)):
             t = t0 + int(k * 1e9 / FS)
-            target = 0.01 * np.sin(2 * np.pi * 1.0 * k / FS)
-            w.write(topics.INTERFACE_DISPLACEMENT, t, cdr.pack_step_arrays(t, k, [target]))
+            target = [g * 0.01 * np.sin(2 * np.pi * 1.0 * k / FS) for g, _ in acts]
+            measured = [x - off for x, (_, off) in zip(target, acts, strict=True)]
+            w.write(topics.INTERFACE_DISPLACEMENT, t, cdr.pack_step_arrays(t, k, target))
             w.write(topics.MEASUREMENT, t + 1000, cdr.pack_step_arrays(
-                t + 1000, k, [target], [target - 1e-4], [100.0 * target]))
+                t + 1000, k, target, measured, [100.0 * x for x in target]))
             w.write(topics.STATUS, t + 2000, cdr.pack_status(t + 2000, 'bridge', k,
                                                              misses=k // 1000))
 
@@ -75,9 +81,8 @@ async def _client(port, topic='/rths/measurement'):
         return channels, received, closed, ws.subprotocol
 
 
-def test_replay_live_is_seen_by_a_foxglove_websocket_client(tmp_path):
-    bag = tmp_path / 'bag'
-    _write_bag(bag)
+def _replay_live(bag):
+    """``rths replay BAG --live`` seen by :func:`_client`; its results and the output."""
     port = _free_port()
     proc = subprocess.Popen([rths_executable(), 'replay', str(bag), '--live', '--port',
                              str(port)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
@@ -86,11 +91,18 @@ def test_replay_live_is_seen_by_a_foxglove_websocket_client(tmp_path):
         for line in proc.stdout:                      # the server is up before the replay
             if line.startswith('live view: serving'):
                 break
-        channels, received, closed, subprotocol = asyncio.run(_client(port))
+        seen = asyncio.run(_client(port))
         out = line + proc.stdout.read()
         assert proc.wait(30) == 0, out
     finally:
         proc.kill()
+    return (*seen, out)
+
+
+def test_replay_live_is_seen_by_a_foxglove_websocket_client(tmp_path):
+    bag = tmp_path / 'bag'
+    _write_bag(bag)
+    channels, received, closed, subprotocol, out = _replay_live(bag)
     assert subprotocol == 'foxglove.websocket.v1'
     assert {'/rths/interface_displacement', '/rths/command', '/rths/measurement',
             '/rths/status', '/rths/live'} <= set(channels)
@@ -104,6 +116,23 @@ def test_replay_live_is_seen_by_a_foxglove_websocket_client(tmp_path):
     assert max(m['deadline_misses'] for m in live) >= 3      # the bridge's count, 4 s of steps
     assert closed and live[-1]['run_state'] == 'stopped'     # the server stops with the replay
     assert 'live view: stopped' in out
+
+
+def test_replay_live_of_two_actuators_shows_each(tmp_path):
+    """A bag of a two-actuator rig: /rths/live carries both actuators, each paired by step."""
+    bag = tmp_path / 'bag'
+    _write_bag(bag, n_actuators=2)
+    _, received, closed, _, _ = _replay_live(bag)
+    live = [json.loads(m) for m in received[1]]
+    both = [m for m in live if m.get('n_actuators') == 2]
+    assert both and all(len(m['actuators']) == 2 for m in both)
+    tracked = [m for m in both if all('tracking_error_m' in a for a in m['actuators'])]
+    assert tracked
+    for m in tracked:
+        for a, (_, offset) in zip(m['actuators'], ACTUATORS, strict=True):
+            assert abs(a['tracking_error_m'] - offset) < 1e-9
+        assert m['tracking_error_m'] == m['actuators'][0]['tracking_error_m']   # actuator 1's
+    assert closed
 
 
 def test_launch_live_streams_the_run_and_the_bag_still_starts_at_step_0(tmp_path):

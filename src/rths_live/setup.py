@@ -11,7 +11,8 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/foxglove', ['foxglove/rths_live.json']),
+        ('share/' + package_name + '/foxglove',
+         ['foxglove/rths_live.json', 'foxglove/rths_live_2_actuators.json']),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

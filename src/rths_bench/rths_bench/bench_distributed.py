@@ -288,7 +288,7 @@ def _loop_tracking(bag) -> dict:
     """Delay (eq. 42, PSD-weighted) and relative RMS error, interface displacement -> measured."""
     from rths_common import bagio, topics
     from rths_compensator.indicators import relative_rms_pct
-    from rths_review.review import weighted_delay_ms
+    from rths_review.tracking import weighted_delay_ms
 
     fs = bagio.sampling_rate(bag)
     disp = bagio.step_arrays(bag, topics.INTERFACE_DISPLACEMENT, ('displacement',))

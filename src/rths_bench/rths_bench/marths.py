@@ -25,7 +25,8 @@ Pieces:
   identified from a BLWN test of that actuator alone, the other held at zero); ``mimo``
   (the 2 x 2 plant identified from both actuators excited at once with uncorrelated
   signals, a subspace state-space model, :mod:`rths_compensator.multichannel`; a 2 x 2
-  least-squares FIR, :func:`design_mimo_fir`); ``rls_fir``, ``ats``, ``amb`` (the project's adaptive
+  least-squares FIR, :func:`rths_compensator.multichannel.design_coupled_fir`); ``rls_fir``,
+  ``ats``, ``amb`` (the project's adaptive
   methods, one per actuator, started from the decentralised identification and design,
   :class:`DecentralisedAdaptive`).
 
@@ -67,7 +68,7 @@ from rths_actuator_bridge.marths_rig import (  # noqa: F401 (the rig's physics, 
     rig_coupler,
     rig_plants,
 )
-from rths_bench.rths_benchmark import DATA_ENV, ground_acceleration, target_lowpass
+from rths_bench.rths_benchmark import DATA_ENV, ground_acceleration
 from rths_common.coupler import Coupler
 from rths_common.marths_data import DATA_FILE, load_config  # noqa: F401 (re-exported)
 from rths_common.progress import Progress
@@ -194,7 +195,7 @@ def identify_and_design(cfg: dict, seed: int = 11, record_s: float = 20.0,
     Returns ``(designs, info, models)`` (the ARX models, in mm).
     """
     # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
-    from rths_compensator.design import design_fir, predict
+    from rths_compensator.design import design_fir, predict, target_lowpass
     from rths_compensator.identification import identify
 
     fs = cfg['fs_hz']['value']
@@ -255,39 +256,6 @@ class MimoFir:
         return self.info
 
 
-def design_mimo_fir(freq_resp, fs_hz: float, n_taps: int, fc_hz: float, lowpass_hz: float,
-                    stop_weight: float = 0.1, gain_weight: float = 1e-3):
-    """Least-squares 2 x 2 FIR ``G`` with ``P G`` close to ``L I`` (L an order-4 low-pass).
-
-    ``freq_resp(f)`` gives the plant's 2 x 2 response at frequencies ``f`` [Hz] (shape
-    f x 2 x 2).  The error ``P G - L I`` weighs 1 up to ``fc_hz`` and ``stop_weight``
-    above; ``|G|`` above ``fc_hz`` weighs ``gain_weight`` (it bounds the high-frequency
-    gain, which the RTHS loop feeds back through the specimen's inertia).
-    """
-    f = np.linspace(0.0, fs_hz / 2, 513)
-    z1 = np.exp(-2j * np.pi * f / fs_hz)
-    p = freq_resp(f)
-    gain, a_l = target_lowpass(4, lowpass_hz, fs_hz)
-    ell = gain / np.polyval(a_l[::-1], z1)
-    e = z1[:, None] ** np.arange(n_taps)[None, :]
-    w = np.where(f <= fc_hz, 1.0, stop_weight)
-    taps = np.zeros((2, 2, n_taps))
-    for j in range(2):
-        rows, rhs = [], []
-        for i in range(2):
-            rows.append(w[:, None] * np.hstack([p[:, i, 0, None] * e, p[:, i, 1, None] * e]))
-            rhs.append(w * (ell if i == j else 0.0 * ell))
-        reg = np.where(f > fc_hz, gain_weight, 0.0)[:, None]
-        rows += [np.hstack([reg * e, 0 * e]), np.hstack([0 * e, reg * e])]
-        rhs += [np.zeros(f.size), np.zeros(f.size)]
-        a = np.vstack(rows)
-        b = np.concatenate(rhs)
-        sol = np.linalg.lstsq(np.vstack([a.real, a.imag]), np.concatenate([b.real, b.imag]),
-                              rcond=None)[0]
-        taps[0, j], taps[1, j] = sol[:n_taps], sol[n_taps:]
-    return taps
-
-
 def _run_plant(cfg: dict, u, rng) -> np.ndarray:
     """Measured strokes [mm] (samples x 2) of the nominal plant commanded with ``u``."""
     fs = cfg['fs_hz']['value']
@@ -325,8 +293,8 @@ def identify_mimo(cfg: dict, seed: int = 11, record_s: float = 20.0, band_hz: fl
         u = mc.excitation(excitation, 2, record_s, fs, band_hz, peak_mm, rng)
         tests.append((u, _run_plant(cfg, u, rng)))
     model = mc.identify_multichannel(tests[:2], tests[2:], fs, n_max=n_max)
-    taps = design_mimo_fir(model.freq_resp, fs, n_taps, fc_hz, lowpass_hz, stop_weight,
-                           gain_weight)
+    taps = mc.design_coupled_fir(model.freq_resp, fs, n_taps, fc_hz, lowpass_hz, stop_weight,
+                                 gain_weight)
     coupling = mc.cross_coupling(model, band_hz)
     info = {'identification': {'excitation': excitation, 'simultaneous': True,
                                'tests': 3, 'record_s': record_s, 'blwn_band_hz': band_hz,

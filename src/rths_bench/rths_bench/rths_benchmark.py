@@ -287,16 +287,6 @@ class FirController:
                 'quantise_desired': self.quantise_desired, **self.info}
 
 
-def target_lowpass(order: int, cutoff_hz: float, fs_hz: float):
-    """All-pole unit-DC-gain low-pass ``g / aL(z^-1)``: Butterworth poles mapped by e^{sT}."""
-    # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
-    from scipy import signal
-
-    _, poles, _ = signal.butter(order, 2 * np.pi * cutoff_hz, analog=True, output='zpk')
-    a_l = np.real(np.poly(np.exp(poles / fs_hz)))
-    return float(np.sum(a_l)), a_l
-
-
 def _identify_once(seed: int = 7, record_s: float = 20.0, band_hz: float = 50.0,
                    peak_m: float = 10e-3, prefilter_hz: float = 100.0, n_taps: int = 200,
                    fc_hz: float = 30.0, scheme: str = BENCHMARK_SCHEME, epsilon: float = 0.002,
@@ -323,18 +313,19 @@ def _identify_once(seed: int = 7, record_s: float = 20.0, band_hz: float = 50.0,
     model whose compensator tracked 5-7 % instead of ~1 %).
 
     Design: the plant of the FIR design is the identified model divided by a target
-    low-pass ``L`` (:func:`target_lowpass`, order ``lowpass_order`` at ``lowpass_hz``), so
-    the design's ``T_com = 1`` means ``P G = L``.  Inverting the all-pole plant over the
-    whole band at 4096 Hz would need a gain of ~1e8 at Nyquist, which turns the 2^-18
-    quantisation of the desired displacement into a saturated command; ``L`` keeps
-    ``|G|`` bounded for the price of its passband lag (~1 ms at 400 Hz, order 4).
+    low-pass ``L`` (:func:`rths_compensator.design.target_lowpass`, order ``lowpass_order``
+    at ``lowpass_hz``), so the design's ``T_com = 1`` means ``P G = L``.  Inverting the
+    all-pole plant over the whole band at 4096 Hz would need a gain of ~1e8 at Nyquist,
+    which turns the 2^-18 quantisation of the desired displacement into a saturated
+    command; ``L`` keeps ``|G|`` bounded for the price of its passband lag (~1 ms at
+    400 Hz, order 4).
     """
     # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
     from scipy import signal
 
     from rths_actuator_bridge.silva2020 import FS_HZ, converter
     from rths_actuator_bridge.simulated import silva2020_plant
-    from rths_compensator.design import design_fir, predict
+    from rths_compensator.design import design_fir, predict, target_lowpass
     from rths_compensator.identification import ArxModel, arx_grid
     from rths_numerical.signals import blwn
     rng = np.random.default_rng(seed)
@@ -943,6 +934,7 @@ def plants_of(info, fs_hz):
 
     ``info`` is :func:`identify_and_design`'s record of the identification.
     """
+    from rths_compensator.design import target_lowpass
     from rths_compensator.identification import ArxModel
     arx = info['arx']
     model = ArxModel(a=arx['a'], b=arx['b'], d=arx['d'], fs_hz=fs_hz)

@@ -826,7 +826,8 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
     from rths_common.params import core_params
     from rths_numerical.substructure import make_substructure
     from rths_review.report_html import write_report, write_stop_report
-    from rths_review.review import REALTIME_KEYS, bridge_realtime, read_loop, review_text
+    from rths_review.review import review_text
+    from rths_review.tracking import REALTIME_KEYS, bridge_realtime, read_loop
 
     stop['planned_steps'] = int(make_substructure(core_params(numerical)).n_steps)
     stop['bag'] = str(bag)

@@ -138,7 +138,7 @@ def test_re_sent_step_0_and_a_few_lost_steps_do_not_block_the_review(tmp_path, l
 
 
 def test_a_conflicting_copy_still_refuses(tmp_path, loop):
-    from rths_review.review import aligned_steps
+    from rths_review.tracking import aligned_steps
 
     data = {'step': np.array([0, 1, 1, 2]), 'x': np.array([[0.0], [1.0], [1.5], [2.0]])}
     with pytest.raises(ValueError, match='step 1 was recorded twice with different values'):

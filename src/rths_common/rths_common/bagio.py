@@ -506,16 +506,34 @@ def read_identification(bag, loop: bool = True):
     and the identified plant includes the D-step delay.  ``loop=False``: the
     actuator alone (applied and measured at the same tick).
     """
+    t, command, measured = read_identification_channels(bag, loop, channels=1)
+    return t, command[:, 0], measured[:, 0]
+
+
+def read_identification_channels(bag, loop: bool = True, channels: int | None = None):
+    """``(time [s], commands [m], measured [m])``, one column per actuator, of a bag.
+
+    As :func:`read_identification` (the same pairing of command and measurement), for
+    the first ``channels`` actuators (default: every one the bag holds); steps where any
+    of them is missing are dropped.  ValueError if the bag holds fewer than ``channels``.
+    """
     fs = sampling_rate(bag)
     data = step_arrays(bag, topics.MEASUREMENT, ('applied', 'displacement'))
     if data['step'].size == 0:
         raise ValueError(f'{bag}: no {topics.MEASUREMENT} messages; is this an rths run bag?')
-    step, command, measured = data['step'], data['applied'][:, 0], data['displacement'][:, 0]
+    width = min(data['applied'].shape[1], data['displacement'].shape[1])
+    n = width if channels is None else int(channels)
+    if width < n:
+        raise ValueError(f'{bag}: the bag holds {width} actuator channel(s), not {n}; give '
+                         f'--channels {width}')
+    step = data['step']
+    command, measured = data['applied'][:, :n], data['displacement'][:, :n]
     shift = delay_steps(bag) if loop else 0
     if shift:
-        applied_at = dict(zip(step.tolist(), command, strict=True))
-        command = np.array([applied_at.get(k + shift, np.nan) for k in step.tolist()])
-    ok = np.isfinite(command) & np.isfinite(measured)
+        row = {k: i for i, k in enumerate(step.tolist())}
+        command = np.array([command[row[k + shift]] if k + shift in row
+                            else np.full(n, np.nan) for k in step.tolist()]).reshape(-1, n)
+    ok = np.all(np.isfinite(command), axis=1) & np.all(np.isfinite(measured), axis=1)
     return step[ok] / fs, command[ok], measured[ok]
 
 

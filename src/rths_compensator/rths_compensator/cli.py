@@ -17,6 +17,12 @@ from .schemes import SCHEMES, designed
 # Imports of the commands' code sit in the command functions: rths imports this module
 # to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
 
+#: Defaults of the coupled N x N FIR (``rths design`` of an ``rths identify --channels`` plant):
+#: the maRTHS benchmark's ``mimo`` controller (``rths_bench.marths.identify_mimo``).
+COUPLED_DEFAULTS = {'n_taps': 48, 'fc_hz': 30.0, 'lowpass_hz': 100.0, 'stop_weight': 0.03,
+                    'gain_weight': 1e-3}
+#: The coupled FIR's options without a flag of their own (``--option KEY=VALUE``).
+COUPLED_OPTIONS = ('lowpass_hz', 'stop_weight', 'gain_weight')
 #: What a design reports beside its options, kept in the provenance.
 DESIGN_RESULTS = ('a_tilde', 'model', 'q', 'solver', 'auto_score', 'bandwidth_hz')
 #: Design option -> the ``rths design`` argument that gives it (``--option KEY=VALUE`` gives
@@ -44,15 +50,34 @@ def register(commands, benches):
                     'simulation NRMSE and the model\'s frequency response beside the record\'s '
                     'with its uncertainty; warns when the choice sits at a grid edge or the '
                     'fit is poor. --method arx-grid is the seed\'s ARX grid with a BIC '
-                    'histogram over --record-s records (section 4.3.1.2).')
+                    'histogram over --record-s records (section 4.3.1.2). --channels N (N > 1): '
+                    'the N x N plant of N actuators on one specimen from one test in which every '
+                    'actuator had its own uncorrelated excitation: a state-space model '
+                    '(subspace fit, order <= --order-max chosen on the held-out part by BIC of '
+                    'the simulation error), the cross-coupling printed and saved (each '
+                    'command\'s effect on every other actuator relative to that actuator\'s own, '
+                    'at DC and at its peak over --band), with its JSON report and plot beside '
+                    '--out (docs/multi_actuator.md).')
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument('--csv', help='identification run as CSV (time, command, measured)')
     src.add_argument('--bag', help='identification run as a rosbag2 bag directory')
     p.add_argument('--val-csv', help='arx-grid: separate validation run (CSV); default: split')
-    p.add_argument('--columns', default='time,command,measured', metavar='TIME,COMMAND,MEASURED',
+    p.add_argument('--columns', default=None, metavar='TIME,COMMAND,MEASURED',
                    help='CSV: the time, command and measured-displacement columns, by header '
                         'name or 0-based index (default time,command,measured), e.g. '
-                        '"Time,Cmd,Disp" or 0,1,2')
+                        '"Time,Cmd,Disp" or 0,1,2; with --channels N: time, the N commands, '
+                        'then the N measured displacements (default time,command_1,..,'
+                        'command_N,measured_1,..,measured_N)')
+    p.add_argument('--channels', type=int, default=1, metavar='N',
+                   help='actuators identified together (1): N > 1 identifies the N x N plant '
+                        'and its cross-coupling from one record of every actuator excited at '
+                        'once (a CSV with N command and N measured columns, or the bag of a '
+                        'run with N actuators)')
+    p.add_argument('--order-max', type=int, default=None,
+                   help='--channels N: largest state-space order tried (12)')
+    p.add_argument('--band', type=float, default=None,
+                   help='--channels N: band [Hz] of the cross-coupling report (default: the '
+                        'band that holds 99.5 %% of the commands\' power)')
     p.add_argument('--time-unit', choices=TIME_UNITS, default=None,
                    help='CSV: unit of the time column (default: from the header, e.g. '
                         '"Time (ms)" or "time [s]", else s)')
@@ -71,7 +96,7 @@ def register(commands, benches):
     p.add_argument('--d-max', type=int, default=None,
                    help='largest dead time d [samples] (default: searched around the '
                         'estimate; arx-grid 0)')
-    p.add_argument('--max-delay-ms', type=float, default=100.0,
+    p.add_argument('--max-delay-ms', type=float, default=None,
                    help='oe: longest dead time the estimate considers [ms] (100)')
     p.add_argument('--validation-fraction', type=float, default=1.0 / 3.0,
                    help='oe: last fraction of the run held out for the order choice and the '
@@ -117,8 +142,9 @@ def register(commands, benches):
                         'refused)')
     p.add_argument('--scheme', default=None, choices=designed(),
                    help=f'compensator scheme ({DD["scheme"]})')
-    p.add_argument('--taps', type=int, default=DD['n_taps'],
-                   help=f'FIR length n of H ({DD["n_taps"]})')
+    p.add_argument('--taps', type=int, default=None,
+                   help=f'FIR length n of H ({DD["n_taps"]}; an N x N plant: '
+                        f'{COUPLED_DEFAULTS["n_taps"]} per pair)')
     p.add_argument('--fc', type=float, default=None,
                    help=f'FIR passband edge fc [Hz] (default {DD["fc_hz"]:g}, the seed\'s; '
                         f'{LONG_DEAD_TIME_FC_HZ:g} for a plant whose dead time is '
@@ -192,20 +218,32 @@ def register(commands, benches):
     p.set_defaults(func=cmd_bench_compensators)
 
 
+def channel_columns(n: int) -> tuple:
+    """Names of the columns of an N-actuator record: time, the commands, the measured."""
+    if n == 1:
+        return ('time', 'command', 'measured')
+    return (('time',) + tuple(f'command_{i}' for i in range(1, n + 1))
+            + tuple(f'measured_{i}' for i in range(1, n + 1)))
+
+
 def _column_spec(args) -> tuple:
     """``(columns, units)`` of --columns/--time-unit/--length-unit for the column reader."""
-    cells = [c.strip() for c in str(getattr(args, 'columns', None)
-                                    or 'time,command,measured').split(',')]
-    if len(cells) != 3 or not all(cells):
-        raise ValueError(f'--columns {args.columns!r}: give three columns, time, command and '
-                         'measured, by name or 0-based index, e.g. "Time,Cmd,Disp" or 0,1,2')
-    names = ('time', 'command', 'measured')
-    columns = {n: int(c) if c.isdigit() else c for n, c in zip(names, cells, strict=True)}
+    n = int(getattr(args, 'channels', 1) or 1)
+    names = channel_columns(n)
+    given = getattr(args, 'columns', None)
+    cells = [c.strip() for c in str(given or ','.join(names)).split(',')]
+    if len(cells) != len(names) or not all(cells):
+        if n == 1:
+            raise ValueError(f'--columns {given!r}: give three columns, time, command and '
+                             'measured, by name or 0-based index, e.g. "Time,Cmd,Disp" or 0,1,2')
+        raise ValueError(f'--columns {given!r}: --channels {n} needs {len(names)} columns, '
+                         f'{", ".join(names)}, by name or 0-based index')
+    columns = {nm: int(c) if c.isdigit() else c for nm, c in zip(names, cells, strict=True)}
     units = {}
     if getattr(args, 'time_unit', None):
         units['time'] = args.time_unit
     if getattr(args, 'length_unit', None):
-        units.update(command=args.length_unit, measured=args.length_unit)
+        units.update({nm: args.length_unit for nm in names[1:]})
     return columns, units
 
 
@@ -275,6 +313,16 @@ def cmd_identify(args) -> int:
     """``rths identify``."""
     from ._blas import limit_blas_threads
     limit_blas_threads(1)
+    if args.channels < 1:
+        raise ValueError(f'--channels {args.channels}: give the number of actuators, >= 1')
+    if args.channels > 1:
+        return _identify_channels(args)
+    for flag in ('order_max', 'band'):
+        if getattr(args, flag) is not None:
+            raise ValueError(f'--{flag.replace("_", "-")} belongs to --channels N (N > 1); '
+                             'one actuator\'s order is --na-max/--nb-max')
+    if args.max_delay_ms is None:
+        args.max_delay_ms = 100.0
     if args.method == 'arx-grid':
         return _identify_arx_grid(args)
     if args.val_csv:
@@ -313,6 +361,120 @@ def cmd_identify(args) -> int:
         print(f'wrote {plot}')
     print(f'wrote {args.out}')
     return 0
+
+
+#: Options of one actuator's identification that --channels N does not take.
+SINGLE_CHANNEL_OPTIONS = ('val_csv', 'na_max', 'nb_max', 'd_min', 'd_max', 'max_delay_ms')
+
+
+def _identify_channels(args) -> int:
+    """``rths identify --channels N``: the N x N plant and its cross-coupling."""
+    from rths_common.progress import Progress
+    from rths_common.timebase import format_hz
+
+    from . import multichannel as mc
+    n = args.channels
+    if args.method != 'oe':
+        raise ValueError(f'--method {args.method} identifies one actuator; --channels {n} fits '
+                         'the N x N state-space model (drop --method)')
+    for name in SINGLE_CHANNEL_OPTIONS:
+        if getattr(args, name) is not None:
+            raise ValueError(f'--{name.replace("_", "-")} belongs to one actuator\'s '
+                             f'identification; --channels {n} chooses the state-space order '
+                             '(--order-max) on the held-out part')
+    order_max = 12 if args.order_max is None else args.order_max
+    if order_max < 1:
+        raise ValueError(f'--order-max must be >= 1, got {order_max}')
+    if args.band is not None and not args.band > 0:
+        raise ValueError(f'--band must be > 0 Hz, got {args.band}')
+    t, u, y, fs, record = _read_channels(args, n)
+    for i in range(n):
+        _check_causality(u[:, i], y[:, i], fs, f'{record["path"]}: actuator {i + 1}')
+    n_val = int(round(u.shape[0] * args.validation_fraction))
+    _log(f'identify: {n} actuators, fs = {format_hz(fs)} Hz, {u.shape[0]} samples '
+         f'({u.shape[0] / fs:.4g} s); the last {n_val / fs:.4g} s are held out for the order')
+    with Progress(0, 'identify: orders') as bar:
+        model, report = mc.identify_record(u, y, fs, args.validation_fraction,
+                                           n_max=order_max, horizon=max(30, order_max + 1),
+                                           band_hz=args.band, progress=bar.report)
+    report['source'] = record['path']
+    report['record'] = record
+    mc.save_plant(args.out, model, report)
+    json_path = _beside(args.out, '_identification.json')
+    _write_json(json_path, report)
+    print(channels_text(report))
+    if not args.no_plot:
+        plot = args.plot or _beside(args.out, '_fit.png')
+        mc.plot_identification(model, u, y, report, plot, title=record['path'])
+        print(f'wrote {plot}')
+    print(f'wrote {args.out}')
+    print(f'wrote {json_path}')
+    return 0
+
+
+def _write_json(path, obj) -> None:
+    import json
+
+    from rths_common.files import atomic_open
+
+    from .identification import _plain
+    with atomic_open(path) as handle:
+        handle.write(json.dumps(_plain(obj), indent=2) + '\n')
+
+
+def _read_channels(args, n: int):
+    """``(t, u, y, fs, record)`` of --bag or --csv with ``n`` actuators (samples x n)."""
+    import numpy as np
+
+    from rths_common.bagio import read_identification_channels
+    from rths_common.timebase import infer_rate, sampling_rate_hz
+    if args.bag:
+        t, u, y = read_identification_channels(args.bag)
+        width = u.shape[1]
+        if width != n:
+            raise ValueError(f'{args.bag}: the bag holds {width} actuator channels, not {n}; '
+                             f'give --channels {width}')
+        return t, u, y, sampling_rate_hz(t, args.bag), {
+            'kind': 'bag', 'path': os.path.abspath(args.bag)}
+    columns, units = _column_spec(args)
+    report = {}
+    names = channel_columns(n)
+    cols = read_columns(args.csv, columns, units=units or None, report=report,
+                        contract=', '.join(str(columns[nm]) for nm in names)
+                        + f' (--columns; --channels {n})')
+    rate = infer_rate(cols['time'], args.csv)
+    _log(f'{args.csv}: sampling rate {rate}')
+    _log(f'{args.csv}: ' + '; '.join(f'{nm} = column {c!r} in {unit or "SI"} ({src})'
+                                     for nm, (c, unit, src) in report.items()))
+    u = np.column_stack([cols[f'command_{i}'] for i in range(1, n + 1)])
+    y = np.column_stack([cols[f'measured_{i}'] for i in range(1, n + 1)])
+    return cols['time'], u, y, rate.fs_hz, {'kind': 'csv', 'path': os.path.abspath(args.csv),
+                                            'columns': columns, 'units': units}
+
+
+def channels_text(report: dict) -> str:
+    """Return the printed summary of an N x N identification: choice, fit, coupling."""
+    n, cc = report['n_channels'], report['cross_coupling']
+    val = report['validation']
+    held_s = (report['samples'] - report['split']) / report['fs_hz']
+    lines = [f'chosen: state-space order {report["order"]} for {n} actuators '
+             f'({report["criterion"]}; orders 1-{report["order_max"]})',
+             f'validation fit on the held-out {held_s:.4g} s: simulation NRMSE '
+             + ', '.join(f'actuator {i + 1} {v:.3f} %' for i, v in enumerate(val['nrmse_pct'])),
+             'static gains (row: measured actuator, column: command): '
+             + '; '.join(' '.join(f'{v:.4f}' for v in row) for row in cc['dc_gain']),
+             f'cross-coupling, relative to the actuator\'s own response (DC / peak over '
+             f'0-{cc["band_hz"]:.3g} Hz):']
+    for i in range(n):
+        for j in range(n):
+            if i != j:
+                lines.append(f'  command {j + 1} -> actuator {i + 1}: '
+                             f'{100 * cc["dc_rel"][i][j]:.2f} % / '
+                             f'{100 * cc["peak_rel"][i][j]:.2f} %')
+    lines.append(f'  largest: {100 * cc["dc_rel_max"]:.2f} % at DC, '
+                 f'{100 * cc["peak_rel_max"]:.2f} % at its peak')
+    lines += [f'WARNING: {w}' for w in report['warnings']]
+    return '\n'.join(lines)
 
 
 def _beside(path, suffix):
@@ -388,6 +550,10 @@ def cmd_design(args) -> int:
     from ._blas import limit_blas_threads
     from .identification import load_plant
     limit_blas_threads(1)
+    if _coupled_plant(args.plant):
+        return _design_coupled(args)
+    if args.taps is None:
+        args.taps = dsg.DESIGN_DEFAULTS['n_taps']
     plant = load_plant(args.plant)
     _snap_plant_rate(plant, args.plant)
     zero_tol = 1.0 if args.zero_tol is None else args.zero_tol
@@ -407,6 +573,77 @@ def cmd_design(args) -> int:
     else:
         make, band_of, adapt = _design_one(args, plant, scheme, zero_tol)
     return _assess_and_write(args, plant, make, band_of, adapt)
+
+
+def _coupled_plant(path) -> bool:
+    """Tell whether the plant file ``path`` holds an N x N plant (``kind: state_space``)."""
+    import os
+
+    from rths_common import yamlfile
+    if not os.path.isfile(path):
+        return False                  # load_plant says what is missing
+    data = yamlfile.load(path)
+    return isinstance(data, dict) and data.get('kind') == 'state_space'
+
+
+#: ``rths design`` options of one actuator's design, refused for an N x N plant (flag: default).
+SINGLE_DESIGN_OPTIONS = {'scheme': None, 'epsilon': None, 'zero_tol': None, 'gain_weight': None,
+                         'delay_ms': None, 'auto': False, 'bandwidth': None, 'alpha': 7.0,
+                         'mff_model': '3pole'}
+
+
+def _design_coupled(args) -> int:
+    """``rths design`` of an N x N plant: the coupled FIR (``coupled_taps``)."""
+    import numpy as np
+
+    from rths_common import yamlfile
+
+    from . import multichannel as mc
+    from .params import check_filter_cost, write_compensator_params
+    for name, default in SINGLE_DESIGN_OPTIONS.items():
+        if getattr(args, name) != default:
+            flag = '--' + name.replace('_', '-')
+            raise ValueError(f'{flag} belongs to one actuator\'s design; {args.plant} is an '
+                             'N x N plant: its coupled FIR takes --taps, --fc and --option '
+                             f'{"/".join(COUPLED_OPTIONS)}=VALUE')
+    doc = yamlfile.load(args.plant)
+    model = mc.model_from_dict(doc, args.plant)
+    n = model.b.shape[1]
+    if model.c.shape[0] != n:
+        raise ValueError(f'{args.plant}: {model.c.shape[0]} measured channels for {n} commands; '
+                         'a coupled FIR needs one of each per actuator')
+    opts = dict(COUPLED_DEFAULTS)
+    opts.update({k: v for k, v in (('n_taps', args.taps), ('fc_hz', args.fc)) if v is not None})
+    opts.update(_options(args.option, COUPLED_OPTIONS))
+    n_taps, fs = int(opts['n_taps']), model.fs_hz
+    if n_taps < 1:
+        raise ValueError(f'--taps must be >= 1, got {n_taps}')
+    for key in ('fc_hz', 'lowpass_hz'):
+        if not 0 < float(opts[key]) < fs / 2:
+            raise ValueError(f'{key} = {opts[key]}: give a frequency in (0, fs/2 = {fs / 2:g}) Hz')
+    check_filter_cost(n * n_taps, fs, f'--taps {n_taps} for {n} actuators')
+    taps = mc.design_coupled_fir(model.freq_resp, fs, n_taps, float(opts['fc_hz']),
+                                 float(opts['lowpass_hz']), float(opts['stop_weight']),
+                                 float(opts['gain_weight']))
+    pred = mc.coupled_prediction(model, taps, float(opts['lowpass_hz']), args.band)
+    if not np.all(np.isfinite(taps)):
+        raise ValueError(f'{args.plant}: the design gave non-finite taps; nothing written')
+    provenance = dict({k: float(v) for k, v in opts.items()}, plant=os.path.abspath(args.plant),
+                      n_actuators=n, **{k: v for k, v in pred.items()
+                                        if isinstance(v, (int, float))})
+    write_compensator_params(args.out, [1.0], [1.0], fs, 'ls', provenance,
+                             coupled_taps=taps)
+    print(f'coupled FIR: {n} x {n} actuators, n={n_taps} taps per pair, fc {opts["fc_hz"]:g} Hz, '
+          f'target low-pass {opts["lowpass_hz"]:g} Hz (order 4)')
+    print(f'predicted on the plant model over 0-{args.band:g} Hz: tracking error |(P G)_ii - L| '
+          f'up to {pred["tracking_error_pct"]:.2f} % of L, cross-coupling up to '
+          f'{pred["residual_coupling_pct"]:.2f} % of the diagonal (uncompensated '
+          f'{pred["plant_coupling_pct"]:.2f} %), compensator gain up to '
+          f'{pred["gain_peak"]:.3g} (at {pred["gain_peak_hz"]:.4g} Hz)')
+    print('limits: the bridge checks every actuator\'s command and the interface pose before '
+          'it is written (this design is not checked against them here)')
+    print(f'wrote {args.out}')
+    return 0
 
 
 def _design_auto(args, plant, zero_tol):

@@ -819,3 +819,10 @@ def auto_design(plant, bandwidth_hz: float, fs_hz: float = None, epsilon: float 
         raise ValueError('no candidate design was feasible; raise --epsilon')
     best[0].info.update(auto_score=best[1]['score'], bandwidth_hz=float(bandwidth_hz))
     return best[0], table
+
+
+def target_lowpass(order: int, cutoff_hz: float, fs_hz: float):
+    """All-pole unit-DC-gain low-pass ``g / aL(z^-1)``: Butterworth poles mapped by e^{sT}."""
+    _, poles, _ = signal.butter(order, 2 * np.pi * cutoff_hz, analog=True, output='zpk')
+    a_l = np.real(np.poly(np.exp(poles / fs_hz)))
+    return float(np.sum(a_l)), a_l

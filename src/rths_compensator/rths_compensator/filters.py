@@ -146,8 +146,9 @@ class CoupledFir:
     """An N x N matrix of FIR filters: command i = sum over l of ``taps[i, l]`` on target l.
 
     The coupled (MIMO) compensator of a multi-actuator rig (the maRTHS benchmark's ``mimo``
-    controller, ``rths_bench.marths.design_mimo_fir``): each actuator's command answers
-    every actuator's target, so the specimen's coupling between them can be cancelled.
+    controller, ``rths_compensator.multichannel.design_coupled_fir``): each actuator's
+    command answers every actuator's target, so the specimen's coupling between them can
+    be cancelled.
     The same :class:`History` as :class:`MultiChannelFilter`; one matrix-vector product
     (N x N n) per step.
     """

@@ -120,6 +120,10 @@ class ArxModel:
         """
         if not isinstance(data, dict):
             raise ValueError(f'{where}: expected a mapping with kind, fs_hz, a, b, d')
+        if data.get('kind') == 'state_space':
+            raise ValueError(f"{where}: an N x N plant of {data.get('n_channels', '?')} actuators "
+                             '(rths identify --channels N); this takes one actuator\'s ARX '
+                             'plant (rths identify without --channels)')
         if data.get('kind', 'arx') != 'arx':
             raise ValueError(f"{where}: field kind is {data.get('kind')!r}; only 'arx' is known")
         for field in ('fs_hz', 'a', 'b'):

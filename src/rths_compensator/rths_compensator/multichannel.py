@@ -389,3 +389,298 @@ def cross_coupling(model: MimoModel, band_hz: float, n_freq: int = 400) -> dict:
             'peak_gain': peak.round(5).tolist(),
             'dc_rel': (np.abs(dc) / diag_dc).round(5).tolist(),
             'peak_rel': (peak / diag_pk).round(5).tolist()}
+
+
+# ----------------------------------------------------------------------------- the design
+def design_coupled_fir(freq_resp, fs_hz: float, n_taps: int, fc_hz: float, lowpass_hz: float,
+                       stop_weight: float = 0.1, gain_weight: float = 1e-3) -> np.ndarray:
+    """Least-squares N x N FIR ``G`` with ``P G`` close to ``L I`` (L an order-4 low-pass).
+
+    ``freq_resp(f)`` gives the plant's N x N response at frequencies ``f`` [Hz] (shape
+    f x N x N, e.g. :meth:`MimoModel.freq_resp`).  The error ``P G - L I`` weighs 1 up to
+    ``fc_hz`` and ``stop_weight`` above; ``|G|`` above ``fc_hz`` weighs ``gain_weight`` (it
+    bounds the high-frequency gain, which the RTHS loop feeds back through the specimen's
+    inertia); ``L`` is :func:`rths_compensator.design.target_lowpass` at ``lowpass_hz``.
+    Returns the taps (N x N x ``n_taps``): ``taps[i, l]`` maps target l to command i, the
+    layout of :class:`rths_compensator.filters.CoupledFir` (``coupled_taps``).  One least-
+    squares problem per target l (its column of ``G``).
+    """
+    from .design import target_lowpass
+
+    f = np.linspace(0.0, fs_hz / 2, 513)
+    z1 = np.exp(-2j * np.pi * f / fs_hz)
+    p = freq_resp(f)
+    n = p.shape[1]
+    gain, a_l = target_lowpass(4, lowpass_hz, fs_hz)
+    ell = gain / np.polyval(a_l[::-1], z1)
+    e = z1[:, None] ** np.arange(n_taps)[None, :]
+    w = np.where(f <= fc_hz, 1.0, stop_weight)
+    reg = np.where(f > fc_hz, gain_weight, 0.0)[:, None] * e
+    zero = np.zeros_like(e)
+    taps = np.zeros((n, n, n_taps))
+    for j in range(n):
+        # unknowns: the taps of G[c, j] for every command c, one block each
+        rows = [w[:, None] * np.hstack([p[:, i, c, None] * e for c in range(n)])
+                for i in range(n)]
+        rhs = [w * (ell if i == j else 0.0 * ell) for i in range(n)]
+        rows += [np.hstack([reg if c == k else zero for c in range(n)]) for k in range(n)]
+        rhs += [np.zeros(f.size)] * n
+        a = np.vstack(rows)
+        b = np.concatenate(rhs)
+        sol = np.linalg.lstsq(np.vstack([a.real, a.imag]), np.concatenate([b.real, b.imag]),
+                              rcond=None)[0]
+        for c in range(n):
+            taps[c, j] = sol[c * n_taps:(c + 1) * n_taps]
+    return taps
+
+
+def coupled_response(model_resp, taps, f_hz, fs_hz: float) -> np.ndarray:
+    """Return ``P(f) G(f)`` (f x N x N): the compensated loop of plant response ``model_resp``."""
+    z1 = np.exp(-2j * np.pi * np.asarray(f_hz, float) / fs_hz)
+    g = np.einsum('ilk,fk->fil', np.asarray(taps, float),
+                  z1[:, None] ** np.arange(np.shape(taps)[2])[None, :])
+    return np.einsum('fij,fjl->fil', model_resp, g)
+
+
+def coupled_prediction(model: MimoModel, taps, lowpass_hz: float, band_hz: float) -> dict:
+    """Predicted figures of the coupled FIR ``taps`` on the plant ``model`` over the band.
+
+    ``tracking_error_pct``: the largest ``|(P G)_ii - L|`` as % of ``|L|`` (L the design's
+    target low-pass); ``residual_coupling_pct``: the largest ``|(P G)_ij| / |(P G)_ii|``
+    (i != j) in %; ``plant_coupling_pct`` the same of the plant alone; ``gain_peak`` and
+    ``gain_peak_hz``: the compensator's largest element gain up to fs/2 and where.
+    """
+    from .design import target_lowpass
+
+    fs = model.fs_hz
+    f = np.linspace(0.0, float(band_hz), 200)
+    p = model.freq_resp(f)
+    loop = coupled_response(p, taps, f, fs)
+    gain, a_l = target_lowpass(4, lowpass_hz, fs)
+    ell = gain / np.polyval(a_l[::-1], np.exp(-2j * np.pi * f / fs))
+    n = p.shape[1]
+    diag = np.stack([loop[:, i, i] for i in range(n)], axis=1)
+    off = ~np.eye(n, dtype=bool)
+
+    def coupling(m):
+        d = np.abs(np.stack([m[:, i, i] for i in range(n)], axis=1))[:, :, None]
+        return float(100.0 * np.max(np.abs(m)[:, off] / np.broadcast_to(d, m.shape)[:, off]))
+
+    f_all = np.linspace(0.0, fs / 2, 513)
+    g = np.abs(coupled_response(np.broadcast_to(np.eye(n), (f_all.size, n, n)), taps, f_all,
+                                fs))
+    k = int(np.argmax(np.max(g, axis=(1, 2))))
+    return {'band_hz': float(band_hz),
+            'tracking_error_pct': float(100.0 * np.max(np.abs(diag - ell[:, None])
+                                                       / np.abs(ell)[:, None])),
+            'residual_coupling_pct': coupling(loop) if n > 1 else 0.0,
+            'plant_coupling_pct': coupling(p) if n > 1 else 0.0,
+            'gain_peak': float(np.max(g)), 'gain_peak_hz': float(f_all[k])}
+
+
+# ----------------------------------------------------------------------------- one record
+#: Largest |correlation| between two commands the identification takes without a warning:
+#: beyond it the record cannot tell one actuator's effect from another's.
+CORRELATED_INPUTS = 0.5
+
+
+def identify_record(u, y, fs_hz: float, validation_fraction: float = 1.0 / 3.0,
+                    n_max: int = 12, horizon: int = 30, band_hz: float = None,
+                    progress=None) -> tuple:
+    """Identify the N x N plant from one record of simultaneous excitation.
+
+    ``u``, ``y``: the N commands and N measured displacements (samples x N).  The first
+    part of the record trains every order ``1..n_max``, the last ``validation_fraction``
+    chooses it (:func:`identify_multichannel`).  Returns ``(model, report)``; ``report``
+    holds the choice, the validation fit per output (simulation NRMSE [%], the held-out
+    part's initial state fitted), the inputs' largest correlation, and the cross-coupling
+    over ``band_hz`` (default: the band that holds 99.5 % of the commands' power).
+    """
+    from .estimation import excited_band_hz, split_point
+
+    u, y = _as_2d(u), _as_2d(y)
+    if u.shape != y.shape:
+        raise ValueError(f'{u.shape[1]} command and {y.shape[1]} measured channels of '
+                         f'{u.shape[0]} / {y.shape[0]} samples: give one of each per actuator')
+    n_ch = u.shape[1]
+    split = split_point(u.shape[0], validation_fraction)
+    if min(split, u.shape[0] - split) < 2 * int(horizon) + 10:
+        raise ValueError(f'{u.shape[0]} samples are too few for a horizon of {horizon} '
+                         'samples on both the training and the held-out part; record longer')
+    band = (float(band_hz) if band_hz
+            else max(excited_band_hz(u[:, j], fs_hz) for j in range(n_ch)))
+    if not 0.0 < band <= fs_hz / 2:
+        raise ValueError(f'band {band:g} Hz must lie in (0, fs/2 = {fs_hz / 2:g}] Hz')
+    train, val = [(u[:split], y[:split])], [(u[split:], y[split:])]
+    model = identify_multichannel(train, val, fs_hz, n_max=n_max, horizon=horizon,
+                                  progress=progress)
+    corr = np.corrcoef(u.T) if n_ch > 1 else np.ones((1, 1))
+    off = np.abs(corr - np.diag(np.diag(corr)))
+    worst = np.unravel_index(int(np.argmax(off)), off.shape)
+    row = next(r for r in model.selection['grid'] if r['order'] == model.order)
+    report = {'method': 'state-space subspace (PO-MOESP) + simulation-error B, D',
+              'n_channels': n_ch, 'fs_hz': float(fs_hz), 'samples': int(u.shape[0]),
+              'split': int(split), 'validation_fraction': float(validation_fraction),
+              'order': model.order, 'horizon': int(horizon), 'order_max': int(n_max),
+              'criterion': model.selection['criterion'],
+              'order_at_edge': model.order == max(r['order'] for r in model.selection['grid']),
+              'validation': {'fit': float(f"{row['fit']:.6g}"),
+                             'nrmse_pct': output_nrmse_pct(model, u[split:], y[split:])},
+              'input_correlation_max': round(float(off[worst]), 4),
+              'input_correlation_pair': [int(worst[0]), int(worst[1])],
+              'cross_coupling': cross_coupling(model, band),
+              'grid': [{k: (float(f'{v:.6g}') if isinstance(v, float) else v)
+                        for k, v in r.items()} for r in model.selection['grid']]}
+    report['cross_coupling']['dc_rel_max'], report['cross_coupling']['peak_rel_max'] = (
+        _off_diagonal_max(report['cross_coupling'][k]) for k in ('dc_rel', 'peak_rel'))
+    report['warnings'] = identification_warnings(report)
+    return model, report
+
+
+def _off_diagonal_max(matrix) -> float:
+    m = np.asarray(matrix, float)
+    if m.shape[0] < 2:
+        return 0.0
+    return float(np.max(m[~np.eye(m.shape[0], dtype=bool)]))
+
+
+def output_nrmse_pct(model: MimoModel, u, y) -> list:
+    """Return the simulation NRMSE [%] of each output over one record (initial state fitted)."""
+    u, y = _as_2d(u), _as_2d(y)
+    resid = y - model.simulate(u)
+    phx = _free_response(model.a, model.c, u.shape[0])
+    resid = (resid.ravel() - phx @ _lsq(phx, resid.ravel())).reshape(y.shape)
+    std = np.std(y, axis=0)
+    return [round(float(100.0 * np.sqrt(np.mean(resid[:, i] ** 2)) / std[i]), 4)
+            if std[i] > 0 else float('nan') for i in range(y.shape[1])]
+
+
+def identification_warnings(report: dict) -> list:
+    """Return the warnings of an identification report (correlated inputs, order at edge)."""
+    out = []
+    if report['input_correlation_max'] > CORRELATED_INPUTS:
+        i, j = report['input_correlation_pair']
+        out.append(f'commands {i + 1} and {j + 1} correlate by '
+                   f'{report["input_correlation_max"]:.2f}: the record cannot tell their '
+                   'effects apart (an RTHS run moves the actuators together); excite every '
+                   'actuator with its own uncorrelated signal (BLWN or multisine per actuator)')
+    if report['order_at_edge']:
+        out.append(f'the chosen order {report["order"]} is the largest tried; raise '
+                   '--order-max')
+    if max(report['validation']['nrmse_pct']) > 20.0:
+        out.append(f'poor validation fit (NRMSE {max(report["validation"]["nrmse_pct"]):.1f} '
+                   '% on the held-out part): excite more, record longer, or check the columns')
+    return out
+
+
+def empirical_frf(u, y, fs_hz: float, seconds: float = 4.0):
+    """``(f, H)``: the record's H1 estimate ``S_yu S_uu^-1`` (f x p x m), Welch segments."""
+    from scipy.signal import csd
+
+    u, y = _as_2d(u), _as_2d(y)
+    nper = int(min(u.shape[0], max(256, round(seconds * fs_hz))))
+    m, p = u.shape[1], y.shape[1]
+    f = csd(u[:, 0], u[:, 0], fs=fs_hz, nperseg=nper)[0]
+    suu = np.empty((f.size, m, m), complex)
+    syu = np.empty((f.size, p, m), complex)
+    for a in range(m):
+        for b in range(m):
+            suu[:, a, b] = csd(u[:, b], u[:, a], fs=fs_hz, nperseg=nper)[1]
+        for i in range(p):
+            syu[:, i, a] = csd(u[:, a], y[:, i], fs=fs_hz, nperseg=nper)[1]
+    h = np.full((f.size, p, m), np.nan + 0j)
+    ok = np.array([np.linalg.cond(s) < 1e8 for s in suu])
+    h[ok] = syu[ok] @ np.linalg.inv(suu[ok])
+    return f, h
+
+
+def plot_identification(model: MimoModel, u, y, report: dict, path, title: str = '') -> str:
+    """PNG of every pair's |G_ij|: the model beside the record's H1 estimate, band marked."""
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
+    import matplotlib
+    matplotlib.use('Agg')
+    # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
+    import matplotlib.pyplot as plt
+
+    from rths_common.files import atomic_open
+
+    fs, band = model.fs_hz, report['cross_coupling']['band_hz']
+    f, h = empirical_frf(u, y, fs)
+    sel = (f > 0) & (f <= min(fs / 2, 2.0 * band))
+    hm = model.freq_resp(f[sel])
+    n = model.b.shape[1]
+    fig, axes = plt.subplots(n, n, figsize=(4.2 * n, 3.2 * n), squeeze=False, sharex=True)
+    for i in range(n):
+        for j in range(n):
+            ax = axes[i, j]
+            ax.plot(f[sel], 20 * np.log10(np.abs(h[sel, i, j])), lw=0.7, label='record (H1)')
+            ax.plot(f[sel], 20 * np.log10(np.abs(hm[:, i, j])), lw=1.0, ls='--', label='model')
+            ax.axvline(band, color='k', lw=0.6, ls=':')
+            rel = report['cross_coupling']['peak_rel'][i][j]
+            ax.set_title(f'command {j + 1} -> measured {i + 1}'
+                         + (f' ({100 * rel:.1f} % of {i + 1}->{i + 1})' if i != j else ''),
+                         fontsize=9)
+            ax.grid(True, alpha=0.3)
+            if j == 0:
+                ax.set_ylabel('|G| [dB]')
+            if i == n - 1:
+                ax.set_xlabel('frequency [Hz]')
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(f'{title}\nstate-space order {model.order}, fs {fs:g} Hz; validation NRMSE '
+                 + ', '.join(f'{v:.2f}' for v in report['validation']['nrmse_pct']) + ' %',
+                 fontsize=9)
+    fig.tight_layout()
+    with atomic_open(path, 'wb') as handle:
+        fig.savefig(handle, format='png', dpi=100)
+    plt.close(fig)
+    return str(path)
+
+
+def save_plant(path, model: MimoModel, report: dict) -> str:
+    """Atomically write the N x N plant file: the model (:meth:`MimoModel.to_dict`) + report."""
+    import os
+
+    import yaml
+
+    from rths_common.files import atomic_open
+
+    from .identification import _plain
+    doc = dict(model.to_dict(), n_channels=int(model.b.shape[1]), units='m',
+               cross_coupling=report['cross_coupling'], identification=_plain(report))
+    path = os.fspath(path)
+    with atomic_open(path) as handle:
+        handle.write(yaml.safe_dump(_plain(doc), default_flow_style=None, sort_keys=False,
+                                    width=100))
+    return path
+
+
+def model_from_dict(data: dict, where: str = 'plant') -> MimoModel:
+    """Build the N x N model of a plant file (:func:`save_plant`); ValueError names the field."""
+    if not isinstance(data, dict) or data.get('kind') != 'state_space':
+        raise ValueError(f'{where}: not an N x N plant file (kind state_space); write one with '
+                         'rths identify --channels N')
+    fs = data.get('fs_hz')
+    if isinstance(fs, bool) or not isinstance(fs, (int, float)) or not (
+            math.isfinite(fs) and fs > 0):
+        raise ValueError(f'{where}: field fs_hz = {fs!r}; give the sampling rate in Hz, > 0')
+    mats = {}
+    for field in ('a', 'b', 'c', 'd'):
+        try:
+            mats[field] = np.atleast_2d(np.asarray(data[field], dtype=float))
+        except KeyError:
+            raise ValueError(f'{where}: field {field} missing; re-run rths identify '
+                             '--channels N') from None
+        except (TypeError, ValueError):
+            raise ValueError(f'{where}: field {field} must be a matrix of numbers') from None
+        if not np.all(np.isfinite(mats[field])):
+            raise ValueError(f'{where}: field {field} holds nan/inf; re-run rths identify')
+    n = mats['a'].shape[0]
+    shapes = {'a': (n, n), 'b': (n, None), 'c': (None, n), 'd': (mats['c'].shape[0],
+                                                                 mats['b'].shape[1])}
+    for field, want in shapes.items():
+        got = mats[field].shape
+        if any(w is not None and w != g for w, g in zip(want, got, strict=True)):
+            raise ValueError(f'{where}: field {field} has the shape {got}, not '
+                             f'{tuple("N" if w is None else w for w in want)}; re-run rths '
+                             'identify --channels N')
+    return MimoModel(mats['a'], mats['b'], mats['c'], mats['d'], float(fs))

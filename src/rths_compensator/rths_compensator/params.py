@@ -39,6 +39,7 @@ from rths_common.params import LOOP_RATE_RANGE_HZ, node_schema
 from rths_common.timebase import format_hz, same_rate
 
 from .feedforward import FEEDFORWARD_PARAMS, feedforward_settings
+from .filters import CoupledFir
 from .methods import DEFAULT as DEFAULT_METHOD
 from .methods import METHODS
 from .schemes import SCHEMES
@@ -248,13 +249,15 @@ def compensator_params_from(doc, path) -> dict:
 
 
 def write_compensator_params(path, taps, denominator, fs_hz, scheme, provenance=None,
-                             feedforward=None) -> str:
+                             feedforward=None, coupled_taps=None) -> str:
     """Validate and atomically write a compensator parameters file; return its path.
 
     ``provenance`` maps names to scalars/strings (plant, n_taps, fc_hz, epsilon,
     predicted_delay_ms, ...); ``created`` (ISO time, UTC) is added if absent.
     ``feedforward`` maps keys of :data:`.feedforward.FEEDFORWARD_PARAMS` to values (the
     load feed-forward of an updated actuator model), written beside the filter fields.
+    ``coupled_taps`` (N x N x n, several actuators): the coupled FIR the node runs
+    instead of ``taps`` (:class:`rths_compensator.filters.CoupledFir`).
     Nothing is written if validation fails.
     """
     path = os.fspath(path)
@@ -268,6 +271,8 @@ def write_compensator_params(path, taps, denominator, fs_hz, scheme, provenance=
                              f'{", ".join(FEEDFORWARD_PARAMS)}')
         checked = feedforward_settings(feedforward, path)
         params.update({k: checked[k] for k in feedforward})
+    if coupled_taps is not None:
+        params['coupled_taps'] = [float(v) for v in CoupledFir(coupled_taps).taps.ravel()]
     prov = dict(provenance or {})
     prov.setdefault('created', datetime.datetime.now(datetime.timezone.utc).isoformat(
         timespec='seconds'))

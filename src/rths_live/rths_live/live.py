@@ -17,7 +17,11 @@ connect too.  What it streams:
   measured displacement, tracking error, force, deadline misses per node, the
   bridge's safety state, the stability monitor's estimates (``/rths/stability``,
   when the compensator runs one: docs/monitor.md) and ``run_state`` (``running``,
-  then ``stopped`` when the run ends and the server closes).
+  then ``stopped`` when the run ends and the server closes).  The top-level
+  target, measured, error and force are actuator 1's; a run of several actuators
+  (a bridge ``rig_file``) adds ``n_actuators`` and ``actuators``, one
+  ``{target_m, measured_m, tracking_error_m, force_n}`` per actuator in channel
+  order.
 
 It listens on 127.0.0.1 unless ``--host`` says otherwise; off loopback a client
 must give the access token (``$RTHS_LIVE_TOKEN``, else a new one printed at
@@ -26,7 +30,8 @@ start) as ``ws://HOST:PORT/?token=...``, and ``--live-tls-cert`` serves ``wss://
 
 The layout ``foxglove/rths_live.json`` (installed under
 ``share/rths_live/foxglove``) plots target vs measured displacement, force,
-tracking error and deadline misses; :func:`layout` generates it.
+tracking error and deadline misses; ``foxglove/rths_live_2_actuators.json`` the
+same per actuator for a two-actuator rig; :func:`layout` generates both.
 """
 
 import argparse
@@ -73,8 +78,14 @@ LIVE_SCHEMA = {
         'stability_error_pct': {'type': 'number'},
         'stability_level': {'type': 'integer'},
         'run_state': {'type': 'string'},
+        'n_actuators': {'type': 'integer'},
+        'actuators': {'type': 'array', 'items': {'type': 'object', 'properties': {
+            'target_m': {'type': 'number'}, 'measured_m': {'type': 'number'},
+            'tracking_error_m': {'type': 'number'}, 'force_n': {'type': 'number'}}}},
     },
 }
+#: The layouts shipped in ``foxglove/``: actuators -> file name.
+LAYOUT_FILES = {1: 'rths_live.json', 2: 'rths_live_2_actuators.json'}
 READY_LINE = 'live view: serving'
 #: Environment variable carrying the access token to the live-view process (never its argv).
 TOKEN_ENV = 'RTHS_LIVE_TOKEN'
@@ -114,9 +125,9 @@ class LiveState:
         self.measurement = None
         self.stability = None
 
-    def on_target(self, step: int, value: float):
-        """Remember the interface displacement (channel 0) of ``step``."""
-        self.targets[step] = value
+    def on_target(self, step: int, value):
+        """Remember the interface displacement of ``step`` (a number, or one per actuator)."""
+        self.targets[step] = _channels(value)
         self._order.append(step)
         while len(self._order) > self._keep:
             self.targets.pop(self._order.popleft(), None)
@@ -128,9 +139,9 @@ class LiveState:
             self.safety_state = int(safety_state)
             self.fault = fault or self.fault
 
-    def on_measurement(self, step: int, displacement: float, force: float):
-        """Take the newest measurement (channel 0)."""
-        self.measurement = (step, displacement, force)
+    def on_measurement(self, step: int, displacement, force):
+        """Take the newest measurement (numbers, or one per actuator)."""
+        self.measurement = (step, _channels(displacement), _channels(force))
 
     def on_stability(self, row):
         """Take the monitor's row ``[step, delay_ms, gain, error_pct, ti, level]``."""
@@ -146,13 +157,27 @@ class LiveState:
                            self.stability, strict=True))
         if self.measurement is not None:
             step, measured, force = self.measurement
-            out.update(step=step, measured_m=measured, force_n=force)
+            out.update(step=step, measured_m=measured[0], force_n=force[0])
             if self.fs_hz:
                 out['time_s'] = step / self.fs_hz
             target = self.targets.get(step)
             if target is not None:
-                out.update(target_m=target, tracking_error_m=target - measured)
+                out.update(target_m=target[0], tracking_error_m=target[0] - measured[0])
+            if len(measured) > 1:
+                out['n_actuators'] = len(measured)
+                out['actuators'] = [
+                    {'measured_m': m, **({'force_n': force[i]} if i < len(force) else {}),
+                     **({'target_m': target[i], 'tracking_error_m': target[i] - m}
+                        if target is not None and i < len(target) else {})}
+                    for i, m in enumerate(measured)]
         return out
+
+
+def _channels(value) -> tuple:
+    """Return ``value`` as a tuple of floats: one number, or one per actuator."""
+    if isinstance(value, (int, float)):
+        return (float(value),)
+    return tuple(float(v) for v in value)
 
 
 #: The subprotocol the foxglove-sdk server speaks, and its older name (same protocol).
@@ -305,8 +330,12 @@ class SubprotocolBridge:
         self.thread.join(5)
 
 
-def layout() -> dict:
-    """Return the Foxglove layout of the live view (plots of the ``/rths/live`` channel)."""
+def layout(n_actuators: int = 1) -> dict:
+    """Return the Foxglove layout of the live view (plots of the ``/rths/live`` channel).
+
+    ``n_actuators`` > 1: target vs measured and force per actuator
+    (``actuators[i]``), and every actuator's tracking error in one plot.
+    """
     # lazy: optional dependency (foxglove)
     from foxglove import layouts as fl
 
@@ -317,11 +346,22 @@ def layout() -> dict:
             paths=paths, show_legend=True, x_axis_val='timestamp', time_window_mode='sliding',
             following_view_width=20.0)))
 
-    content = fl.SplitContainer(direction='column', items=[
-        plot('target vs measured displacement [m]', ('target_m', 'target'),
-             ('measured_m', 'measured')),
-        plot('measured force [N]', ('force_n', 'force')),
-        plot('tracking error (target - measured) [m]', ('tracking_error_m', 'error')),
+    if n_actuators > 1:
+        act = [f'actuators[{i}]' for i in range(n_actuators)]
+        loop = [plot(f'actuator {i + 1}: target vs measured stroke [m]',
+                     (f'{a}.target_m', 'target'), (f'{a}.measured_m', 'measured'))
+                for i, a in enumerate(act)]
+        loop += [plot('axial force per actuator [N]',
+                      *((f'{a}.force_n', f'actuator {i + 1}') for i, a in enumerate(act))),
+                 plot('tracking error per actuator (target - measured) [m]',
+                      *((f'{a}.tracking_error_m', f'actuator {i + 1}')
+                        for i, a in enumerate(act)))]
+    else:
+        loop = [plot('target vs measured displacement [m]', ('target_m', 'target'),
+                     ('measured_m', 'measured')),
+                plot('measured force [N]', ('force_n', 'force')),
+                plot('tracking error (target - measured) [m]', ('tracking_error_m', 'error'))]
+    content = fl.SplitContainer(direction='column', items=loop + [
         plot('deadline misses', ('deadline_misses', 'misses (all nodes)')),
         plot('stability monitor: delay [ms], error [%], level (1 warn, 2 stop)',
              ('stability_delay_ms', 'delay'), ('stability_error_pct', 'error'),
@@ -361,7 +401,8 @@ def add_arguments(p, replay: bool = False):
     p.add_argument('--live', action='store_true',
                    help='start a Foxglove WebSocket server streaming the loop topics and the '
                         'run status at the display rate (open ws://HOST:PORT in Foxglove with '
-                        'the layout share/rths_live/foxglove/rths_live.json)')
+                        'the layout share/rths_live/foxglove/rths_live.json; two actuators: '
+                        'rths_live_2_actuators.json)')
     p.add_argument('--port', type=int, default=DEFAULT_PORT,
                    help=f'port of the live view (default {DEFAULT_PORT})')
     p.add_argument('--host', default='127.0.0.1',
@@ -506,11 +547,11 @@ class LiveView:
             if topic == topics.INTERFACE_DISPLACEMENT:
                 _, step, disp = cdr.unpack_step_arrays(raw, 1)
                 if disp:
-                    state.on_target(step, disp[0])
+                    state.on_target(step, disp)
             elif topic == topics.MEASUREMENT:
                 _, step, _, disp, force = cdr.unpack_step_arrays(raw, 3)
                 if disp and force:
-                    state.on_measurement(step, disp[0], force[0])
+                    state.on_measurement(step, disp, force)
             elif topic == topics.STATUS:
                 node, misses, safety, fault = _status_fields(raw)
                 state.on_status(node, misses, safety, fault)

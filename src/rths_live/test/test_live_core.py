@@ -35,6 +35,44 @@ def test_live_record_pairs_target_and_measurement_by_step():
     assert len(state.targets) == 8
 
 
+def test_live_record_shows_each_actuator_of_a_rig():
+    """Two actuators (the messages carry one entry per actuator): each paired by step."""
+    state = live.LiveState(fs_hz=1024.0)
+    for k in range(10):
+        state.on_target(k, (0.001 * k, -0.002 * k))
+    state.on_measurement(7, (0.0068, -0.0135), (120.0, -340.0))
+    rec = state.record()
+    # the top-level fields stay actuator 1's, as for one actuator
+    assert rec['target_m'] == pytest.approx(0.007) and rec['measured_m'] == 0.0068
+    assert rec['n_actuators'] == 2
+    one, two = rec['actuators']
+    assert one == {'target_m': pytest.approx(0.007), 'measured_m': 0.0068, 'force_n': 120.0,
+                   'tracking_error_m': pytest.approx(0.0002)}
+    assert two['target_m'] == pytest.approx(-0.014) and two['force_n'] == -340.0
+    assert two['tracking_error_m'] == pytest.approx(-0.0005)
+    state.on_measurement(50, (0.0, 0.0), (0.0, 0.0))         # no target of that step (yet)
+    assert all(set(a) == {'measured_m', 'force_n'} for a in state.record()['actuators'])
+    # one actuator: no per-actuator list (the record as before)
+    single = live.LiveState(fs_hz=1024.0)
+    single.on_target(3, (0.001,))
+    single.on_measurement(3, (0.0009,), (5.0,))
+    assert 'actuators' not in single.record() and 'n_actuators' not in single.record()
+    assert single.record()['tracking_error_m'] == pytest.approx(0.0001)
+
+
+def test_shipped_two_actuator_layout_plots_each_actuator():
+    shipped = (Path(__file__).resolve().parents[1] / 'foxglove'
+               / live.LAYOUT_FILES[2])
+    layout = json.loads(shipped.read_text())
+    assert layout == live.layout(2)
+    text = json.dumps(layout)
+    for i in range(2):
+        for field in ('target_m', 'measured_m', 'force_n', 'tracking_error_m'):
+            assert f'/rths/live.actuators[{i}].{field}' in text
+    assert '/rths/live.deadline_misses' in text and '/rths/live.target_m' not in text
+    assert 'actuators' in live.LIVE_SCHEMA['properties']
+
+
 def test_live_record_carries_the_stability_monitor_row():
     state = live.LiveState(fs_hz=1024.0)
     assert 'stability_level' not in state.record()

@@ -9,7 +9,7 @@
 * ``completeness``: every step of every loop topic present or accounted for.
   The bridge writes a measurement and a status every tick: all of them must be
   there (:func:`bag_missing`). The interface displacements and commands go
-  through the review's step alignment (:func:`rths_review.review.aligned_steps`):
+  through the review's step alignment (:func:`rths_review.tracking.aligned_steps`):
   re-sends and short gaps are counted (at most MAX_FILLED_PCT of the steps,
   none longer than MAX_GAP_S, not at the start); longer gaps make the bag
   incomplete (the review still reviews it and states them). A run that stopped
@@ -100,7 +100,8 @@ def _provenance(info: dict) -> dict:
 def completeness(bag: Path, info: dict) -> dict:
     """Return the steps of every loop topic present or accounted for (module doc), problems."""
     # lazy: start-up cost: the review imports SciPy and the numerical package
-    from rths_review.review import STEP_TOPICS, aligned_steps, loop_summary
+    from rths_review.review import loop_summary
+    from rths_review.tracking import STEP_TOPICS, aligned_steps
 
     summary = loop_summary(bag)
     problems = bag_missing(summary)

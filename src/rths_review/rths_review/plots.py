@@ -69,8 +69,12 @@ def review_plots(out_dir, fs, desired, applied, measured, floor2, ref_disp, unc_
     tracking_plots(out_dir, fs, desired, applied, measured)
 
 
-def tracking_plots(out_dir, fs, desired, applied, measured):
-    """Tracking around the peak and the measured FRF of the actuator (table 5's plots)."""
+def tracking_plots(out_dir, fs, desired, applied, measured, suffix: str = '', title: str = ''):
+    """Tracking around the peak and the measured FRF of the actuator (table 5's plots).
+
+    ``suffix`` goes before ``.png`` of both files and ``title`` above both plots (one
+    actuator of several: ``_1``, ``actuator 1 (lower)``).
+    """
     plt = _pyplot()
     t = np.arange(desired.size) / fs
     k = int(np.argmax(np.abs(desired)))
@@ -82,8 +86,10 @@ def tracking_plots(out_dir, fs, desired, applied, measured):
     ax.set_xlabel('time [s]')
     ax.set_ylabel('actuator displacement [mm]')
     ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(out_dir / 'tracking_zoom.png', dpi=110)
+    fig.savefig(out_dir / f'tracking_zoom{suffix}.png', dpi=110)
     plt.close(fig)
 
     fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
@@ -104,8 +110,39 @@ def tracking_plots(out_dir, fs, desired, applied, measured):
     ax[1].set_ylabel('phase [deg]')
     ax[1].set_xlabel('frequency [Hz]')
     ax[0].legend(fontsize=8)
-    ax[0].set_title('Measured FRF of the actuator (H1) during the RTHS\n'
+    ax[0].set_title(f'Measured FRF of {title or "the actuator"} (H1) during the RTHS\n'
                     '(bins with coherence > 0.9 and power within 60 dB of the peak)', fontsize=10)
     fig.tight_layout()
-    fig.savefig(out_dir / 'bode_actuator.png', dpi=110)
+    fig.savefig(out_dir / f'bode_actuator{suffix}.png', dpi=110)
+    plt.close(fig)
+
+
+def interface_plot(path, fs, desired, measured, forces=None, title=''):
+    """Plot the interface DOFs x [mm] and theta [mrad]: desired, measured and their error.
+
+    ``forces`` (F [N], M [N m] at the node) go below when given (a rig of several actuators).
+    """
+    plt = _pyplot()
+    t = np.arange(desired.shape[0]) / fs
+    rows = 3 if forces is None else 4
+    fig, ax = plt.subplots(rows, 1, figsize=(10, 2.4 * rows), sharex=True)
+    for i, (name, unit, scale) in enumerate((('x', 'mm', 1e3), ('theta', 'mrad', 1e3))):
+        ax[i].plot(t, desired[:, i] * scale, lw=0.9, label=f'{name} desired')
+        ax[i].plot(t, measured[:, i] * scale, '--', lw=0.9, label=f'{name} measured')
+        ax[i].set_ylabel(f'{name} [{unit}]')
+        ax[i].legend(loc='upper right', fontsize=8)
+        ax[2].plot(t, (measured[:, i] - desired[:, i]) * scale, lw=0.7,
+                   label=f'{name} [{unit}]')
+    ax[2].set_ylabel('measured - desired')
+    ax[2].legend(loc='upper right', fontsize=8)
+    if forces is not None:
+        ax[3].plot(t, forces[:, 0] * 1e-3, lw=0.8, label='F [kN]')
+        ax[3].plot(t, forces[:, 1] * 1e-3, lw=0.8, label='M [kN m]')
+        ax[3].set_ylabel('at the node')
+        ax[3].legend(loc='upper right', fontsize=8)
+    ax[-1].set_xlabel('time [s]')
+    if title:
+        ax[0].set_title(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
     plt.close(fig)

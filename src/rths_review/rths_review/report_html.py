@@ -50,8 +50,11 @@ def _table(caption: str, header, rows) -> str:
 def tables(s: dict) -> str:
     """Return tables 5-9 of a review summary (:func:`rths_review.review.review_rths`) as HTML.
 
-    A site review (``kind`` site) has table 5 only: its model ran in the client.
+    A site review (``kind`` site) has table 5 only: its model ran in the client; a review
+    of several actuators (``kind`` actuators) table 5 per actuator and interface DOF.
     """
+    if s.get('kind') == 'actuators':
+        return actuator_tables(s)
     out = _table('Table 5 layout: actuator time delay and relative RMS tracking error',
                  ('', 'before compensation', 'after compensation'),
                  (('time delay [ms]', f"{s['delay_ms_before']:.3f}", f"{s['delay_ms_after']:.3f}"),
@@ -99,10 +102,49 @@ def tables(s: dict) -> str:
     return out
 
 
+def _table5_row(name, r, extreme) -> tuple:
+    return (name, f"{r['delay_ms_before']:.3f}", f"{r['delay_ms_after']:.3f}",
+            f"{r['tracking_rel_rms_pct_before']:.2f}", f"{r['tracking_rel_rms_pct_after']:.2f}",
+            extreme)
+
+
+_TABLE5_HEADER = ('', 'delay before [ms]', 'delay after [ms]', 'rel. RMS error before [%]',
+                  'rel. RMS error after [%]', 'largest target')
+
+
+def actuator_tables(s: dict) -> str:
+    """Return table 5 per actuator and per interface DOF of a several-actuator review."""
+    out = _table('Table 5 layout per actuator: time delay and relative RMS tracking error',
+                 _TABLE5_HEADER,
+                 [_table5_row(f"{a['channel'] + 1}: {a['name']}", a,
+                              f"{1e3 * a['max_abs_target_m']:.3f} mm") for a in s['actuators']])
+    out += ('<p>before: command &rarr; measured stroke; after: target stroke &rarr; measured '
+            'stroke</p>\n')
+    if s.get('interface'):
+        shown = {'x': ('mm', 1e3), 'theta': ('mrad', 1e3)}
+        out += _table('Table 5 layout per interface DOF (through the coupler)', _TABLE5_HEADER,
+                      [_table5_row(r['dof'], r, f"{shown[r['dof']][1] * r['max_abs_target']:.3f} "
+                                                f"{shown[r['dof']][0]}")
+                       for r in s['interface']])
+        m = s['interface_max']
+        out += (f"<p>at the node: largest force {m['force_n']:.6g} N, moment "
+                f"{m['moment_n_m']:.6g} N m; coupler from {html.escape(s['rig_source'])}</p>\n")
+    else:
+        out += f"<p>No interface DOFs: {html.escape(s['rig_source'])}</p>\n"
+    return out + f"<p>{html.escape(s['tables_6_9'])}</p>\n"
+
+
 def settings(s: dict) -> str:
     """Return what shaped the run (scale, force scale, frame, specimen, processing) as HTML."""
     if s.get('kind') == 'site':      # the record and the model ran in the client
         return ''
+    if s.get('kind') == 'actuators':
+        return _table('What shaped the run', ('', ''), (
+            ('record', f"{s.get('record', '?')} x {s.get('scale', '?')}"),
+            ('model', s.get('numerical_model', '?')),
+            ('actuators', ', '.join(a['name'] for a in s['actuators'])
+             + (f" ({s['rig']})" if s.get('rig') else '')),
+            ('bridge backend', s.get('backend', '?'))))
     rows = [('record', f"{s.get('record', '?')} x {s.get('scale', '?')}"),
             ('specimen', s.get('specimen', '?')),
             ('model', f"{s.get('numerical_model', '?')}"),
@@ -170,13 +212,17 @@ def render(summary: dict, images: dict) -> str:
     s = summary
     what = (f"site review: backend {s['backend']}"
             if s.get('kind') == 'site' else f"RTHS review: {s['record']} x {s['scale']}")
-    title = (f"{what}, specimen {specimen_title(s)}, {s['mode']}, "
+    who = (f"{s['n_actuators']} actuators" if s.get('kind') == 'actuators'
+           else f'specimen {specimen_title(s)}')
+    title = (f"{what}, {who}, {s['mode']}, "
              f"{s['steps']} steps at {s['fs_hz']:g} Hz ({s['duration_s']:.1f} s)")
     misses = f"deadline misses: {s['deadline_misses']} ({s['deadline_miss_pct']:.3f} %)"
     extra = ''.join(f'<p>{html.escape(line)}</p>\n' for line in notes(s)
                     if not line.startswith('safety faults'))
     faults = ''.join(f'<li>{html.escape(f)}</li>' for f in s.get('safety_faults', []))
-    figures = ''.join(_figure(name, data, PLOTS.get(name, name)) for name, data in images.items())
+    captions = dict(PLOTS, **{name: text for name, text in s.get('plots', [])})
+    figures = ''.join(_figure(name, data, captions.get(name, name))
+                      for name, data in images.items())
     comp = s.get('compensator') or {}
     scheme = ', '.join(f'{k} {v}' for k, v in comp.items() if k != 'plant')
     return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
@@ -215,7 +261,8 @@ def write_stop_report(out_dir, summary: dict, text: str) -> Path:
 def write_report(out_dir, summary: dict) -> Path:
     """Write ``out_dir/report.html`` from ``summary`` and the PNG plots in ``out_dir``."""
     out_dir = Path(out_dir)
-    images = {name: (out_dir / name).read_bytes() for name in PLOTS if (out_dir / name).is_file()}
+    names = [name for name, _ in summary['plots']] if 'plots' in summary else list(PLOTS)
+    images = {name: (out_dir / name).read_bytes() for name in names if (out_dir / name).is_file()}
     path = out_dir / 'report.html'
     tmp = path.with_suffix('.html.tmp')
     tmp.write_text(render(summary, images), encoding='utf-8')

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from rths_review.review import step_check, weighted_delay_ms
+from rths_review.tracking import step_check, weighted_delay_ms
 
 
 def test_step_check_counts_gaps_duplicates_and_order():
