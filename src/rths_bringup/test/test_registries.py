@@ -30,7 +30,8 @@ ROOT = Path(os.environ.get('RTHS_ROOT') or Path(__file__).resolve().parents[3])
 SHARED_WORDS = {
     'none': None,
     # the unit millimetre
-    'mm': {'rths_common/rths_common/columns.py', 'rths_bringup/rths_bringup/preflight.py'},
+    'mm': {'rths_common/rths_common/columns.py', 'rths_bringup/rths_bringup/preflight.py',
+           'rths_common/rths_common/rig.py'},
 }
 #: Benchmarks and studies reproduce named published cases (the seed's comparison study,
 #: the RTHS benchmark's controllers, a study's configurations); they are not where a name

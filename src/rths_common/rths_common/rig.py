@@ -42,6 +42,8 @@ INTERFACE_LIMITS = {'x_m': 'translation x [m]', 'theta_rad': 'rotation theta [ra
                     'moment_n_m': 'moment M at the node [N m]'}
 #: Interface DOFs a coupler resolves, in the order of :meth:`Coupler.dofs`.
 DOFS = ('x', 'theta')
+#: Each DOF's SI unit, the unit reports print it in, and the factor from the one to the other.
+DOF_UNITS = {'x': ('m', 'mm', 1e3), 'theta': ('rad', 'mrad', 1e3)}
 KINEMATICS = ('exact', 'linear')
 
 

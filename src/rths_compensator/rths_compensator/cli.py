@@ -12,7 +12,7 @@ import sys
 
 from rths_common.columns import LENGTH_UNITS, TIME_UNITS, read_columns
 
-from .schemes import SCHEMES, designed
+from .schemes import COUPLED_SCHEME, SCHEMES, designed
 
 # Imports of the commands' code sit in the command functions: rths imports this module
 # to build its parser, and every rths command would pay for SciPy, matplotlib and ROS.
@@ -631,7 +631,7 @@ def _design_coupled(args) -> int:
     provenance = dict({k: float(v) for k, v in opts.items()}, plant=os.path.abspath(args.plant),
                       n_actuators=n, **{k: v for k, v in pred.items()
                                         if isinstance(v, (int, float))})
-    write_compensator_params(args.out, [1.0], [1.0], fs, 'ls', provenance,
+    write_compensator_params(args.out, [1.0], [1.0], fs, COUPLED_SCHEME, provenance,
                              coupled_taps=taps)
     print(f'coupled FIR: {n} x {n} actuators, n={n_taps} taps per pair, fc {opts["fc_hz"]:g} Hz, '
           f'target low-pass {opts["lowpass_hz"]:g} Hz (order 4)')

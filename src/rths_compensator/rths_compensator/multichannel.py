@@ -37,12 +37,19 @@ Plain numpy/scipy, no rclpy.  Units are the caller's (the maRTHS benchmark uses 
 
 import dataclasses
 import math
+import os
 
 import numpy as np
 from scipy import linalg
-from scipy.signal import lfilter
+from scipy.signal import csd, lfilter
+import yaml
 
+from rths_common.files import atomic_open
 from rths_numerical.signals import blwn
+
+from .design import target_lowpass
+from .estimation import excited_band_hz, split_point
+from .identification import _plain
 
 EXCITATIONS = ('blwn', 'multisine')
 
@@ -405,8 +412,6 @@ def design_coupled_fir(freq_resp, fs_hz: float, n_taps: int, fc_hz: float, lowpa
     layout of :class:`rths_compensator.filters.CoupledFir` (``coupled_taps``).  One least-
     squares problem per target l (its column of ``G``).
     """
-    from .design import target_lowpass
-
     f = np.linspace(0.0, fs_hz / 2, 513)
     z1 = np.exp(-2j * np.pi * f / fs_hz)
     p = freq_resp(f)
@@ -450,8 +455,6 @@ def coupled_prediction(model: MimoModel, taps, lowpass_hz: float, band_hz: float
     (i != j) in %; ``plant_coupling_pct`` the same of the plant alone; ``gain_peak`` and
     ``gain_peak_hz``: the compensator's largest element gain up to fs/2 and where.
     """
-    from .design import target_lowpass
-
     fs = model.fs_hz
     f = np.linspace(0.0, float(band_hz), 200)
     p = model.freq_resp(f)
@@ -496,8 +499,6 @@ def identify_record(u, y, fs_hz: float, validation_fraction: float = 1.0 / 3.0,
     part's initial state fitted), the inputs' largest correlation, and the cross-coupling
     over ``band_hz`` (default: the band that holds 99.5 % of the commands' power).
     """
-    from .estimation import excited_band_hz, split_point
-
     u, y = _as_2d(u), _as_2d(y)
     if u.shape != y.shape:
         raise ValueError(f'{u.shape[1]} command and {y.shape[1]} measured channels of '
@@ -575,8 +576,6 @@ def identification_warnings(report: dict) -> list:
 
 def empirical_frf(u, y, fs_hz: float, seconds: float = 4.0):
     """``(f, H)``: the record's H1 estimate ``S_yu S_uu^-1`` (f x p x m), Welch segments."""
-    from scipy.signal import csd
-
     u, y = _as_2d(u), _as_2d(y)
     nper = int(min(u.shape[0], max(256, round(seconds * fs_hz))))
     m, p = u.shape[1], y.shape[1]
@@ -601,8 +600,6 @@ def plot_identification(model: MimoModel, u, y, report: dict, path, title: str =
     matplotlib.use('Agg')
     # lazy: start-up cost: matplotlib (~0.5 s), which this module needs only here
     import matplotlib.pyplot as plt
-
-    from rths_common.files import atomic_open
 
     fs, band = model.fs_hz, report['cross_coupling']['band_hz']
     f, h = empirical_frf(u, y, fs)
@@ -638,13 +635,6 @@ def plot_identification(model: MimoModel, u, y, report: dict, path, title: str =
 
 def save_plant(path, model: MimoModel, report: dict) -> str:
     """Atomically write the N x N plant file: the model (:meth:`MimoModel.to_dict`) + report."""
-    import os
-
-    import yaml
-
-    from rths_common.files import atomic_open
-
-    from .identification import _plain
     doc = dict(model.to_dict(), n_channels=int(model.b.shape[1]), units='m',
                cross_coupling=report['cross_coupling'], identification=_plain(report))
     path = os.fspath(path)

@@ -62,6 +62,9 @@ SCHEMES = Registry('compensator scheme', 'scheme', {
 
 #: The scheme of seed section 6.1 (rths run's default).
 DEFAULT_SCHEME = 'wls'
+#: The scheme a coupled (N x N) FIR is written with: a least-squares fit of P G to a
+#: low-pass (``multichannel.design_coupled_fir``).
+COUPLED_SCHEME = 'ls'
 
 #: The design defaults of ``rths design`` and ``rths run`` (their one definition): the
 #: seed's RTHS compensator (section 6.1: WLS, n = 400, fc = 10 Hz; epsilon, the passband

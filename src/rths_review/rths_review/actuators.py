@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from rths_common import runinfo
-from rths_common.rig import load_rig
+from rths_common.rig import DOF_UNITS, load_rig
+from rths_common.rig import DOFS as RIG_DOFS
 from rths_review import plots
 from rths_review.report_html import notes, write_report
 from rths_review.tracking import (
@@ -35,7 +36,7 @@ from rths_review.tracking import (
 )
 
 #: Interface DOFs of a coupler, with their unit (SI) and the unit they are printed in.
-DOFS = (('x', 'm', 'mm', 1e3), ('theta', 'rad', 'mrad', 1e3))
+DOFS = tuple((dof, *DOF_UNITS[dof]) for dof in RIG_DOFS)
 #: What the several-actuator review leaves out, and where it is.
 NO_TABLES_6_9 = ('Tables 6-9 (the building against its whole-numerical reference) are not part '
                  'of a several-actuator review: rths bench marths --via graph computes the '

@@ -8,6 +8,7 @@ import numpy as np
 from scipy import signal
 from scipy.signal import coherence
 
+from rths_common.rig import DOF_UNITS, DOFS
 from rths_compensator.indicators import frf_h1
 
 #: Length [s] of the tracking plot's window around the peak.
@@ -126,7 +127,8 @@ def interface_plot(path, fs, desired, measured, forces=None, title=''):
     t = np.arange(desired.shape[0]) / fs
     rows = 3 if forces is None else 4
     fig, ax = plt.subplots(rows, 1, figsize=(10, 2.4 * rows), sharex=True)
-    for i, (name, unit, scale) in enumerate((('x', 'mm', 1e3), ('theta', 'mrad', 1e3))):
+    for i, name in enumerate(DOFS):
+        _, unit, scale = DOF_UNITS[name]
         ax[i].plot(t, desired[:, i] * scale, lw=0.9, label=f'{name} desired')
         ax[i].plot(t, measured[:, i] * scale, '--', lw=0.9, label=f'{name} measured')
         ax[i].set_ylabel(f'{name} [{unit}]')

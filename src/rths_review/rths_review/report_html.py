@@ -9,6 +9,7 @@ import base64
 import html
 from pathlib import Path
 
+from rths_common.rig import DOF_UNITS
 from rths_review.realtime import realtime_text
 
 #: The review's plots, in page order, with their captions.
@@ -121,7 +122,7 @@ def actuator_tables(s: dict) -> str:
     out += ('<p>before: command &rarr; measured stroke; after: target stroke &rarr; measured '
             'stroke</p>\n')
     if s.get('interface'):
-        shown = {'x': ('mm', 1e3), 'theta': ('mrad', 1e3)}
+        shown = {dof: unit_scale[1:] for dof, unit_scale in DOF_UNITS.items()}   # (unit, scale)
         out += _table('Table 5 layout per interface DOF (through the coupler)', _TABLE5_HEADER,
                       [_table5_row(r['dof'], r, f"{shown[r['dof']][1] * r['max_abs_target']:.3f} "
                                                 f"{shown[r['dof']][0]}")
