@@ -99,7 +99,7 @@ def test_arx_actuator_from_plant_yaml(monkeypatch, tmp_path):
     b = np.ravel(b)[1:]            # drop the leading zero: project convention d = 0
 
     class Arx:
-        pass
+        loads: dict = {}   # (rths_compensator's ArxModel: an updated model's non-linear loads)
 
     model = Arx()
     model.a, model.b, model.d, model.fs_hz = np.ravel(a), b, 0, FS
