@@ -331,7 +331,6 @@ def register(commands, benches):
 
 def cmd_bench(args) -> int:
     """``rths bench identification``."""
-    from rths_common.files import atomic_open
     from rths_common.progress import Progress
     from rths_compensator._blas import limit_blas_threads
     from rths_compensator.assessment import DesignLimits
@@ -344,15 +343,23 @@ def cmd_bench(args) -> int:
     with Progress(len(cases(args.seed)[:args.only] if args.only else cases(args.seed)),
                   'bench identification', 'cases') as bar:
         result = run(limits, args.seed, args.only, progress=bar.report)
-    with atomic_open(args.out) as handle:
-        json.dump(result, handle, indent=1)
     s = result['summary']
-    print(f"{s['cases']} cases, {s['refused']} refused; median tracking "
-          f"{s['median_tracking_pct']:.3f} % (floor {s['median_floor_pct']:.3f} %)")
-    for t in s['targets']:
+    return _write_result(result, args.out, f"{s['cases']} cases, {s['refused']} refused; "
+                         f"median tracking {s['median_tracking_pct']:.3f} % (floor "
+                         f"{s['median_floor_pct']:.3f} %)")
+
+
+def _write_result(result: dict, out, headline: str) -> int:
+    """Write ``result`` to ``out`` (JSON), print ``headline`` and each target; return 0."""
+    from rths_common.files import atomic_open
+
+    with atomic_open(out) as handle:
+        json.dump(result, handle, indent=1)
+    print(headline)
+    for t in result['summary']['targets']:
         print(f"{'PASS' if t['met'] else 'MISS'}  {t['name']}: {t['measured']} "
               f"(limit {t['limit']})")
-    print(f'wrote {args.out}')
+    print(f'wrote {out}')
     return 0
 
 
@@ -360,7 +367,6 @@ def _cmd_held_out(args) -> int:
     """``rths bench identification --held-out N``."""
     import tempfile
 
-    from rths_common.files import atomic_open
     from rths_common.progress import Progress
 
     if args.held_out < 1:
@@ -368,13 +374,7 @@ def _cmd_held_out(args) -> int:
     with tempfile.TemporaryDirectory(prefix='rths-held-out-') as work, \
             Progress(args.held_out, 'bench identification --held-out', 'labs') as bar:
         result = run_held_out(args.held_out, args.seed, work, progress=bar.report)
-    with atomic_open(args.out) as handle:
-        json.dump(result, handle, indent=1)
     s = result['summary']
-    print(f"{s['labs']} held-out labs, {s['refused']} refused; worst tracking "
-          f"{s['worst_tracking_pct']} %, worst command x{s['worst_command_ratio']}")
-    for t in s['targets']:
-        print(f"{'PASS' if t['met'] else 'MISS'}  {t['name']}: {t['measured']} "
-              f"(limit {t['limit']})")
-    print(f'wrote {args.out}')
-    return 0
+    return _write_result(result, args.out, f"{s['labs']} held-out labs, {s['refused']} "
+                         f"refused; worst tracking {s['worst_tracking_pct']} %, worst command "
+                         f"x{s['worst_command_ratio']}")
