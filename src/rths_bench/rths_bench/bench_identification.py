@@ -335,11 +335,15 @@ def cmd_bench(args) -> int:
     from rths_compensator._blas import limit_blas_threads
     from rths_compensator.assessment import DesignLimits
     limit_blas_threads(1)          # (after numpy and scipy are loaded: it limits their BLAS)
+    if args.held_out is not None:   # (rths design reads its own limits there)
+        given = [f for f, v in (('--limits', args.limits), ('--only', args.only)) if v]
+        if given:
+            raise ValueError(f"{', '.join(given)}: not used with --held-out (each lab runs "
+                             'rths identify and rths design with their defaults); drop it')
+        return _cmd_held_out(args)
     path = args.limits or os.path.join(os.environ.get('RTHS_ROOT', '.'), 'config',
                                        'bridge.yaml')
     limits = DesignLimits.from_bridge_params(path)
-    if args.held_out is not None:
-        return _cmd_held_out(args)
     with Progress(len(cases(args.seed)[:args.only] if args.only else cases(args.seed)),
                   'bench identification', 'cases') as bar:
         result = run(limits, args.seed, args.only, progress=bar.report)
