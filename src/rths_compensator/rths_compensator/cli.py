@@ -121,8 +121,9 @@ def register(commands, benches):
                     'compensator (inverse eq. 2, mff eq. 4, npz eq. 8, zpetc eq. 12, zmetc '
                     'eq. 14) for the plant and write the compensator node parameters. '
                     f'Defaults (also rths run\'s): {DD["scheme"]}, n={DD["n_taps"]}, '
-                    f'fc={DD["fc_hz"]:g} Hz ({LONG_DEAD_TIME_FC_HZ:g} Hz from a dead time of '
-                    f'{1e3 * LONG_DEAD_TIME_S:g} ms at up to {LOW_RATE_HZ:g} Hz), '
+                    f'fc={DD["fc_hz"]:g} Hz ({LONG_DEAD_TIME_FC_HZ:g} Hz from a lag to predict '
+                    f'(dead time and unstable zeros) of {1e3 * LONG_DEAD_TIME_S:g} ms at up '
+                    f'to {LOW_RATE_HZ:g} Hz), '
                     f'epsilon={DD["epsilon"]}, gain weight '
                     f'{DD["gain_weight"]:g}. Prints and records the predictions: the '
                     'compensator alone (gain peak, high-frequency gain, command for a unit step '
@@ -147,8 +148,9 @@ def register(commands, benches):
                         f'{COUPLED_DEFAULTS["n_taps"]} per pair)')
     p.add_argument('--fc', type=float, default=None,
                    help=f'FIR passband edge fc [Hz] (default {DD["fc_hz"]:g}, the seed\'s; '
-                        f'{LONG_DEAD_TIME_FC_HZ:g} for a plant whose dead time is '
-                        f'{1e3 * LONG_DEAD_TIME_S:g} ms or more at a rate up to {LOW_RATE_HZ:g} '
+                        f'{LONG_DEAD_TIME_FC_HZ:g} for a plant whose FIR predicts a lag (dead '
+                        f'time and unstable zeros) of {1e3 * LONG_DEAD_TIME_S:g} ms or more '
+                        f'at a rate up to {LOW_RATE_HZ:g} '
                         'Hz: the FIR\'s error rises past fc the faster the longer the delay)')
     p.add_argument('--epsilon', type=float, default=None,
                    help=f'FIR passband tolerance on |T_com - 1| ({DD["epsilon"]})')

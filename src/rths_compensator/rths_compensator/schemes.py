@@ -73,7 +73,8 @@ COUPLED_SCHEME = 'ls'
 DESIGN_DEFAULTS = {'scheme': DEFAULT_SCHEME, 'n_taps': 400, 'fc_hz': 10.0, 'epsilon': 0.002,
                    'gain_weight': 1e-6, 'zero_tol': 1.0}
 
-#: Long dead times at low rates: the dead time [s] from which, at rates up to
+#: Long dead times at low rates: the lag [s] the FIR must predict (the dead time and the
+#: delay of the unstable zeros, :func:`.design.predicted_lag_s`) from which, at rates up to
 #: ``LOW_RATE_HZ``, the default fc is raised to ``LONG_DEAD_TIME_FC_HZ``.  The FIR predicts
 #: the plant's delay over the passband; beyond fc its error ``|T_com - 1|`` rises the faster
 #: the longer the delay, so with fc at the top of the motion's band (the seed's 10 Hz for
@@ -93,7 +94,7 @@ LONG_DEAD_TIME_FC_HZ = 12.5
 
 
 def default_fc_hz(dead_time_s: float, fs_hz: float) -> float:
-    """Return the default FIR cut-off [Hz] for a plant with this dead time [s] at this rate."""
+    """Return the default FIR cut-off [Hz] for a plant whose FIR predicts this lag [s]."""
     if dead_time_s >= LONG_DEAD_TIME_S and fs_hz <= LOW_RATE_HZ:
         return LONG_DEAD_TIME_FC_HZ
     return DESIGN_DEFAULTS['fc_hz']

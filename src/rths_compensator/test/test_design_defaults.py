@@ -1,6 +1,7 @@
 """The design defaults (:data:`rths_compensator.schemes.DESIGN_DEFAULTS`, one definition).
 
-fc follows the plant's dead time and rate (:func:`rths_compensator.schemes.default_fc_hz`),
+fc follows the lag the plant's FIR predicts and the rate
+(:func:`rths_compensator.design.predicted_lag_s`, :func:`rths_compensator.schemes.default_fc_hz`),
 and the
 default design on a plant behind a 3-step delay line (``command_delay_steps`` = 3, the
 plant of test/test_delay_line.py) keeps the loop ``P G`` and the command bounded above the
@@ -41,6 +42,33 @@ def test_default_fc_is_the_seeds_below_a_long_dead_time():
     assert dsg.design_default(_delayed_3pole(8), n_taps=50).info['fc_hz'] == 12.5
     assert dsg.design_default(_delayed_3pole(8), n_taps=50, fc_hz=10.0).info['fc_hz'] == 10.0
     assert dsg.design_default(_delayed_3pole(8), n_taps=50, fc_hz=None).info['fc_hz'] == 12.5
+
+
+def test_fc_follows_the_lag_the_fir_predicts_not_the_dead_time_alone():
+    """A fitted model may spread its delay over unstable zeros: fc follows the whole lag.
+
+    The model rths identify chose on the held-out lab 7 of ``rths bench identification
+    --held-out 10 --seed 20261128`` (1095 Hz, true dead time 9.63 ms, 4 poles, 0.5 %
+    noise): na=2 nb=8 d=8, d = 7.31 ms, but a zero at 1.50 and others outside the unit
+    circle.  Keyed on d its default fc was 10 Hz and 0-10 Hz noise tracked at 0.63 % through
+    the true actuator; the lag its FIR predicts is 14.4 ms (the true model's 10.7 ms).
+    """
+    fs = 1095.0
+    model = ArxModel(a=np.array([1.0, -1.82948634, 0.84833516]),
+                     b=np.array([-1.18618444, 6.09717654, -10.47833836, 1.88642769,
+                                 16.97457646, -24.01522381, 13.68228375, -2.94186865]),
+                     d=8, fs_hz=fs)
+    assert model.d / fs < 0.0075
+    assert dsg.predicted_lag_s(model) == pytest.approx(0.01442, abs=2e-4)
+    assert dsg.design_default(model, n_taps=50).info['fc_hz'] == LONG_DEAD_TIME_FC_HZ
+    # a pure delay predicts its dead time; one unstable real zero z0 adds z0 / (z0 - 1) steps
+    pure = ArxModel(a=np.array([1.0, -0.5]), b=np.array([0.5]), d=5, fs_hz=FS)
+    assert dsg.predicted_lag_s(pure) == pytest.approx(5 / FS)
+    one = ArxModel(a=np.array([1.0, -0.5]), b=np.array([1.0, -2.0]), d=5, fs_hz=FS)
+    assert dsg.predicted_lag_s(one) == pytest.approx((5 + 2.0) / FS)
+    # stable zeros are inverted by the compensator: no lag to predict
+    inv = ArxModel(a=np.array([1.0, -0.5]), b=np.array([1.0, -0.5]), d=5, fs_hz=FS)
+    assert dsg.predicted_lag_s(inv) == pytest.approx(5 / FS)
 
 
 def test_long_dead_time_default_tracks_the_band_edge():
