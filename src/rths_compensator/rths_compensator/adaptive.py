@@ -48,7 +48,7 @@ import numpy as np
 from scipy import signal
 
 from .design import Design, plant_polynomials
-from .filters import MultiChannelFilter
+from .filters import CausalFilter, MultiChannelFilter
 from .identification import load_plant
 from .indicators import time_delay_ms
 from .methods import DEFAULT, METHODS, method_of
@@ -102,8 +102,8 @@ class FixedFir:
         return {}
 
     def __init__(self, taps, denominator=(1.0,)):
-        self._filter = MultiChannelFilter(taps, denominator, n_channels=1)
-        self._x = np.zeros(1)
+        self._filter = CausalFilter(taps, denominator)
+        self._x = 0.0
         self.status = Status('fixed', 'designed compensator')
 
     @classmethod
@@ -114,8 +114,8 @@ class FixedFir:
     def step(self, target, measured_prev=None):
         """Return the command for ``target`` (a non-finite one repeats the last finite one)."""
         if math.isfinite(target):
-            self._x[0] = target
-        return float(self._filter.step(self._x)[0])
+            self._x = float(target)
+        return self._filter.step(self._x)
 
     def coefficients(self):
         """Return the designed numerator taps."""
@@ -126,6 +126,10 @@ class FixedFir:
 
     def clear_fault(self):
         """Nothing adapts; accepted for a uniform interface."""
+
+
+#: Kinds of a frozen status's reason, worded by :attr:`AdaptiveMethod.status` when asked.
+_FAULT, _EXCITATION = 1, 2
 
 
 class AdaptiveMethod:
@@ -160,6 +164,23 @@ class AdaptiveMethod:
         self.status = Status('frozen', 'no measurement yet')
 
     # ----------------------------------------------------------------- interface
+    @property
+    def status(self) -> Status:
+        """What the method is doing, and why (built when asked: a step keeps its parts)."""
+        reason = self._reason
+        if type(reason) is tuple:
+            kind, value = reason
+            if kind == _FAULT:
+                reason = f'fault flagged: {value}'
+            else:
+                reason = (f'excitation {math.sqrt(value):.3g} m RMS '
+                          f'< {self.guards.excitation_m:g} m')
+        return Status(self._state, reason)
+
+    @status.setter
+    def status(self, value: Status):
+        self._state, self._reason = value.state, value.reason
+
     def step(self, target, measured_prev=None):
         """Command for ``target`` (step k), adapting on ``measured_prev`` (step k-1)."""
         target = float(target)
@@ -204,21 +225,24 @@ class AdaptiveMethod:
         mon.update(self._prev_target, error)
         g = self.guards
         excited = mon.ms_target >= g.excitation_m ** 2
-        rel = mon.relative_pct()
-        if excited and self._k > self._grace and rel > g.fallback_pct:
-            self._fall_back(f'tracking error {rel:.1f} % > {g.fallback_pct:g} %')
-            return
+        if excited and self._k > self._grace:
+            rel = mon.relative_pct()
+            if rel > g.fallback_pct:
+                self._fall_back(f'tracking error {rel:.1f} % > {g.fallback_pct:g} %')
+                return
+        # the status keeps its parts; :attr:`status` words them when asked
         if self._fault:
-            self.status = Status('frozen', f'fault flagged: {self._fault}')
-            self._record(measured, adapt=False)
+            self._state, self._reason = 'frozen', (_FAULT, self._fault)
+            changed = self._record(measured, adapt=False)
         elif not excited:
-            self.status = Status('frozen', f'excitation {math.sqrt(mon.ms_target):.3g} m RMS '
-                                           f'< {g.excitation_m:g} m')
-            self._record(measured, adapt=False)
+            self._state, self._reason = 'frozen', (_EXCITATION, mon.ms_target)
+            changed = self._record(measured, adapt=False)
         else:
-            self.status = Status('adapting', '')
-            self._record(measured, adapt=True)
-        if not math.isfinite(float(np.sum(self._adapted()))):
+            self._state, self._reason = 'adapting', ''
+            changed = self._record(measured, adapt=True)
+        # the coefficients change only where _record says so (False: unchanged; a
+        # method that does not say is checked every step)
+        if changed is not False and not math.isfinite(float(np.add.reduce(self._adapted()))):
             self._fall_back('non-finite coefficients')
 
     def _fall_back(self, reason, fir_cmd=None):
@@ -233,6 +257,7 @@ class AdaptiveMethod:
         raise NotImplementedError
 
     def _record(self, measured, adapt):    # pragma: no cover - abstract
+        """Take the measurement; adapt if ``adapt``; return False if no coefficient changed."""
         raise NotImplementedError
 
     def coefficients(self):                # pragma: no cover - abstract
@@ -259,10 +284,40 @@ def _clip_step(new, old, lower, upper, max_step):
         np.clip(new, lower, upper, out=new)
         return new
     steps = np.broadcast_to(max_step, new.shape).tolist()
-    new[:] = [min(max(min(max(v, o - m), o + m), lo), hi) for v, o, m, lo, hi
-              in zip(new.tolist(), old.tolist(), steps, lower.tolist(), upper.tolist(),
-                     strict=True)]
+    new[:] = _clip_list(new.tolist(), old.tolist(), lower.tolist(), upper.tolist(), steps)
     return new
+
+
+def _clip_list(new, old, lower, upper, steps):
+    """:func:`_clip_step` on Python lists (a new list): the short vectors' arithmetic."""
+    return [min(max(min(max(v, o - m), o + m), lo), hi) for v, o, m, lo, hi
+            in zip(new, old, steps, lower, upper, strict=True)]
+
+
+class _Clip:
+    """:func:`_clip_step` of a long vector in place with preallocated buffers.
+
+    ``np.clip`` is ``minimum(maximum(x, lo), hi)``, NaN kept: the same four ufuncs here,
+    without the temporaries and the dispatch of ``np.clip`` (a few microseconds a step).
+    """
+
+    def __init__(self, lower, upper, max_step):
+        self.lower, self.upper, self.max_step = lower, upper, max_step
+        self.lo = np.empty(lower.shape)
+        self.hi = np.empty(lower.shape)
+
+    def bounds(self, old):
+        """Note the rate limits around ``old`` (before it is overwritten)."""
+        np.subtract(old, self.max_step, out=self.lo)
+        np.add(old, self.max_step, out=self.hi)
+
+    def apply(self, new):
+        """Clip ``new`` in place to the noted rate limits, then to ``[lower, upper]``."""
+        np.maximum(new, self.lo, out=new)
+        np.minimum(new, self.hi, out=new)
+        np.maximum(new, self.lower, out=new)
+        np.minimum(new, self.upper, out=new)
+        return new
 
 
 class _Ring:
@@ -356,8 +411,8 @@ class RlsFir(AdaptiveMethod):
         self.trace_factor = float(trace_factor)
         self.P = None               # set at the first adapting step (scale of the regressor)
         self.trace_max = np.inf
-        self._pre_target = MultiChannelFilter(pre_b, pre_a)
-        self._pre_measured = MultiChannelFilter(pre_b, pre_a)
+        self._pre_target = CausalFilter(pre_b, pre_a)
+        self._pre_measured = CausalFilter(pre_b, pre_a)
         # the regression runs on low-passed command and regressor (u_f = H w_f still holds):
         # A* amplifies the sensor noise above the band by orders of magnitude
         bl, al = signal.butter(4, lowpass_hz, fs=self.fs_hz)
@@ -366,12 +421,15 @@ class RlsFir(AdaptiveMethod):
         self._w = _Ring(n)          # low-passed prefiltered measured history (the regression's)
         self._u_prev = 0.0
         self._ms_w = 0.0
-        self._one = np.zeros(1)
         self._pair = np.zeros(2)
+        # the RLS step's buffers (no array allocated per step)
+        self._pphi = np.empty(m)
+        self._tmp = np.empty(m)
+        self._outer = np.empty((m, m))
+        self._clip = _Clip(self.lower, self.upper, self.max_step) if m > 8 else None
 
     def _command(self, target):
-        self._one[0] = target
-        self._v.push(self._pre_target.step(self._one)[0])
+        self._v.push(self._pre_target.step(target))
         if self.correction:
             s = float(self.h0 @ self._v.view())
             self._s.push(s)
@@ -382,11 +440,10 @@ class RlsFir(AdaptiveMethod):
         return u
 
     def _record(self, measured, adapt):
-        self._one[0] = measured
         pair = self._pair
-        pair[0] = self._pre_measured.step(self._one)[0]
+        pair[0] = self._pre_measured.step(measured)
         pair[1] = self._u_prev
-        w_f, u_f = self._lp.step(pair)
+        w_f, u_f = self._lp.step(pair).tolist()
         self._w.push(w_f)
         if self.correction:
             known = float(self.h0 @ self._w.view())
@@ -398,30 +455,42 @@ class RlsFir(AdaptiveMethod):
             phi, theta = self._w.view(), self.h
             self._ms_w += self._monitor.alpha * (w_f * w_f - self._ms_w)
         if adapt:
-            theta[:] = self._rls(phi, theta, u_f)
+            return self._rls(phi, theta, u_f)
+        return False
 
     def _rls(self, phi, theta, u_f):
-        """One RLS step of ``u_f = theta . phi``: the bounded new theta."""
+        """One RLS step of ``u_f = theta . phi``, theta bounded, in place; False: none.
+
+        In place with preallocated buffers: the same products and sums as
+        ``P @ phi``, ``theta + pphi * g``, ``np.clip`` and ``P -= np.outer(pphi, pphi * c)``.
+        """
         if self.P is None:
             size = phi.size * self._ms_w
             if not size > 0.0:
-                return theta
+                return False
             self.P = np.eye(phi.size) * (self.prior / size)
             self.trace_max = self.trace_factor * np.trace(self.P)
-        pphi = self.P @ phi
+        P = self.P
+        pphi = np.matmul(P, phi, out=self._pphi)
         r = float(phi @ pphi)
         if not r > 0.0:
-            return theta
+            return False
         err = u_f - theta @ phi
-        new = theta + pphi * (err / (1.0 + r))
-        new = _clip_step(new, theta, self.lower, self.upper, self.max_step)
+        tmp = np.multiply(pphi, err / (1.0 + r), out=self._tmp)
+        clip = self._clip
+        if clip is None:
+            theta[:] = _clip_step(theta + tmp, theta, self.lower, self.upper, self.max_step)
+        else:
+            clip.bounds(theta)
+            clip.apply(np.add(theta, tmp, out=theta))
         # directional forgetting: P <- P - P phi phi' P eps / (lam (1 + r)),
         # eps = lam - (1 - lam) / r  (eps < 0 re-inflates P along phi only)
         eps = self.lam - (1.0 - self.lam) / r
-        if eps < 0.0 and np.trace(self.P) > self.trace_max:
+        if eps < 0.0 and P.trace() > self.trace_max:
             eps = 0.0
-        self.P -= np.outer(pphi, pphi * (eps / (self.lam * (1.0 + r))))
-        return new
+        np.multiply(pphi, eps / (self.lam * (1.0 + r)), out=tmp)
+        np.subtract(P, np.multiply.outer(pphi, tmp, out=self._outer), out=P)
+        return True
 
     def _adapted(self):
         return self.c if self.correction else self.h
@@ -439,20 +508,20 @@ class RlsFir(AdaptiveMethod):
 
 
 class _Derivatives:
-    """Backward-difference derivatives 0..order of a sampled signal."""
+    """Backward-difference derivatives 0..order of a sampled signal (a list of floats)."""
 
     def __init__(self, order, dt):
         self.order = order
         self.dt = dt
-        self.vals = np.zeros(order + 1)
-        self.prev = np.zeros(order + 1)
+        self.vals = [0.0] * (order + 1)
 
     def push(self, x):
-        v, p = self.vals, self.prev
-        p[:] = v
-        v[0] = x
-        for i in range(1, self.order + 1):
-            v[i] = (v[i - 1] - p[i - 1]) / self.dt
+        """Return ``[x, dx, ..., d^order x]`` of the newest sample ``x`` (a new list)."""
+        dt, prev = self.dt, self.vals
+        v = [float(x)]
+        for i in range(self.order):
+            v.append((v[i] - prev[i]) / dt)
+        self.vals = v
         return v
 
 
@@ -564,42 +633,50 @@ class Ats(AdaptiveMethod):
         # new row and removing the one it overwrites: a fit costs a 3 x 3 solve, not a pass
         # over the window; summed anew from the window once per window against rounding drift
         self._normal = np.zeros((3, 4))
+        self._outer = np.empty((3, 4))
         self._pushed = 0
         self._u_prev = 0.0
         self._pair = np.zeros(2)
+        self._a = self.a.tolist()              # self.a in Python floats (the command's)
+        self._bounds = (self.lower.tolist(), self.upper.tolist(), self.max_step.tolist())
 
     def _command(self, target):
         v = self._dx.push(target)
-        u = float(self.a @ v)
+        a = self._a
+        u = 0.0                    # a . v summed left to right, as numpy sums 3 terms
+        for i in range(3):
+            u += a[i] * v[i]
         self._u_prev = u
         return u
 
     def _record(self, measured, adapt):
-        self._pair[0] = measured
-        self._pair[1] = self._u_prev
-        yf, uf = self._lp.step(self._pair)
+        pair = self._pair
+        pair[0] = measured
+        pair[1] = self._u_prev
+        yf, uf = self._lp.step(pair).tolist()
         dy = self._dy.push(yf)
         n = self.n_window
         p = self._p - 1
         if p < 0:
             p = n - 1
         self._p = p
-        row = self._rows[p]
-        normal = self._normal
-        normal -= np.outer(row[:3], row)         # the row leaving the window (zeros at first)
-        row[:3] = dy
-        row[3] = uf
-        normal += np.outer(row[:3], row)
-        self._rows[p + n] = row
+        rows, normal, outer = self._rows, self._normal, self._outer
+        row = rows[p]
+        # the row leaving the window out (zeros at first), the new one in
+        np.subtract(normal, np.multiply.outer(row[:3], row, out=outer), out=normal)
+        row[:] = (dy[0], dy[1], dy[2], uf)
+        np.add(normal, np.multiply.outer(row[:3], row, out=outer), out=normal)
+        rows[p + n] = row
         self._filled = min(self._filled + 1, n)
         self._pushed += 1
         if self._pushed % n == 0:
-            w = self._rows[p:p + n]
+            w = rows[p:p + n]
             normal[:] = w[:, :3].T @ w
         self._since += 1
         if adapt and self._filled == n and self._since >= self.every:
             self._since = 0
-            self._fit()
+            return self._fit()
+        return False
 
     def _fit(self):
         scale = (1.0, float(self.a0[1] or 1e-3), float(self.a0[2] or 1e-6))
@@ -608,10 +685,12 @@ class Ats(AdaptiveMethod):
         rhs = [g[i][3] * scale[i] for i in range(3)]
         sol = solve_spd3(gram, rhs, max_cond=1e12)
         if sol is None:
-            return                     # window not informative enough: keep the coefficients
+            return False               # window not informative enough: keep the coefficients
         sol = [sol[i] * scale[i] for i in range(3)]
         if all(map(math.isfinite, sol)):
-            self.a = _clip_step(np.array(sol), self.a, self.lower, self.upper, self.max_step)
+            self._a = _clip_list(sol, self._a, *self._bounds)
+            self.a = np.array(self._a)
+        return True
 
     def _adapted(self):
         return self.a
@@ -665,25 +744,40 @@ class Amb(AdaptiveMethod):
         self._lp = MultiChannelFilter(bl, al, n_channels=5)       # [e, psi_0..3]
         self._psi_now = np.zeros(4)
         self._psi_prev = np.zeros(4)
-        self._ms = np.zeros(4)
+        self._ms = [0.0] * 4
         self._alpha = 1.0 / (self.guards.window_s * self.fs_hz)
         self._buf = np.zeros(5)
+        self._v = np.zeros(4)
+        self._theta = self.theta.tolist()      # self.theta in Python floats
+        self._bounds = (self.lower.tolist(), self.upper.tolist(), self.max_step.tolist())
 
     def _command(self, target):
         v = self._dx.push(target)
-        self._psi_now = self._model.step(v)
-        return float(self.theta @ v)
+        self._v[:] = v
+        self._psi_now = self._model.step(self._v)
+        theta = self._theta
+        u = 0.0                    # theta . v summed left to right, as numpy sums 4 terms
+        for i in range(4):
+            u += theta[i] * v[i]
+        return u
 
     def _record(self, measured, adapt):
         buf = self._buf
         buf[0] = self._prev_target - measured
         buf[1:] = self._psi_prev
-        f = self._lp.step(buf)
+        f = self._lp.step(buf).tolist()
         e, psi = f[0], f[1:]
-        self._ms += self._alpha * (psi * psi - self._ms)
-        if adapt:
-            new = self.theta + self.mu * e * psi / (1e-30 + 4.0 * self._ms)
-            self.theta = _clip_step(new, self.theta, self.lower, self.upper, self.max_step)
+        alpha, ms = self._alpha, self._ms
+        for i in range(4):
+            ms[i] += alpha * (psi[i] * psi[i] - ms[i])
+        if not adapt:
+            return False
+        gain = self.mu * e
+        theta = self._theta
+        new = [theta[i] + gain * psi[i] / (1e-30 + 4.0 * ms[i]) for i in range(4)]
+        self._theta = _clip_list(new, theta, *self._bounds)
+        self.theta = np.array(self._theta)
+        return True
 
     def step(self, target, measured_prev=None):
         """As :meth:`AdaptiveMethod.step`; keeps the plant-filtered regressor of step k-1."""

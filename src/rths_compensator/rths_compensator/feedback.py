@@ -83,8 +83,9 @@ class PiLead(AdaptiveMethod):
 
     def _record(self, measured, adapt):
         self._measured = measured
-        if self.status.state != 'fallback' and not self._fault:
-            self.status = Status('fixed', 'PI + lead on the measured displacement')
+        if self._state != 'fallback' and not self._fault:
+            self._state, self._reason = 'fixed', 'PI + lead on the measured displacement'
+        return False          # kp, ki fixed; a non-finite integral makes the command so
 
     def coefficients(self):
         """Return ``[kp, ki, integral state (m)]``."""

@@ -8,7 +8,7 @@ ZMETC eq. 14) is a causal rational filter
 
 i.e. the difference equation  a0 y_k = sum_i b_i x_{k-i} - sum_{j>=1} a_j y_{k-j}.
 :class:`MultiChannelFilter` evaluates it one sample at a time in direct form I
-(:class:`CausalFilter` is its one-channel form).  The input and
+(:class:`CausalFilter` is its one-channel form, in Python floats).  The input and
 output histories live in *doubled ring buffers*: each new sample is written at position
 ``p`` and ``p + n``, so ``buf[p:p + n]`` is always the contiguous history
 ``x_k, x_{k-1}, ..., x_{k-n+1}`` and one ``numpy.dot`` per step evaluates the sum,
@@ -60,20 +60,95 @@ class History:
         return buf[p:p + n]
 
 
+#: Below this many coefficients numpy sums a dot product left to right, as plain Python
+#: does (checked bit for bit by test_filters_params); from it on it sums in blocks.
+_SEQUENTIAL_MAX = 15
+
+
+class _Taps:
+    """``sum_i c_i h_i`` over a newest-first history h, the arithmetic of ``c @ h``.
+
+    Short (<= :data:`_SEQUENTIAL_MAX`): Python floats summed left to right in a list
+    (the order numpy uses at this size; no numpy call per step).  Long: a doubled
+    ring buffer and one ``numpy.dot`` (numpy's block order, the same as
+    :class:`MultiChannelFilter`'s).
+    """
+
+    def __init__(self, coefficients: np.ndarray):
+        self.c = np.ascontiguousarray(coefficients, dtype=float)
+        self.n = int(self.c.size)
+        self.short = self.n <= _SEQUENTIAL_MAX
+        self.c_list = self.c.tolist()
+        self.reset()
+
+    def reset(self) -> None:
+        self.hist = [0.0] * self.n
+        self.buf = np.zeros(2 * self.n)
+        self.p = 0
+
+    def push_sum(self, value: float) -> float:
+        """Push ``value`` (newest first) and return the sum over the history."""
+        if self.short:
+            hist = self.hist
+            hist.insert(0, value)
+            hist.pop()
+            total = 0.0
+            for c, h in zip(self.c_list, hist, strict=True):
+                total += c * h
+            return total
+        n, p = self.n, self.p - 1
+        if p < 0:
+            p = n - 1
+        self.p = p
+        buf = self.buf
+        buf[p] = value
+        buf[p + n] = value
+        return float(np.dot(self.c, buf[p:p + n]))
+
+    def sum_then_push(self, value_of) -> float:
+        """Return ``value_of(sum over the history)`` after pushing it (the recursion)."""
+        if self.short:
+            total = 0.0
+            for c, h in zip(self.c_list, self.hist, strict=True):
+                total += c * h
+            out = value_of(total)
+            self.hist.insert(0, out)
+            self.hist.pop()
+            return out
+        n, p = self.n, self.p
+        out = value_of(float(np.dot(self.c, self.buf[p:p + n])))
+        p -= 1
+        if p < 0:
+            p = n - 1
+        self.p = p
+        self.buf[p] = out
+        self.buf[p + n] = out
+        return out
+
+
 class CausalFilter:
     """Causal rational filter ``G(z^-1) = B(z^-1)/A(z^-1)`` on one channel, one sample per step.
 
     ``taps`` are the numerator coefficients b0..bn, ``denominator`` a0..am (a0 != 0;
     ``(1.0,)`` gives a pure FIR).  :meth:`step` returns the output for one new input
-    sample; :meth:`apply` filters a whole array from the current state and equals
+    sample (Python floats in and out: the adaptive methods' per-step path); :meth:`apply`
+    filters a whole array from the current state and equals
     ``scipy.signal.lfilter(taps, denominator, x)`` to round-off when started from rest.
-    It is a one-channel :class:`MultiChannelFilter` (one implementation of the recursion).
+    Its arithmetic is that of a one-channel :class:`MultiChannelFilter`, bit for bit
+    (the same products summed in the same order; test_filters_params), at a fraction of
+    the cost: no array per sample, short sums in Python floats.
     """
 
     def __init__(self, taps, denominator=(1.0,)):
-        self._filter = MultiChannelFilter(taps, denominator, n_channels=1)
-        self.taps = self._filter.taps
-        self.denominator = self._filter.denominator
+        b = _as_coefficients(taps, 'taps')
+        a = _as_coefficients(denominator, 'denominator')
+        if a[0] == 0.0:
+            raise ValueError('filter denominator a0 is 0; the leading coefficient must be '
+                             'non-zero')
+        self.taps = b / a[0]
+        self.denominator = a / a[0]
+        self._num = _Taps(self.taps)
+        self._den = _Taps(self.denominator[1:]) if self.denominator.size > 1 else None
 
     @property
     def is_fir(self) -> bool:
@@ -82,11 +157,16 @@ class CausalFilter:
 
     def reset(self) -> None:
         """Return to rest (all past inputs and outputs zero)."""
-        self._filter.reset()
+        self._num.reset()
+        if self._den is not None:
+            self._den.reset()
 
     def step(self, x: float) -> float:
         """Feed input sample ``x_k`` and return output ``y_k``."""
-        return float(self._filter.step((x,))[0])
+        y = self._num.push_sum(float(x))
+        if self._den is None:
+            return y
+        return self._den.sum_then_push(y.__sub__)
 
     def apply(self, x) -> np.ndarray:
         """Filter the 1-D array ``x`` sample by sample from the current state; return outputs."""
@@ -113,6 +193,7 @@ class MultiChannelFilter:
         self.taps = b / a[0]
         self.denominator = a / a[0]
         self.n_channels = int(n_channels)
+        self._shape = (self.n_channels,)
         self._nb = self.taps.size
         self._na = self.denominator.size - 1
         self._a_rest = np.ascontiguousarray(self.denominator[1:])
@@ -127,13 +208,30 @@ class MultiChannelFilter:
     def step(self, x) -> np.ndarray:
         """Feed one sample per channel and return one output per channel."""
         x = np.asarray(x, dtype=float)
-        if x.shape != (self.n_channels,):
+        if x.shape != self._shape:
             raise ValueError(f'MultiChannelFilter.step expects shape ({self.n_channels},), '
                              f'got {x.shape}')
-        y = self.taps @ self._x.push(x)
+        # History.push and window inlined (a real-time step: each call costs)
+        hist = self._x
+        n, p = hist.n, hist.p - 1
+        if p < 0:
+            p = n - 1
+        hist.p = p
+        buf = hist.buf
+        buf[p] = x
+        buf[p + n] = x
+        y = self.taps @ buf[p:p + n]
         if self._na:
-            y = y - self._a_rest @ self._y.window()
-            self._y.push(y)
+            hist = self._y
+            n, p = hist.n, hist.p
+            buf = hist.buf
+            y -= self._a_rest @ buf[p:p + n]       # y is new: y - (...) without a copy
+            p -= 1
+            if p < 0:
+                p = n - 1
+            hist.p = p
+            buf[p] = y
+            buf[p + n] = y
         return y
 
     def apply(self, x) -> np.ndarray:

@@ -39,6 +39,26 @@ def test_multichannel_equals_lfilter_per_channel():
         filt.step(np.zeros(2))
 
 
+@pytest.mark.parametrize('nb', [1, 5, 15, 16, 35, 206])
+@pytest.mark.parametrize('na', [0, 1, 4, 15, 20])
+def test_causal_filter_is_a_one_channel_multichannel_filter_bit_for_bit(nb, na):
+    """The scalar path (Python floats, numpy.dot from 16 coefficients) sums as numpy does.
+
+    A 4th-order low-pass at 4096 Hz turns a one-ulp change of a sum into 1e-10 of its
+    output; the adaptive methods' outputs must not change (test_adaptive_equivalence).
+    """
+    rng = np.random.default_rng(nb * 100 + na)
+    b = rng.standard_normal(nb) * 10.0 ** rng.uniform(-3, 3, nb)
+    a = np.r_[1.0, 0.9 ** np.arange(1, na + 1) * rng.uniform(-0.2, 0.2, na)]
+    if na == 4:
+        b, a = signal.butter(4, 20.0, fs=4096.0)
+    x = rng.standard_normal(3000) * 10.0 ** rng.uniform(-2, 2, 3000)
+    multi = MultiChannelFilter(b, a, n_channels=1)
+    want = np.array([multi.step(np.array([v]))[0] for v in x])
+    got = CausalFilter(b, a).apply(x)
+    assert np.array_equal(got, want)
+
+
 def test_filter_rejects_bad_coefficients():
     with pytest.raises(ValueError):
         CausalFilter([])
