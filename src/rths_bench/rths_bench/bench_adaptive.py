@@ -412,6 +412,17 @@ def _scenarios(args):
 
 def _cmd_bench(args):
     t0 = time.perf_counter()
+    if args.step_cost:
+        from .bench_step_cost import run_step_cost
+        rates = tuple(int(float(r)) for r in args.step_cost_rates.split(',') if r.strip())
+        out = run_step_cost(args.out, duration_s=args.step_cost_s, rates=rates)
+        _log(f'wrote {args.out}/summary.json in {time.perf_counter() - t0:.0f} s')
+        print(json.dumps({rate: {name: {k: row[k] for k in ('step_us_p50', 'step_us_p99',
+                                                            'core_step_us_p50',
+                                                            'core_step_us_p99')}
+                                 for name, row in block['methods'].items()}
+                          for rate, block in out['rates'].items()}, indent=2))
+        return 0
     silva = {'record': args.record, 'data_dir': args.data_dir, 'n_draws': args.draws,
              'duration_s': args.benchmark_duration or None}
     summary = run_bench(args.out, duration_s=args.duration, seed=args.seed, taps=args.taps,
@@ -459,4 +470,16 @@ def register(commands, benches):
     p.add_argument('--benchmark-duration', type=float, default=0.0,
                    help=f'{SILVA}: shorten the record [s] (default 0: all of it)')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG files')
+    p.add_argument('--step-cost', action='store_true',
+                   help='instead of the scenarios: time the step of every method (method.step '
+                        "and the node core's step) at 1024 Hz (config/compensator.yaml, "
+                        '400 taps) and 4096 Hz (the RTHS benchmark\'s graph design, 200 taps) '
+                        'in closed loop on the plant model; writes DIR/summary.json ({"rates": '
+                        '{RATE: {"methods": {METHOD: {step_us_p50, step_us_p99, '
+                        'core_step_us_p50, core_step_us_p99, states}}}}}, load average; about '
+                        '1-2 min)')
+    p.add_argument('--step-cost-s', type=float, default=8.0,
+                   help='--step-cost: timed run length per method and rate [s] (default 8)')
+    p.add_argument('--step-cost-rates', default='1024,4096',
+                   help='--step-cost: comma-separated rates [Hz] of 1024,4096 (default both)')
     p.set_defaults(func=_cmd_bench)

@@ -815,22 +815,26 @@ class ChannelMethods:
         self.name = name
         self.methods = [make_method(name, design, plant, **options)
                         for _ in range(int(n_channels))]
-        self._last = np.zeros(int(n_channels))
+        self._last = [0.0] * int(n_channels)
 
     def step(self, x, measured_prev=None, applied_prev=None):
         """Return the commands (array) for the targets ``x`` of this step."""
-        out = np.empty(len(self.methods))
+        # Python floats throughout (one tolist per input): a real-time step
+        x = x.tolist() if isinstance(x, np.ndarray) else [float(v) for v in x]
+        applied = None if applied_prev is None else np.asarray(applied_prev, float).tolist()
+        measured = None if measured_prev is None else np.asarray(measured_prev, float).tolist()
+        last = self._last
+        out = []
         for i, method in enumerate(self.methods):
-            if applied_prev is not None and i < len(applied_prev):
-                if abs(float(applied_prev[i]) - self._last[i]) > 1e-12:
+            if applied is not None and i < len(applied):
+                if abs(applied[i] - last[i]) > 1e-12:
                     method.flag_fault('the bridge changed the command (hold, ramp or limit)')
                 else:
                     method.clear_fault()
-            prev = None if measured_prev is None or i >= len(measured_prev) \
-                else float(measured_prev[i])
-            out[i] = method.step(float(x[i]), prev)
-        self._last = out.copy()
-        return out
+            prev = None if measured is None or i >= len(measured) else measured[i]
+            out.append(float(method.step(x[i], prev)))
+        self._last = out
+        return np.array(out)
 
     def coefficients(self):
         """Coefficients of every channel, concatenated (channel 0 first)."""
@@ -841,6 +845,17 @@ class ChannelMethods:
         """Return the worst channel's status: fallback > frozen > adapting > fixed."""
         worst = max(self.methods, key=lambda m: _SEVERITY.get(m.status.state, 0))
         return worst.status
+
+    @property
+    def fallback(self) -> str:
+        """Return '' or the first fallen-back channel's status reason (cheap: every step).
+
+        The :attr:`status` reason when its state is ``fallback``.
+        """
+        for method in self.methods:
+            if getattr(method, '_fallback', ''):
+                return method.status.reason
+        return ''
 
 
 def methods_from_params(params: dict, n_channels: int) -> ChannelMethods:

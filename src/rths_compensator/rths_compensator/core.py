@@ -141,10 +141,8 @@ class CompensatorCore:
             self.filter = self._build(max(x.size, 1))
         prev, applied = self.measured.pop(k - 1, (None, None))
         command = self.filter.step(x, prev, self._method_applied(applied)) + self._load(x)
-        status = self.filter.status
         self.policy.passed(k)
-        return StepResult(k, (command,), 0,
-                          fault=status.reason if status.state == 'fallback' else '')
+        return StepResult(k, (command,), 0, fault=self.filter.fallback)
 
     def _adaptive_realtime(self, k, x):
         x, rows = self.policy.admit(k, x)
@@ -159,13 +157,14 @@ class CompensatorCore:
             filt.step(row, prev, self._method_applied(applied))
             self._load(row)
         prev, applied = measured.pop(k - 1, (None, None))
-        command = filt.step(x, prev, self._method_applied(applied)) + self._load(x)
-        for old in [j for j in measured if j < k]:   # late ones: never used
-            del measured[old]
+        command = filt.step(x, prev, self._method_applied(applied))
+        if self.feedforward is not None:
+            command = command + self._load(x)
+        if measured:
+            for old in [j for j in measured if j < k]:   # late ones: never used
+                del measured[old]
         self.policy.passed(k)
-        status = filt.status
-        return StepResult(k, (command,), len(rows),
-                          fault=status.reason if status.state == 'fallback' else '')
+        return StepResult(k, (command,), len(rows), fault=filt.fallback)
 
     def measure(self, k: int, displacement, applied) -> StepResult | None:
         """Keep measurement k; lock-step: return the result of step k + 1 if it was waiting."""
