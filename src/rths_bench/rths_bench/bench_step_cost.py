@@ -140,6 +140,17 @@ def time_core(name, design, plant, plant_path, fs_hz, target, seed=1):
     return {'core_step_us_p50': p50, 'core_step_us_p99': p99}
 
 
+def _cpu_model():
+    try:
+        with open('/proc/cpuinfo', encoding='utf-8') as handle:
+            for line in handle:
+                if line.startswith('model name'):
+                    return line.split(':', 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor()
+
+
 def _uptime():
     try:
         return subprocess.run(['uptime'], capture_output=True, text=True, timeout=5,
@@ -164,9 +175,12 @@ def run_step_cost(out_dir, duration_s=8.0, rates=RATES, seed=24, log=_log):
                          f'{", ".join(map(str, RATES))}')
     os.makedirs(out_dir, exist_ok=True)
     names = METHODS.names()       # fir, the adaptive methods and pi_lead
-    out = {'uptime_start': _uptime(), 'load_average_start': list(os.getloadavg()),
-           'machine': {'node': platform.node(), 'cpus': os.cpu_count(),
-                       'python': platform.python_version(),
+    load = list(os.getloadavg())
+    out = {'date': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime()),
+           'uptime_start': _uptime(), 'load_average_start': load,
+           'machine': {'cpu': _cpu_model(), 'nproc': os.cpu_count(),
+                       'loadavg': ' '.join(f'{v:.2f}' for v in load),
+                       'kernel': platform.release(), 'python': platform.python_version(),
                        'numpy': np.__version__},
            'duration_s': float(duration_s), 'warmup_s': WARMUP_S, 'rates': {}}
     with tempfile.TemporaryDirectory(prefix='rths_step_cost_') as workdir:

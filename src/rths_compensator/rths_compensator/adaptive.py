@@ -470,6 +470,7 @@ class RlsFir(AdaptiveMethod):
                 return False
             self.P = np.eye(phi.size) * (self.prior / size)
             self.trace_max = self.trace_factor * np.trace(self.P)
+            self._diagonal = np.diagonal(self.P)    # a view: P is updated in place
         P = self.P
         pphi = np.matmul(P, phi, out=self._pphi)
         r = float(phi @ pphi)
@@ -486,7 +487,7 @@ class RlsFir(AdaptiveMethod):
         # directional forgetting: P <- P - P phi phi' P eps / (lam (1 + r)),
         # eps = lam - (1 - lam) / r  (eps < 0 re-inflates P along phi only)
         eps = self.lam - (1.0 - self.lam) / r
-        if eps < 0.0 and P.trace() > self.trace_max:
+        if eps < 0.0 and np.add.reduce(self._diagonal) > self.trace_max:   # trace(P)
             eps = 0.0
         np.multiply(pphi, eps / (self.lam * (1.0 + r)), out=tmp)
         np.subtract(P, np.multiply.outer(pphi, tmp, out=self._outer), out=P)
