@@ -231,15 +231,16 @@ class CompensatorNode:
         self.publish(result, t_in, stamp_ns, t0)
 
     def publish(self, result, t_in: int, stamp_ns: int, t0: int):
-        """Publish the command of ``result`` and the step's status."""
+        """Publish the command of ``result`` and the step's status (then the coefficients).
+
+        ``compute_us`` runs up to the command's publication: the coefficients (every
+        ``coefficients_every`` steps, hundreds of values for a long FIR) go out after it,
+        off the command's path.
+        """
         step = result.step
         if self.monitor_mode != 'off':   # the target of this step, for the monitor
             self.targets[step] = self.core.last_target
             self.targets.pop(step - 256, None)
-        if self.adaptive:
-            every = max(int(self.own['coefficients_every']), 1)
-            if step % every == 0:
-                self.coef_pub.publish(Float64MultiArray(data=self.core.coefficients().tolist()))
         out = self.io_out.encode(step, result.arrays, self.sender_gid())
         self.pub.publish(out)
         self.last_out = out
@@ -252,6 +253,10 @@ class CompensatorNode:
                 'compensator', step, period_us=period_us, compute_us=compute_us,
                 latency_us=(t_in - stamp_ns) * 1e-3, missed=missed, misses=self.misses,
                 fault=result.fault))
+        if self.adaptive:
+            every = max(int(self.own['coefficients_every']), 1)
+            if step % every == 0:
+                self.coef_pub.publish(Float64MultiArray(data=self.core.coefficients().tolist()))
 
     def finish_run(self):
         """After spinning: flush what was published and log the count."""
