@@ -302,9 +302,39 @@ class _Clip:
     """
 
     def __init__(self, lower, upper, max_step):
-        self.lower, self.upper, self.max_step = lower, upper, max_step
+        self.lower, self.upper, self.max_step = lower, upper, float(max_step)
         self.lo = np.empty(lower.shape)
         self.hi = np.empty(lower.shape)
+        self._abs = np.empty(lower.shape)
+        # room: a lower bound of min_i min(x_i - lower_i, upper_i - x_i) of the current x;
+        # a step that moves no coefficient by more than max_step uses up at most ``slack``
+        # of it (max_step plus far more than its rounding)
+        scale = float(max(np.max(np.abs(lower)), np.max(np.abs(upper)), self.max_step))
+        self._margin = 1e-9 * scale
+        self.slack = self.max_step * (1.0 + 1e-6) + self._margin
+        self.room = 0.0
+
+    def add(self, x, dx):
+        """``x <- clip(x + dx)`` in place (:func:`_clip_step` of ``x + dx`` around ``x``).
+
+        When no |dx_i| exceeds max_step and x is farther than that from its bounds, both
+        clips are no-ops, exactly (rounding is monotonic: fl(x + dx) lies between
+        fl(x - max_step) and fl(x + max_step)), and are skipped: three array calls
+        instead of seven.
+        """
+        move = float(np.maximum.reduce(np.abs(dx, out=self._abs)))
+        if move <= self.max_step and self.room > self.slack:     # NaN: the full path
+            np.add(x, dx, out=x)
+            self.room -= self.slack
+            return x
+        self.bounds(x)
+        self.apply(np.add(x, dx, out=x))
+        np.subtract(x, self.lower, out=self._abs)
+        below = float(np.minimum.reduce(self._abs))
+        np.subtract(self.upper, x, out=self._abs)
+        room = min(below, float(np.minimum.reduce(self._abs))) - self._margin
+        self.room = room if room > 0.0 else 0.0        # NaN: 0, the full path next time
+        return x
 
     def bounds(self, old):
         """Note the rate limits around ``old`` (before it is overwritten)."""
@@ -482,8 +512,7 @@ class RlsFir(AdaptiveMethod):
         if clip is None:
             theta[:] = _clip_step(theta + tmp, theta, self.lower, self.upper, self.max_step)
         else:
-            clip.bounds(theta)
-            clip.apply(np.add(theta, tmp, out=theta))
+            clip.add(theta, tmp)
         # directional forgetting: P <- P - P phi phi' P eps / (lam (1 + r)),
         # eps = lam - (1 - lam) / r  (eps < 0 re-inflates P along phi only)
         eps = self.lam - (1.0 - self.lam) / r

@@ -314,3 +314,29 @@ def test_clip_step_is_np_clip_on_short_and_long_vectors(size):
         np.testing.assert_array_equal(_clip_step(new.copy(), old, lower, upper, max_step), want)
     new[1] = np.nan
     assert np.isnan(_clip_step(new.copy(), old, lower, upper, 0.5)[1])
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_in_place_clip_equals_clip_step_bit_for_bit(seed):
+    """rls_fir's in-place clip (skipping both clips when they cannot act) is _clip_step."""
+    from rths_compensator.adaptive import _Clip, _clip_step
+    rng = np.random.default_rng(seed)
+    size, max_step = 16, 1e-3
+    lower, upper = -0.05 * rng.uniform(0.5, 1.0, size), 0.05 * rng.uniform(0.5, 1.0, size)
+    clip = _Clip(lower, upper, max_step)
+    x, ref = np.zeros(size), np.zeros(size)
+    skipped = touched = 0
+    for k in range(3000):
+        scale = max_step * (0.1 if k % 500 < 400 else 3.0)      # mostly small, some large
+        dx = scale * rng.standard_normal(size) + (1e-4 if k < 1500 else -1e-4)
+        skipped += clip.room > clip.slack and np.max(np.abs(dx)) <= max_step
+        want = _clip_step(ref + dx, ref, lower, upper, max_step)
+        ref = want
+        touched += bool(np.any(want == lower) or np.any(want == upper))
+        clip.add(x, dx)
+        assert np.array_equal(x, want), k
+    assert 500 < skipped < 2900      # both paths ran
+    assert touched > 100             # the bounds acted
+    dx[3] = np.nan
+    clip.add(x, dx)
+    assert np.isnan(x[3]) and np.all(np.isfinite(np.delete(x, 3)))
