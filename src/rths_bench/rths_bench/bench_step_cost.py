@@ -49,7 +49,7 @@ def _config_1024():
     design = Design(str(params['scheme']), np.asarray(params['taps'], float),
                     np.asarray(params['denominator'], float), float(params['fs_hz']))
     plant = load_plant(plant_path)
-    info = {'source': f'{config}/compensator.yaml and {plant_path.name}',
+    info = {'source': f'config/compensator.yaml and config/{plant_path.name}',
             'scheme': design.scheme, 'taps': int(design.taps.size)}
     names = ('rls_fir', 'ats', 'amb')
     return design, dict.fromkeys(names, plant), dict.fromkeys(names, plant_path), info
