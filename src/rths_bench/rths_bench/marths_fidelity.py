@@ -190,7 +190,11 @@ def run_fidelity(seed: int = 2024, n_draws: int = None, data_dir: str = None,
     measured = run_calibration(cfg, seed=seed, n_draws=n_draws, data_dir=data_dir, log=log)
     rows = compare(measured, cfg)
     worst = max(abs(r['rel_diff_pct']) for r in rows)
+    # lazy: the machine's description lives beside the real-time loop's benchmark
+    from rths_bench.bench_loop import machine_info
     return {
+        'date': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime()),
+        'machine': machine_info(),
         'check': 'RoDeAC offline calibration (Offline_calibration.m) reproduced by the port',
         'tolerance_pct': TOLERANCE_PCT,
         'comparison': rows,
