@@ -636,7 +636,7 @@ def _run(args) -> int:
             _check_fit(plant, args.accept_poor_fit)
         fc = ['--fc', str(args.fc)] if args.fc is not None else []
         _say(f'step 2: design {args.scheme} n={args.taps} '
-             + (f'fc={args.fc} Hz' if fc else 'fc by the plant\'s dead time') + ' (rths design)')
+             + (f'fc={args.fc} Hz' if fc else 'fc by the lag the FIR predicts') + ' (rths design)')
         code = rths_main(['design', '--plant', str(plant), '--scheme', args.scheme,
                           '--taps', str(args.taps), *fc,
                           '--limits', str(config / 'bridge.yaml'), '--out', str(comp_file)])

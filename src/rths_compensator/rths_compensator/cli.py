@@ -786,7 +786,10 @@ def _assess_and_write(args, plant, make, band_of, adapt) -> int:
 def design_text(comp, band, pred, ref_text, record_note) -> str:
     """Return the printed predictions of a design."""
     lines = [
-        f'{comp.scheme}: {comp.taps.size} taps, denominator order {comp.denominator.size - 1}',
+        f'{comp.scheme}: {comp.taps.size} taps, denominator order {comp.denominator.size - 1}'
+        + (f', fc {comp.info["fc_hz"]:g} Hz (the default for the '
+           f'{comp.info["fc_default_lag_ms"]:.3g} ms lag its FIR predicts: dead time and '
+           'unstable zeros)' if 'fc_default_lag_ms' in comp.info else ''),
         f'  compensator alone: gain peak {pred["gain_peak_db"]:.1f} dB at '
         f'{pred["gain_peak_hz"]:.3g} Hz, gain at Nyquist {pred["hf_gain_db"]:.1f} dB; command '
         f'for a unit step peaks at {pred["step_command_peak"]:.3g}; for the reference '

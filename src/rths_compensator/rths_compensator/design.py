@@ -91,14 +91,19 @@ def design_default(plant, **overrides) -> 'Design':
     scheme = opts.pop('scheme')
     fs_hz = opts.pop('fs_hz', None)
     fs = plant_polynomials(plant, fs_hz)[3]
+    lag = None
     if overrides.get('fc_hz') is None:
-        opts['fc_hz'] = default_fc_hz(predicted_lag_s(plant, fs_hz), fs)
+        lag = predicted_lag_s(plant, fs_hz)
+        opts['fc_hz'] = default_fc_hz(lag, fs)
     if 'gain_weight' in SCHEMES.entry(scheme).options:      # the least-squares schemes
         opts.setdefault('n_grid', default_grid(fs))
     else:
         opts.pop('gain_weight', None)
-    return design_fir(plant, fs_hz=None if isinstance(plant, ArxModel) else fs,
+    comp = design_fir(plant, fs_hz=None if isinstance(plant, ArxModel) else fs,
                       scheme=scheme, **opts)
+    if lag is not None:     # fc chosen here: say from what
+        comp.info['fc_default_lag_ms'] = 1e3 * lag
+    return comp
 
 
 @dataclasses.dataclass

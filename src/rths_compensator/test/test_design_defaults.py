@@ -60,7 +60,10 @@ def test_fc_follows_the_lag_the_fir_predicts_not_the_dead_time_alone():
                      d=8, fs_hz=fs)
     assert model.d / fs < 0.0075
     assert dsg.predicted_lag_s(model) == pytest.approx(0.01442, abs=2e-4)
-    assert dsg.design_default(model, n_taps=50).info['fc_hz'] == LONG_DEAD_TIME_FC_HZ
+    comp = dsg.design_default(model, n_taps=50)
+    assert comp.info['fc_hz'] == LONG_DEAD_TIME_FC_HZ
+    assert comp.info['fc_default_lag_ms'] == pytest.approx(14.42, abs=0.2)   # rths design says so
+    assert 'fc_default_lag_ms' not in dsg.design_default(model, n_taps=50, fc_hz=10.0).info
     # a pure delay predicts its dead time; one unstable real zero z0 adds z0 / (z0 - 1) steps
     pure = ArxModel(a=np.array([1.0, -0.5]), b=np.array([0.5]), d=5, fs_hz=FS)
     assert dsg.predicted_lag_s(pure) == pytest.approx(5 / FS)
