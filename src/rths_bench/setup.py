@@ -35,6 +35,7 @@ setup(
             'bench_discrepancy_unseen = rths_bench.bench_discrepancy_unseen',
             'bench_identification = rths_bench.bench_identification',
             'marths = rths_bench.marths',
+            'marths_fidelity = rths_bench.marths_fidelity',
             'bench_discrepancy_rths = rths_bench.bench_discrepancy_rths',
             'linkemu = rths_bench.linkemu',
         ],

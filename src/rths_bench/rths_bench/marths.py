@@ -20,7 +20,8 @@ Pieces:
   displacement [mm] (poles and zeros of the benchmark, :func:`plant_params`), its
   uncertainty draws (:func:`draw_plant_params`), ZOH at 1/fs, band-limited sensor noise;
 * coupler: :class:`rths_common.coupler.Coupler` (exact, large-rotation form both ways);
-* controllers: ``none`` (command = target); ``decentralised_fir`` (one FIR per
+* controllers: ``rodeac`` (the published RoDeAC, ported from its public code:
+  :class:`Rodeac`); ``none`` (command = target); ``decentralised_fir`` (one FIR per
   actuator, designed with :func:`rths_compensator.design.design_fir` on an ARX model
   identified from a BLWN test of that actuator alone, the other held at zero); ``mimo``
   (the 2 x 2 plant identified from both actuators excited at once with uncorrelated
@@ -50,6 +51,7 @@ stricter reading here is the issue's.
 import json
 import math
 import os
+import re
 import sys
 import time
 
@@ -84,7 +86,7 @@ from rths_numerical.marths import (  # noqa: F401 (the structures, re-exported)
 
 #: Adaptive methods of the project run decentralised (one per actuator).
 ADAPTIVE = ('rls_fir', 'ats', 'amb')
-CONTROLLERS = ('none', 'decentralised_fir', 'mimo') + ADAPTIVE
+CONTROLLERS = ('none', 'decentralised_fir', 'mimo') + ADAPTIVE + ('rodeac',)
 J_NAMES = tuple(f'J{i}' for i in range(1, 11))
 #: A run counts as unstable when a measured stroke leaves this multiple of the largest
 #: stroke of the reference structure's interface motion (or turns non-finite).
@@ -313,6 +315,73 @@ def identify_mimo(cfg: dict, seed: int = 11, record_s: float = 20.0, band_hz: fl
     return taps, info
 
 
+class Rodeac:
+    """RoDeAC (Quiroz, Galmez, Fermandois 2024), ported from its public code.
+
+    Per actuator and run (``rodeac_controller`` and ``rodeac_calibration`` of
+    data/marths.json: ``S3_Controller.m`` and the RLS-AC blocks of ``Model_vmaRHTS_R2021a.slx``):
+    the command is ``theta(k) . [xt(k), xt(k-1), xt(k-2), xt(k-3)]`` of the target stroke [mm];
+    ``theta`` starts at the published ``theta0`` with the inverse correlation ``P0`` and is
+    updated by RLS (forgetting factor 1) on the regressor of the Butterworth-filtered
+    (order 4, 20 Hz) measured stroke against the same filter's output on the command.  The
+    filtered command of sample k depends on the command of sample k (the model's algebraic
+    loop); being linear in it, the loop is solved exactly here.
+    """
+
+    name = 'rodeac'
+
+    def __init__(self, cfg: dict, batch: int):
+        """Start ``batch`` x 2 estimators at the published initial parameters."""
+        # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
+        from scipy.signal import butter
+
+        ctl, cal = cfg['rodeac_controller'], cfg['rodeac_calibration']
+        n = ctl['taps']
+        self.lam = float(ctl['forgetting_factor'])
+        b, a = butter(ctl['filter_order'], ctl['filter_fc_hz'] / (cfg['fs_hz']['value'] / 2))
+        self.fb, self.fa = b / a[0], a / a[0]
+        self.theta = np.tile(np.asarray(cal['theta0'], float)[None], (batch, 1, 1))  # b, 2, n
+        self.p = np.tile(np.asarray(cal['P0'], float)[None], (batch, 1, 1, 1))       # b, 2, n, n
+        self.xt = np.zeros((batch, 2, n))           # target history, newest first
+        self.xm = np.zeros((batch, 2, n))           # filtered measured history
+        m = len(self.fb) - 1
+        self.zm = np.zeros((batch, 2, m))           # filter states: measured, command
+        self.zu = np.zeros((batch, 2, m))
+        files = re.sub(r' \([^()]*(\([^()]*\)[^()]*)*\)', '', ctl['file'])
+        self.source = f"{cfg['_source'].split(', folder')[0]}: {files}"
+
+    def _filter(self, z, x):
+        """One step of the direct-form II transposed filter; returns y, updates ``z``."""
+        y = self.fb[0] * x + z[..., 0]
+        z[..., :-1] = z[..., 1:] + self.fb[1:-1] * x[..., None] - self.fa[1:-1] * y[..., None]
+        z[..., -1] = self.fb[-1] * x - self.fa[-1] * y
+        return y
+
+    def step(self, target, measured):
+        """Command [mm] (batch, 2); ``measured`` answers the previous command."""
+        self.xt = np.roll(self.xt, 1, axis=2)
+        self.xt[..., 0] = target
+        self.xm = np.roll(self.xm, 1, axis=2)
+        self.xm[..., 0] = self._filter(self.zm, measured)
+        x, c, th, p = self.xm, self.xt, self.theta, self.p
+        px = np.einsum('bcij,bcj->bci', p, x)
+        g = px / (self.lam + np.einsum('bci,bci->bc', x, px))[..., None]
+        # filtered command = b0 u + s (s: the filter's past), theta(k) = th + g (b0 u + s - th.x)
+        s = self.zu[..., 0]
+        gc = np.einsum('bci,bci->bc', g, c)
+        thx = np.einsum('bci,bci->bc', th, x)
+        u = (np.einsum('bci,bci->bc', th, c) + gc * (s - thx)) / (1.0 - self.fb[0] * gc)
+        uf = self._filter(self.zu, u)
+        self.theta = th + g * (uf - thx)[..., None]
+        self.p = (p - np.einsum('bci,bcj->bcij', g, np.einsum('bcij,bci->bcj', p, x))) / self.lam
+        return u
+
+    def describe(self) -> dict:
+        """Return the settings, the source and the nominal run's final taps."""
+        return {'source': self.source, 'forgetting_factor': self.lam,
+                'theta_final_nominal': self.theta[0].tolist()}
+
+
 def make_controller(name: str, cfg: dict, batch: int, options: dict = None, log=_log):
     """Build controller ``name`` (:data:`CONTROLLERS`) for ``batch`` runs.
 
@@ -331,6 +400,8 @@ def make_controller(name: str, cfg: dict, batch: int, options: dict = None, log=
     if name == 'mimo':
         taps, info = identify_mimo(cfg, log=log, **options)
         return MimoFir(taps, batch, info)
+    if name == 'rodeac':
+        return Rodeac(cfg, batch)
     raise ValueError(f'--controller {name!r}: use one of {", ".join(CONTROLLERS)}')
 
 
@@ -630,7 +701,9 @@ def register(commands, benches):
                         '(uncorrelated BLWN, state-space, order chosen on a held-out '
                         'test, cross-coupling reported) and a 2 x 2 '
                         'least-squares FIR; rls_fir, ats, amb: the adaptive method per '
-                        'actuator, started from the decentralised design (docs/adaptive.md)')
+                        'actuator, started from the decentralised design (docs/adaptive.md); '
+                        'rodeac: the published RoDeAC controller ported from its code (4-tap '
+                        'RLS-adapted FIR per actuator from the published initial taps)')
     p.add_argument('--out', required=True, help='output directory')
     p.add_argument('--record', default='elcentro',
                    help='elcentro (default, x 0.4), kobe, morganhill (x 0.4, from the data '

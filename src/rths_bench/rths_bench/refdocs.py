@@ -132,6 +132,8 @@ FAULTS = 'Load and faults (composed 1024 Hz, 10 s each; rths bench faults)'
 FAULTS_JSON = 'faults_1024hz_10s.json'
 MARTHS = 'maRTHS (two actuators) through the node graph, mimo, El Centro x 0.4'
 MARTHS_RT = 'marths_graph/realtime_mimo_elcentro.json'
+MARTHS_FIDELITY = ('maRTHS port fidelity (rths bench marths-fidelity: Initial_parameters.mat of '
+                   'FermandoisLab/maRTHS-bmk-RoDeAC)')
 FIGURES = (
     (MAIN, 'actuator delay before compensation',
      'run_realtime_kobe_20s_summary.json', 'delay_ms_before', 'ms', ''),
@@ -176,6 +178,10 @@ FIGURES = (
     (MARTHS, 'lock-step, first 10 s: largest J difference from the offline loop',
      'marths_graph/lockstep_mimo_elcentro_10s.json', 'j_max_relative_difference', '',
      '<= 0.05'),
+    (MARTHS_FIDELITY, 'RoDeAC calibration rerun: largest difference of theta and P0',
+     'marths_fidelity/summary.json', 'max_abs_rel_diff_pct', '%', '<= 15 %'),
+    (MARTHS_FIDELITY, 'all 16 coefficients within 15 %', 'marths_fidelity/summary.json',
+     'all_within_tolerance', '', 'true'),
     (SILVA, 'example controller (the published one): J1',
      'rths_benchmark_example/summary.json', 'cases/1/J1', 'ms', 'Table 3: 4.6 ms'),
     (SILVA, 'example controller: J2',

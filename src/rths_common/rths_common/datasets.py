@@ -65,6 +65,15 @@ DATASETS = {
         folder='', files=('ElCentroAccelNoScaling.mat',),
         source='github.com/MECHS-RCN/BENCHMARKS, "RTHS code RT V23.zip"',
         licence='not redistributable', redistributable=False),
+    'marths_records': Dataset(
+        title='ground-motion records of the maRTHS benchmark (El Centro, Kobe, Morgan Hill)',
+        folder='', files=('ElCentroAccelNoScaling.mat', 'KobeAccelNoScaling.mat',
+                          'MorganAccelNoScaling.mat'),
+        source='github.com/FermandoisLab/maRTHS-bmk-RoDeAC, maRTHS-bmk-RoDeAC/Support_files/'
+               'Ground_motions (byte-identical to the files of "RTHS code RT V23.zip" of '
+               'github.com/MECHS-RCN/BENCHMARKS)',
+        licence='treated as silva2020_records (the same files): not redistributable',
+        redistributable=False),
 }
 
 
