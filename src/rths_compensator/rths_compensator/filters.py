@@ -211,27 +211,10 @@ class MultiChannelFilter:
         if x.shape != self._shape:
             raise ValueError(f'MultiChannelFilter.step expects shape ({self.n_channels},), '
                              f'got {x.shape}')
-        # History.push and window inlined (a real-time step: each call costs)
-        hist = self._x
-        n, p = hist.n, hist.p - 1
-        if p < 0:
-            p = n - 1
-        hist.p = p
-        buf = hist.buf
-        buf[p] = x
-        buf[p + n] = x
-        y = self.taps @ buf[p:p + n]
+        y = self.taps @ self._x.push(x)
         if self._na:
-            hist = self._y
-            n, p = hist.n, hist.p
-            buf = hist.buf
-            y -= self._a_rest @ buf[p:p + n]       # y is new: y - (...) without a copy
-            p -= 1
-            if p < 0:
-                p = n - 1
-            hist.p = p
-            buf[p] = y
-            buf[p + n] = y
+            y -= self._a_rest @ self._y.window()      # y is new: y - (...) without a copy
+            self._y.push(y)
         return y
 
     def apply(self, x) -> np.ndarray:
