@@ -27,6 +27,20 @@ import time
 
 import numpy as np
 
+from rths_bringup.commands import default_config_dir
+from rths_common.progress import Progress
+from rths_compensator.adaptive import make_method
+from rths_compensator.core import CompensatorCore
+from rths_compensator.design import Design
+from rths_compensator.filters import CausalFilter
+from rths_compensator.identification import load_plant
+from rths_compensator.methods import METHODS
+from rths_compensator.params import load_compensator_params
+from rths_numerical.signals import blwn
+
+from .bench_adaptive import _floor_us
+from .rths_benchmark import identify_and_design, write_method_plant
+
 RATES = (1024, 4096)
 WARMUP_S = 0.5
 NOISE_M = 2e-6
@@ -38,11 +52,6 @@ def _log(msg):
 
 def _config_1024():
     """``(design, plant, plant_path, info)`` of the project's default run (config/)."""
-    from rths_bringup.commands import default_config_dir
-    from rths_compensator.design import Design
-    from rths_compensator.identification import load_plant
-    from rths_compensator.params import load_compensator_params
-
     config = default_config_dir()
     params = load_compensator_params(config / 'compensator.yaml')
     plant_path = config / str(params['provenance'].get('plant', 'plant.yaml'))
@@ -57,9 +66,6 @@ def _config_1024():
 
 def _benchmark_4096(workdir, log):
     """Return the RTHS benchmark's graph design at 4096 Hz and each method's plant."""
-    from rths_compensator.identification import load_plant
-
-    from .rths_benchmark import identify_and_design, write_method_plant
     design, info = identify_and_design(timing='graph', log=log)
     paths = {name: write_method_plant(name, info, 4096.0, os.path.join(workdir, f'{name}.yaml'))
              for name in ('rls_fir', 'ats', 'amb')}
@@ -74,7 +80,6 @@ class _PlantModel:
     """The method's own plant model as the specimen: ``y_k = T(q) u_k`` plus noise."""
 
     def __init__(self, plant, seed):
-        from rths_compensator.filters import CausalFilter
         self.filter = CausalFilter(np.r_[np.zeros(plant.d), plant.b], plant.a)
         self.noise = NOISE_M * np.random.default_rng(seed).standard_normal(1 << 20)
         self.k = 0
@@ -91,8 +96,6 @@ def _percentiles(ns, skip):
 
 def time_method(name, design, plant, fs_hz, target, seed=1):
     """Time ``method.step`` per step in closed loop; return p50/p99 [us] and the states."""
-    from rths_compensator.adaptive import make_method
-    from rths_compensator.methods import METHODS
     entry = METHODS.entry(name)
     method = make_method(name, design, plant if entry.adaptive else None)
     sim = _PlantModel(plant, seed)
@@ -115,7 +118,6 @@ def time_method(name, design, plant, fs_hz, target, seed=1):
 
 def time_core(name, design, plant, plant_path, fs_hz, target, seed=1):
     """Time the node's core step (realtime, measurement k-1 in); return p50/p99 [us]."""
-    from rths_compensator.core import CompensatorCore
     params = {'scheme': design.scheme, 'taps': design.taps.tolist(),
               'denominator': design.denominator.tolist(), 'fs_hz': float(fs_hz),
               'method': name}
@@ -161,12 +163,6 @@ def _uptime():
 
 def run_step_cost(out_dir, duration_s=8.0, rates=RATES, seed=24, log=_log):
     """Time every method at every rate; write ``out_dir/summary.json``; return it."""
-    from rths_common.progress import Progress
-    from rths_compensator.methods import METHODS
-    from rths_numerical.signals import blwn
-
-    from .bench_adaptive import _floor_us
-
     if duration_s < 2.0 * WARMUP_S:
         raise ValueError(f'--step-cost-s {duration_s} s is too short; use >= {2 * WARMUP_S:g} s')
     unknown = [r for r in rates if r not in RATES]

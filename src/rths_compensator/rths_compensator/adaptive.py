@@ -166,7 +166,7 @@ class AdaptiveMethod:
     # ----------------------------------------------------------------- interface
     @property
     def status(self) -> Status:
-        """What the method is doing, and why (built when asked: a step keeps its parts)."""
+        """Return what the method is doing, and why (built when asked: a step keeps its parts)."""
         reason = self._reason
         if type(reason) is tuple:
             kind, value = reason

@@ -1,4 +1,4 @@
-"""The methods' arithmetic over whole runs: outputs equal those of the code before issue 24.
+"""The methods' arithmetic over whole runs: outputs equal those before issue 24 (round-off).
 
 Issue 24 made the adaptive methods' step cheaper (fewer numpy calls, in-place updates, a
 BLAS rank-1 update of the RLS covariance); it must not change what they compute.  Each
@@ -33,7 +33,13 @@ EVERY = 25
 CASES = [('fir', 1024.0, 32), ('rls_fir', 1024.0, 32), ('rls_fir', 1024.0, 200),
          ('ats', 1024.0, 32), ('amb', 1024.0, 32), ('pi_lead', 1024.0, 32),
          ('rls_fir', 4096.0, 200), ('ats', 4096.0, 200), ('amb', 4096.0, 200)]
-RTOL = 1e-12
+#: Outputs agree to this, relative to the run's largest command (and coefficient), not bit
+#: for bit: numpy's dot and matmul over a ring buffer's view may sum in an order that depends
+#: on the view's memory alignment, which differs between processes, and the 4th-order
+#: low-pass prefilters amplify such a last-bit difference (CI on e28fc99: up to 3.4e-10
+#: relative, 1.1e-13 absolute on 1e-4 m commands, where the same code passed at 1e-12 in
+#: other processes).  A change in a method's arithmetic moves them by many orders more.
+RTOL = 1e-8
 #: pi_lead: gains for the 3-pole model (the paper's are for its plant), and no fallback (its
 #: tracking error on this plant, a phase lag, exceeds the guard's 30 %).
 PI_LEAD = {'kp': 0.5, 'ki': 30.0, 'guards': Guards(fallback_pct=1e6)}
@@ -111,8 +117,8 @@ def test_outputs_equal_the_reference_run(case):
     np.testing.assert_allclose(got['sum_abs'], ref['sum_abs'], rtol=RTOL)
     np.testing.assert_allclose(got['sum'], ref['sum'], rtol=0, atol=RTOL * ref['sum_abs'])
     coef, want_coef = np.array(got['coefficients']), np.array(ref['coefficients'])
-    np.testing.assert_allclose(coef, want_coef, rtol=1e-10,
-                               atol=1e-10 * np.max(np.abs(want_coef)))
+    np.testing.assert_allclose(coef, want_coef, rtol=RTOL,
+                               atol=RTOL * np.max(np.abs(want_coef)))
 
 
 def test_the_reference_run_adapts_and_freezes():
