@@ -34,9 +34,10 @@ class History:
     the contiguous view ``x_k, x_{k-1}, ..., x_{k-n+1}`` (one row per sample), no copy.
     """
 
-    def __init__(self, n: int, n_channels: int):
+    def __init__(self, n: int, n_channels: int | None = None):
         self.n = int(n)
-        self.buf = np.zeros((2 * self.n, int(n_channels)))
+        # n_channels None: one channel as scalars (a 1-D buffer)
+        self.buf = np.zeros(2 * self.n if n_channels is None else (2 * self.n, int(n_channels)))
         self.p = 0
 
     def reset(self) -> None:
@@ -79,50 +80,38 @@ class _Taps:
         self.n = int(self.c.size)
         self.short = self.n <= _SEQUENTIAL_MAX
         self.c_list = self.c.tolist()
+        self.ring = History(self.n)      # the long path's history
         self.reset()
 
     def reset(self) -> None:
-        self.hist = [0.0] * self.n
-        self.buf = np.zeros(2 * self.n)
-        self.p = 0
+        self.hist = [0.0] * self.n       # the short path's history
+        self.ring.reset()
+
+    def _short_sum(self) -> float:
+        total = 0.0
+        for c, h in zip(self.c_list, self.hist, strict=True):
+            total += c * h
+        return total
+
+    def _short_push(self, value: float) -> None:
+        self.hist.insert(0, value)
+        self.hist.pop()
 
     def push_sum(self, value: float) -> float:
         """Push ``value`` (newest first) and return the sum over the history."""
         if self.short:
-            hist = self.hist
-            hist.insert(0, value)
-            hist.pop()
-            total = 0.0
-            for c, h in zip(self.c_list, hist, strict=True):
-                total += c * h
-            return total
-        n, p = self.n, self.p - 1
-        if p < 0:
-            p = n - 1
-        self.p = p
-        buf = self.buf
-        buf[p] = value
-        buf[p + n] = value
-        return float(np.dot(self.c, buf[p:p + n]))
+            self._short_push(value)
+            return self._short_sum()
+        return float(np.dot(self.c, self.ring.push(value)))
 
     def sum_then_push(self, value_of) -> float:
         """Return ``value_of(sum over the history)`` after pushing it (the recursion)."""
         if self.short:
-            total = 0.0
-            for c, h in zip(self.c_list, self.hist, strict=True):
-                total += c * h
-            out = value_of(total)
-            self.hist.insert(0, out)
-            self.hist.pop()
+            out = value_of(self._short_sum())
+            self._short_push(out)
             return out
-        n, p = self.n, self.p
-        out = value_of(float(np.dot(self.c, self.buf[p:p + n])))
-        p -= 1
-        if p < 0:
-            p = n - 1
-        self.p = p
-        self.buf[p] = out
-        self.buf[p + n] = out
+        out = value_of(float(np.dot(self.c, self.ring.window())))
+        self.ring.push(out)
         return out
 
 
