@@ -146,3 +146,29 @@ def test_tick_thread_ticks_in_order_and_stops():
     assert clock.error is None
     assert len(ticks) == 5
     assert all(t >= t0 + i * period for i, t in enumerate(ticks))
+
+
+def test_the_step_logger_writes_what_rclpy_writes_and_keeps_the_threshold(capfd):
+    import rclpy
+    from rclpy.logging import LoggingSeverity
+
+    logger = rclpy.logging.get_logger('rths_step_logger_test')
+    log = ns.StepLogger(logger)
+    assert log.info('progress: step 1024 of 2048 (1.0 s simulated)')
+    logger.info('progress: step 1024 of 2048 (1.0 s simulated)')
+    err = capfd.readouterr().err.splitlines()
+    ours, rclpys = [line.split('] ', 2)[2] for line in err[-2:]]
+    # the same line ("[INFO] [time] [name]: text") as rclpy's, which the launcher parses
+    text = 'progress: step 1024 of 2048 (1.0 s simulated)'
+    assert ours == rclpys == f'[rths_step_logger_test]: {text}'
+    assert err[-2].startswith('[INFO]')
+    child = log.get_child('container')
+    assert child.name == 'rths_step_logger_test.container'
+    logger.set_level(LoggingSeverity.WARN)
+    try:
+        assert not log.info('below the threshold') and not log.debug('nor this')
+        assert log.warning('a warning') and log.error('an error')
+        err = capfd.readouterr().err
+        assert 'below the threshold' not in err and '[WARN]' in err and '[ERROR]' in err
+    finally:
+        logger.set_level(LoggingSeverity.INFO)
