@@ -140,6 +140,8 @@ CLEARANCE_MIN = 0.1
 CLEARANCE_GAIN = 0.5
 #: The friction-through-play smoothing scales tried (x rms(v)); the data choose one.
 BACKLASH_EPS = (1e-3, 3e-3, 1e-2, 3e-2)
+#: The force reading's drift: its change over the record, from the first sample (:func:`decide_drift`).
+DRIFT_PARAM = ('F_d', 'N')
 #: Composite effects and their decomposition into elementary ones (the same law while sliding).
 EQUIVALENT = {'asymmetric_friction': ('coulomb_friction', 'force_offset')}
 
@@ -286,14 +288,15 @@ def _states_at(data, fc, periodic):
 
 
 def _linear_residual(st, force):
-    """Mean square residual of ``force`` on ``a, v, x, 1`` over the whole record (edges out).
+    """Mean square residual of ``force`` on ``a, v, x, 1, t`` over the whole record (edges out).
 
     The whole record: the cut-off is the record's band, which a sweep or a stepped
     sine reaches only in its later part; no model is scored by it.
     """
     n = force.size
     core = slice(int(0.05 * n), n - int(0.05 * n))
-    mat = np.column_stack([st['a'][core], st['v'][core], st['x'][core], np.ones(n)[core]])
+    mat = np.column_stack([st['a'][core], st['v'][core], st['x'][core], np.ones(n)[core],
+                           np.linspace(0.0, 1.0, n)[core]])
     scale = np.std(mat, axis=0)
     scale[scale == 0] = 1.0
     theta = np.linalg.lstsq(mat / scale, force[core], rcond=None)[0]
@@ -352,6 +355,10 @@ class Fit:
         self.noise_from = min(max(0.25 * self.fs, 1.25 * self.st['fc']), 0.45 * self.fs)
         self._bw = {}
         self.backlash_eps = 1e-2    # x rms(v); chosen by the data in select()
+        # the force reading's drift from the record's start (0 to 1 over the record); a
+        # nuisance term of every model once the data decide it (select(), decide_drift())
+        self.ramp = np.linspace(0.0, 1.0, self.n)
+        self.drift = False
 
     def shape_bounds(self, name):
         """Search interval of the shape parameter of ``name`` (from the data's own scales)."""
@@ -423,6 +430,9 @@ class Fit:
             new = self.columns(name, shapes.get(name), st)
             cols += new
             labels += [(name, PARAMS[name][j][0]) for j in range(len(new))]
+        if self.drift:
+            cols.append(self.ramp)
+            labels.append(('drift', DRIFT_PARAM[0]))
         return np.column_stack(cols), labels
 
     def solve(self, names, shapes, tau):
@@ -560,28 +570,16 @@ def select(fit, progress=None, count=None):
     ``count(done, total)`` gets the candidates fitted so far.
     """
     say = progress or (lambda msg: None)
-    nominal = fit_candidate(fit, [], 0.0)
-    align0 = nominal['tau']
-    friction = {'coulomb_friction', 'asymmetric_friction', 'stribeck'}
-    todo = [[name] for name in EFFECTS] + [   # friction laws of one kind are not combined
-        [a, b] for a, b in itertools.combinations(EFFECTS, 2) if not {a, b} <= friction]
-    choose_backlash_eps(fit, align0)
-    cands = {}
-    for names in todo:
-        cands['+'.join(names)] = fit_candidate(fit, names, align0)
-        if count:
-            count(len(cands), len(todo))
-    say(f'fitted {len(cands)} candidates')
-    floor = sg.noise_variance(fit.f - nominal['pred'], fit.fs, fit.noise_from)
-    unseen = [k for k, c in cands.items()
-              if 'backlash' in c['names'] and not clearance_seen(fit, c, cands, floor)]
-    for k in unseen:
-        del cands[k]
-    n_te = int(fit.test.sum())
-
-    def ic(c):
-        return n_te * math.log(max(c['mse_test'], 1e-300)) + c['p'] * math.log(n_te)
-
+    nominal, cands, unseen, floor = _fit_all(fit, count)
+    say(f'fitted {len(cands) + len(unseen)} candidates')
+    drift = decide_drift(fit, nominal, cands)
+    if drift['decided']:
+        fit.drift = True
+        say(f"force drift over the record {drift['F_d']:.4g} (held-out information criterion "
+            f"{drift['ic_without']:.1f} -> {drift['ic_with']:.1f} on {drift['read_on']}): "
+            'a term of every model; candidates fitted again')
+        nominal, cands, unseen, floor = _fit_all(fit, count)
+    ic = _ic(fit)
     ics = {k: ic(c) for k, c in cands.items()}
     ic_none = ic(nominal)
     m0 = nominal['mse_test']
@@ -614,7 +612,71 @@ def select(fit, progress=None, count=None):
         decision = choice
     return {'decision': decision, 'choice': choice, 'nominal': nominal, 'cands': cands,
             'ic': ics, 'ic_none': ic_none, 'equivalence': equivalence, 'play_or_loop': play,
-            'clearance_not_seen': unseen}
+            'clearance_not_seen': unseen, 'drift': drift}
+
+
+def _ic(fit):
+    """Held-out information criterion ``N ln(mse) + p ln N`` of a candidate (a function)."""
+    n_te = int(fit.test.sum())
+
+    def ic(c):
+        return n_te * math.log(max(c['mse_test'], 1e-300)) + c['p'] * math.log(n_te)
+    return ic
+
+
+def _fit_all(fit, count=None):
+    """Fit the nominal, every effect and every pair (friction laws of one kind not combined).
+
+    Returns (nominal, candidates, candidates whose clearance the record does not show
+    (dropped), the white-noise floor of the nominal's residual).
+    """
+    nominal = fit_candidate(fit, [], 0.0)
+    align0 = nominal['tau']
+    friction = {'coulomb_friction', 'asymmetric_friction', 'stribeck'}
+    todo = [[name] for name in EFFECTS] + [
+        [a, b] for a, b in itertools.combinations(EFFECTS, 2) if not {a, b} <= friction]
+    choose_backlash_eps(fit, align0)
+    cands = {}
+    for names in todo:
+        cands['+'.join(names)] = fit_candidate(fit, names, align0)
+        if count:
+            count(len(cands), len(todo))
+    floor = sg.noise_variance(fit.f - nominal['pred'], fit.fs, fit.noise_from)
+    unseen = [k for k, c in cands.items()
+              if 'backlash' in c['names'] and not clearance_seen(fit, c, cands, floor)]
+    for k in unseen:
+        del cands[k]
+    return nominal, cands, unseen, floor
+
+
+def decide_drift(fit, nominal, cands):
+    """Decide whether the force reading drifts: a term ``F_d (t - t_0) / T`` of every model.
+
+    A load cell's zero moves slowly over a test (temperature, creep of the bridge);
+    labs zero it before the test, so the drift is read from the record's first sample,
+    a straight line over the record (:data:`DRIFT_PARAM`).  The record decides: the
+    candidate of the lowest held-out information criterion (or the nominal) is fitted
+    again with the line, its shape parameters and alignment kept; the drift is a term
+    of every model when the line, fitted on the training part and carried over the
+    held-out part, lowers that criterion.  A drift is a property of the transducer,
+    not of the specimen: it is never named as an effect, and without it a slow line
+    passes for a ``force_offset`` (its mean) or spoils the gap of the effect that is
+    there.  Returns the evidence (``decided``, ``F_d`` [N], the criteria).
+    """
+    ic = _ic(fit)
+    pool = dict(cands, nominal=nominal)
+    key = min(pool, key=lambda k: ic(pool[k]))
+    best = pool[key]
+    fit.drift = True
+    try:
+        theta, labels, pred = fit.solve(best['names'], best['shapes'], best['tau'])
+    finally:
+        fit.drift = False
+    with_drift = {'mse_test': fit.mse(pred, fit.test), 'p': best['p'] + 1}
+    f_d = float(theta[labels.index(('drift', DRIFT_PARAM[0]))])
+    return {'decided': bool(ic(with_drift) < ic(best)), 'read_on': key, 'F_d': f_d,
+            'rate_N_per_s': f_d / float(fit.t[-1] - fit.t[0]),
+            'ic_without': ic(best), 'ic_with': ic(with_drift)}
 
 
 def clearance_seen(fit, cand, cands=None, floor=0.0):
@@ -662,6 +724,9 @@ def play_evidence(fit, cand):
           if g == 'nominal'}
     st = fit.st
     r = fit.f - (th['m'] * st['a'] + th['c'] * st['v'] + th['k'] * st['x'])
+    for (g, _), v in zip(cand['labels'], cand['theta'], strict=True):
+        if g == 'drift':
+            r = r - v * fit.ramp
     return reversals.evidence(st['x'], r)
 
 
@@ -793,6 +858,7 @@ def run(data, out_dir=None, progress=None, plots=True, source=None, count=None):
         'alignment_s': float(align),
         'alignment_samples': float(align * fit.fs),
         'alignment_band_samples': ALIGN_SAMPLES,
+        'force_drift': sel['drift'],
         'displacement_mean_m': float(np.mean(data['displacement_m'])),
         'best_candidate': sel['choice'],
         'candidates': {k: sg.nrmse(fit.f, c['pred'], te) for k, c in sel['cands'].items()},
@@ -910,7 +976,16 @@ def markdown(result, files):
     mp = result['model_parameters']
     lines += [f"- model: m = {mp['m']:.5g} kg, c = {mp['c']:.5g} N s/m, k = {mp['k']:.5g} N/m",
               '', f"Alignment (nuisance, not an effect): {result['alignment_samples']:+.2f} "
-              f"samples = {1e3 * result['alignment_s']:+.3f} ms.", '',
+              f"samples = {1e3 * result['alignment_s']:+.3f} ms.", '']
+    dr = result.get('force_drift')
+    if dr:
+        verdict = ('a term of every model' if dr['decided'] else 'not a term (the record '
+                   'shows none)')
+        lines += [f"Force drift (nuisance, not an effect): {dr['F_d']:.5g} N over the record "
+                  f"from its first sample, held-out information criterion "
+                  f"{dr['ic_without']:.1f} without, {dr['ic_with']:.1f} with it on "
+                  f"`{dr['read_on']}`: {verdict}.", '']
+    lines += [
               '| held-out (later part) | force NRMSE |', '|---|---|',
               f"| before (linear m a + c v + k x) | {result['nrmse_before']:.4f} |",
               f"| after (updated model) | {result['nrmse_after']:.4f} |", '',
