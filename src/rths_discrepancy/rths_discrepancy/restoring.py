@@ -150,7 +150,7 @@ CLEARANCE_MIN = 0.1
 CLEARANCE_GAIN = 0.5
 #: The friction-through-play smoothing scales tried (x rms(v)); the data choose one.
 BACKLASH_EPS = (1e-3, 3e-3, 1e-2, 3e-2)
-#: The force reading's drift: its change over the record, from the first sample (:func:`decide_drift`).
+#: The force reading's drift: its change over the record from the first sample (decide_drift).
 DRIFT_PARAM = ('F_d', 'N')
 #: Composite effects and their decomposition into elementary ones (the same law while sliding).
 EQUIVALENT = {'asymmetric_friction': ('coulomb_friction', 'force_offset')}
