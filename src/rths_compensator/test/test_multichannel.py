@@ -7,7 +7,6 @@ shared-denominator multi-input ARX cannot represent it without bias; the state-s
 must recover its transfer matrix from one test with both inputs excited at once.
 """
 
-import argparse
 import json
 import math
 
@@ -16,6 +15,7 @@ import pytest
 from scipy import signal
 import yaml
 
+from rths_common.testing import run_command
 from rths_compensator import cli
 from rths_compensator import multichannel as mc
 
@@ -160,13 +160,7 @@ def test_bad_records_are_refused():
 # sensor noise; its off-diagonal gain is 15.2 % / 15.1 % of the diagonal at DC.
 
 def _run(argv):
-    parser = argparse.ArgumentParser(prog='rths')
-    commands = parser.add_subparsers(dest='command', required=True)
-    bench = commands.add_parser('bench')
-    benches = bench.add_subparsers(dest='bench', required=True)
-    cli.register(commands, benches)
-    args = parser.parse_args(argv)
-    return args.func(args)
+    return run_command(cli.register, argv)
 
 
 @pytest.fixture(scope='module')
