@@ -26,7 +26,10 @@ Pieces:
   identified from a BLWN test of that actuator alone, the other held at zero); ``mimo``
   (the 2 x 2 plant identified from both actuators excited at once with uncorrelated
   signals, a subspace state-space model, :mod:`rths_compensator.multichannel`; a 2 x 2
-  least-squares FIR, :func:`rths_compensator.multichannel.design_coupled_fir`); ``rls_fir``,
+  least-squares FIR, :func:`rths_compensator.multichannel.design_coupled_fir`);
+  ``mimo_adaptive`` (the same identification, the FIR fitted to the identity over the
+  target band, behind an adapted gain and time shift per actuator: :class:`MimoAdaptive`);
+  ``rls_fir``,
   ``ats``, ``amb`` (the project's adaptive
   methods, one per actuator, started from the decentralised identification and design,
   :class:`DecentralisedAdaptive`).
