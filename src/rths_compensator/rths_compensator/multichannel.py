@@ -683,9 +683,9 @@ class AdaptiveCorrection:
     identity on the identified plant; on the rig's true plant each channel keeps a small
     gain and phase error of its own.  Channel i's target t_i becomes
     ``v_i = a0 t_i + a1 t_i'`` (a0 = 1, a1 = 0 at the start; ``t'`` the backward difference
-    through an order-2 Butterworth low-pass at ``shift_lowpass_hz``: a raw difference
-    would raise the loop's high-frequency gain by ``2 a1 fs``, which made the RTHS loop of
-    the maRTHS benchmark ring on some uncertain plants) before the coupled FIR, and ``(a0, a1)`` is fitted, as the project's ``ats``
+    through an order-2 Butterworth low-pass at ``shift_lowpass_hz``, so the correction adds
+    no gain at high frequencies, where the RTHS loop feeds the target's noise back) before
+    the coupled FIR, and ``(a0, a1)`` is fitted, as the project's ``ats``
     (Chae et al. 2013, docs/adaptive.md) fits its coefficients, by least squares of the
     channel's inverse over a moving window: ``v_i = a0 y_i + a1 y_i'`` with y_i the
     measured stroke, both low-passed (Butterworth order 4, ``lowpass_hz``: the sensor noise
