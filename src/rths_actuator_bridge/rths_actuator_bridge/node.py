@@ -70,7 +70,7 @@ class BridgeNode:
         params = ns.parameters(self.node)
         self.own = {k: ns.param(params, k, v) for k, v in NODE_PARAMS.items()}
         self.params = params = check_bridge_params(params)
-        self.log = self.node.get_logger()
+        self.log = ns.StepLogger(self.node.get_logger())
         self.lockstep = self.own['mode'] == 'lockstep'
         if self.own['mode'] not in ('lockstep', 'realtime'):
             raise ValueError(f"bridge node: mode {self.own['mode']!r}: use lockstep or realtime")

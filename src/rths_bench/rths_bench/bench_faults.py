@@ -31,6 +31,19 @@ docs/reliability.md; ``state_as_documented``), and ``samples_produced`` (bridge
 ticks of the run) against ``samples_in_bag`` (its measurements in the bag,
 ``samples_lost``; ``bag_prefix_complete``: no sample is missing before the last
 one in the bag).
+
+What skips the ticks, measured in the same run (every case but the kills): a
+probe process sleeps to the loop's deadlines at SCHED_FIFO 99 and does nothing
+else (:class:`FloorProbe`; the platform floor of ``rths bench loop`` taken during
+the run, not before it, keeping time as the bridge's clock does).
+``floor_late_or_missed_pct`` counts its ticks as the loop's are counted over the
+loop's run; ``loop_stalls`` are the loop's clock overruns and
+``loop_stalls_shared_with_floor`` / ``stalled_ticks_shared_with_floor`` those that
+overlap a stall of the probe (the machine stalled both).  The two may run on
+different CPUs: a stall of the loop's CPU alone (a vCPU the hypervisor took) is not
+the probe's.  ``steal_ms`` / ``steal_pct``: the CPU time the hypervisor took from
+this VM's CPUs during the run (``/proc/stat``, all CPUs; the share of their time).
+Normal-priority hogs cannot delay SCHED_FIFO threads; a hypervisor can.
 """
 
 import argparse
@@ -303,6 +316,120 @@ class Watcher(threading.Thread):
         self.join(5.0)
 
 
+# --------------------------------------------------------------------------- the machine's share
+
+def steal_jiffies() -> tuple:
+    """Return (steal, all) jiffies of every CPU so far (``/proc/stat``'s ``cpu`` line)."""
+    try:
+        fields = Path('/proc/stat').read_text().split('\n', 1)[0].split()[1:]
+    except OSError:
+        return 0, 0
+    values = [int(x) for x in fields[:8]]    # user nice system idle iowait irq softirq steal
+    return values[7], sum(values)
+
+
+#: The probe runs at the highest SCHED_FIFO priority: it preempts the loop's threads (for
+#: some microseconds a wake-up), so only what the machine does to every thread delays it.
+PROBE_PRIORITY = 99
+_PROBE = """
+import signal, sys, threading
+import numpy as np
+from rths_bench.bench_loop import sleep_to_deadlines
+stop = threading.Event()
+signal.signal(signal.SIGTERM, lambda *_: stop.set())
+r = sleep_to_deadlines(float(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), stop, reanchor=True)
+np.savez(sys.argv[4], late_ns=r['late_ns'], skipped=r['skipped'], wall_ns=r['wall_ns'],
+         scheduling=r['scheduling'])
+"""
+
+
+class FloorProbe:
+    """During a run: an empty process sleeping to the loop's deadlines (module doc).
+
+    A process of its own: a thread of this one would wait for the GIL (up to the
+    5 ms switch interval) behind the bench's own Python threads.
+    """
+
+    def __init__(self, rate_hz: float, duration_s: float, out: Path):
+        self.out = Path(out)
+        n = int((duration_s + 120.0) * rate_hz)     # start-up and the tail included
+        self.proc = subprocess.Popen([sys.executable, '-c', _PROBE, str(rate_hz), str(n),
+                                      str(PROBE_PRIORITY), str(self.out)])
+        self.woke: dict = {}
+
+    def stop(self):
+        """End the probe and read what it measured."""
+        self.proc.terminate()
+        try:
+            self.proc.wait(10.0)
+            with np.load(self.out) as r:
+                self.woke = {k: r[k] for k in ('late_ns', 'skipped', 'wall_ns')}
+                self.woke['scheduling'] = str(r['scheduling'])
+        except (subprocess.TimeoutExpired, OSError, KeyError, ValueError):
+            self.proc.kill()
+            self.woke = {}
+
+
+def stall_intervals(wall_ns, late_ns, period_ns: int) -> np.ndarray:
+    """Return [start, end] wall times [ns] of the wake-ups more than a period late."""
+    wall, late = np.asarray(wall_ns, np.int64), np.asarray(late_ns, np.int64)
+    hit = late > period_ns
+    return np.stack([wall[hit] - late[hit], wall[hit]], axis=1)
+
+
+def shared_stalls(loop: np.ndarray, probe: np.ndarray, period_ns: int) -> np.ndarray:
+    """Return a mask of the ``loop`` stall intervals that overlap a ``probe`` one (± a period)."""
+    if not loop.size or not probe.size:
+        return np.zeros(len(loop), bool)
+    order = np.argsort(probe[:, 0])
+    starts, ends = probe[order, 0], np.maximum.accumulate(probe[order, 1])
+    # the last probe stall starting before this loop stall ends (+ a period) ...
+    i = np.searchsorted(starts, loop[:, 1] + period_ns, side='right') - 1
+    # ... overlaps it when the probe stalls up to it end after this one starts (- a period)
+    return (i >= 0) & (ends[np.maximum(i, 0)] >= loop[:, 0] - period_ns)
+
+
+def machine_share(probe: FloorProbe, bridge_timing: Path, steal: tuple, wall_s: float,
+                  rate_hz: float) -> dict:
+    """Return the probe's and the hypervisor's figures of one run (module doc).
+
+    The probe's ticks count from the loop's first tick to its last (its start-up
+    and tail are not the loop's time), all of them if the loop left no timing.
+    """
+    period_ns = int(round(1e9 / rate_hz))
+    out: dict = {}
+    woke = probe.woke
+    try:
+        with np.load(bridge_timing) as t:
+            wall, late = t['tick_wall_ns'], t['tick_late_ns']
+    except (OSError, KeyError, ValueError):
+        wall = late = None
+    if woke.get('late_ns') is not None and woke['late_ns'].size:
+        inside = np.ones(woke['wall_ns'].size, bool)
+        if wall is not None and wall.size:
+            inside = (woke['wall_ns'] >= wall[0]) & (woke['wall_ns'] <= wall[-1])
+        p_late, p_skipped = woke['late_ns'][inside], woke['skipped'][inside]
+        if p_late.size:
+            out.update(floor_scheduling=woke['scheduling'],
+                       floor_late_or_missed_pct=round(
+                           100.0 * int(p_skipped.sum()) / (p_late.size + int(p_skipped.sum())), 4),
+                       floor_late_us_p99=round(float(np.percentile(p_late, 99)) * 1e-3, 1),
+                       floor_late_us_max=round(float(p_late.max()) * 1e-3, 1))
+        if wall is not None:
+            loop = stall_intervals(wall, late, period_ns)
+            hit = shared_stalls(loop, stall_intervals(woke['wall_ns'][inside], p_late,
+                                                      period_ns), period_ns)
+            skipped = np.asarray(late, np.int64)[np.asarray(late) > period_ns] // period_ns
+            out.update(loop_stalls=int(len(loop)), loop_stalls_shared_with_floor=int(hit.sum()),
+                       stalled_ticks_shared_with_floor=int(skipped[hit].sum()))
+    (s0, a0), (s1, a1) = steal, steal_jiffies()
+    if a1 > a0:
+        out.update(steal_ms=round(1000.0 * (s1 - s0) / os.sysconf('SC_CLK_TCK'), 1),
+                   steal_pct=round(100.0 * (s1 - s0) / (a1 - a0), 3),
+                   wall_s=round(wall_s, 2))
+    return out
+
+
 # --------------------------------------------------------------------------- a case
 
 def command_peaks(bag, fs_hz: float) -> dict:
@@ -404,15 +531,24 @@ def run_case(name: str, args, workdir: Path, log) -> dict:
     watcher = Watcher(bag, steps, kill={'kill': name.split('_')[-1]}.get(kind, ''),
                       list_threads=kind == 'cpu')
     hog = Hogs(kind, workdir, args.memory_fraction) if kind in ('cpu', 'memory', 'io') else None
+    probe = None
     try:
         watcher.start()
         if hog is not None:
             hog.__enter__()
+        if kind != 'kill':
+            workdir.mkdir(parents=True, exist_ok=True)
+            probe = FloorProbe(args.rate, args.duration, workdir / 'floor_probe.npz')
+        steal, t_start = steal_jiffies(), time.monotonic()
         try:
             loop = run_once(args.rate, args.duration, la, workdir, log, label=name)
         except OSError as err:            # a killed container wrote no timing files
             loop = {'run_completed': False, 'loop_error': str(err).split(';')[0]}
         finally:
+            if probe is not None:
+                probe.stop()
+                result.update(machine_share(probe, workdir / 'bridge_timing.npz', steal,
+                                            time.monotonic() - t_start, args.rate))
             if hog is not None:
                 hog.__exit__(None, None, None)
                 result['load'] = hog.info
@@ -453,6 +589,11 @@ def print_case(r: dict) -> None:
           f"peak {r.get('command_peak_m')} m (within limits {r.get('within_limits')}), final "
           f"safety state {r.get('final_safety_state')}{extra}, samples "
           f"{r.get('samples_in_bag')}/{r.get('samples_produced')} in the bag", flush=True)
+    if 'floor_late_or_missed_pct' in r:
+        print(f"  same run: an empty SCHED_FIFO thread {r['floor_late_or_missed_pct']} % late or "
+              f"missed; {r.get('stalled_ticks_shared_with_floor')} of the loop's "
+              f"{r.get('stalled_ticks')} stalled ticks in stalls it shared; hypervisor steal "
+              f"{r.get('steal_ms')} ms ({r.get('steal_pct')} % of the CPUs' time)", flush=True)
 
 
 def cmd_bench_faults(args) -> int:

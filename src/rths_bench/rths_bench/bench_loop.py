@@ -56,6 +56,7 @@ import time
 import numpy as np
 
 from rths_actuator_bridge.bridge import DEFAULT_BACKEND
+from rths_common.stepping import TickClock
 from rths_compensator.schemes import DEFAULT_SCHEME
 from rths_numerical.specimens import DEFAULT_SPECIMEN
 
@@ -306,15 +307,22 @@ def bag_check(bag, steps, missed) -> dict:
             'status_matches_bridge': bool(sum(flags) == final == int(np.sum(missed)))}
 
 
-def platform_floor(rate_hz: float, duration_s: float, priority: int = 80) -> dict:
-    """Wake-up lateness of an empty SCHED_FIFO loop at ``rate_hz`` (what cyclictest measures).
+def sleep_to_deadlines(rate_hz: float, n: int, priority: int = 80, stop=None,
+                       reanchor: bool = False) -> dict:
+    """Sleep to the deadlines ``t0 + k / rate`` (k < n, or until ``stop`` is set).
 
-    This thread sleeps to absolute deadlines ``t0 + k / rate`` and records how
-    late it woke; nothing else runs in it.  Its scheduling is restored after.
+    The calling thread runs SCHED_FIFO ``priority`` meanwhile (restored after) and
+    does nothing else.  ``reanchor``: keep time as the bridge's clock does
+    (:class:`rths_common.stepping.TickClock`: a wake-up more than a period late
+    skips the ticks it missed); else the deadlines are fixed (cyclictest).  Returns
+    ``late_ns`` (how late each wake-up was), ``skipped`` (ticks skipped there),
+    ``wall_ns`` (wall-clock time of each wake-up, :func:`time.time_ns`, as the
+    nodes stamp their ticks) and ``scheduling``.
     """
-    period_ns = int(round(1e9 / rate_hz))
-    n = max(int(duration_s * rate_hz), 1)
+    clock = TickClock(rate_hz)
     late = np.zeros(n, dtype=np.int64)
+    skipped = np.zeros(n, dtype=np.int64)
+    wall = np.zeros(n, dtype=np.int64)
     policy = os.sched_getscheduler(0)
     param = os.sched_getparam(0)
     try:
@@ -324,14 +332,23 @@ def platform_floor(rate_hz: float, duration_s: float, priority: int = 80) -> dic
         sched = f'SCHED_OTHER (SCHED_FIFO refused: {err})'
     gc_was = gc.isenabled()
     gc.disable()
+    done = 0
     try:
-        t0 = time.monotonic_ns() + period_ns
+        clock.start(time.monotonic_ns() + clock.period_ns)
         for k in range(n):
-            due = t0 + k * period_ns
-            wait = due - time.monotonic_ns()
+            if stop is not None and stop.is_set():
+                break
+            wait = clock.due_ns() - time.monotonic_ns()
             if wait > 0:
                 time.sleep(wait * 1e-9)
-            late[k] = time.monotonic_ns() - due
+            now = time.monotonic_ns()
+            if reanchor:
+                _, late[k], skipped[k] = clock.take(now)
+            else:
+                late[k] = now - clock.due_ns()
+                clock.k += 1
+            wall[k] = time.time_ns()
+            done = k + 1
     finally:
         if gc_was:
             gc.enable()
@@ -339,8 +356,22 @@ def platform_floor(rate_hz: float, duration_s: float, priority: int = 80) -> dic
             os.sched_setscheduler(0, policy, param)
         except OSError:
             pass
+    return {'late_ns': late[:done], 'skipped': skipped[:done], 'wall_ns': wall[:done],
+            'scheduling': sched}
+
+
+def platform_floor(rate_hz: float, duration_s: float, priority: int = 80) -> dict:
+    """Wake-up lateness of an empty SCHED_FIFO loop at ``rate_hz`` (what cyclictest measures).
+
+    This thread sleeps to absolute deadlines ``t0 + k / rate`` and records how
+    late it woke; nothing else runs in it (:func:`sleep_to_deadlines`).
+    """
+    period_ns = int(round(1e9 / rate_hz))
+    woke = sleep_to_deadlines(rate_hz, max(int(duration_s * rate_hz), 1), priority)
+    late = woke['late_ns']
     late_us = late * 1e-3
-    return {'rate_hz': float(rate_hz), 'samples': n, 'scheduling': sched,
+    return {'rate_hz': float(rate_hz), 'samples': int(late.size),
+            'scheduling': woke['scheduling'],
             **_stats('late_us', late_us),
             'late_us_p999': round(float(np.percentile(late_us, 99.9)), 1),
             'late_gt_period_pct': round(100.0 * float(np.mean(late > period_ns)), 4),

@@ -32,14 +32,27 @@ def test_tune_process_gc_modes_and_bad_values():
 
 
 def test_tune_process_affinity_and_priority_fall_back_cleanly():
+    import numpy  # noqa: F401 (a loop process has numpy's OpenBLAS loaded when it tunes)
     before = os.sched_getaffinity(0)
     policy = os.sched_getscheduler(0)
+    env = {k: os.environ.get(k) for k in ns.BLAS_THREADS_ENV}
     try:
         text = ns.tune_process(rt_priority=1, cpus=','.join(map(str, sorted(before))))
         # either SCHED_FIFO was granted or the refusal is reported, never an exception
         assert 'SCHED_FIFO 1' in text
         assert 'cpus' in text or 'affinity' in text
+        # BLAS's spinning worker threads are off (they hung a loop pinned to one CPU)
+        from threadpoolctl import threadpool_info
+        assert 'BLAS on 1 thread' in text
+        blas = [lib for lib in threadpool_info() if lib['user_api'] == 'blas']
+        assert blas and all(lib['num_threads'] == 1 for lib in blas)
+        assert all(os.environ[k] == '1' for k in ns.BLAS_THREADS_ENV)   # for those loaded later
     finally:
+        for k, v in env.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
         for tid in map(int, os.listdir('/proc/self/task')):
             try:
                 os.sched_setscheduler(tid, policy, os.sched_param(0))
@@ -146,3 +159,29 @@ def test_tick_thread_ticks_in_order_and_stops():
     assert clock.error is None
     assert len(ticks) == 5
     assert all(t >= t0 + i * period for i, t in enumerate(ticks))
+
+
+def test_the_step_logger_writes_what_rclpy_writes_and_keeps_the_threshold(capfd):
+    import rclpy
+    from rclpy.logging import LoggingSeverity
+
+    logger = rclpy.logging.get_logger('rths_step_logger_test')
+    log = ns.StepLogger(logger)
+    assert log.info('progress: step 1024 of 2048 (1.0 s simulated)')
+    logger.info('progress: step 1024 of 2048 (1.0 s simulated)')
+    err = capfd.readouterr().err.splitlines()
+    ours, rclpys = [line.split('] ', 2)[2] for line in err[-2:]]
+    # the same line ("[INFO] [time] [name]: text") as rclpy's, which the launcher parses
+    text = 'progress: step 1024 of 2048 (1.0 s simulated)'
+    assert ours == rclpys == f'[rths_step_logger_test]: {text}'
+    assert err[-2].startswith('[INFO]')
+    child = log.get_child('container')
+    assert child.name == 'rths_step_logger_test.container'
+    logger.set_level(LoggingSeverity.WARN)
+    try:
+        assert not log.info('below the threshold') and not log.debug('nor this')
+        assert log.warning('a warning') and log.error('an error')
+        err = capfd.readouterr().err
+        assert 'below the threshold' not in err and '[WARN]' in err and '[ERROR]' in err
+    finally:
+        logger.set_level(LoggingSeverity.INFO)

@@ -78,7 +78,7 @@ class CompensatorNode:
         self.lockstep = self.own['mode'] == 'lockstep'
         self.core = CompensatorCore(self.params, realtime=not self.lockstep)
         self.driver = Driver(self.core, self.lockstep, self.on_reject)
-        self.log = self.node.get_logger()
+        self.log = ns.StepLogger(self.node.get_logger())
         qos = loop_qos(self.own['mode'])
         raw = not self.lockstep   # lean messages: CDR bytes in and out (rths_common.cdr)
         run_id = self.own['run_id']

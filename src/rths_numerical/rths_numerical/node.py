@@ -56,7 +56,7 @@ class NumericalNode:
         self.sub = make_substructure(params)
         self.core = NumericalCore(self.sub)
         self.driver = Driver(self.core, self.lockstep, self.on_reject)
-        self.log = self.node.get_logger()
+        self.log = ns.StepLogger(self.node.get_logger())
         qos = loop_qos(own['mode'])
         raw = not self.lockstep   # lean messages: CDR bytes in and out (rths_common.cdr)
         run_id = own['run_id']
