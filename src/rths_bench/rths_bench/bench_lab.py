@@ -62,7 +62,9 @@ def register(commands, benches):
     p.add_argument('--kill-to', type=float, default=11.5,
                    help='latest kill after the RTHS clock started [s] (default 11.5)')
     p.add_argument('--seed', type=int, default=30, help='seed of the kill moments')
-    p.add_argument('--keep', default=None, help='keep the run directories here')
+    p.add_argument('--keep', default=None,
+                   help='keep the run directories here (each of the --runs with what rths run '
+                        'printed, in rths_run.log)')
     p.set_defaults(func=_cmd)
 
 
@@ -100,6 +102,8 @@ def one_run(out: Path, duration: float, plant) -> dict:
         cmd += ['--plant', str(plant)]
     t0 = time.monotonic()
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if out.is_dir():      # what the run printed, beside its results (--keep keeps it)
+        (out / 'rths_run.log').write_text(proc.stdout + proc.stderr)
     r = {'exit_code': proc.returncode, 'wall_s': round(time.monotonic() - t0, 1),
          'summary_json': (out / 'summary.json').is_file(),
          'report_html': (out / 'report.html').is_file()}

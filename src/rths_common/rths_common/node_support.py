@@ -25,6 +25,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from threadpoolctl import threadpool_limits
 
 from rths_common import lifeline
 from rths_common.params import check_spec
@@ -242,6 +243,10 @@ def tuning(own: dict, node_name: str) -> tuple:
     return prio, own.get('cpus', ''), gc_mode
 
 
+#: Environment variables a BLAS library reads for its thread count when it is loaded.
+BLAS_THREADS_ENV = ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS')
+
+
 def tune_process(rt_priority: int = 0, cpus: str = '', gc_mode: str = 'default') -> str:
     """Apply the latency settings of a loop process to every thread it has; describe them.
 
@@ -250,6 +255,11 @@ def tune_process(rt_priority: int = 0, cpus: str = '', gc_mode: str = 'default')
       Refused (no CAP_SYS_NICE, container without RT budget): the threads stay
       SCHED_OTHER and the description says so; the run goes on.
     * ``cpus``: CPU affinity (``'1'``, ``'0,1'``; '' = leave as is).
+    * with either: BLAS (OpenBLAS, numpy's and SciPy's) computes on this thread
+      only.  Its worker threads wait for work by spinning; at the loop's FIFO
+      priority on the loop's CPU they never let the waiting thread run again (a
+      node with ``cpus: '1'`` hung in its configure step, issue 28), and the
+      loop's vectors are too short to gain from them.
     * ``gc_mode``: 'default' (leave the collector alone), 'freeze' (collect once,
       then move every object created so far out of the collector's sight so
       collections are short) or 'disable' (freeze and switch automatic
@@ -260,6 +270,10 @@ def tune_process(rt_priority: int = 0, cpus: str = '', gc_mode: str = 'default')
     are created then) and again when the loop starts.
     """
     parts = []
+    if cpus or rt_priority > 0:
+        threadpool_limits(1)                 # the BLAS libraries loaded so far
+        os.environ.update({k: '1' for k in BLAS_THREADS_ENV})     # and those loaded later
+        parts.append('BLAS on 1 thread')
     tids = [int(t) for t in os.listdir('/proc/self/task')]
     if cpus:
         cpuset = parse_cpus(cpus)

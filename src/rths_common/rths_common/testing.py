@@ -1,4 +1,4 @@
-"""Test support for the tests of truth: in CI they may not skip.
+"""Test support: the tests of truth, which may not skip in CI, and a package's commands alone.
 
 A test that compares rths with measured data or a published figure calls :func:`require_data`
 (or :func:`require`, for an optional dependency) first.  When what it needs is missing it
@@ -8,6 +8,7 @@ exception is a data set that may not be redistributed (the RTHS benchmark's grou
 records): CI cannot have it, so its test skips everywhere, saying why.
 """
 
+import argparse
 import os
 from pathlib import Path
 
@@ -41,3 +42,18 @@ def require_data(name: str) -> Path:
         pytest.skip(f'{reason}; it may not be redistributed, so CI has it neither')
     require(reason is None, reason or '')
     return datasets.dataset_dir(name)
+
+
+def command_parser(register) -> argparse.ArgumentParser:
+    """Return an ``rths`` parser holding one package's commands (its ``register``)."""
+    parser = argparse.ArgumentParser(prog='rths')
+    commands = parser.add_subparsers(dest='command', required=True)
+    benches = commands.add_parser('bench').add_subparsers(dest='bench', required=True)
+    register(commands, benches)
+    return parser
+
+
+def run_command(register, argv: list) -> int:
+    """Parse ``argv`` with :func:`command_parser` and run the command; return its exit code."""
+    args = command_parser(register).parse_args(argv)
+    return args.func(args)

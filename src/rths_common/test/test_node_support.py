@@ -32,14 +32,27 @@ def test_tune_process_gc_modes_and_bad_values():
 
 
 def test_tune_process_affinity_and_priority_fall_back_cleanly():
+    import numpy  # noqa: F401 (a loop process has numpy's OpenBLAS loaded when it tunes)
     before = os.sched_getaffinity(0)
     policy = os.sched_getscheduler(0)
+    env = {k: os.environ.get(k) for k in ns.BLAS_THREADS_ENV}
     try:
         text = ns.tune_process(rt_priority=1, cpus=','.join(map(str, sorted(before))))
         # either SCHED_FIFO was granted or the refusal is reported, never an exception
         assert 'SCHED_FIFO 1' in text
         assert 'cpus' in text or 'affinity' in text
+        # BLAS's spinning worker threads are off (they hung a loop pinned to one CPU)
+        from threadpoolctl import threadpool_info
+        assert 'BLAS on 1 thread' in text
+        blas = [lib for lib in threadpool_info() if lib['user_api'] == 'blas']
+        assert blas and all(lib['num_threads'] == 1 for lib in blas)
+        assert all(os.environ[k] == '1' for k in ns.BLAS_THREADS_ENV)   # for those loaded later
     finally:
+        for k, v in env.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
         for tid in map(int, os.listdir('/proc/self/task')):
             try:
                 os.sched_setscheduler(tid, policy, os.sched_param(0))

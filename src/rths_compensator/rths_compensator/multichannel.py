@@ -41,7 +41,7 @@ import os
 
 import numpy as np
 from scipy import linalg
-from scipy.signal import csd, lfilter
+from scipy.signal import butter, csd, lfilter
 import yaml
 
 from rths_common.files import atomic_open
@@ -674,3 +674,125 @@ def model_from_dict(data: dict, where: str = 'plant') -> MimoModel:
                              f'{tuple("N" if w is None else w for w in want)}; re-run rths '
                              'identify --channels N')
     return MimoModel(mats['a'], mats['b'], mats['c'], mats['d'], float(fs))
+
+
+class AdaptiveCorrection:
+    """Per-channel adaptive gain and time shift ahead of a coupled design.
+
+    The coupled FIR (:func:`design_coupled_fir`) makes the N x N loop ``P G`` close to the
+    identity on the identified plant; on the rig's true plant each channel keeps a small
+    gain and phase error of its own.  Channel i's target t_i becomes
+    ``v_i = a0 t_i + a1 t_i'`` (a0 = 1, a1 = 0 at the start; ``t'`` the backward difference
+    through an order-2 Butterworth low-pass at ``shift_lowpass_hz``, so the correction adds
+    no gain at high frequencies, where the RTHS loop feeds the target's noise back) before
+    the coupled FIR, and ``(a0, a1)`` is fitted, as the project's ``ats``
+    (Chae et al. 2013, docs/adaptive.md) fits its coefficients, by least squares of the
+    channel's inverse over a moving window: ``v_i = a0 y_i + a1 y_i'`` with y_i the
+    measured stroke, both low-passed (Butterworth order 4, ``lowpass_hz``: the sensor noise
+    above the band would bias the inverse), the window's normal equations weighted
+    exponentially (time constant ``window_s``) and solved every ``every`` steps.  The
+    coefficients stay within ``gain_bounds`` and ``+-shift_max_s`` and move at most
+    ``rates`` (per second).  Two coefficients instead of a free FIR: the low-passed
+    regressors of consecutive samples are nearly collinear, and an adapted FIR of even 3
+    taps drifted along those directions into an unstable loop.
+
+    Guards as the project's adaptive methods' (:class:`.adaptive.Guards`): a channel adapts
+    only while its target's RMS (exponential window ``guard_window_s``) is at least
+    ``excitation`` (the caller's units); once, so excited and after ``start_s``, its
+    relative RMS tracking error over that window exceeds ``fallback_pct`` %, its correction
+    returns to the identity for good (the coupled design alone; ``fallen_back``).  The
+    regression pairs the corrected target of step k-1 with the measurement of step k-1 (the
+    design makes y(k) follow v(k)).  Vectorised over B independent runs: arrays (B, N).
+    """
+
+    def __init__(self, batch: int, n_channels: int, fs_hz: float, lowpass_hz: float = 20.0,
+                 window_s: float = 1.0, every: int = 16, gain_bounds=(0.5, 2.0),
+                 shift_max_s: float = 0.005, rates=(0.2, 0.005), start_s: float = 1.0,
+                 excitation: float = 0.0, guard_window_s: float = 0.5,
+                 fallback_pct: float = 30.0, shift_lowpass_hz: float = 50.0):
+        """Start ``batch`` x ``n_channels`` corrections at the identity."""
+        shape = (int(batch), int(n_channels))
+        self.fs_hz = float(fs_hz)
+        self.a = np.zeros(shape + (2,))
+        self.a[..., 0] = 1.0
+        self.lower = np.array([gain_bounds[0], -shift_max_s], float)
+        self.upper = np.array([gain_bounds[1], shift_max_s], float)
+        self.every = int(every)
+        self.max_step = np.asarray(rates, float) * self.every / self.fs_hz
+        self._beta = 1.0 / max(1.0, window_s * fs_hz)
+        self._start = int(round(start_s * fs_hz))
+        self._k = 0
+        b, a = butter(4, lowpass_hz, fs=fs_hz)
+        self._fb, self._fa = b / a[0], a / a[0]
+        m = len(b) - 1
+        self._zy = np.zeros(shape + (m,))
+        self._zv = np.zeros(shape + (m,))
+        bd, ad = butter(2, shift_lowpass_hz, fs=fs_hz)
+        self._db, self._da = bd / ad[0], ad / ad[0]
+        self._zd = np.zeros(shape + (2,))
+        self._t = np.zeros(shape)              # target of step k-1
+        self._y = np.zeros(shape)              # filtered measured of step k-1
+        self._vf = np.zeros(shape)             # filtered corrected target of step k-1
+        self._gram = np.zeros(shape + (2, 3))  # windowed [phi phi' | phi v]
+        self.excitation = float(excitation)
+        self.fallback_pct = float(fallback_pct)
+        self._alpha = 1.0 / max(1.0, guard_window_s * fs_hz)
+        self._ms_t = np.zeros(shape)           # windowed mean squares: target, error
+        self._ms_e = np.zeros(shape)
+        self.fallen_back = np.zeros(shape, bool)
+
+    def _filter(self, z, x, b=None, a=None):
+        """One step of the direct-form II transposed low-pass; returns y, updates ``z``."""
+        if b is None:
+            b, a = self._fb, self._fa
+        y = b[0] * x + z[..., 0]
+        z[..., :-1] = z[..., 1:] + b[1:-1] * x[..., None] - a[1:-1] * y[..., None]
+        z[..., -1] = b[-1] * x - a[-1] * y
+        return y
+
+    def step(self, target, measured=None) -> np.ndarray:
+        """Corrected targets (B, N) for ``target`` (B, N); ``measured`` answers step k-1."""
+        target = np.asarray(target, float)
+        if measured is not None:
+            self._observe(target, np.asarray(measured, float))
+        rate = self._filter(self._zd, (target - self._t) * self.fs_hz, self._db, self._da)
+        v = self.a[..., 0] * target + self.a[..., 1] * rate
+        self._t = target
+        self._vf = self._filter(self._zv, v)
+        self._k += 1
+        return v
+
+    def _observe(self, target, measured):
+        err = target - measured                # the design makes y(k) follow t(k)
+        self._ms_t += self._alpha * (target * target - self._ms_t)
+        self._ms_e += self._alpha * (err * err - self._ms_e)
+        excited = (self._ms_t >= self.excitation ** 2) & (self._ms_t > 0.0)
+        started = self._k > self._start
+        bad = started & excited & ~self.fallen_back & (
+            self._ms_e > (self.fallback_pct / 100.0) ** 2 * self._ms_t)
+        if np.any(bad):
+            self.fallen_back |= bad
+            self.a[bad] = (1.0, 0.0)
+        y = self._filter(self._zy, measured)
+        if started:                            # v(k-1) against y(k-1) and its difference
+            phi = np.stack([self._y, (y - self._y) * self.fs_hz], axis=-1)
+            adapt = excited & ~self.fallen_back
+            row = np.concatenate([phi[..., :, None] * phi[..., None, :],
+                                  (phi * self._vf[..., None])[..., :, None]], axis=-1)
+            self._gram += np.where(adapt[..., None, None], self._beta * (row - self._gram), 0.0)
+            if self._k % self.every == 0 and np.any(adapt):
+                self._fit(adapt)
+        self._y = y
+
+    def _fit(self, adapt):
+        """Solve the window's 2 x 2 normal equations where ``adapt``; clip and rate-limit."""
+        g = self._gram
+        a11, a12, a22 = g[..., 0, 0], g[..., 0, 1], g[..., 1, 1]
+        det = a11 * a22 - a12 * a12
+        ok = adapt & (det > 1e-9 * a11 * a22) & (a11 > 0.0)
+        det = np.where(ok, det, 1.0)
+        sol = np.stack([(a22 * g[..., 0, 2] - a12 * g[..., 1, 2]) / det,
+                        (a11 * g[..., 1, 2] - a12 * g[..., 0, 2]) / det], axis=-1)
+        sol = np.clip(sol, self.a - self.max_step, self.a + self.max_step)
+        sol = np.clip(sol, self.lower, self.upper)
+        self.a = np.where(ok[..., None] & np.isfinite(sol), sol, self.a)

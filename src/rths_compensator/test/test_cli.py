@@ -1,6 +1,5 @@
 """The rths identify / design / compensate / unstable-zeros commands, end to end (tiny sizes)."""
 
-import argparse
 import time
 
 import numpy as np
@@ -8,6 +7,7 @@ import pytest
 from scipy import signal
 
 from rths_common.columns import read_columns
+from rths_common.testing import run_command
 from rths_compensator import cli
 from rths_compensator.identification import load_plant
 from rths_compensator.params import load_compensator_params
@@ -16,13 +16,7 @@ FS = 256.0
 
 
 def _run(argv):
-    parser = argparse.ArgumentParser(prog='rths')
-    commands = parser.add_subparsers(dest='command', required=True)
-    bench = commands.add_parser('bench')
-    benches = bench.add_subparsers(dest='bench', required=True)
-    cli.register(commands, benches)
-    args = parser.parse_args(argv)
-    return args.func(args)
+    return run_command(cli.register, argv)
 
 
 @pytest.fixture(scope='module')

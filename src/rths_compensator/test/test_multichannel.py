@@ -7,7 +7,6 @@ shared-denominator multi-input ARX cannot represent it without bias; the state-s
 must recover its transfer matrix from one test with both inputs excited at once.
 """
 
-import argparse
 import json
 import math
 
@@ -16,6 +15,7 @@ import pytest
 from scipy import signal
 import yaml
 
+from rths_common.testing import run_command
 from rths_compensator import cli
 from rths_compensator import multichannel as mc
 
@@ -160,13 +160,7 @@ def test_bad_records_are_refused():
 # sensor noise; its off-diagonal gain is 15.2 % / 15.1 % of the diagonal at DC.
 
 def _run(argv):
-    parser = argparse.ArgumentParser(prog='rths')
-    commands = parser.add_subparsers(dest='command', required=True)
-    bench = commands.add_parser('bench')
-    benches = bench.add_subparsers(dest='bench', required=True)
-    cli.register(commands, benches)
-    args = parser.parse_args(argv)
-    return args.func(args)
+    return run_command(cli.register, argv)
 
 
 @pytest.fixture(scope='module')
@@ -358,3 +352,57 @@ def test_identify_reads_the_bag_of_a_two_actuator_run(tmp_path, capsys):
                                          '--channels 2'):
         _run(['identify', '--bag', str(tmp_path / 'bag'), '--channels', '3',
               '--out', str(tmp_path / 'p3.yaml')])
+
+
+# ----------------------------------------------------------------- adaptive correction
+def _run_correction(corr, gains, lags, seconds=20.0, amplitude=1.0, noise=0.002, seed=3):
+    """Drive ``corr`` (batch 1, one channel per gain) through channels y = g v (lag).
+
+    Channel c answers the corrected target v with ``y(k) = g_c v(k - lags_c)``, where lag 0
+    stands for a design that predicts the sample (``2 v(k-1) - v(k-2)``, as the coupled FIR
+    makes ``y(k)`` follow ``v(k)``) and lag 1 for one sample behind it.  Returns the RMS
+    tracking error per channel over the last 5 s, relative to the target's.
+    """
+    rng = np.random.default_rng(seed)
+    n = int(seconds * FS)
+    t = np.arange(n) / FS
+    target = amplitude * (np.sin(2 * np.pi * 1.1 * t) + 0.5 * np.sin(2 * np.pi * 2.7 * t + 1))
+    nc = len(gains)
+    v_hist = np.zeros((3, nc))
+    err = []
+    for k in range(n):
+        pred = np.where(np.asarray(lags) == 0, 2 * v_hist[0] - v_hist[1], v_hist[0])
+        y = np.asarray(gains) * pred + noise * rng.standard_normal(nc)
+        v = corr.step(np.full((1, nc), target[k]), None if k == 0 else y[None])[0]
+        v_hist = np.roll(v_hist, 1, axis=0)
+        v_hist[0] = v
+        if k >= n - 5 * int(FS):
+            err.append(target[k] - y)
+    return np.std(np.array(err), axis=0) / np.std(target[-5 * int(FS):])
+
+
+def test_adaptive_correction_learns_each_channels_gain_and_time_shift():
+    corr = mc.AdaptiveCorrection(1, 2, FS, excitation=0.1)
+    rel = _run_correction(corr, gains=[0.8, 1.0], lags=[0, 1])
+    a = corr.a[0]
+    # channel 0: 20 % short in gain -> a0 = 1 / 0.8; channel 1: one sample late -> lead 1/fs
+    assert a[0, 0] == pytest.approx(1.25, rel=0.03)
+    assert a[0, 1] == pytest.approx(0.0, abs=2e-4)
+    assert a[1, 0] == pytest.approx(1.0, rel=0.03)
+    assert a[1, 1] == pytest.approx(1.0 / FS, rel=0.25)
+    # without the correction the errors are 20 % and ~1.3 %; with it near the noise (0.25 %)
+    fixed = _run_correction(mc.AdaptiveCorrection(1, 2, FS, excitation=1e9),
+                            gains=[0.8, 1.0], lags=[0, 1])
+    assert np.all(fixed[0] > 0.19) and fixed[1] > 2 * rel[1]
+    assert np.all(rel < 0.006)
+    assert not corr.fallen_back.any()
+
+
+def test_adaptive_correction_freezes_below_the_excitation_and_falls_back_on_a_bad_channel():
+    quiet = mc.AdaptiveCorrection(1, 1, FS, excitation=2.0)
+    _run_correction(quiet, gains=[0.8], lags=[0], seconds=5.0)
+    assert quiet.a[0, 0].tolist() == [1.0, 0.0]        # target RMS ~0.8 < 2: frozen
+    wrong = mc.AdaptiveCorrection(1, 1, FS, excitation=0.1)
+    _run_correction(wrong, gains=[-1.0], lags=[0], seconds=5.0)
+    assert wrong.fallen_back[0, 0]                      # error 200 % > 30 %: the design alone
+    assert wrong.a[0, 0].tolist() == [1.0, 0.0]

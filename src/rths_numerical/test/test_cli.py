@@ -1,18 +1,13 @@
 """CLI registration and a tiny study run."""
 
-import argparse
 import json
 
+from rths_common.testing import command_parser
 from rths_numerical import cli
 
 
 def _parser():
-    parser = argparse.ArgumentParser(prog='rths')
-    commands = parser.add_subparsers(dest='command')
-    bench = commands.add_parser('bench')
-    benches = bench.add_subparsers(dest='bench')
-    cli.register(commands, benches)
-    return parser
+    return command_parser(cli.register)
 
 
 def test_register_and_dtm_tuning_tiny(tmp_path, capsys):
