@@ -130,6 +130,9 @@ MAIN = 'The main job (rths run, Kobe x 0.135, valve 4, real time, 20 s)'
 SILVA = 'RTHS benchmark (Silva et al. 2020), case 1'
 FAULTS = 'Load and faults (composed 1024 Hz, 10 s each; rths bench faults)'
 FAULTS_JSON = 'faults_1024hz_10s.json'
+PROBE = ('The same, beside the machine (rths bench faults --cases baseline,cpu_hog: an empty '
+         'SCHED_FIFO 99 probe and the hypervisor steal in the same run)')
+PROBE_JSON = 'faults_cpu_hog_probe.json'
 MARTHS = 'maRTHS (two actuators) through the node graph, mimo, El Centro x 0.4'
 MARTHS_RT = 'marths_graph/realtime_mimo_elcentro.json'
 MARTHS_FIDELITY = ('maRTHS port fidelity (rths bench marths-fidelity: Initial_parameters.mat of '
@@ -169,6 +172,16 @@ FIGURES = (
      FAULTS_JSON, 'cases/kill_container/loss_before_kill_ms', 'ms', '<= 100 ms'),
     (FAULTS, 'SIGKILL of the recorder: repaired bag ends before the kill',
      FAULTS_JSON, 'cases/kill_recorder/loss_before_kill_ms', 'ms', '<= 100 ms'),
+    (PROBE, 'CPU hog: late or missed ticks', PROBE_JSON, 'cases/cpu_hog/late_or_missed_pct', '%',
+     '<= 0.1 %'),
+    (PROBE, 'CPU hog: the empty probe, late or missed', PROBE_JSON,
+     'cases/cpu_hog/floor_late_or_missed_pct', '%', ''),
+    (PROBE, 'CPU hog: hypervisor steal', PROBE_JSON, 'cases/cpu_hog/steal_pct', '%', ''),
+    (PROBE, 'no hog: late or missed ticks', PROBE_JSON, 'cases/baseline/late_or_missed_pct', '%',
+     ''),
+    (PROBE, 'no hog: the empty probe, late or missed', PROBE_JSON,
+     'cases/baseline/floor_late_or_missed_pct', '%', ''),
+    (PROBE, 'no hog: hypervisor steal', PROBE_JSON, 'cases/baseline/steal_pct', '%', ''),
     (MARTHS, 'realtime composed 1024 Hz: deadline misses', MARTHS_RT,
      'realtime/deadline_miss_pct', '%', '<= 0.1 %'),
     (MARTHS, 'realtime: late or missed ticks', MARTHS_RT, 'realtime/late_or_missed_pct', '%', ''),
