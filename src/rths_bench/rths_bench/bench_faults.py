@@ -338,8 +338,7 @@ from rths_bench.bench_loop import sleep_to_deadlines
 stop = threading.Event()
 signal.signal(signal.SIGTERM, lambda *_: stop.set())
 r = sleep_to_deadlines(float(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), stop, reanchor=True)
-np.savez(sys.argv[4], late_ns=r['late_ns'], skipped=r['skipped'], wall_ns=r['wall_ns'],
-         scheduling=r['scheduling'])
+np.savez(sys.argv[4], late_ns=r['late_ns'], wall_ns=r['wall_ns'], scheduling=r['scheduling'])
 """
 
 
@@ -363,7 +362,7 @@ class FloorProbe:
         try:
             self.proc.wait(10.0)
             with np.load(self.out) as r:
-                self.woke = {k: r[k] for k in ('late_ns', 'skipped', 'wall_ns')}
+                self.woke = {k: r[k] for k in ('late_ns', 'wall_ns')}
                 self.woke['scheduling'] = str(r['scheduling'])
         except (subprocess.TimeoutExpired, OSError, KeyError, ValueError):
             self.proc.kill()
@@ -396,6 +395,8 @@ def machine_share(probe: FloorProbe, bridge_timing: Path, steal: tuple, wall_s: 
     The probe's ticks count from the loop's first tick to its last (its start-up
     and tail are not the loop's time), all of them if the loop left no timing.
     """
+    from rths_bench.bench_loop import _stalled
+
     period_ns = int(round(1e9 / rate_hz))
     out: dict = {}
     woke = probe.woke
@@ -408,11 +409,11 @@ def machine_share(probe: FloorProbe, bridge_timing: Path, steal: tuple, wall_s: 
         inside = np.ones(woke['wall_ns'].size, bool)
         if wall is not None and wall.size:
             inside = (woke['wall_ns'] >= wall[0]) & (woke['wall_ns'] <= wall[-1])
-        p_late, p_skipped = woke['late_ns'][inside], woke['skipped'][inside]
-        if p_late.size:
+        p_late = woke['late_ns'][inside]
+        if p_late.size:     # counted as the loop's ticks are (bench_loop's late_or_missed_pct)
             out.update(floor_scheduling=woke['scheduling'],
-                       floor_late_or_missed_pct=round(
-                           100.0 * int(p_skipped.sum()) / (p_late.size + int(p_skipped.sum())), 4),
+                       floor_late_or_missed_pct=_stalled(p_late, period_ns, 0)[
+                           'late_or_missed_pct'],
                        floor_late_us_p99=round(float(np.percentile(p_late, 99)) * 1e-3, 1),
                        floor_late_us_max=round(float(p_late.max()) * 1e-3, 1))
         if wall is not None:
@@ -590,7 +591,7 @@ def print_case(r: dict) -> None:
           f"safety state {r.get('final_safety_state')}{extra}, samples "
           f"{r.get('samples_in_bag')}/{r.get('samples_produced')} in the bag", flush=True)
     if 'floor_late_or_missed_pct' in r:
-        print(f"  same run: an empty SCHED_FIFO thread {r['floor_late_or_missed_pct']} % late or "
+        print(f"  same run: an empty SCHED_FIFO 99 process {r['floor_late_or_missed_pct']} % late or "
               f"missed; {r.get('stalled_ticks_shared_with_floor')} of the loop's "
               f"{r.get('stalled_ticks')} stalled ticks in stalls it shared; hypervisor steal "
               f"{r.get('steal_ms')} ms ({r.get('steal_pct')} % of the CPUs' time)", flush=True)

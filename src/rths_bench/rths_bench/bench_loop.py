@@ -315,13 +315,11 @@ def sleep_to_deadlines(rate_hz: float, n: int, priority: int = 80, stop=None,
     does nothing else.  ``reanchor``: keep time as the bridge's clock does
     (:class:`rths_common.stepping.TickClock`: a wake-up more than a period late
     skips the ticks it missed); else the deadlines are fixed (cyclictest).  Returns
-    ``late_ns`` (how late each wake-up was), ``skipped`` (ticks skipped there),
-    ``wall_ns`` (wall-clock time of each wake-up, :func:`time.time_ns`, as the
-    nodes stamp their ticks) and ``scheduling``.
+    ``late_ns`` (how late each wake-up was), ``wall_ns`` (wall-clock time of each
+    wake-up, :func:`time.time_ns`, as the nodes stamp their ticks) and ``scheduling``.
     """
     clock = TickClock(rate_hz)
     late = np.zeros(n, dtype=np.int64)
-    skipped = np.zeros(n, dtype=np.int64)
     wall = np.zeros(n, dtype=np.int64)
     policy = os.sched_getscheduler(0)
     param = os.sched_getparam(0)
@@ -343,7 +341,7 @@ def sleep_to_deadlines(rate_hz: float, n: int, priority: int = 80, stop=None,
                 time.sleep(wait * 1e-9)
             now = time.monotonic_ns()
             if reanchor:
-                _, late[k], skipped[k] = clock.take(now)
+                _, late[k], _ = clock.take(now)
             else:
                 late[k] = now - clock.due_ns()
                 clock.k += 1
@@ -356,8 +354,7 @@ def sleep_to_deadlines(rate_hz: float, n: int, priority: int = 80, stop=None,
             os.sched_setscheduler(0, policy, param)
         except OSError:
             pass
-    return {'late_ns': late[:done], 'skipped': skipped[:done], 'wall_ns': wall[:done],
-            'scheduling': sched}
+    return {'late_ns': late[:done], 'wall_ns': wall[:done], 'scheduling': sched}
 
 
 def platform_floor(rate_hz: float, duration_s: float, priority: int = 80) -> dict:

@@ -115,6 +115,6 @@ def test_the_probe_sleeps_to_deadlines_until_stopped(tmp_path):
     probe.stop()
     woke = probe.woke
     assert woke['late_ns'].size >= 100 and woke['late_ns'].min() >= 0
-    assert np.all(np.diff(woke['wall_ns']) > 0) and woke['skipped'].min() >= 0
+    assert np.all(np.diff(woke['wall_ns']) > 0)
     share = bf.machine_share(probe, tmp_path / 'none.npz', bf.steal_jiffies(), 3.0, 1000.0)
     assert share['floor_late_or_missed_pct'] >= 0 and 'loop_stalls' not in share   # no loop timing
