@@ -591,8 +591,9 @@ def print_case(r: dict) -> None:
           f"safety state {r.get('final_safety_state')}{extra}, samples "
           f"{r.get('samples_in_bag')}/{r.get('samples_produced')} in the bag", flush=True)
     if 'floor_late_or_missed_pct' in r:
-        print(f"  same run: an empty SCHED_FIFO 99 process {r['floor_late_or_missed_pct']} % late or "
-              f"missed; {r.get('stalled_ticks_shared_with_floor')} of the loop's "
+        print(f"  same run: an empty SCHED_FIFO 99 process "
+              f"{r['floor_late_or_missed_pct']} % late or missed; "
+              f"{r.get('stalled_ticks_shared_with_floor')} of the loop's "
               f"{r.get('stalled_ticks')} stalled ticks in stalls it shared; hypervisor steal "
               f"{r.get('steal_ms')} ms ({r.get('steal_pct')} % of the CPUs' time)", flush=True)
 
