@@ -390,6 +390,10 @@ class Rodeac:
         # lazy: start-up cost: SciPy (~1.5 s) for every `rths` command (the CLI lists this)
         from scipy.signal import butter
 
+        # lazy: start-up cost: multichannel imports SciPy (as above)
+        from rths_compensator.multichannel import df2t_step
+
+        self.df2t_step = df2t_step
         ctl, cal = cfg['rodeac_controller'], cfg['rodeac_calibration']
         n = ctl['taps']
         self.lam = float(ctl['forgetting_factor'])
@@ -407,10 +411,7 @@ class Rodeac:
 
     def _filter(self, z, x):
         """One step of the direct-form II transposed filter; returns y, updates ``z``."""
-        y = self.fb[0] * x + z[..., 0]
-        z[..., :-1] = z[..., 1:] + self.fb[1:-1] * x[..., None] - self.fa[1:-1] * y[..., None]
-        z[..., -1] = self.fb[-1] * x - self.fa[-1] * y
-        return y
+        return self.df2t_step(z, x, self.fb, self.fa)
 
     def step(self, target, measured):
         """Command [mm] (batch, 2); ``measured`` answers the previous command."""

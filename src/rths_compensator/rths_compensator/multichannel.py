@@ -676,6 +676,18 @@ def model_from_dict(data: dict, where: str = 'plant') -> MimoModel:
     return MimoModel(mats['a'], mats['b'], mats['c'], mats['d'], float(fs))
 
 
+def df2t_step(z, x, b, a):
+    """One sample of the filter ``b / a`` (``a[0] = 1``) in direct form II transposed.
+
+    ``x`` (any shape) is the input of the sample, ``z`` its states (``x.shape + (order,)``),
+    updated in place; returns the output.  Vectorised over independent runs and channels.
+    """
+    y = b[0] * x + z[..., 0]
+    z[..., :-1] = z[..., 1:] + b[1:-1] * x[..., None] - a[1:-1] * y[..., None]
+    z[..., -1] = b[-1] * x - a[-1] * y
+    return y
+
+
 class AdaptiveCorrection:
     """Per-channel adaptive gain and time shift ahead of a coupled design.
 
@@ -742,13 +754,10 @@ class AdaptiveCorrection:
         self.fallen_back = np.zeros(shape, bool)
 
     def _filter(self, z, x, b=None, a=None):
-        """One step of the direct-form II transposed low-pass; returns y, updates ``z``."""
+        """One step of the order-4 low-pass (or of ``b, a``); returns y, updates ``z``."""
         if b is None:
             b, a = self._fb, self._fa
-        y = b[0] * x + z[..., 0]
-        z[..., :-1] = z[..., 1:] + b[1:-1] * x[..., None] - a[1:-1] * y[..., None]
-        z[..., -1] = b[-1] * x - a[-1] * y
-        return y
+        return df2t_step(z, x, b, a)
 
     def step(self, target, measured=None) -> np.ndarray:
         """Corrected targets (B, N) for ``target`` (B, N); ``measured`` answers step k-1."""
