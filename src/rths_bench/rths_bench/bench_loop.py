@@ -15,7 +15,10 @@ and writes JSON:
   bridge's receipt of command k (late commands included, lost ones counted
   apart); ``use_latency_us_*`` to the tick that used it; ``loop_us_*`` the
   round trip from tick k's measurement to the receipt of command k+1 (must be
-  below one period); ``tick_late_us_*`` the clock's jitter;
+  below one period), in three parts: ``measurement_us_*`` from tick k to the
+  numerical node's receipt of measurement k, ``numerical_us_*`` from there to
+  its publish of step k+1, and ``latency_us_*`` of step k+1 (the compensator
+  and its two hops); ``tick_late_us_*`` the clock's jitter;
 * ``cpu_pct``: CPU time of the three node processes (composed: the container)
   over the run's wall time (100 = one core; the machine has ``nproc`` cores),
   per process in ``cpu_pct_per_node`` (recorder included);
@@ -223,6 +226,11 @@ def analyse(bridge_npz, numerical_npz, cpu_samples=(), bag=None, rate_hz=None) -
     use = [(tick_wall[k] - pub[k]) * 1e-3 for k, m in ticked
            if not m and k in pub and k > 0]
     loop = [(recv[k + 1] - tick_wall[k]) * 1e-3 for k in tick_wall if k + 1 in recv]
+    got = {}   # the numerical node's first receipt of measurement k
+    for step, t_ns in zip(nu['recv_step'].tolist(), nu['recv_wall_ns'].tolist(), strict=True):
+        got.setdefault(step, t_ns)
+    measurement = [(got[k] - tick_wall[k]) * 1e-3 for k in tick_wall if k in got]
+    numerical = [(pub[k + 1] - got[k]) * 1e-3 for k in got if k + 1 in pub]
     out = {
         'rate_hz': float(rate_hz) if rate_hz else 1e9 / period_ns,
         'steps': steps,
@@ -236,6 +244,8 @@ def analyse(bridge_npz, numerical_npz, cpu_samples=(), bag=None, rate_hz=None) -
         **_stalled(br['tick_late_ns'][in_run], period_ns, misses),
         **_stats('use_latency_us', use),
         **_stats('loop_us', loop),
+        **_stats('measurement_us', measurement),
+        **_stats('numerical_us', numerical),
         'period_us': period_ns * 1e-3,
         **_stats('tick_late_us', br['tick_late_ns'][in_run] * 1e-3),
         'numerical_measurements_missed': int(nu['misses']),
@@ -445,7 +455,10 @@ def print_result(r: dict):
     print(f"{r['layout']}, {r['rate_hz']:g} Hz x {r['duration_s']:g} s: {r['steps']} steps, "
           f"deadline misses {r['deadline_misses']} ({r['deadline_miss_pct']} %), latency "
           f"p50/p99/max {r['latency_us_p50']}/{r['latency_us_p99']}/{r['latency_us_max']} us, "
-          f"loop p99 {r['loop_us_p99']} us, tick late p99 {r['tick_late_us_p99']} us, "
+          f"loop p50/p99 {r['loop_us_p50']}/{r['loop_us_p99']} us (measurement to the "
+          f"numerical node p50 {r.get('measurement_us_p50')}, its step "
+          f"{r.get('numerical_us_p50')}, to the bridge {r['latency_us_p50']}), "
+          f"tick late p99 {r['tick_late_us_p99']} us, "
           f"clock overruns {r['clock_overruns']} ({r['stalled_ticks']} ticks skipped), "
           f"cpu {r.get('cpu_pct')} %, load {r['loadavg_before']}"
           f"{'' if r['run_completed'] else ', RUN ABORTED (safety stop)'}", flush=True)

@@ -823,6 +823,18 @@ def _write_response(history: Path, t0: float, path: Path):
 def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
                         limits=None) -> int:
     """Write and print the summary of an RTHS run the bridge stopped; return EXIT_SAFETY_STOP."""
+    _say('step 4: review of the run up to the safety stop')
+    print(_write_stop_review(stop, numerical, out, bag, limits), end='', flush=True)
+    _say(f'results: {out}/report.html, {out}/summary.json, {out}/review.txt, bag {bag}; '
+         f'exit code {EXIT_SAFETY_STOP} (safety stop)')
+    return EXIT_SAFETY_STOP
+
+
+def _write_stop_review(stop: dict, numerical: dict, out: Path, bag: Path, limits=None) -> str:
+    """Write summary.json, review.txt and report.html of a run the bridge stopped; return the text.
+
+    Tables 5-9 of what ran before the fault when it ran 2 s, else the stop alone.
+    """
     from rths_common.params import core_params
     from rths_numerical.substructure import make_substructure
     from rths_review.report_html import write_report, write_stop_report
@@ -835,9 +847,9 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
         timing = bridge_realtime(read_loop(bag)['status'].get('bridge', {}),
                                  stop['planned_steps'], stop['fs_hz'], limits)
         stop.update({key: timing[key] for key in REALTIME_KEYS})
+    stop['cut_short'] = stop['steps'] < stop['planned_steps']
     text = safety_stop_text(stop)
     # the review of what ran before the fault (tables 5-9 need 2 s of it)
-    _say('step 4: review of the run up to the safety stop')
     try:
         summary = _review(bag, out, limits)
     except ValueError as err:
@@ -854,10 +866,7 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
         text = text + '\n' + review_text(summary)
         (out / 'review.txt').write_text(text)
         write_report(out, summary)
-    print(text, end='', flush=True)
-    _say(f'results: {out}/report.html, {out}/summary.json, {out}/review.txt, bag {bag}; '
-         f'exit code {EXIT_SAFETY_STOP} (safety stop)')
-    return EXIT_SAFETY_STOP
+    return text
 
 
 def _write_identification_stop(stop: dict, out: Path) -> None:
@@ -892,14 +901,27 @@ def cmd_review(args) -> int:
     """``rths review``."""
     from rths_common import bagio
     from rths_review.review import print_review
+    from rths_review.tracking import TooShortError
 
     bag = Path(args.bag)
     out = Path(args.out) if args.out else bag.parent
     if not bagio.bag_dir(bag).is_dir():
         raise OSError(f'bag directory {bag} does not exist')
     limits = limits_of(args)
-    bagio.run_info(bag)   # a damaged bag is refused before anything is written
-    summary = _review(bag, out, limits, args.specimen_model, args.dof)
+    info = bagio.run_info(bag)   # a damaged bag is refused before anything is written
+    try:
+        summary = _review(bag, out, limits, args.specimen_model, args.dof)
+    except TooShortError:
+        # a run the bridge stopped early (a fault; its supervisor killed): the stop's report,
+        # as rths run would have written it; a short run that did not stop is refused
+        stop = read_safety_stop(bag)
+        if stop is None:
+            raise
+        print(_write_stop_review(stop, runinfo.section(info, 'numerical'), out, bag, limits),
+              end='', flush=True)
+        print(f'wrote {out}/report.html, {out}/summary.json and {out}/review.txt (the run '
+              'stopped before 2 s of it could be reviewed: no tables 5-9)')
+        return 0
     print_review(summary)
     print(f'wrote {out}/report.html, {out}/summary.json, {out}/review.txt and plots')
     return 0

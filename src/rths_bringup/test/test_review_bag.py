@@ -210,3 +210,63 @@ def test_a_safety_stop_whose_stopped_status_the_recorder_missed_is_still_a_safet
         dict(stop, record='excitation', scale=1.0))
     # a last command away from the safe position: no evidence of the stop, none is made up
     assert read_safety_stop(_stop_bag(tmp_path / 'moving', 160, 0.01)) is None
+
+
+def _killed_bag(path, loop, stopped: bool = True):
+    """Write the bag of a run whose launcher was SIGKILLed 0.7 s in (issue 30's kill check).
+
+    The bridge lost its launcher at step 700: HOLD, RAMP from step 750 to the safe position
+    (0 m) and STOPPED at step 900; the recorder closed the bag at step 1000.  With
+    ``stopped`` False the bag just ends at step 1000, still ACTIVE and moving (no stop).
+    """
+    info = runinfo.flatten('rths', FS, 'realtime', _sections())
+    fault = 'the launcher (pid 4242) died'
+    period = int(1e9 / FS)
+    with BagWriter(path, topics.LOOP_TOPICS, run_info=info) as bag:
+        for k in range(1000):
+            t = T0_NS + k * period
+            if not stopped or k < 700:
+                state, text, applied = 0, '', loop['applied'][k]
+            else:
+                state = 1 if k < 750 else 2 if k < 900 else 3
+                held = loop['applied'][699]
+                applied = held if k < 750 else held * max(0.0, (900 - k) / 150)
+                text = fault
+            bag.write(topics.INTERFACE_DISPLACEMENT, t, cdr.pack_step_arrays(
+                t, k, loop['interface_displacement'][k]))
+            bag.write(topics.COMMAND, t, cdr.pack_step_arrays(t, k, loop['command'][k]))
+            bag.write(topics.MEASUREMENT, t, cdr.pack_step_arrays(
+                t, k, np.atleast_1d(applied), loop['displacement'][k], loop['force'][k]))
+            bag.write(topics.STATUS, t, cdr.pack_status(t + 50_000, 'bridge', k,
+                                                        safety_state=state, fault=text))
+    return path
+
+
+def test_a_run_killed_before_2_s_is_reviewed_as_its_safety_stop(tmp_path, loop, capsys):
+    # issue 30: a run whose supervisor was killed 1 s in stopped safely, but rths review
+    # refused its bag (under the 2 s tables 5-9 need), so the kill left no report.  The
+    # review now writes the stop's report (as rths run does for a safety stop) and exits 0.
+    from rths_bringup import cli
+
+    bag, out = _killed_bag(tmp_path / 'bag', loop), tmp_path / 'review'
+    assert cli.main(['review', str(bag), '--out', str(out)]) == 0
+    s = json.loads((out / 'summary.json').read_text())
+    assert s['safety_stop'] == 'the launcher (pid 4242) died'
+    assert (s['fault_step'], s['stop_step'], s['steps']) == (700, 900, 1000)
+    assert s['cut_short'] is True and s['planned_steps'] == int(PLANNED_S * FS)
+    assert s['final_command_m'] == 0.0 and s['safe_position_m'] == 0.0
+    assert 'realtime_ok' in s
+    html = (out / 'report.html').read_text()
+    assert 'No tables 5-9: the run stopped before 2 s' in html and 'pid 4242' in html
+    assert 'steps run: 1000 of 4096 planned' in (out / 'review.txt').read_text()
+    assert 'no tables 5-9' in capsys.readouterr().out
+
+
+def test_a_short_bag_without_a_safety_stop_is_still_refused(tmp_path, loop, capsys):
+    from rths_bringup import cli
+
+    bag = _killed_bag(tmp_path / 'bag', loop, stopped=False)
+    assert cli.main(['review', str(bag), '--out', str(tmp_path / 'review')]) == 2
+    err = capsys.readouterr().err
+    assert 'only 1000 steps recorded' in err and 'at least 2 s' in err
+    assert not (tmp_path / 'review' / 'report.html').exists()

@@ -158,6 +158,10 @@ def controller_counts(bag):
     return {k: (int(v) if isinstance(v, (int, np.integer)) else v) for k, v in out.items()}
 
 
+class TooShortError(ValueError):
+    """A run recorded under 2 s before its end or a safety stop: too short for tables 5-9."""
+
+
 def weighted_delay_ms(desired, measured, fs_hz, band_hz=DELAY_BAND_HZ,
                       memory_s: float = 0.5) -> float:
     """Eq. 42 delay from time series, averaged over ``0 < f <= band_hz`` weighted by the PSD.
@@ -197,7 +201,7 @@ def tracking_channels(bag, fs, channels: int | None = None):
     the step count ``n``, the bridge ticks recorded, the repairs of the recording
     (:func:`aligned_steps`) and ``kept``: per step of the ``n``, True if both its
     interface displacement and its measurement are in the bag (not filled).
-    ValueError if the bag holds under 2 s before its end or a safety stop.
+    :class:`TooShortError` if the bag holds under 2 s before its end or a safety stop.
     """
     recording, series = {}, {}
     for topic, fields in ((topics.INTERFACE_DISPLACEMENT, ('displacement',)),
@@ -223,8 +227,8 @@ def tracking_channels(bag, fs, channels: int | None = None):
         n = int(np.argmin(ok))
         desired, applied, measured = desired[:n], applied[:n], measured[:n]
     if n < 2 * fs:
-        raise ValueError(f'{bag}: only {n} steps recorded before the end or a safety stop; '
-                         'the review needs at least 2 s')
+        raise TooShortError(f'{bag}: only {n} steps recorded before the end or a safety stop; '
+                            'the review needs at least 2 s')
     kept = (recording[topics.INTERFACE_DISPLACEMENT].pop('recorded')[:n]
             & recording[topics.MEASUREMENT].pop('recorded')[:n])
     return desired, applied, measured, meas, status, n, recorded, recording, kept
