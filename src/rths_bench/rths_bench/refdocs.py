@@ -133,6 +133,9 @@ FAULTS_JSON = 'faults_1024hz_10s.json'
 PROBE = ('The same, beside the machine (rths bench faults --cases baseline,cpu_hog: an empty '
          'SCHED_FIFO 99 probe and the hypervisor steal in the same run)')
 PROBE_JSON = 'faults_cpu_hog_probe.json'
+HOSTS = ('One loop on two hosts (rths bench loop --rate 2048, composed): commit 679051c on '
+         '2026-11-23 (Intel Xeon), the same commit and main on 2026-11-28 (AMD EPYC)')
+HOSTS_JSON = 'loop_2048hz_host_compare.json'
 MARTHS = 'maRTHS (two actuators) through the node graph, mimo, El Centro x 0.4'
 MARTHS_RT = 'marths_graph/realtime_mimo_elcentro.json'
 MARTHS_FIDELITY = ('maRTHS port fidelity (rths bench marths-fidelity: Initial_parameters.mat of '
@@ -156,6 +159,22 @@ FIGURES = (
      'loop_2048hz_30s_composed_quiet.json', 'late_or_missed_pct', '%', ''),
     ('Real-time loop', 'highest rate at <= 0.1 % late or missed (--find-max)',
      'loop_findmax_30s_composed_quiet.json', 'max_rate_hz', 'Hz', ''),
+    (HOSTS, 'Intel Xeon, 679051c: command latency p50', 'loop_2048hz_30s_composed_quiet.json',
+     'latency_us_p50', 'us', ''),
+    (HOSTS, 'Intel Xeon, 679051c: CPU of the loop process', 'loop_2048hz_30s_composed_quiet.json',
+     'cpu_pct', '%', ''),
+    (HOSTS, 'AMD EPYC, 679051c: command latency p50', HOSTS_JSON,
+     'same_commit_679051c/latency_us_p50', 'us', ''),
+    (HOSTS, 'AMD EPYC, 679051c: CPU of the loop process', HOSTS_JSON,
+     'same_commit_679051c/cpu_pct', '%', ''),
+    (HOSTS, 'AMD EPYC, 679051c: late or missed ticks', HOSTS_JSON,
+     'same_commit_679051c/late_or_missed_pct', '%', ''),
+    (HOSTS, 'AMD EPYC, main: command latency p50', HOSTS_JSON, 'main_2cd863b/latency_us_p50',
+     'us', ''),
+    (HOSTS, 'AMD EPYC, main: CPU of the loop process', HOSTS_JSON, 'main_2cd863b/cpu_pct', '%',
+     ''),
+    (HOSTS, 'AMD EPYC, main: late or missed ticks', HOSTS_JSON,
+     'main_2cd863b/late_or_missed_pct', '%', ''),
     (FAULTS, 'CPU hog on every core: late or missed ticks',
      FAULTS_JSON, 'cases/cpu_hog/late_or_missed_pct', '%', '<= 0.1 %'),
     (FAULTS, 'CPU hog: samples lost from the bag',
