@@ -12,7 +12,13 @@ For the nonlinear part of the force ``r`` (the measured force minus a fitted
 ``m a + c v + k x``), each half-cycle between two reversals is read on the
 displacement travelled since the reversal: ``q = s r / L`` (``s`` the new direction,
 ``L`` the level the force settles at in the last ``SETTLED`` of the half-cycle) goes
-from about -1 to 1.  The *transition* is the travel until ``q`` first reaches
+from about -1 to 1.  The force is read about its own centre: the midpoint of the levels
+it settles at going up and going down (median over the half-cycles of each direction), so
+a constant in the force -- a load cell's zero, a spring's force at a displaced centre --
+is no part of the reading (with a constant as large as the friction, every half-cycle
+passed through ``q = 0`` at a point and no plateau was read: a friction damper with play in
+mm and kN with an offset of 2 std(force) read "a smooth loop", plateau fraction 0.0;
+0.92 about the centre).  The *transition* is the travel until ``q`` first reaches
 ``ENGAGED``; the *plateau* the travel within it while ``|q| < NEAR_ZERO``.  The
 record shows play when the median plateau fraction is at least ``PLAY_FRACTION``
 and, where the amplitudes differ by ``AMPLITUDE_SPREAD`` or more, the plateau widths
@@ -52,10 +58,36 @@ def turning_points(x, min_excursion):
     return np.array(out, int)
 
 
+def centre(x, r, tp=None):
+    """Return the centre of the force ``r``: the midpoint of its settled levels up and down.
+
+    The level of a half-cycle is the median of ``r`` over its last ``SETTLED``; the
+    centre is the midpoint of the median level of the rising and of the falling
+    half-cycles (0 when the record has not both).
+    """
+    x, r = np.asarray(x, float), np.asarray(r, float)
+    if tp is None:
+        tp = turning_points(x, MIN_EXCURSION * float(np.std(x)))
+    levels = {1.0: [], -1.0: []}
+    for a, b in zip(tp[:-1], tp[1:], strict=True):
+        n = b - a + 1
+        if n < 8:
+            continue
+        s = 1.0 if x[b] > x[a] else -1.0
+        levels[s].append(float(np.median(r[a + int((1 - SETTLED) * n):b + 1])))
+    if not levels[1.0] or not levels[-1.0]:
+        return 0.0
+    return 0.5 * (float(np.median(levels[1.0])) + float(np.median(levels[-1.0])))
+
+
 def half_cycles(x, r):
-    """Return one row per half-cycle: amplitude, transition width, plateau width, fraction."""
+    """Return one row per half-cycle: amplitude, transition width, plateau width, fraction.
+
+    ``r`` is read about its :func:`centre`.
+    """
     x, r = np.asarray(x, float), np.asarray(r, float)
     tp = turning_points(x, MIN_EXCURSION * float(np.std(x)))
+    r = r - centre(x, r, tp)
     rows = []
     for a, b in zip(tp[:-1], tp[1:], strict=True):
         s = 1.0 if x[b] > x[a] else -1.0

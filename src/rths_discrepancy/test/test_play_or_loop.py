@@ -72,6 +72,21 @@ def test_reversal_evidence_reads_play_and_a_smooth_loop():
     assert reversals.turning_points(x, 1e-3).size == 2 * 12     # two per cycle
 
 
+def test_play_is_read_about_the_forces_own_centre():
+    # a constant as large as twice the friction (a load cell's zero, a spring's force at
+    # a displaced centre) in the force read: before, every half-cycle crossed q = 0 at a
+    # point and the reading was "a smooth loop" (plateau fraction 0.0)
+    x = _path()
+    f = _friction_with_play(_fine(x))[::SUB]
+    for const in (1600.0, -1600.0):
+        play = reversals.evidence(x, f + const)
+        assert play['play'] and play['plateau_fraction'] > 0.8
+        assert 1.0e-3 < play['plateau_width_median'] < 1.4e-3
+        assert abs(reversals.centre(x, f + const) - const) < 0.05 * 800.0
+    loop = reversals.evidence(x, _bouc_wen_other_shape(_fine(x))[::SUB] + 1600.0)
+    assert not loop['play'] and loop['plateau_fraction'] < 0.35
+
+
 def test_friction_damper_with_play_is_backlash_and_a_bouc_wen_loop_is_hysteresis():
     data, _ = _record(_friction_with_play)
     res = restoring.run(data, plots=False)
