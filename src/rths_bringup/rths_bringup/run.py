@@ -913,12 +913,13 @@ def cmd_review(args) -> int:
         summary = _review(bag, out, limits, args.specimen_model, args.dof)
     except TooShortError:
         # a run the bridge stopped early (a fault; its supervisor killed): the stop's report,
-        # as rths run would have written it; a short run that did not stop is refused
-        stop = read_safety_stop(bag)
+        # as rths run would have written it; a short run that did not stop is refused (and
+        # so is a site's: its model ran in the client, the planned steps are not in the bag)
+        numerical = runinfo.section(info, 'numerical')
+        stop = read_safety_stop(bag) if numerical else None
         if stop is None:
             raise
-        print(_write_stop_review(stop, runinfo.section(info, 'numerical'), out, bag, limits),
-              end='', flush=True)
+        print(_write_stop_review(stop, numerical, out, bag, limits), end='', flush=True)
         print(f'wrote {out}/report.html, {out}/summary.json and {out}/review.txt (the run '
               'stopped before 2 s of it could be reviewed: no tables 5-9)')
         return 0
