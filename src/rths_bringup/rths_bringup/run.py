@@ -830,10 +830,12 @@ def _report_safety_stop(stop: dict, numerical: dict, out: Path, bag: Path,
     return EXIT_SAFETY_STOP
 
 
-def _write_stop_review(stop: dict, numerical: dict, out: Path, bag: Path, limits=None) -> str:
+def _write_stop_review(stop: dict, numerical: dict, out: Path, bag: Path, limits=None,
+                       tables: bool = True) -> str:
     """Write summary.json, review.txt and report.html of a run the bridge stopped; return the text.
 
-    Tables 5-9 of what ran before the fault when it ran 2 s, else the stop alone.
+    Tables 5-9 of what ran before the fault when it ran 2 s, else (or with ``tables``
+    False: the caller's review found it too short already) the stop alone.
     """
     from rths_common.params import core_params
     from rths_numerical.substructure import make_substructure
@@ -850,11 +852,12 @@ def _write_stop_review(stop: dict, numerical: dict, out: Path, bag: Path, limits
     stop['cut_short'] = stop['steps'] < stop['planned_steps']
     text = safety_stop_text(stop)
     # the review of what ran before the fault (tables 5-9 need 2 s of it)
+    summary = None
     try:
-        summary = _review(bag, out, limits)
+        if tables:
+            summary = _review(bag, out, limits)
     except ValueError as err:
         _say(f'no tables 5-9: {err}')
-        summary = None
     if summary is None:
         (out / 'summary.json').write_text(json.dumps(stop, indent=2))
         (out / 'review.txt').write_text(text)
@@ -911,7 +914,7 @@ def cmd_review(args) -> int:
     info = bagio.run_info(bag)   # a damaged bag is refused before anything is written
     try:
         summary = _review(bag, out, limits, args.specimen_model, args.dof)
-    except TooShortError:
+    except TooShortError as err:
         # a run the bridge stopped early (a fault; its supervisor killed): the stop's report,
         # as rths run would have written it; a short run that did not stop is refused (and
         # so is a site's: its model ran in the client, the planned steps are not in the bag)
@@ -919,7 +922,9 @@ def cmd_review(args) -> int:
         stop = read_safety_stop(bag) if numerical else None
         if stop is None:
             raise
-        print(_write_stop_review(stop, numerical, out, bag, limits), end='', flush=True)
+        _say(f'no tables 5-9: {err}')
+        print(_write_stop_review(stop, numerical, out, bag, limits, tables=False), end='',
+              flush=True)
         print(f'wrote {out}/report.html, {out}/summary.json and {out}/review.txt (the run '
               'stopped before 2 s of it could be reviewed: no tables 5-9)')
         return 0
