@@ -302,7 +302,9 @@ class SubprotocolBridge:
             writer.write(answer)
             await asyncio.gather(self._pipe(reader, up_writer), self._pipe(up_reader, writer))
         except (OSError, asyncio.IncompleteReadError, asyncio.LimitOverrunError,
-                ssl.SSLError):
+                ssl.SSLError, asyncio.CancelledError):
+            # (cancelled: stop() closes the connection; ended so, not cancelled, as
+            # asyncio 3.11 logs an error for a cancelled start_server handler)
             pass
         finally:
             writer.close()
@@ -319,15 +321,27 @@ class SubprotocolBridge:
             dst.close()
 
     def stop(self):
-        """Close the listening socket and every relayed connection."""
+        """Close the listening socket and every relayed connection, then the event loop.
+
+        The cancelled connections are run to their end before the loop stops: a task
+        left pending is finalised later, by the garbage collector of whichever thread
+        runs it, and logs "Task was destroyed but it is pending!" with a traceback.
+        CPython 3.11 formats that traceback with ``ast.parse``, which is not reentrant: a
+        collection inside another ``ast.parse`` (pytest rewriting a module on import)
+        made that one fail with "AST constructor recursion depth mismatch" (gh-106905;
+        rths_live's tests in two CI runs of 2026-11-28).
+        """
         async def close():
             self.server.close()
-            for task in asyncio.all_tasks():
-                if task is not asyncio.current_task():
-                    task.cancel()
+            tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
         asyncio.run_coroutine_threadsafe(close(), self.loop).result(5)
         self.loop.call_soon_threadsafe(self.loop.stop)
         self.thread.join(5)
+        if not self.thread.is_alive():
+            self.loop.close()
 
 
 def layout(n_actuators: int = 1) -> dict:
