@@ -465,6 +465,9 @@ class Launcher:
             recorder_over.setdefault('mode', self.mode)
             # the bag's provenance: the recorder keeps the files of the config directory
             recorder_over.setdefault('config_dir', str(self.config_dir.resolve()))
+            # the recorder reads /rths/emergency_stop over DDS in both layouts: a stop of the
+            # stability monitor must not come before it matched (it would miss it)
+            self.overrides.setdefault('compensator', {}).setdefault('wait_for_stop_readers', 2)
             if composed:   # the container's tee brings the recorder every message
                 read_fd, write_fd = os.pipe()
                 recorder_over['pipe_fd'] = read_fd

@@ -29,6 +29,8 @@ NODE_KEYS = {
     'mode': 'lockstep | realtime: lock-step exchange or the fixed-rate loop',
     'executor': 'events (rclpy EventsExecutor) | single (SingleThreadedExecutor)',
     'wait_for_subscribers': '[-] readers of the output topic to wait for before step 0',
+    'wait_for_stop_readers': '[-] monitor in stop mode: readers of /rths/emergency_stop to '
+                             'wait for before step 0 (the bridge; the recorder too with a bag)',
     'status_every': '[steps] publish a LoopStatus every N steps (and on every miss)',
     'history_out': '.npz path for the response history (empty: none)',
     'timing_out': '.npz path for per-step timing of the loop benchmark (empty: none)',
@@ -74,6 +76,7 @@ def check_run_steps(duration_s: float, fs_hz: float, where: str = 'parameter') -
 #: Ranges of the node-level keys (inclusive; ints for an integer parameter).
 NODE_RANGES = {
     'wait_for_subscribers': (0, 64),
+    'wait_for_stop_readers': (0, 64),
     'status_every': (1, 1_000_000),
     'watchdog_timeout_s': (0.01, 3600.0),
     'spin_margin_us': (0.0, 100_000.0),

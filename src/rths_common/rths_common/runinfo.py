@@ -16,7 +16,8 @@ import yaml
 from rths_common import yamlfile
 
 #: Parameters that are not worth keeping in run information (long arrays, node plumbing).
-SKIP = {'taps', 'denominator', 'history_out', 'executor', 'wait_for_subscribers'}
+SKIP = {'taps', 'denominator', 'history_out', 'executor', 'wait_for_subscribers',
+        'wait_for_stop_readers'}
 
 
 def load_params(path, node: str) -> dict:

@@ -41,6 +41,7 @@ from rths_compensator.params import (
 from rths_msgs.msg import Command, InterfaceDisplacement, LoopStatus, Measurement
 
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'wait_for_subscribers': 1,
+               'wait_for_stop_readers': 1,
                'loop_fs_hz': 1024.0,
                'status_every': 1, 'coefficients_every': 64,
                **ns.TUNING_PARAMS, **ns.RUN_PARAMS}
@@ -95,6 +96,10 @@ class CompensatorNode:
         self.status_pub = self.node.create_publisher(LoopStatus, topics.STATUS, status_qos())
         self.sender = ''  # this node's writer gid, in frame_id: the bridge checks the sender
         ns.wait_for_readers(self.node, self.pub, self.own['wait_for_subscribers'])
+        if self.monitor_mode == 'stop':
+            # the monitor's stop must reach the bridge, and the bag: the recorder's reader
+            # is volatile (an operator's stop is too), so one matched late misses it
+            ns.wait_for_readers(self.node, self.estop_pub, self.own['wait_for_stop_readers'])
         self.clock = ns.StepClock()
         self.last_out = None
         self.misses = 0
