@@ -41,9 +41,12 @@ loop's run; ``loop_stalls`` are the loop's clock overruns and
 ``loop_stalls_shared_with_floor`` / ``stalled_ticks_shared_with_floor`` those that
 overlap a stall of the probe (the machine stalled both).  The two may run on
 different CPUs: a stall of the loop's CPU alone (a vCPU the hypervisor took) is not
-the probe's.  ``steal_ms`` / ``steal_pct``: the CPU time the hypervisor took from
-this VM's CPUs during the run (``/proc/stat``, all CPUs; the share of their time).
-Normal-priority hogs cannot delay SCHED_FIFO threads; a hypervisor can.
+the probe's.  ``--cpus 1`` puts the loop's nodes and the probe on the same CPU (the
+recorder and the hogs stay free): a stall of that vCPU then hits both, so what
+stalls the loop alone is the loop's own.  ``steal_ms`` / ``steal_pct``: the CPU time
+the hypervisor took from this VM's CPUs during the run (``/proc/stat``, all CPUs; the
+share of their time).  Normal-priority hogs cannot delay SCHED_FIFO threads; a
+hypervisor can.
 """
 
 import argparse
@@ -110,6 +113,9 @@ def register(commands, benches):
                    '(default 400)')
     p.add_argument('--priority', type=int, default=80, help='SCHED_FIFO priority of the '
                    'bridge (the others 1 less; 0 = normal scheduling; default 80)')
+    p.add_argument('--cpus', default='', help="CPUs of the loop's three nodes and of the "
+                   "probe, e.g. '1' ('' = none, default): on one CPU a stall of that vCPU "
+                   'hits both, so a stall of the loop alone is its own')
     p.add_argument('--keep', default=None, help='keep configs, bags and logs here')
     p.set_defaults(func=cmd_bench_faults)
 
@@ -138,7 +144,8 @@ def select(spec: str) -> list:
 def loop_args(args) -> argparse.Namespace:
     """Return the ``rths bench loop`` options of the runs (its defaults, composed)."""
     return argparse.Namespace(layout='composed', taps=args.taps, model='sdof', clock='loop',
-                              executor='events', priority=args.priority, cpus='', gc='freeze',
+                              executor='events', priority=args.priority, cpus=args.cpus,
+                              gc='freeze',
                               watchdog_steps=10, margin=0.0, status_every=1, no_bag=False,
                               recorder_nice=10, recorder_cpus='', live=False)
 
@@ -332,9 +339,11 @@ def steal_jiffies() -> tuple:
 #: some microseconds a wake-up), so only what the machine does to every thread delays it.
 PROBE_PRIORITY = 99
 _PROBE = """
-import signal, sys, threading
+import os, signal, sys, threading
 import numpy as np
 from rths_bench.bench_loop import sleep_to_deadlines
+if sys.argv[5]:
+    os.sched_setaffinity(0, {int(c) for c in sys.argv[5].split(',')})
 stop = threading.Event()
 signal.signal(signal.SIGTERM, lambda *_: stop.set())
 r = sleep_to_deadlines(float(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), stop, reanchor=True)
@@ -349,11 +358,11 @@ class FloorProbe:
     5 ms switch interval) behind the bench's own Python threads.
     """
 
-    def __init__(self, rate_hz: float, duration_s: float, out: Path):
+    def __init__(self, rate_hz: float, duration_s: float, out: Path, cpus: str = ''):
         self.out = Path(out)
         n = int((duration_s + 120.0) * rate_hz)     # start-up and the tail included
         self.proc = subprocess.Popen([sys.executable, '-c', _PROBE, str(rate_hz), str(n),
-                                      str(PROBE_PRIORITY), str(self.out)])
+                                      str(PROBE_PRIORITY), str(self.out), cpus])
         self.woke: dict = {}
 
     def stop(self):
@@ -539,7 +548,8 @@ def run_case(name: str, args, workdir: Path, log) -> dict:
             hog.__enter__()
         if kind != 'kill':
             workdir.mkdir(parents=True, exist_ok=True)
-            probe = FloorProbe(args.rate, args.duration, workdir / 'floor_probe.npz')
+            probe = FloorProbe(args.rate, args.duration, workdir / 'floor_probe.npz',
+                               args.cpus)
         steal, t_start = steal_jiffies(), time.monotonic()
         try:
             loop = run_once(args.rate, args.duration, la, workdir, log, label=name)
@@ -601,16 +611,23 @@ def print_case(r: dict) -> None:
 def cmd_bench_faults(args) -> int:
     """Run ``rths bench faults``: every selected case, then write JSON."""
     from rths_bench.bench_loop import domain_id, machine_info
+    from rths_common.node_support import parse_cpus
 
     if not args.rate > 0 or not args.duration > 0:
         raise ValueError('--rate and --duration must be > 0')
     if not 0 < args.memory_fraction <= 0.9:
         raise ValueError(f'--memory-fraction {args.memory_fraction}: use (0, 0.9]')
+    cpus = parse_cpus(args.cpus)
+    if not cpus <= os.sched_getaffinity(0):
+        raise ValueError(f'--cpus {args.cpus!r}: this machine has CPUs '
+                         f'{sorted(os.sched_getaffinity(0))}')
+    args.cpus = ','.join(str(c) for c in sorted(cpus))     # the probe's form: '1', '0,1'
     cases = select(args.cases)
     keep = Path(args.keep) if args.keep else None
     date = time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())
     report: dict = {'machine': machine_info(), 'date': date, 'rate_hz': args.rate,
-                    'duration_s': args.duration, 'expected_safety_state_by_stall_ms':
+                    'duration_s': args.duration, 'cpus': args.cpus,
+                    'expected_safety_state_by_stall_ms':
                     {str(k): v for k, v in EXPECTED_STATE.items()},
                     'stall_limit_s': STALL_LIMIT_S, 'cases': {}}
     t0 = time.monotonic()

@@ -108,6 +108,24 @@ def test_a_loop_stall_counts_as_shared_only_where_the_empty_thread_stalled_too()
     assert bf.shared_stalls(loop, near[:0], period).tolist() == [False, False]
 
 
+def test_the_probe_runs_on_the_cpus_it_is_given(tmp_path):
+    import os
+    import time
+    cpu = max(os.sched_getaffinity(0))
+    probe = bf.FloorProbe(1000.0, 0.0, tmp_path / 'probe.npz', str(cpu))
+    try:
+        allowed = ''
+        for _ in range(100):              # the probe pins itself after its imports
+            status = open(f'/proc/{probe.proc.pid}/status').read()
+            allowed = status.split('Cpus_allowed_list:')[1].split()[0]
+            if allowed == str(cpu):
+                break
+            time.sleep(0.05)
+        assert allowed == str(cpu)
+    finally:
+        probe.stop()
+
+
 def test_the_probe_sleeps_to_deadlines_until_stopped(tmp_path):
     import time
     probe = bf.FloorProbe(1000.0, 0.0, tmp_path / 'probe.npz')
