@@ -133,8 +133,13 @@ FAULTS_JSON = 'faults_1024hz_10s.json'
 PROBE = ('The same, beside the machine (rths bench faults --cases baseline,cpu_hog: an empty '
          'SCHED_FIFO 99 probe and the hypervisor steal in the same run)')
 PROBE_JSON = 'faults_cpu_hog_probe.json'
-HOSTS = ('One loop on two hosts (rths bench loop --rate 2048, composed): commit 679051c on '
-         '2026-11-23 (Intel Xeon), the same commit and main on 2026-11-28 (AMD EPYC)')
+HOG_RUNS = ('The CPU hog, eleven runs on one VM (rths bench faults --cases baseline,cpu_hog, '
+            'three of them with --cpus 1: the loop and the probe on one CPU)')
+HOG_RUNS_JSON = 'faults_cpu_hog_runs_20261128.json'
+HOSTS = ('One loop on three hosts (rths bench loop --rate 2048, composed): commit 679051c on '
+         '2026-11-23 (Intel Xeon, kernel fc-v669), the same commit and main on 2026-11-28 (AMD '
+         'EPYC, kernel fc-v782), main later that day (AMD EPYC, kernel fc-v669)')
+LATER = 'later_host_2026_11_28/'
 HOSTS_JSON = 'loop_2048hz_host_compare.json'
 MARTHS = 'maRTHS (two actuators) through the node graph, mimo, El Centro x 0.4'
 MARTHS_RT = 'marths_graph/realtime_mimo_elcentro.json'
@@ -175,6 +180,18 @@ FIGURES = (
      ''),
     (HOSTS, 'AMD EPYC, main: late or missed ticks', HOSTS_JSON,
      'main_2cd863b/late_or_missed_pct', '%', ''),
+    (HOSTS, 'AMD EPYC (fc-v669), main, 30 s: command latency p50', HOSTS_JSON,
+     LATER + 'main_fc_v669_2048hz_30s/latency_us_p50', 'us', ''),
+    (HOSTS, 'AMD EPYC (fc-v669), main, 30 s: CPU of the loop process', HOSTS_JSON,
+     LATER + 'main_fc_v669_2048hz_30s/cpu_pct', '%', ''),
+    (HOSTS, 'AMD EPYC (fc-v669), main, 30 s: deadline misses', HOSTS_JSON,
+     LATER + 'main_fc_v669_2048hz_30s/deadline_miss_pct', '%', '<= 0.2 %'),
+    (HOSTS, 'AMD EPYC (fc-v669), main, 30 s: late or missed ticks', HOSTS_JSON,
+     LATER + 'main_fc_v669_2048hz_30s/late_or_missed_pct', '%', ''),
+    (HOSTS, 'AMD EPYC (fc-v669), main, 4096 Hz: CPU of the loop process', HOSTS_JSON,
+     LATER + 'main_fc_v669_4096hz_10s/cpu_pct', '%', ''),
+    (HOSTS, 'AMD EPYC (fc-v669), main, 4096 Hz: late or missed ticks', HOSTS_JSON,
+     LATER + 'main_fc_v669_4096hz_10s/late_or_missed_pct', '%', '<= 0.2 %'),
     (FAULTS, 'CPU hog on every core: late or missed ticks',
      FAULTS_JSON, 'cases/cpu_hog/late_or_missed_pct', '%', '<= 0.1 %'),
     (FAULTS, 'CPU hog: samples lost from the bag',
@@ -201,6 +218,16 @@ FIGURES = (
     (PROBE, 'no hog: the empty probe, late or missed', PROBE_JSON,
      'cases/baseline/floor_late_or_missed_pct', '%', ''),
     (PROBE, 'no hog: hypervisor steal', PROBE_JSON, 'cases/baseline/steal_pct', '%', ''),
+    (HOG_RUNS, 'CPU hog: runs with late or missed ticks <= 0.1 %', HOG_RUNS_JSON,
+     'summary/cpu_hog_runs_within_0_1_pct', 'of 11', 'every run'),
+    (HOG_RUNS, 'CPU hog: late or missed ticks, median', HOG_RUNS_JSON,
+     'summary/cpu_hog_late_or_missed_pct_median', '%', '<= 0.1 %'),
+    (HOG_RUNS, 'CPU hog: late or missed ticks, worst run', HOG_RUNS_JSON,
+     'summary/cpu_hog_late_or_missed_pct_max', '%', '<= 0.1 %'),
+    (HOG_RUNS, 'CPU hog: samples lost from the bag, all runs', HOG_RUNS_JSON,
+     'summary/cpu_hog_samples_lost', '', '0'),
+    (HOG_RUNS, 'no hog: late or missed ticks, median', HOG_RUNS_JSON,
+     'summary/baseline_late_or_missed_pct_median', '%', ''),
     (MARTHS, 'realtime composed 1024 Hz: deadline misses', MARTHS_RT,
      'realtime/deadline_miss_pct', '%', '<= 0.1 %'),
     (MARTHS, 'realtime: late or missed ticks', MARTHS_RT, 'realtime/late_or_missed_pct', '%', ''),
@@ -303,8 +330,20 @@ def lookup(doc, path: str):
     return value
 
 
-def provenance(doc: dict) -> str:
-    """Return where and when a result file was measured, as far as it records it."""
+def provenance(doc: dict, path: str = '') -> str:
+    """Return where and when a result was measured, as far as its file records it.
+
+    ``path``: the figure's; a ``machine`` or ``date`` deeper along it (a file that
+    collects runs of several hosts) wins over the file's own.
+    """
+    if path and isinstance(doc, dict):
+        deepest = dict(doc)
+        value = doc
+        for key in path.split('/')[:-1]:
+            value = value[int(key)] if isinstance(value, list) else value.get(key)
+            if isinstance(value, dict):
+                deepest.update({k: value[k] for k in ('machine', 'date') if k in value})
+        doc = deepest
     machine = doc.get('machine') if isinstance(doc, dict) else None
     if isinstance(machine, dict):
         keys = ('cpu', 'cpu_model', 'cores', 'nproc', 'load', 'loadavg', 'kernel')
@@ -347,7 +386,7 @@ def performance_markdown(root: Path = None) -> str:
                     '|---|---|---|---|---|']
             section = sect
         out.append(f'| {label} | {_format(value, unit)} | {target} | '
-                   f'`{name}`: `{path}` | {provenance(doc)} |')
+                   f'`{name}`: `{path}` | {provenance(doc, path)} |')
     return '\n'.join(out) + '\n'
 
 
