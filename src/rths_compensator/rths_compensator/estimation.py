@@ -376,15 +376,23 @@ def identify_record(u, y, fs_hz: float, options: IdentOptions = None, progress=N
         bic = np.log(mse) + np.log(n_val) * (na + nb) / n_val
         scored.append((bic, mse, na, nb, d, a, b))
     scored.sort(key=lambda s: s[0])
+    by_bic = scored[0]
     tracking = {}
     if opt.design_score and len(scored) > 1:
         scored, tracking = _order_by_design(scored, u0, y0, fs, split, say)
     _, mse, na, nb, d, a, b = scored[0]
     model = ArxModel(a=a, b=b, d=d, fs_hz=fs)
     val = validate(model, u0, y0, fs, split, band)
-    if na == opt.na_max or nb == opt.nb_max:
-        warnings.append(f'the chosen order na={na} nb={nb} sits at the edge of the grid '
-                        f'(na, nb <= {opt.na_max}, {opt.nb_max}); widen it (--na-max/--nb-max)')
+    # the data ask for more orders where the best fit (BIC) sits at the grid's edge; an edge
+    # order the design picked among fits as good as it (_order_by_design) does not.  The
+    # lab record of test_estimation on an AVX-512 host: the design picked na=6 nb=1 (0.199 %
+    # predicted tracking; the best fit na=3 nb=3, 0.201 %: 1.2 % apart, outside the 1 % tie)
+    # where the hosts before chose an interior order
+    na_fit, nb_fit = by_bic[2], by_bic[3]
+    if na_fit == opt.na_max or nb_fit == opt.nb_max:
+        warnings.append(f'the best-fitting order na={na_fit} nb={nb_fit} sits at the edge of '
+                        f'the grid (na, nb <= {opt.na_max}, {opt.nb_max}); widen it '
+                        '(--na-max/--nb-max)')
     if d in (d_lo, d_hi) and not (d == 0 and d_lo == 0):
         warnings.append(f'the chosen dead time d={d} sits at the edge of the searched range '
                         f'{d_lo}..{d_hi}; widen it (--d-min/--d-max)')
