@@ -1177,6 +1177,18 @@ def run_output(train, test, j, progress=None):
     if math.isfinite(mse_ode) and 0 < mse_ode < mse0_cmp:
         ic0 = min(ic0, n_tr * math.log(mse_ode) + 3 * math.log(n_tr))
         mse0_cmp = mse_ode
+    # and the ARX reference (the plain ARX at the record's own rate): where it simulates
+    # the training records better than the baseline, a block's gain over the baseline is
+    # the baseline's shortfall, no nonlinearity (a linear record, unseen io_linear_0 of
+    # seed 20261204: baseline 0.0076 training NRMSE, a cubic law 0.0026, named; the
+    # reference 0.0019 held out, the noise); its parameters beyond the baseline's count.
+    # The held-out confirmation then compares with the reference too.
+    mse_ref = _mse(ref, train, h)
+    versus_ref = math.isfinite(mse_ref) and 0 < mse_ref < mse0_cmp
+    if versus_ref:
+        extra = max(ref.arx.na + ref.arx.nb - base.arx.na - base.arx.nb, 1)
+        ic0 = min(ic0, n_tr * math.log(mse_ref) + extra * math.log(n_tr))
+        mse0_cmp = mse_ref
     best = min(scores, key=lambda k: scores[k]['ic']) if scores else None
     best = _hard_limit(scores, best, train, h)
     best = _loop_or_limit(scores, best)
@@ -1210,16 +1222,18 @@ def run_output(train, test, j, progress=None):
     # and the baseline misses the held-out part far more than the training records
     # (UNEXPLAINED_RATIO), the answer is 'unexplained'
     mse_b, mse_a = float(np.mean((yt - pb) ** 2)), float(np.mean((yt - pa) ** 2))
+    if versus_ref:
+        mse_b = min(mse_b, float(np.mean((yt - pr) ** 2)))
     confirm = None
     if after is not None:
         gain_tr = 1.0 - scores[best]['mse'] / mse0_cmp
         gain_te = 1.0 - mse_a / mse_b if mse_b > 0 else 0.0
         confirm = {'block': after.name, 'training_relative_gain': gain_tr,
-                   'heldout_relative_gain': gain_te,
+                   'heldout_relative_gain': gain_te, 'versus_reference': bool(versus_ref),
                    'confirmed': bool(gain_te >= max(MIN_REL_GAIN, CONFIRM_SHARE * gain_tr))}
         if not confirm['confirmed']:
-            say(f"{after.name}: chosen on the training records (error -{100 * gain_tr:.0f} %) "
-                f"but not confirmed held out (-{100 * gain_te:.0f} %); not named")
+            say(f"{after.name}: chosen on the training records (error {-100 * gain_tr:+.0f} %) "
+                f"but not confirmed held out ({-100 * gain_te:+.0f} %); not named")
             after, names, pa, fa = None, [], pb, fb
     nr_tr = math.sqrt(mse0 / var_tr) if var_tr > 0 else math.inf
     if after is None and _nrmse(yt, pb) > UNEXPLAINED_RATIO * nr_tr:
