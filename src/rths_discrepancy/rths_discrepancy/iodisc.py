@@ -1203,7 +1203,7 @@ def run_output(train, test, j, progress=None):
         # simulation scores best on the training records (the baseline, the ARX reference
         # or the linear ODE fitted by multiple shooting), so that a linear model chosen for
         # its free run cannot inflate the gap
-        lins = [(mse0, base, 'baseline'), (_mse(ref, train, h), ref, 'ARX reference')]
+        lins = [(mse0, base, 'baseline'), (mse_ref, ref, 'ARX reference')]
         lins += [(_mse(c, train, h), c, 'linear ODE (multiple shooting)') for c in lin_odes]
         _, before, which = min(lins, key=lambda t: t[0] if math.isfinite(t[0]) else math.inf)
         measure['baseline_model'] = which
