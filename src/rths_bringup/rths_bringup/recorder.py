@@ -228,6 +228,24 @@ class Recorder:
             if self.taken != taken:
                 taken, idle_since = self.taken, time.monotonic()
         executor.remove_node(self.node)
+        self.take_the_rest()
+
+    def take_the_rest(self):
+        """Take what is still in the readers: the messages no executor event announced.
+
+        The events the run's executor had queued are dropped when it lets the node go
+        (``spin_until_done``) and the tail's executor takes over, so each reader stays
+        that many messages behind: the last ones, the bridge's STOPPED status among
+        them, were never taken.  A supervisor kill in the processes layout (2026-11-28)
+        left 1-4 messages a topic; the bags ended at RAMP, 5-8 steps before the stop.
+        """
+        for sub in self.node.subscriptions:
+            while True:
+                with sub.handle:
+                    got = sub.handle.take_message(sub.msg_type, sub.raw)
+                if got is None:
+                    break
+                sub.callback(got[0])
 
     def _read_pipe(self):
         """Composed layout: the container's records, from the pipe until it ends."""
