@@ -53,7 +53,7 @@ import rclpy
 from rths_common import bagstore, cdr, lifeline, provenance, topics
 from rths_common import node_support as ns
 from rths_common.bagio import BagWriter
-from rths_common.qos import recorder_qos, status_qos
+from rths_common.qos import STATUS_DEPTH, recorder_qos, status_qos
 from rths_common.tee import TOPICS as TEED_TOPICS
 from rths_common.tee import read_records
 from rths_common.transport import split_frame
@@ -238,9 +238,11 @@ class Recorder:
         that many messages behind: the last ones, the bridge's STOPPED status among
         them, were never taken.  A supervisor kill in the processes layout (2026-11-28)
         left 1-4 messages a topic; the bags ended at RAMP, 5-8 steps before the stop.
+        At most a reader's history (STATUS_DEPTH) each: a publisher that goes on cannot
+        keep it here.
         """
         for sub in self.node.subscriptions:
-            while True:
+            for _ in range(STATUS_DEPTH):
                 with sub.handle:
                     got = sub.handle.take_message(sub.msg_type, sub.raw)
                 if got is None:
