@@ -44,7 +44,7 @@ from rths_system_tests import (
     wait_steps,
 )
 
-HOLD, RAMP, STOPPED = 1, 2, 3
+ACTIVE, HOLD, RAMP, STOPPED = 0, 1, 2, 3
 #: The processes-layout run's bridge watchdog [steps] (module doc): 0.25 s at 1024 Hz.
 START_GAP_STEPS = 256
 
@@ -115,3 +115,51 @@ def test_sigkill_of_the_supervisor_mid_run_stops_everything_safely(tmp_path, lay
         assert 'the launcher' in review.stdout
     else:     # the loop stopped itself earlier: reviewed, or too short to review, said so
         assert review.returncode == 0 or 'the review needs at least 2 s' in review.stderr
+
+
+@pytest.mark.parametrize('layout', ['composed', 'processes'])
+def test_sigkill_of_the_supervisor_after_the_record_ends_stops_once(tmp_path, layout):
+    """Killed between the record's last step and the run's end: one safe stop, one bag step each.
+
+    The bridge holds the last position when the record ends.  A kill then used to
+    start the safe stop twice in the processes layout: the stop timer and the
+    clock, which ticked again once the supervisor was in HOLD, so each step from
+    the record's end on was published twice with different commands and ``rths
+    review`` refused the bag ("step 10241 was recorded twice", 1 of 5 kills in
+    ``rths bench lab-faults`` on 2026-11-28; 3 of 6 kills 10.2-11.8 s into 10 s runs).
+    """
+    from rths_common import bagio, runinfo, topics
+
+    out = tmp_path / 'run'
+    proc = subprocess.Popen(
+        [rths_executable(), 'run', '--mode', 'realtime', '--layout', layout, '--duration', '3',
+         '--plant', str(REPO / 'config' / 'plant.yaml'), '--out', str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=graph_env())
+    try:
+        wait_for(proc, 'run complete after', timeout=240.0)
+        children = run_processes(proc.pid)
+    finally:
+        proc.kill()
+    proc.wait()
+    t0 = time.monotonic()
+    while run_processes(proc.pid) and time.monotonic() - t0 < 10.0:
+        time.sleep(0.01)
+    assert not run_processes(proc.pid), 'processes of the run outlived it by 10 s'
+    assert len(children) == (2 if layout == 'composed' else 4), children
+
+    bag = out / 'rths' / 'bag'
+    meas = bagio.step_arrays(bag, topics.MEASUREMENT, ('applied',))
+    steps, counts = np.unique(meas['step'], return_counts=True)
+    assert counts.max() == 1, f'steps published twice: {steps[counts > 1][:5]}'
+    applied = meas['applied'][np.argsort(meas['step']), 0]
+    bridge = runinfo.section(bagio.run_info(bag), 'bridge')
+    last_state = max((int(m.step), int(m.safety_state))
+                     for _, _, m in bagio.read_messages(bag, [topics.STATUS])
+                     if m.node == 'bridge')[1]
+    if last_state == ACTIVE:   # the run ended first: an in-process plant holds, as after any run
+        assert steps[-1] == 3 * 1024 - 1, steps[-1]
+    else:                      # the kill's safe stop, once
+        assert last_state == STOPPED
+        assert applied[-1] == float(bridge.get('safe_position_m', 0.0))
+    review = rths('review', bag, '--out', tmp_path / 'review', timeout=300, check=False)
+    assert review.returncode == 0, review.stderr

@@ -352,9 +352,13 @@ class BridgeNode:
                                                       clock=steady)
 
     def next_due_ns(self):
-        """Monotonic time of the next tick, or None when the clock is not running."""
+        """Monotonic time of the next tick, or None when the clock is not running.
+
+        Once the run is over the clock stays stopped: a safe stop after it runs on
+        the stop timer (:meth:`start_safe_stop`), which numbers its own steps.
+        """
         ticks = self.ticks
-        if ticks is None or not ticks.running or self.stopped:
+        if ticks is None or not ticks.running or self.stopped or self.run_over:
             return None
         if self.n_steps is not None and ticks.k >= self.n_steps:
             if self.bridge.state not in (HOLD, RAMP):
