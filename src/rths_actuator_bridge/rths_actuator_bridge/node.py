@@ -124,7 +124,10 @@ class BridgeNode:
         self.late = 0                  # commands that arrived after their tick
         self.run_over = False
         self.clock_timer = None
+        # tick_cpu_ns: the CPU time of the thread that ticks (composed: every node's callbacks
+        # run on it), so a stall can be told apart: worked through (on CPU) or waited
         self.timing = {'tick_step': [], 'tick_wall_ns': [], 'tick_late_ns': [], 'missed': [],
+                       'tick_cpu_ns': [],
                        'recv_step': [], 'recv_wall_ns': [], 'recv_stamp_ns': []}
         self.cpu_loop = None
         if self.ticks is not None:
@@ -395,6 +398,7 @@ class BridgeNode:
         timing = self.timing
         timing['tick_step'].append(k)
         timing['tick_wall_ns'].append(t_in)
+        timing['tick_cpu_ns'].append(time.thread_time_ns())
         timing['tick_late_ns'].append(late_ns)
         timing['missed'].append(missed)
         self.apply(k, command, t_in, latency_us=latency_us, missed=missed)

@@ -43,7 +43,11 @@ overlap a stall of the probe (the machine stalled both).  The two may run on
 different CPUs: a stall of the loop's CPU alone (a vCPU the hypervisor took) is not
 the probe's.  ``--cpus 1`` puts the loop's nodes and the probe on the same CPU (the
 recorder and the hogs stay free): a stall of that vCPU then hits both, so what
-stalls the loop alone is the loop's own.  ``steal_ms`` / ``steal_pct``: the CPU time
+stalls the loop alone is the loop's own.  ``loop_stalls_on_cpu`` (``rths bench
+loop``'s :func:`~rths_bench.bench_loop.stalls_on_cpu`): the stalls the loop's thread
+worked through, never leaving the CPU: a probe that only sleeps cannot share those,
+whereas the work floor of ``rths bench loop`` shows the vCPU running the same work
+3-18x slower in bursts of a few ms.  ``steal_ms`` / ``steal_pct``: the CPU time
 the hypervisor took from this VM's CPUs during the run (``/proc/stat``, all CPUs; the
 share of their time).  Normal-priority hogs cannot delay SCHED_FIFO threads; a
 hypervisor can.
@@ -570,7 +574,8 @@ def run_case(name: str, args, workdir: Path, log) -> dict:
     result.update({k: loop.get(k) for k in (
         'steps', 'deadline_misses', 'deadline_miss_pct', 'late_or_missed_pct', 'stalled_ticks',
         'clock_overruns', 'run_completed', 'loop_error', 'latency_us_p99', 'cpu_pct',
-        'loadavg_before', 'loadavg_after') if k in loop})
+        'loadavg_before', 'loadavg_after', 'loop_stalls_on_cpu', 'loop_stall_ms_on_cpu',
+        'loop_stall_ms_off_cpu') if k in loop})
     result.update(watcher.result)
     if bag.exists():
         result.update(bag_side(bag, args.rate, limits))

@@ -38,6 +38,15 @@ and writes JSON:
   cyclictest does, and its wake-up lateness; ``late_gt_period_pct`` is the
   miss rate of an empty loop, the floor no node code can go below (on a
   loaded VM, vCPU stalls of several ms show up here);
+  ``platform_floor.work`` (:func:`work_floor`, as long again, after it): the
+  same fixed pure-Python work every 1/1024 s at SCHED_FIFO and how often it
+  took more than 3x its median (``stretched_pct``), with the share of those
+  during which the thread never left the CPU (``stretched_on_cpu_pct``): a vCPU
+  that runs slower for a few ms, which the wake-up floor cannot see;
+* ``loop_stalls`` (ticks more than a period late) and ``loop_stalls_on_cpu``, those
+  the ticking thread worked through (its CPU time grew by >= 90 % of the
+  stall: its own work took that long) with ``loop_stall_ms_on_cpu`` /
+  ``loop_stall_ms_off_cpu`` (:func:`stalls_on_cpu`);
 * ``ros_domain_id``: the runs use a private DDS domain (``--domain-id``;
   default: ``ROS_DOMAIN_ID`` if set, else one derived from the process id),
   so another graph running on the machine cannot feed the bench's topics.
@@ -69,6 +78,14 @@ from rths_numerical.specimens import DEFAULT_SPECIMEN
 MISS_TARGET_PCT = 0.1
 GIVE_UP_PCT = 10.0  # --find-max stops stepping the rate up past this miss rate
 FIND_MAX_RATES = (1024, 1536, 2048, 2560, 3072, 4096)
+#: A stall (or a work chunk) during which the thread's CPU time grew by at least this share
+#: of its wall time never left the CPU.
+ON_CPU = 0.9
+#: The work floor's chunk [loop iterations of a float sum]: about 130-190 us on the 2-core
+#: AMD EPYC VM of 2026-11-28 (the two vCPUs differed by 1.5x) ...
+WORK_CHUNK = 3000
+#: ... and a chunk that took more than this many times the median is stretched.
+STRETCH = 3.0
 
 
 def register(commands, benches):
@@ -251,6 +268,9 @@ def analyse(bridge_npz, numerical_npz, cpu_samples=(), bag=None, rate_hz=None) -
         'numerical_measurements_missed': int(nu['misses']),
     }
     out.update(_cpu(cpu_samples, tick_wall))
+    if 'tick_cpu_ns' in br.files:
+        out.update(stalls_on_cpu(br['tick_wall_ns'][in_run], br['tick_late_ns'][in_run],
+                                 br['tick_cpu_ns'][in_run], period_ns))
     if bag is not None:
         out['bag'] = bag_check(bag, steps, missed)
     return out
@@ -263,6 +283,23 @@ def _stalled(late_ns, period_ns: int, misses: int) -> dict:
     due = late_ns.size + stalled
     return {'stalled_ticks': stalled,
             'late_or_missed_pct': round(100.0 * (misses + stalled) / due, 4) if due else None}
+
+
+def stalls_on_cpu(wall_ns, late_ns, cpu_ns, period_ns: int) -> dict:
+    """Count the clock's stalls (ticks more than a period late) the ticking thread worked through.
+
+    A stall's interval runs from the tick before it to it.  Where the thread's CPU
+    time grew by at least :data:`ON_CPU` of that interval it never left the CPU:
+    its own work took that long (the node code, or a vCPU that ran it slower:
+    :func:`work_floor`).  The others waited: preempted, blocked, or woken late.
+    """
+    wall, late, cpu = (np.asarray(a, np.int64) for a in (wall_ns, late_ns, cpu_ns))
+    hit = np.flatnonzero(late[1:] > period_ns) + 1
+    span = wall[hit] - wall[hit - 1]
+    on = (cpu[hit] - cpu[hit - 1]) >= ON_CPU * span
+    return {'loop_stalls': int(hit.size), 'loop_stalls_on_cpu': int(on.sum()),
+            'loop_stall_ms_on_cpu': round(float(span[on].sum()) * 1e-6, 1),
+            'loop_stall_ms_off_cpu': round(float(span[~on].sum()) * 1e-6, 1)}
 
 
 def _within_target(r: dict) -> bool:
@@ -385,6 +422,68 @@ def platform_floor(rate_hz: float, duration_s: float, priority: int = 80) -> dic
             'loadavg': [round(x, 2) for x in os.getloadavg()]}
 
 
+def _work_chunk(n: int = WORK_CHUNK) -> float:
+    total = 0.0
+    for i in range(n):
+        total += i * 0.5
+    return total
+
+
+def work_floor(duration_s: float, priority: int = 80, rate_hz: float = 1024.0) -> dict:
+    """Time the same pure-Python work (:data:`WORK_CHUNK`) every period at SCHED_FIFO.
+
+    The wake-up floor does no work, so it cannot see a vCPU that keeps running
+    but runs slower.  Here each chunk's wall time is measured with the thread's
+    CPU time: ``stretched_pct`` is the share of chunks that took more than
+    :data:`STRETCH` times the median, ``stretched_on_cpu_pct`` the share of those
+    during which the thread never left the CPU (nothing preempted it: the same
+    instructions simply took longer).  On the 2-core AMD EPYC VM of 2026-11-28,
+    with nothing else running, 65 of 20 000 chunks of 132 us took 3-18x as long,
+    61 of them on the CPU, in bursts of a few ms, on one vCPU at a time.
+    """
+    n = max(int(duration_s * rate_hz), 1)
+    period_ns = int(round(1e9 / rate_hz))
+    took = np.zeros(n, np.int64)
+    cpu = np.zeros(n, np.int64)
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
+        sched = f'SCHED_FIFO {int(priority)}'
+    except OSError as err:
+        sched = f'SCHED_OTHER (SCHED_FIFO refused: {err})'
+    gc_was = gc.isenabled()
+    gc.disable()
+    try:
+        due = time.monotonic_ns()
+        for k in range(n):
+            due += period_ns
+            t0, c0 = time.perf_counter_ns(), time.thread_time_ns()
+            _work_chunk()
+            took[k] = time.perf_counter_ns() - t0
+            cpu[k] = time.thread_time_ns() - c0
+            wait = due - time.monotonic_ns()
+            if wait > 0:
+                time.sleep(wait * 1e-9)
+            else:
+                due = time.monotonic_ns()
+    finally:
+        if gc_was:
+            gc.enable()
+        try:
+            os.sched_setscheduler(0, policy, param)
+        except OSError:
+            pass
+    med = float(np.median(took))
+    slow = took > STRETCH * med
+    on = slow & (cpu >= ON_CPU * took)
+    return {'rate_hz': float(rate_hz), 'chunks': n, 'scheduling': sched,
+            'chunk_us_p50': round(med * 1e-3, 1),
+            'chunk_us_p99': round(float(np.percentile(took, 99)) * 1e-3, 1),
+            'chunk_us_max': round(float(took.max()) * 1e-3, 1),
+            'stretched_pct': round(100.0 * float(slow.mean()), 4),
+            'stretched_on_cpu_pct': round(100.0 * float(on.sum()) / max(int(slow.sum()), 1), 1)}
+
+
 def domain_id(requested: int) -> int:
     """Return the runs' ROS domain: ``requested`` if >= 0, else $ROS_DOMAIN_ID, else private."""
     if requested >= 0:
@@ -486,11 +585,16 @@ def cmd_bench_loop(args) -> int:
         if args.floor > 0:
             floor = platform_floor(1024.0 if args.find_max else args.rate, args.floor,
                                    max(args.priority, 1))
+            floor['work'] = work_floor(args.floor, max(args.priority, 1))
             report['platform_floor'] = floor
+            work = floor['work']
             print(f"platform floor ({args.floor:g} s empty SCHED_FIFO loop at "
                   f"{floor['rate_hz']:g} Hz): wake-up late p50/p99/max {floor['late_us_p50']}/"
                   f"{floor['late_us_p99']}/{floor['late_us_max']} us, "
-                  f"{floor['late_gt_period_pct']} % later than a period", flush=True)
+                  f"{floor['late_gt_period_pct']} % later than a period; the same work each "
+                  f"period (then {args.floor:g} s): p50 {work['chunk_us_p50']} us, "
+                  f"{work['stretched_pct']} % of it over {STRETCH:g}x "
+                  f"({work['stretched_on_cpu_pct']} % of those on the CPU)", flush=True)
         with open(log_path, 'w') as log:
             if args.find_max:
                 runs = []

@@ -136,6 +136,9 @@ PROBE_JSON = 'faults_cpu_hog_probe.json'
 HOG_RUNS = ('The CPU hog, eleven runs on one VM (rths bench faults --cases baseline,cpu_hog, '
             'three of them with --cpus 1: the loop and the probe on one CPU)')
 HOG_RUNS_JSON = 'faults_cpu_hog_runs_20261128.json'
+STALLS = ("The loop's own stalls: worked through or waited (rths bench loop --rate 1024 "
+          '--duration 20, four runs; the work floor: the same Python work every 1/1024 s)')
+STALLS_JSON = 'loop_stalls_20261128.json'
 HOSTS = ('One loop on three hosts (rths bench loop --rate 2048, composed): commit 679051c on '
          '2026-11-23 (Intel Xeon, kernel fc-v669), the same commit and main on 2026-11-28 (AMD '
          'EPYC, kernel fc-v782), main later that day (AMD EPYC, kernel fc-v669)')
@@ -228,6 +231,17 @@ FIGURES = (
      'summary/cpu_hog_samples_lost', '', '0'),
     (HOG_RUNS, 'no hog: late or missed ticks, median', HOG_RUNS_JSON,
      'summary/baseline_late_or_missed_pct_median', '%', ''),
+    (STALLS, 'stalls (ticks more than a period late), four runs', STALLS_JSON,
+     'summary/loop_stalls', '', ''),
+    (STALLS, 'of them worked through: the ticking thread never left the CPU', STALLS_JSON,
+     'summary/loop_stalls_on_cpu', '', ''),
+    (STALLS, 'stall time worked through', STALLS_JSON, 'summary/loop_stall_ms_on_cpu', 'ms', ''),
+    (STALLS, 'stall time waited (off the CPU)', STALLS_JSON, 'summary/loop_stall_ms_off_cpu',
+     'ms', ''),
+    (STALLS, 'no ROS at all: Python work chunks of 132 us stretched over 3x, of 20 000',
+     STALLS_JSON, 'standalone_work_probe/one_probe_unpinned/stretched_gt_3x', '', ''),
+    (STALLS, 'no ROS at all: the longest of those chunks', STALLS_JSON,
+     'standalone_work_probe/one_probe_unpinned/chunk_us_max', 'us', ''),
     (MARTHS, 'realtime composed 1024 Hz: deadline misses', MARTHS_RT,
      'realtime/deadline_miss_pct', '%', '<= 0.1 %'),
     (MARTHS, 'realtime: late or missed ticks', MARTHS_RT, 'realtime/late_or_missed_pct', '%', ''),

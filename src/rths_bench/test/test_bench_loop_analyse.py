@@ -35,3 +35,46 @@ def test_the_round_trip_is_split_into_its_three_parts(tmp_path):
     assert r['latency_us_p50'] == 400.0
     assert r['loop_us_p50'] == 770.0            # the three parts add up to the round trip
     assert r['deadline_misses'] == 0 and r['late_or_missed_pct'] == 0.0
+
+
+def test_a_stall_the_thread_worked_through_is_told_from_one_it_waited_out():
+    from rths_bench.bench_loop import stalls_on_cpu
+
+    # ticks every period with 0.4 ms of the thread's CPU each; tick 50 comes 3 ms late with
+    # the thread on the CPU all along (its work took that long), tick 120 comes 5 ms late
+    # after 0.3 ms of CPU (it waited: preempted, blocked or the vCPU was taken)
+    wall = np.arange(N, dtype=np.int64) * PERIOD_NS
+    late = np.zeros(N, np.int64)
+    cpu_step = np.full(N, 400_000, np.int64)
+    for k, late_ns, cpu_ns in ((50, 3_000_000, 3_900_000), (120, 5_000_000, 300_000)):
+        wall[k:] += late_ns
+        late[k] = late_ns
+        cpu_step[k] = cpu_ns
+    cpu = np.cumsum(cpu_step)
+    r = stalls_on_cpu(wall, late, cpu, PERIOD_NS)
+    assert r['loop_stalls'] == 2 and r['loop_stalls_on_cpu'] == 1
+    assert r['loop_stall_ms_on_cpu'] == round((PERIOD_NS + 3_000_000) * 1e-6, 1)
+    assert r['loop_stall_ms_off_cpu'] == round((PERIOD_NS + 5_000_000) * 1e-6, 1)
+    # a tick late by less than a period is no stall
+    late[50] = late[120] = PERIOD_NS // 2
+    assert stalls_on_cpu(wall, late, cpu, PERIOD_NS)['loop_stalls'] == 0
+
+
+def test_the_analysis_reads_the_ticking_threads_cpu_time_when_the_bridge_wrote_it(tmp_path):
+    bridge, numerical = _timing(tmp_path, 250.0, 120.0, 400.0)
+    assert 'loop_stalls_on_cpu' not in analyse(bridge, numerical, rate_hz=1024.0)  # older files
+    with np.load(bridge) as old:
+        files = dict(old)
+    files['tick_cpu_ns'] = np.arange(N, dtype=np.int64) * 400_000
+    np.savez(bridge, **files)
+    r = analyse(bridge, numerical, rate_hz=1024.0)
+    assert r['loop_stalls'] == 0 and r['loop_stalls_on_cpu'] == 0
+
+
+def test_the_work_floor_times_the_same_work_each_period_and_reports_its_stretches():
+    from rths_bench.bench_loop import work_floor
+
+    w = work_floor(0.05, priority=1)
+    assert w['chunks'] == round(0.05 * 1024)
+    assert 0 < w['chunk_us_p50'] <= w['chunk_us_p99'] <= w['chunk_us_max']
+    assert 0.0 <= w['stretched_pct'] <= 100.0 and 0.0 <= w['stretched_on_cpu_pct'] <= 100.0
