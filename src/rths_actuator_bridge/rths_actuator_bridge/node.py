@@ -33,6 +33,7 @@ from rths_msgs.srv import EmergencyStop
 NODE_PARAMS = {'mode': 'lockstep', 'executor': 'events', 'autostart': True,
                'wait_for_subscribers': 1,
                'watchdog_timeout_s': 5.0, 'clock': 'loop', 'spin_margin_us': 0.0,
+               'direct_delivery': True,
                'timing_out': '', 'publish_specimen': 'auto',
                'command_source': 'compensator',
                **ns.TUNING_PARAMS, **ns.RUN_PARAMS}
@@ -580,6 +581,10 @@ class BridgeNode:
             thread.stop()
             if thread.error is not None:
                 raise thread.error
+        if self.ticks is not None and not self.run_over:
+            # composed with direct delivery the record can end inside the last tick and the
+            # spin with it: the clock has not looked since; it says 'run complete' now
+            self.next_due_ns()
         self.park()
         self.save_timing()
         ns.flush([p for p in (self.pub, self.status_pub, self.controller_pub) if p is not None])

@@ -125,6 +125,9 @@ def register(commands, benches):
     p.add_argument('--status-every', type=int, default=1, help='numerical and compensator '
                    'publish the status of every N-th step only (default 1: every step; the '
                    'bridge always reports every step)')
+    p.add_argument('--no-direct-delivery', action='store_true',
+                   help="composed: the loop messages between the three nodes over DDS, as "
+                   "before direct delivery (the bridge's direct_delivery: false; to compare)")
     p.add_argument('--no-bag', action='store_true', help='do not record (no recorder process)')
     p.add_argument('--recorder-nice', type=int, default=10, help='nice value of the recorder '
                    "process's threads (normal scheduling; default 10)")
@@ -145,7 +148,7 @@ def register(commands, benches):
 def write_config(directory, rate_hz=1024.0, duration_s=10.0, taps=400, model='sdof',
                  clock='loop', executor='events', priority=0, cpus='', gc_mode='default',
                  record='harmonic', watchdog_steps=10, margin_us=0.0, status_every=1,
-                 compensator_filter=None) -> Path:
+                 compensator_filter=None, direct_delivery=True) -> Path:
     """Write bridge/compensator/numerical.yaml of a realtime run (simulated plant).
 
     The compensator is a ``taps``-tap FIR with the cost of a designed one and
@@ -178,7 +181,7 @@ def write_config(directory, rate_hz=1024.0, duration_s=10.0, taps=400, model='sd
     bridge = dict(tuning('bridge'), clock=clock, spin_margin_us=float(margin_us),
                   backend=DEFAULT_BACKEND, fs_hz=float(rate_hz),
                   actuator_model='3pole', specimen=DEFAULT_SPECIMEN, seed=1,
-                  watchdog_steps=int(watchdog_steps))
+                  watchdog_steps=int(watchdog_steps), direct_delivery=bool(direct_delivery))
     if compensator_filter is None:
         fir, den = [1.0] + [0.0] * (int(taps) - 1), [1.0]
     else:
@@ -504,7 +507,8 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log, label=None) -> dict:
     config = write_config(workdir / 'config', rate_hz, duration_s, args.taps, args.model,
                           args.clock, args.executor, args.priority, args.cpus, args.gc,
                           watchdog_steps=args.watchdog_steps, margin_us=args.margin,
-                          status_every=args.status_every)
+                          status_every=args.status_every,
+                          direct_delivery=not getattr(args, 'no_direct_delivery', False))
     bag = None if args.no_bag else workdir / 'bag'
     timing = {name: (workdir / f'{name}_timing.npz').resolve()
               for name in ('bridge', 'numerical')}
@@ -536,6 +540,7 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log, label=None) -> dict:
     result.update(layout=args.layout, duration_s=duration_s, taps=args.taps, model=args.model,
                   clock=args.clock,
                   spin_margin_us=args.margin, status_every=args.status_every,
+                  direct_delivery=not getattr(args, 'no_direct_delivery', False),
                   executor=args.executor, rt_priority=args.priority, cpus=args.cpus,
                   gc=args.gc, recorded=bag is not None, wall_s=round(wall, 1),
                   live_view=bool(getattr(args, 'live', False)),

@@ -39,6 +39,9 @@ NODE_KEYS = {
     'watchdog_timeout_s': '[s] lock-step: no command for this long -> safe stop',
     'clock': 'loop | thread | timer: what ticks the realtime bridge',
     'spin_margin_us': '[us] loop clock: poll the last part of each period',
+    'direct_delivery': 'composed layout, realtime, loop clock: the loop messages go between '
+                       'the three nodes by direct calls (over DDS only to readers outside '
+                       'the process)',
     'publish_specimen': 'auto | true | false: publish /rths/specimen',
     'command_source': 'node name whose /rths/command is accepted; others are refused',
     'rt_priority': '[-] SCHED_FIFO priority in realtime mode (-1: the node default, 0: none)',
