@@ -137,10 +137,11 @@ class LocalPublisher:
 
     Composed layout, realtime, the bridge's loop clock (``direct_delivery``): the
     three nodes' loop messages need not cross DDS.  Each reader's callback is
-    called with the very message (CDR bytes) the publisher was given, at once, in
-    the ticking thread: a hop costs a call instead of a DDS write, an executor
-    event and a take (1024 Hz on the 2-core VM of 2026-11-28: the round trip p50
-    378 -> 196 us, the process's CPU 52 -> 39 %).  DDS still carries the message
+    called with the very message (CDR bytes) the publisher was given, in the
+    ticking thread, in the order DDS gave (:class:`DirectBus`): a hop costs a call
+    instead of a DDS write, an executor event and a take (1024 Hz on the 2-core VM
+    of 2026-11-28: the round trip p50 378 -> 196 us, the process's CPU 52 -> 39 %).
+    DDS still carries the message
     when a reader outside the container matched (the live view, a recorder over
     DDS; looked at every :data:`EXTERNAL_CHECK_STEPS` messages); the container's
     own DDS readers then drop that copy (:meth:`from_dds`: one of the last
@@ -148,8 +149,9 @@ class LocalPublisher:
     before (another run's, a second source of commands: refused and counted).
     """
 
-    def __init__(self, publisher, callbacks, local_readers: int):
+    def __init__(self, publisher, callbacks, local_readers: int, bus: 'DirectBus'):
         self.publisher = publisher
+        self.bus = bus
         self.topic_name = publisher.topic_name
         self.callbacks = tuple(callbacks)
         self.local_readers = local_readers
@@ -165,8 +167,7 @@ class LocalPublisher:
         if self.external:
             self.recent.append(msg)
             self.publisher.publish(msg)
-        for callback in self.callbacks:
-            callback(msg)
+        self.bus.deliver(self.callbacks, msg)
 
     def from_dds(self, callback):
         """Return the DDS callback of a container reader: ``callback``, but not for our copies."""
@@ -181,6 +182,40 @@ class LocalPublisher:
         return getattr(self.publisher, name)
 
 
+class DirectBus:
+    """The order DDS gave: every reader of a message gets it before what they publish moves.
+
+    A message's readers are called one after the other from a queue, and a message
+    one of them publishes waits its turn behind them, as the executor took the
+    events in the order they came.  Called in depth instead, the numerical node's
+    step k + 1 would reach the compensator before the compensator had read
+    measurement k (the feedback of the pi_lead controller one step older: it went
+    unstable in test_realtime_methods).
+    """
+
+    def __init__(self):
+        self.queue: deque = deque()
+        self.draining = False
+
+    def deliver(self, callbacks, msg):
+        """Queue ``msg`` for each of ``callbacks``; call them in order unless already doing so."""
+        queue = self.queue
+        for callback in callbacks:
+            queue.append((callback, msg))
+        if self.draining:
+            return
+        self.draining = True
+        try:
+            while queue:
+                callback, item = queue.popleft()
+                callback(item)
+        except BaseException:
+            queue.clear()          # a reader failed: what it would have led to is void
+            raise
+        finally:
+            self.draining = False
+
+
 def direct_delivery(shells) -> list:
     """Wire the loop publishers of ``shells`` to their readers in the process; the topics."""
     readers: dict = {}
@@ -189,12 +224,13 @@ def direct_delivery(shells) -> list:
             if sub.topic_name in DIRECT_TOPICS:
                 readers.setdefault(sub.topic_name, []).append(sub)
     wired = []
+    bus = DirectBus()
     for shell in shells:
         publisher = getattr(shell, 'pub', None)
         subs = readers.get(getattr(publisher, 'topic_name', None))
         if not subs:
             continue
-        local = LocalPublisher(publisher, [sub.callback for sub in subs], len(subs))
+        local = LocalPublisher(publisher, [sub.callback for sub in subs], len(subs), bus)
         for sub in subs:
             sub.callback = local.from_dds(sub.callback)
         shell.pub = local

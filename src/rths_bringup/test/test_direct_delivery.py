@@ -89,6 +89,29 @@ def test_the_outside_readers_are_looked_for_again_every_so_many_messages():
     assert got == list(range(EXTERNAL_CHECK_STEPS + 3))
 
 
+def test_every_reader_of_a_message_gets_it_before_what_they_publish_moves():
+    """The order DDS gave: the compensator reads measurement k before step k + 1 reaches it."""
+    calls = []
+    numerical = FakeShell(FakePublisher(topics.INTERFACE_DISPLACEMENT, readers=1), [])
+    compensator = FakeShell(None, [])
+    bridge = FakeShell(FakePublisher(topics.MEASUREMENT, readers=2), [])
+
+    def numerical_reads(msg):             # its step: publishes step k + 1 at once
+        calls.append(('numerical', msg))
+        numerical.pub.publish(msg.replace(b'measurement', b'displacement') + b'+1')
+
+    numerical.node.subscriptions = [FakeSubscription(topics.MEASUREMENT, [])]
+    numerical.node.subscriptions[0].callback = numerical_reads
+    compensator.node.subscriptions = [FakeSubscription(topics.MEASUREMENT, []),
+                                      FakeSubscription(topics.INTERFACE_DISPLACEMENT, [])]
+    compensator.node.subscriptions[0].callback = lambda m: calls.append(('compensator', m))
+    compensator.node.subscriptions[1].callback = lambda m: calls.append(('compensator', m))
+    direct_delivery([numerical, bridge, compensator])    # the container's order
+    bridge.pub.publish(b'measurement k')
+    assert calls == [('numerical', b'measurement k'), ('compensator', b'measurement k'),
+                     ('compensator', b'displacement k+1')]
+
+
 def test_the_events_executor_calls_the_callback_the_subscription_has_now():
     """The copies are dropped only if rclpy calls ``subscription.callback`` as it is now."""
     import rclpy
