@@ -136,6 +136,9 @@ PROBE_JSON = 'faults_cpu_hog_probe.json'
 HOG_RUNS = ('The CPU hog, eleven runs on one VM (rths bench faults --cases baseline,cpu_hog, '
             'three of them with --cpus 1: the loop and the probe on one CPU)')
 HOG_RUNS_JSON = 'faults_cpu_hog_runs_20261128.json'
+DIRECT = ('Direct delivery between the composed nodes (rths bench loop --duration 10, with '
+          'and without --no-direct-delivery, one after the other)')
+DIRECT_JSON = 'loop_direct_delivery_20261128.json'
 STALLS = ("The loop's own stalls: worked through or waited (rths bench loop --rate 1024 "
           '--duration 20, four runs; the work floor: the same Python work every 1/1024 s)')
 STALLS_JSON = 'loop_stalls_20261128.json'
@@ -231,6 +234,42 @@ FIGURES = (
      'summary/cpu_hog_samples_lost', '', '0'),
     (HOG_RUNS, 'no hog: late or missed ticks, median', HOG_RUNS_JSON,
      'summary/baseline_late_or_missed_pct_median', '%', ''),
+    (DIRECT, '1024 Hz: late or missed ticks over DDS', DIRECT_JSON,
+     'summary/1024hz/late_or_missed_pct_dds', '%', ''),
+    (DIRECT, '1024 Hz: late or missed ticks, direct', DIRECT_JSON,
+     'summary/1024hz/late_or_missed_pct_direct', '%', '<= 0.1 %'),
+    (DIRECT, '1024 Hz: round trip p50 over DDS', DIRECT_JSON,
+     'summary/1024hz/loop_us_p50_dds', 'us', ''),
+    (DIRECT, '1024 Hz: round trip p50, direct', DIRECT_JSON,
+     'summary/1024hz/loop_us_p50_direct', 'us', ''),
+    (DIRECT, '1024 Hz: CPU of the container over DDS', DIRECT_JSON,
+     'summary/1024hz/cpu_pct_dds', '%', ''),
+    (DIRECT, '1024 Hz: CPU of the container, direct', DIRECT_JSON,
+     'summary/1024hz/cpu_pct_direct', '%', ''),
+    (DIRECT, '2048 Hz: late or missed ticks over DDS', DIRECT_JSON,
+     'summary/2048hz/late_or_missed_pct_dds', '%', ''),
+    (DIRECT, '2048 Hz: late or missed ticks, direct', DIRECT_JSON,
+     'summary/2048hz/late_or_missed_pct_direct', '%', ''),
+    (DIRECT, '2048 Hz: round trip p50 over DDS', DIRECT_JSON,
+     'summary/2048hz/loop_us_p50_dds', 'us', ''),
+    (DIRECT, '2048 Hz: round trip p50, direct', DIRECT_JSON,
+     'summary/2048hz/loop_us_p50_direct', 'us', ''),
+    (DIRECT, '2048 Hz: CPU of the container over DDS', DIRECT_JSON,
+     'summary/2048hz/cpu_pct_dds', '%', ''),
+    (DIRECT, '2048 Hz: CPU of the container, direct', DIRECT_JSON,
+     'summary/2048hz/cpu_pct_direct', '%', ''),
+    (DIRECT, '4096 Hz: late or missed ticks over DDS', DIRECT_JSON,
+     'summary/4096hz/late_or_missed_pct_dds', '%', ''),
+    (DIRECT, '4096 Hz: late or missed ticks, direct', DIRECT_JSON,
+     'summary/4096hz/late_or_missed_pct_direct', '%', '<= 0.2 % (issue 24)'),
+    (DIRECT, '4096 Hz: round trip p50 over DDS', DIRECT_JSON,
+     'summary/4096hz/loop_us_p50_dds', 'us', ''),
+    (DIRECT, '4096 Hz: round trip p50, direct', DIRECT_JSON,
+     'summary/4096hz/loop_us_p50_direct', 'us', ''),
+    (DIRECT, '4096 Hz: CPU of the container over DDS', DIRECT_JSON,
+     'summary/4096hz/cpu_pct_dds', '%', ''),
+    (DIRECT, '4096 Hz: CPU of the container, direct', DIRECT_JSON,
+     'summary/4096hz/cpu_pct_direct', '%', ''),
     (STALLS, 'stalls (ticks more than a period late), four runs', STALLS_JSON,
      'summary/loop_stalls', '', ''),
     (STALLS, 'of them worked through: the ticking thread never left the CPU', STALLS_JSON,

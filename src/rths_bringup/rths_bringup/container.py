@@ -140,7 +140,7 @@ class LocalPublisher:
     called with the very message (CDR bytes) the publisher was given, in the
     ticking thread, in the order DDS gave (:class:`DirectBus`): a hop costs a call
     instead of a DDS write, an executor event and a take (1024 Hz on the 2-core VM
-    of 2026-11-28: the round trip p50 378 -> 196 us, the process's CPU 52 -> 39 %).
+    of 2026-11-28: the round trip p50 340 -> 231 us, the process's CPU 49 -> 37 %).
     DDS still carries the message
     when a reader outside the container matched (the live view, a recorder over
     DDS; looked at every :data:`EXTERNAL_CHECK_STEPS` messages); the container's
