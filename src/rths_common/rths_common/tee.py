@@ -133,13 +133,19 @@ class TeePublisher:
         self.index = topic_index(publisher.topic_name)
 
     def publish(self, msg):
-        """Publish ``msg`` (a message or CDR bytes) and queue its bytes for the recorder."""
-        self.publisher.publish(msg)
-        if not isinstance(msg, (bytes, bytearray)):
+        """Queue ``msg``'s bytes for the recorder, then publish ``msg`` (a message or CDR bytes).
+
+        In this order the recording keeps cause before effect where publishing calls
+        the readers at once (the container's direct delivery): measurement k is in
+        the pipe before the step k + 1 it leads to.
+        """
+        data = msg
+        if not isinstance(data, (bytes, bytearray)):
             # lazy: start-up cost: rclpy (~0.3 s), which this module needs only here
             from rclpy.serialization import serialize_message
-            msg = serialize_message(msg)
-        self.tee.put(self.index, msg)
+            data = serialize_message(data)
+        self.tee.put(self.index, data)
+        self.publisher.publish(msg)
 
     def __getattr__(self, name):
         return getattr(self.publisher, name)

@@ -74,3 +74,25 @@ def test_a_gone_recorder_is_counted_as_loss():
 
 def test_the_frame_names_every_recorded_topic():
     assert set(TOPICS) == set(topics.LOOP_TOPICS)
+
+
+def test_a_message_is_recorded_before_what_publishing_it_leads_to():
+    """Direct delivery: publishing measurement k runs the step that publishes step k + 1."""
+    r, w = os.pipe()
+    got = []
+    reader = threading.Thread(target=collect, args=(r, got))
+    reader.start()
+    tee = Tee(w, capacity=10)
+    displacement = TeePublisher(FakePublisher(topics.INTERFACE_DISPLACEMENT), tee)
+
+    class Leads(FakePublisher):
+        def publish(self, msg):
+            super().publish(msg)
+            displacement.publish(b'step k+1')   # the reader's step, called at once
+
+    measurement = TeePublisher(Leads(topics.MEASUREMENT), tee)
+    measurement.publish(b'measurement k')
+    tee.close()
+    reader.join(10.0)
+    assert [(t, data) for t, _, data in got] == [(topics.MEASUREMENT, b'measurement k'),
+                                                 (topics.INTERFACE_DISPLACEMENT, b'step k+1')]
