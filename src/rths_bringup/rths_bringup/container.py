@@ -141,12 +141,12 @@ class LocalPublisher:
     ticking thread, in the order DDS gave (:class:`DirectBus`): a hop costs a call
     instead of a DDS write, an executor event and a take (1024 Hz on the 2-core VM
     of 2026-11-28: the round trip p50 340 -> 231 us, the process's CPU 49 -> 37 %).
-    DDS still carries the message
-    when a reader outside the container matched (the live view, a recorder over
-    DDS; looked at every :data:`EXTERNAL_CHECK_STEPS` messages); the container's
-    own DDS readers then drop that copy (:meth:`from_dds`: one of the last
-    :data:`RECENT` messages), while a message of another publisher reaches them as
-    before (another run's, a second source of commands: refused and counted).
+    DDS still carries the message when a reader outside the container matched (the
+    live view, a recorder over DDS; looked at every :data:`EXTERNAL_CHECK_STEPS`
+    messages); the container's own DDS readers then drop that copy
+    (:meth:`from_dds`: one of the last :data:`RECENT` messages), while a message of
+    another publisher reaches them as before (another run's, a second source of
+    commands: refused and counted).
     """
 
     def __init__(self, publisher, callbacks, local_readers: int, bus: 'DirectBus'):
