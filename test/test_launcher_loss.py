@@ -49,15 +49,19 @@ ACTIVE, HOLD, RAMP, STOPPED = 0, 1, 2, 3
 START_GAP_STEPS = 256
 
 
+def processes_run_args(tmp_path) -> list:
+    """``rths run`` options of a processes-layout run here: uncompensated, a 0.25 s watchdog."""
+    return ['--config', str(config_copy(tmp_path / 'config',
+                                        bridge={'watchdog_steps': START_GAP_STEPS})),
+            '--no-compensation']
+
+
 @pytest.mark.parametrize('layout', ['composed', 'processes'])
 def test_sigkill_of_the_supervisor_mid_run_stops_everything_safely(tmp_path, layout):
     from rths_common import bagio, runinfo, topics
 
     out = tmp_path / 'run'
-    extra = [] if layout == 'composed' else [
-        '--config', str(config_copy(tmp_path / 'config',
-                                    bridge={'watchdog_steps': START_GAP_STEPS})),
-        '--no-compensation']
+    extra = [] if layout == 'composed' else processes_run_args(tmp_path)
     proc = subprocess.Popen(
         [rths_executable(), 'run', '--mode', 'realtime', '--layout', layout, '--duration', '20',
          '--plant', str(REPO / 'config' / 'plant.yaml'), '--out', str(out), *extra],
@@ -131,10 +135,7 @@ def test_sigkill_of_the_supervisor_after_the_record_ends_stops_once(tmp_path, la
     from rths_common import bagio, runinfo, topics
 
     out = tmp_path / 'run'
-    extra = [] if layout == 'composed' else [    # as above: CI's processes loop is not real time
-        '--config', str(config_copy(tmp_path / 'config',
-                                    bridge={'watchdog_steps': START_GAP_STEPS})),
-        '--no-compensation']
+    extra = [] if layout == 'composed' else processes_run_args(tmp_path)
     proc = subprocess.Popen(
         [rths_executable(), 'run', '--mode', 'realtime', '--layout', layout, '--duration', '3',
          '--plant', str(REPO / 'config' / 'plant.yaml'), '--out', str(out), *extra],

@@ -57,6 +57,7 @@ of its ticks missed or skipped by stalls (``late_or_missed_pct``); every
 rate's result is in ``runs``.
 """
 
+from contextlib import contextmanager
 import gc
 import json
 import os
@@ -357,6 +358,31 @@ def bag_check(bag, steps, missed) -> dict:
             'status_matches_bridge': bool(sum(flags) == final == int(np.sum(missed)))}
 
 
+@contextmanager
+def fifo_thread(priority: int):
+    """Run the calling thread SCHED_FIFO ``priority`` with the collector off; restore both.
+
+    Yields how it is scheduled (SCHED_OTHER where SCHED_FIFO was refused).
+    """
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
+        sched = f'SCHED_FIFO {int(priority)}'
+    except OSError as err:
+        sched = f'SCHED_OTHER (SCHED_FIFO refused: {err})'
+    gc_was = gc.isenabled()
+    gc.disable()
+    try:
+        yield sched
+    finally:
+        if gc_was:
+            gc.enable()
+        try:
+            os.sched_setscheduler(0, policy, param)
+        except OSError:
+            pass
+
+
 def sleep_to_deadlines(rate_hz: float, n: int, priority: int = 80, stop=None,
                        reanchor: bool = False) -> dict:
     """Sleep to the deadlines ``t0 + k / rate`` (k < n, or until ``stop`` is set).
@@ -371,17 +397,8 @@ def sleep_to_deadlines(rate_hz: float, n: int, priority: int = 80, stop=None,
     clock = TickClock(rate_hz)
     late = np.zeros(n, dtype=np.int64)
     wall = np.zeros(n, dtype=np.int64)
-    policy = os.sched_getscheduler(0)
-    param = os.sched_getparam(0)
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
-        sched = f'SCHED_FIFO {int(priority)}'
-    except OSError as err:
-        sched = f'SCHED_OTHER (SCHED_FIFO refused: {err})'
-    gc_was = gc.isenabled()
-    gc.disable()
     done = 0
-    try:
+    with fifo_thread(priority) as sched:
         clock.start(time.monotonic_ns() + clock.period_ns)
         for k in range(n):
             if stop is not None and stop.is_set():
@@ -397,13 +414,6 @@ def sleep_to_deadlines(rate_hz: float, n: int, priority: int = 80, stop=None,
                 clock.k += 1
             wall[k] = time.time_ns()
             done = k + 1
-    finally:
-        if gc_was:
-            gc.enable()
-        try:
-            os.sched_setscheduler(0, policy, param)
-        except OSError:
-            pass
     return {'late_ns': late[:done], 'wall_ns': wall[:done], 'scheduling': sched}
 
 
@@ -448,15 +458,7 @@ def work_floor(duration_s: float, priority: int = 80, rate_hz: float = 1024.0) -
     period_ns = int(round(1e9 / rate_hz))
     took = np.zeros(n, np.int64)
     cpu = np.zeros(n, np.int64)
-    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
-        sched = f'SCHED_FIFO {int(priority)}'
-    except OSError as err:
-        sched = f'SCHED_OTHER (SCHED_FIFO refused: {err})'
-    gc_was = gc.isenabled()
-    gc.disable()
-    try:
+    with fifo_thread(priority) as sched:
         due = time.monotonic_ns()
         for k in range(n):
             due += period_ns
@@ -469,13 +471,6 @@ def work_floor(duration_s: float, priority: int = 80, rate_hz: float = 1024.0) -
                 time.sleep(wait * 1e-9)
             else:
                 due = time.monotonic_ns()
-    finally:
-        if gc_was:
-            gc.enable()
-        try:
-            os.sched_setscheduler(0, policy, param)
-        except OSError:
-            pass
     med = float(np.median(took))
     slow = took > STRETCH * med
     on = slow & (cpu >= ON_CPU * took)
