@@ -125,6 +125,8 @@ class BridgeNode:
         self.late = 0                  # commands that arrived after their tick
         self.run_over = False
         self.clock_timer = None
+        # the container's direct delivery: True while no loop message crosses DDS (spin_clocked)
+        self.quiet = None
         # tick_cpu_ns: the CPU time of the thread that ticks (composed: every node's callbacks
         # run on it), so a stall can be told apart: worked through (on CPU) or waited
         self.timing = {'tick_step': [], 'tick_wall_ns': [], 'tick_late_ns': [], 'missed': [],
@@ -544,7 +546,8 @@ class BridgeNode:
         if self.ticks is not None and self.own['clock'] == 'loop':
             return ns.spin_clocked(nodes, executor, self.next_due_ns, self.tick, is_done,
                                    margin_us=self.own['spin_margin_us'],
-                                   ready=self.command_due if composed else None)
+                                   ready=self.command_due if composed else None,
+                                   quiet=self.quiet if composed else None)
         return ns.spin_until_done(nodes, executor, is_done)
 
     def command_due(self) -> bool:

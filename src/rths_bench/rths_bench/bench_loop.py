@@ -46,7 +46,10 @@ and writes JSON:
 * ``loop_stalls`` (ticks more than a period late) and ``loop_stalls_on_cpu``, those
   the ticking thread worked through (its CPU time grew by >= 90 % of the
   stall: its own work took that long) with ``loop_stall_ms_on_cpu`` /
-  ``loop_stall_ms_off_cpu`` (:func:`stalls_on_cpu`);
+  ``loop_stall_ms_off_cpu`` (:func:`stalls_on_cpu`); ``tick_cpu_us_*``: the
+  ticking thread's CPU time from one tick to the next (composed: every node's
+  step, the executor's passes and the waits' own cost; the loop's work per
+  tick, which stalls of the host stretch but do not add to);
 * ``ros_domain_id``: the runs use a private DDS domain (``--domain-id``;
   default: ``ROS_DOMAIN_ID`` if set, else one derived from the process id),
   so another graph running on the machine cannot feed the bench's topics.
@@ -275,6 +278,7 @@ def analyse(bridge_npz, numerical_npz, cpu_samples=(), bag=None, rate_hz=None) -
     if 'tick_cpu_ns' in br.files:
         out.update(stalls_on_cpu(br['tick_wall_ns'][in_run], br['tick_late_ns'][in_run],
                                  br['tick_cpu_ns'][in_run], period_ns))
+        out.update(_stats('tick_cpu_us', np.diff(br['tick_cpu_ns'][in_run]) * 1e-3))
     if bag is not None:
         out['bag'] = bag_check(bag, steps, missed)
     return out

@@ -139,6 +139,9 @@ HOG_RUNS_JSON = 'faults_cpu_hog_runs_20261128.json'
 DIRECT = ('Direct delivery between the composed nodes (rths bench loop --duration 10, with '
           'and without --no-direct-delivery, one after the other)')
 DIRECT_JSON = 'loop_direct_delivery_20261128.json'
+PASS = ('The composed loop sleeps to its ticks (rths bench loop --duration 10, three runs per '
+        'rate before and after, medians; the executor once a millisecond instead of twice a tick)')
+PASS_JSON = 'loop_executor_pass_20261128.json'
 STALLS = ("The loop's own stalls: worked through or waited (rths bench loop --rate 1024 "
           '--duration 20, four runs; the work floor: the same Python work every 1/1024 s)')
 STALLS_JSON = 'loop_stalls_20261128.json'
@@ -270,6 +273,34 @@ FIGURES = (
      'summary/4096hz/cpu_pct_dds', '%', ''),
     (DIRECT, '4096 Hz: CPU of the container, direct', DIRECT_JSON,
      'summary/4096hz/cpu_pct_direct', '%', ''),
+    (PASS, '1024 Hz: tick late p50, before', PASS_JSON,
+     'summary/1024hz/tick_late_us_p50_before', 'us', ''),
+    (PASS, '1024 Hz: tick late p50, after', PASS_JSON,
+     'summary/1024hz/tick_late_us_p50_after', 'us', ''),
+    (PASS, '1024 Hz: late or missed ticks, before', PASS_JSON,
+     'summary/1024hz/late_or_missed_pct_before', '%', ''),
+    (PASS, '1024 Hz: late or missed ticks, after', PASS_JSON,
+     'summary/1024hz/late_or_missed_pct_after', '%', ''),
+    (PASS, '2048 Hz: tick late p50, before', PASS_JSON,
+     'summary/2048hz/tick_late_us_p50_before', 'us', ''),
+    (PASS, '2048 Hz: tick late p50, after', PASS_JSON,
+     'summary/2048hz/tick_late_us_p50_after', 'us', ''),
+    (PASS, '2048 Hz: late or missed ticks, before', PASS_JSON,
+     'summary/2048hz/late_or_missed_pct_before', '%', ''),
+    (PASS, '2048 Hz: late or missed ticks, after', PASS_JSON,
+     'summary/2048hz/late_or_missed_pct_after', '%', ''),
+    (PASS, '4096 Hz: tick late p50, before', PASS_JSON,
+     'summary/4096hz/tick_late_us_p50_before', 'us', ''),
+    (PASS, '4096 Hz: tick late p50, after', PASS_JSON,
+     'summary/4096hz/tick_late_us_p50_after', 'us', ''),
+    (PASS, '4096 Hz: late or missed ticks, before', PASS_JSON,
+     'summary/4096hz/late_or_missed_pct_before', '%', ''),
+    (PASS, '4096 Hz: late or missed ticks, after', PASS_JSON,
+     'summary/4096hz/late_or_missed_pct_after', '%', ''),
+    (PASS, '4096 Hz: CPU of the ticking thread per tick p50, before', PASS_JSON,
+     'summary/4096hz/tick_cpu_us_p50_before', 'us', ''),
+    (PASS, '4096 Hz: CPU of the ticking thread per tick p50, after', PASS_JSON,
+     'summary/4096hz/tick_cpu_us_p50_after', 'us', ''),
     (STALLS, 'stalls (ticks more than a period late), four runs', STALLS_JSON,
      'summary/loop_stalls', '', ''),
     (STALLS, 'of them worked through: the ticking thread never left the CPU', STALLS_JSON,

@@ -69,6 +69,7 @@ def test_the_analysis_reads_the_ticking_threads_cpu_time_when_the_bridge_wrote_i
     np.savez(bridge, **files)
     r = analyse(bridge, numerical, rate_hz=1024.0)
     assert r['loop_stalls'] == 0 and r['loop_stalls_on_cpu'] == 0
+    assert r['tick_cpu_us_p50'] == r['tick_cpu_us_max'] == 400.0   # the loop's work per tick
 
 
 def test_the_work_floor_times_the_same_work_each_period_and_reports_its_stretches():

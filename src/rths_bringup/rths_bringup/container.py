@@ -217,7 +217,7 @@ class DirectBus:
 
 
 def direct_delivery(shells) -> list:
-    """Wire the loop publishers of ``shells`` to their readers in the process; the topics."""
+    """Wire the loop publishers of ``shells`` to their readers in the process; the publishers."""
     readers: dict = {}
     for shell in shells:
         for sub in shell.node.subscriptions:
@@ -234,7 +234,7 @@ def direct_delivery(shells) -> list:
         for sub in subs:
             sub.callback = local.from_dds(sub.callback)
         shell.pub = local
-        wired.append(publisher.topic_name)
+        wired.append(local)
     return wired
 
 
@@ -334,7 +334,10 @@ def main(argv=None, prepare=None) -> int:
             # (lock-step: each message would call the next node's step inside the last one's,
             # the whole run deep; a clock thread would run the nodes beside the executor)
             wired = direct_delivery(container.shells.values())
-            container.log.info(f'direct delivery between the nodes: {", ".join(wired)}')
+            # no loop message over DDS: the bridge's loop sleeps to its ticks (spin_clocked)
+            container.bridge.quiet = lambda: not any(local.external for local in wired)
+            container.log.info('direct delivery between the nodes: '
+                               f'{", ".join(local.topic_name for local in wired)}')
         if opts.tee_fd >= 0:
             container.tee = tee_publishers(container.shells.values(), opts.tee_fd,
                                            container.numerical.sub.n_steps)

@@ -2,6 +2,7 @@
 
 import gc
 import os
+import time
 
 import pytest
 
@@ -185,3 +186,83 @@ def test_the_step_logger_writes_what_rclpy_writes_and_keeps_the_threshold(capfd)
         assert 'below the threshold' not in err and '[WARN]' in err and '[ERROR]' in err
     finally:
         logger.set_level(LoggingSeverity.INFO)
+
+
+class _Executor:
+    """spin_once recorder: each call's timeout; a call hands over one queued event."""
+
+    def __init__(self):
+        self.calls = []
+        self.events = []
+
+    def add_node(self, node):
+        pass
+
+    def remove_node(self, node):
+        pass
+
+    def spin_once(self, timeout_sec=None):
+        self.calls.append(timeout_sec)
+        if self.events:
+            self.events.pop(0)()
+
+
+def _clocked(monkeypatch, period_ns, n_ticks, quiet, ready=lambda: True, at_tick=None,
+             **kwargs):
+    """Run spin_clocked for ``n_ticks`` ticks; return (executor, tick times, start).
+
+    ``at_tick(k, executor)`` is called in tick k.
+    """
+    monkeypatch.setattr(ns.rclpy, 'ok', lambda: True)
+    executor = _Executor()
+    start = time.monotonic_ns() + period_ns
+    ticks = []
+
+    def next_due_ns():
+        return start + len(ticks) * period_ns
+
+    def tick():
+        if at_tick is not None:
+            at_tick(len(ticks), executor)
+        ticks.append(time.monotonic_ns())
+
+    assert ns.spin_clocked(object(), executor, next_due_ns, tick,
+                           is_done=lambda: len(ticks) >= n_ticks, ready=ready, quiet=quiet,
+                           **kwargs)
+    return executor, ticks, start
+
+
+def test_clocked_loop_with_direct_delivery_sleeps_to_its_ticks_and_passes_each_ms(monkeypatch):
+    period = 250_000                  # about 4096 Hz: 80 ticks are 20 ms
+    handed_over = []
+
+    def at_tick(k, executor):
+        if k == 20:                   # e.g. an emergency stop arrives over DDS
+            executor.events.append(lambda: handed_over.append(k_now[0]))
+        k_now[0] = k
+
+    k_now = [0]
+    executor, ticks, start = _clocked(monkeypatch, period, 80, quiet=lambda: True,
+                                      at_tick=at_tick, pass_ns=1_000_000)
+    assert all(t >= start + k * period for k, t in enumerate(ticks))     # never early
+    # one executor pass (with no wait in it) a millisecond, not two calls a tick
+    assert set(executor.calls) == {0.0}
+    assert 5 <= len(executor.calls) <= 40
+    # the event went to its callback within a millisecond (4 periods) and one tick
+    assert handed_over and handed_over[0] - 20 <= 5
+
+
+def test_clocked_loop_waits_in_the_executor_while_messages_cross_dds(monkeypatch):
+    period = 1_000_000
+    calls_at_tick = []
+    executor, _, _ = _clocked(monkeypatch, period, 20, quiet=lambda: False,
+                              at_tick=lambda k, ex: calls_at_tick.append(len(ex.calls)))
+    # every tick comes after an executor call (a command may arrive until its tick) ...
+    assert all(b > a for a, b in zip([0, *calls_at_tick[:-1]], calls_at_tick, strict=True))
+    # ... and the loop waited for its ticks in the executor
+    assert sum(1 for t in executor.calls if t) >= 10
+    # quiet, but the next tick's command is not here: the executor's path, as over DDS
+    calls_at_tick.clear()
+    executor, _, _ = _clocked(monkeypatch, period, 20, quiet=lambda: True, ready=lambda: False,
+                              at_tick=lambda k, ex: calls_at_tick.append(len(ex.calls)))
+    assert all(b > a for a, b in zip([0, *calls_at_tick[:-1]], calls_at_tick, strict=True))
