@@ -403,7 +403,7 @@ def spin_clocked(node, executor, next_due_ns, tick, is_done=lambda: False,
     executor one pass (``spin_once(0)``) each ``pass_ns`` for everything else
     (services, timers, the emergency-stop topic, other publishers' messages).
     An executor call costs about 35 us of CPU, and its timed wait ends about
-    90 us late at normal priority (2-core VM, 2026-11-29), where a 4096 Hz
+    90 us late at normal priority (2-core VM, 2026-11-28), where a 4096 Hz
     period is 244 us.
     """
     margin_ns = int(margin_us * 1e3)
