@@ -90,6 +90,21 @@ def test_the_outside_readers_are_looked_for_again_every_so_many_messages():
     assert got == list(range(EXTERNAL_CHECK_STEPS + 3))
 
 
+def test_the_statuses_cross_dds_only_while_a_reader_outside_listens():
+    status = FakePublisher(topics.STATUS, readers=0)
+    numerical = FakeShell(FakePublisher(topics.INTERFACE_DISPLACEMENT, readers=0), [])
+    numerical.status_pub = status
+    assert direct_delivery([numerical]) == []            # no loop reader in the process
+    for k in range(EXTERNAL_CHECK_STEPS):
+        numerical.status_pub.publish(k)
+    assert status.sent == []                            # nobody listens: no DDS write
+    status.readers = 1                                  # the live view connects
+    for k in range(EXTERNAL_CHECK_STEPS, EXTERNAL_CHECK_STEPS + 2):
+        numerical.status_pub.publish(k)
+    assert status.sent == [EXTERNAL_CHECK_STEPS, EXTERNAL_CHECK_STEPS + 1]
+    assert numerical.status_pub.topic_name == topics.STATUS
+
+
 def test_every_reader_of_a_message_gets_it_before_what_they_publish_moves():
     """The order DDS gave: the compensator reads measurement k before step k + 1 reaches it."""
     calls = []
