@@ -426,7 +426,9 @@ def spin_clocked(node, executor, next_due_ns, tick, is_done=lambda: False,
                     last_pass = time.monotonic_ns()
                     continue
                 if due > now:
-                    time.sleep((due - now) * 1e-9)
+                    time.sleep(min((due - now) * 1e-9, poll_s))
+                    if time.monotonic_ns() < due:
+                        continue        # (a tick further than poll_s away: look again)
                 tick()
                 continue
             wait_ns = due - time.monotonic_ns()

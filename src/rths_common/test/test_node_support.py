@@ -266,3 +266,19 @@ def test_clocked_loop_waits_in_the_executor_while_messages_cross_dds(monkeypatch
     executor, _, _ = _clocked(monkeypatch, period, 20, quiet=lambda: True, ready=lambda: False,
                               at_tick=lambda k, ex: calls_at_tick.append(len(ex.calls)))
     assert all(b > a for a, b in zip([0, *calls_at_tick[:-1]], calls_at_tick, strict=True))
+
+
+def test_clocked_loop_sleeping_to_a_far_tick_looks_again_every_poll(monkeypatch):
+    """A tick further away than ``poll_s``: the sleep is cut there (a signal's flag is seen)."""
+    monkeypatch.setattr(ns.rclpy, 'ok', lambda: True)
+    due = time.monotonic_ns() + 60_000_000
+    asked, ticks = [], []
+
+    def next_due_ns():
+        asked.append(time.monotonic_ns())
+        return due
+
+    assert ns.spin_clocked(object(), _Executor(), next_due_ns, lambda: ticks.append(1),
+                           is_done=lambda: bool(ticks), ready=lambda: True,
+                           quiet=lambda: True, poll_s=0.02)
+    assert ticks == [1] and 3 <= len(asked) <= 12
