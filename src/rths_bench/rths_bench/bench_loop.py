@@ -503,11 +503,11 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log, label=None) -> dict:
     from rths_bringup.launcher import Launcher
 
     workdir.mkdir(parents=True, exist_ok=True)
+    direct = not getattr(args, 'no_direct_delivery', False)   # (rths bench faults: no flag)
     config = write_config(workdir / 'config', rate_hz, duration_s, args.taps, args.model,
                           args.clock, args.executor, args.priority, args.cpus, args.gc,
                           watchdog_steps=args.watchdog_steps, margin_us=args.margin,
-                          status_every=args.status_every,
-                          direct_delivery=not getattr(args, 'no_direct_delivery', False))
+                          status_every=args.status_every, direct_delivery=direct)
     bag = None if args.no_bag else workdir / 'bag'
     timing = {name: (workdir / f'{name}_timing.npz').resolve()
               for name in ('bridge', 'numerical')}
@@ -539,7 +539,7 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log, label=None) -> dict:
     result.update(layout=args.layout, duration_s=duration_s, taps=args.taps, model=args.model,
                   clock=args.clock,
                   spin_margin_us=args.margin, status_every=args.status_every,
-                  direct_delivery=not getattr(args, 'no_direct_delivery', False),
+                  direct_delivery=direct,
                   executor=args.executor, rt_priority=args.priority, cpus=args.cpus,
                   gc=args.gc, recorded=bag is not None, wall_s=round(wall, 1),
                   live_view=bool(getattr(args, 'live', False)),
