@@ -129,6 +129,9 @@ def register(commands, benches):
     p.add_argument('--status-every', type=int, default=1, help='numerical and compensator '
                    'publish the status of every N-th step only (default 1: every step; the '
                    'bridge always reports every step)')
+    p.add_argument('--rate-divisor', type=int, default=1, help='integrate the numerical '
+                   'substructure at RATE / N and interpolate its output to every loop step '
+                   "(the numerical node's rate_divisor, a multi-rate layout; default 1)")
     p.add_argument('--no-direct-delivery', action='store_true',
                    help="composed: the loop messages between the three nodes over DDS, as "
                    "before direct delivery (the bridge's direct_delivery: false; to compare)")
@@ -152,7 +155,7 @@ def register(commands, benches):
 def write_config(directory, rate_hz=1024.0, duration_s=10.0, taps=400, model='sdof',
                  clock='loop', executor='events', priority=0, cpus='', gc_mode='default',
                  record='harmonic', watchdog_steps=10, margin_us=0.0, status_every=1,
-                 compensator_filter=None, direct_delivery=True) -> Path:
+                 compensator_filter=None, direct_delivery=True, rate_divisor=1) -> Path:
     """Write bridge/compensator/numerical.yaml of a realtime run (simulated plant).
 
     The compensator is a ``taps``-tap FIR with the cost of a designed one and
@@ -161,7 +164,8 @@ def write_config(directory, rate_hz=1024.0, duration_s=10.0, taps=400, model='sd
     runs that filter instead (e.g. a design at ``rate_hz``; ``taps`` is then
     ignored).  ``cpus`` is one affinity list for all nodes or three separated
     by '/' (bridge/compensator/numerical).  (Faults are injected by the system
-    tests' wrapper, ``rths_system_tests.faults``, not by parameters.)
+    tests' wrapper, ``rths_system_tests.faults``, not by parameters.)  ``rate_divisor``
+    > 1: the numerical substructure at ``rate_hz / rate_divisor`` (multi-rate).
     """
     import yaml
 
@@ -196,6 +200,8 @@ def write_config(directory, rate_hz=1024.0, duration_s=10.0, taps=400, model='sd
                      duration_s=float(duration_s), record=record, scale=0.05)
     if model == 'sdof':
         numerical.update(sdof_mass_kg=1000.0, sdof_freq_hz=2.81, sdof_zeta=0.042)
+    if int(rate_divisor) != 1:
+        numerical['rate_divisor'] = int(rate_divisor)
     for name, params in (('bridge', bridge), ('compensator', compensator),
                          ('numerical', numerical)):
         (directory / f'{name}.yaml').write_text(
@@ -504,10 +510,12 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log, label=None) -> dict:
 
     workdir.mkdir(parents=True, exist_ok=True)
     direct = not getattr(args, 'no_direct_delivery', False)   # (rths bench faults: no flag)
+    divisor = getattr(args, 'rate_divisor', 1)
     config = write_config(workdir / 'config', rate_hz, duration_s, args.taps, args.model,
                           args.clock, args.executor, args.priority, args.cpus, args.gc,
                           watchdog_steps=args.watchdog_steps, margin_us=args.margin,
-                          status_every=args.status_every, direct_delivery=direct)
+                          status_every=args.status_every, direct_delivery=direct,
+                          rate_divisor=divisor)
     bag = None if args.no_bag else workdir / 'bag'
     timing = {name: (workdir / f'{name}_timing.npz').resolve()
               for name in ('bridge', 'numerical')}
@@ -539,7 +547,7 @@ def run_once(rate_hz, duration_s, args, workdir: Path, log, label=None) -> dict:
     result.update(layout=args.layout, duration_s=duration_s, taps=args.taps, model=args.model,
                   clock=args.clock,
                   spin_margin_us=args.margin, status_every=args.status_every,
-                  direct_delivery=direct,
+                  direct_delivery=direct, rate_divisor=divisor,
                   executor=args.executor, rt_priority=args.priority, cpus=args.cpus,
                   gc=args.gc, recorded=bag is not None, wall_s=round(wall, 1),
                   live_view=bool(getattr(args, 'live', False)),

@@ -142,6 +142,10 @@ DIRECT_JSON = 'loop_direct_delivery_20261128.json'
 PASS = ('The composed loop sleeps to its ticks (rths bench loop --duration 10, three runs per '
         'rate before and after, medians; the executor once a millisecond instead of twice a tick)')
 PASS_JSON = 'loop_executor_pass_20261128.json'
+MULTIRATE = ('The numerical substructure at a quarter of the loop rate (rths bench loop --rate '
+             '4096 --duration 10 --rate-divisor N, N = 1 and 4 alternating, three pairs, medians)')
+MULTIRATE_JSON = 'loop_multirate_20261129.json'
+MULTIRATE_GRAPH = 'rths_benchmark_realtime/fir_rate_divisor_20261129/'
 STALLS = ("The loop's own stalls: worked through or waited (rths bench loop --rate 1024 "
           '--duration 20, four runs; the work floor: the same Python work every 1/1024 s)')
 STALLS_JSON = 'loop_stalls_20261128.json'
@@ -301,6 +305,29 @@ FIGURES = (
      'summary/4096hz/tick_cpu_us_p50_before', 'us', ''),
     (PASS, '4096 Hz: CPU of the ticking thread per tick p50, after', PASS_JSON,
      'summary/4096hz/tick_cpu_us_p50_after', 'us', ''),
+    (MULTIRATE, 'the numerical node, measurement to output p50, single rate', MULTIRATE_JSON,
+     'summary/single_rate/numerical_us_p50', 'us', ''),
+    (MULTIRATE, 'the numerical node, measurement to output p50, divisor 4', MULTIRATE_JSON,
+     'summary/divisor_4/numerical_us_p50', 'us', ''),
+    (MULTIRATE, 'CPU of the ticking thread per tick p50, single rate', MULTIRATE_JSON,
+     'summary/single_rate/tick_cpu_us_p50', 'us', ''),
+    (MULTIRATE, 'CPU of the ticking thread per tick p50, divisor 4', MULTIRATE_JSON,
+     'summary/divisor_4/tick_cpu_us_p50', 'us', ''),
+    (MULTIRATE, 'late or missed ticks, single rate', MULTIRATE_JSON,
+     'summary/single_rate/late_or_missed_pct', '%', ''),
+    (MULTIRATE, 'late or missed ticks, divisor 4', MULTIRATE_JSON,
+     'summary/divisor_4/late_or_missed_pct', '%', '<= 0.2 % (issue 24)'),
+    (MULTIRATE, 'samples lost from the bag, divisor 4', MULTIRATE_JSON,
+     'summary/divisor_4/samples_lost', '', '0'),
+    (MULTIRATE, 'RTHS benchmark, fir, through the graph: late or missed (worst case), single rate',
+     MULTIRATE_GRAPH + 'single_rate/summary.json', 'realtime/late_or_missed_pct', '%', ''),
+    (MULTIRATE, 'RTHS benchmark, fir, through the graph: late or missed (worst case), divisor 4',
+     MULTIRATE_GRAPH + 'divisor_4/summary.json', 'realtime/late_or_missed_pct', '%',
+     '<= 0.2 % (issue 24)'),
+    (MULTIRATE, 'RTHS benchmark, fir, case 4: J5, single rate',
+     MULTIRATE_GRAPH + 'single_rate/summary.json', 'cases/4/J5', '%', ''),
+    (MULTIRATE, 'RTHS benchmark, fir, case 4: J5, divisor 4',
+     MULTIRATE_GRAPH + 'divisor_4/summary.json', 'cases/4/J5', '%', 'within 5 % of single rate'),
     (STALLS, 'stalls (ticks more than a period late), four runs', STALLS_JSON,
      'summary/loop_stalls', '', ''),
     (STALLS, 'of them worked through: the ticking thread never left the CPU', STALLS_JSON,

@@ -544,19 +544,23 @@ def write_at2(path: str, t, acc, dt_decimals: int = 6) -> str:
 
 
 def graph_params(case: str, design, record_at2: str, scale: float, seed: int = 1,
-                 duration_s: float = 0.0, controller: str = 'fir', plant_yaml: str = '') -> dict:
+                 duration_s: float = 0.0, controller: str = 'fir', plant_yaml: str = '',
+                 rate_divisor: int = 1) -> dict:
     """Params of the three nodes for one case (``numerical``, ``compensator``, ``bridge``).
 
     The specimen force is relative (``interface_frame: relative``, no specimen ground
     term: the model's influence vector carries the reference masses).  ``controller``
     is the compensator node's method: ``example`` runs as ``pi_lead`` (the paper's PI +
     phase lead, its default gains), the adaptive methods start from ``design`` and need
-    ``plant_yaml`` (:func:`write_method_plant`).
+    ``plant_yaml`` (:func:`write_method_plant`).  ``rate_divisor`` > 1: the numerical
+    substructure at ``FS_HZ / rate_divisor`` (:mod:`rths_numerical.multirate`).
     """
     from rths_actuator_bridge.silva2020 import BRIDGE_PARAMS, FS_HZ
     numerical = {'model': f'silva2020_case{case}', 'integrator': 'cr', 'fs_hz': FS_HZ,
                  'record': record_at2, 'scale': float(scale), 'duration_s': float(duration_s),
                  'force_scale': 1.0, 'interface_frame': 'relative', 'specimen_mass_kg': 0.0}
+    if rate_divisor != 1:
+        numerical['rate_divisor'] = int(rate_divisor)
     compensator = {'scheme': design.scheme, 'fs_hz': FS_HZ,
                    'taps': [float(v) for v in design.taps],
                    'denominator': [float(v) for v in design.denominator]}
@@ -731,7 +735,8 @@ def realtime_figures(timing: dict, launcher, bag, floor: dict, rate_hz: float, c
 def run_graph_benchmark(via: str = 'cores', record: str = 'elcentro', data_dir: str = None,
                         out_dir: str = '.', cases=CASES, duration_s: float = None,
                         seed: int = 2020, fir_options: dict = None, log=_log,
-                        controller: str = 'fir', mode: str = 'lockstep') -> dict:
+                        controller: str = 'fir', mode: str = 'lockstep',
+                        rate_divisor: int = 1) -> dict:
     """Run ``controller`` through the node cores or the node graph (``via``), nominal cases.
 
     J1-J9 take the measured displacement at the start of each sample, as the
@@ -742,8 +747,12 @@ def run_graph_benchmark(via: str = 'cores', record: str = 'elcentro', data_dir: 
     lock-step also runs the cores and records the largest difference (the lock-step
     graph must equal them); in realtime (``mode``) each case's summary gains
     ``realtime`` (:func:`realtime_figures`) and ``summary['realtime']`` the worst case.
+    ``rate_divisor`` > 1: the numerical substructure at ``FS_HZ / rate_divisor``
+    (multi-rate, :mod:`rths_numerical.multirate`); J1-J9 are taken at the loop rate.
     """
     from rths_actuator_bridge.silva2020 import FS_HZ
+    from rths_numerical.substructure import rate_divisor as checked_divisor
+    rate_divisor = checked_divisor({'rate_divisor': rate_divisor}, FS_HZ)
     if via not in ('cores', 'graph'):
         raise ValueError(f'--via {via!r}: use loop, cores or graph')
     if mode == 'realtime' and via != 'graph':
@@ -771,7 +780,7 @@ def run_graph_benchmark(via: str = 'cores', record: str = 'elcentro', data_dir: 
     for c in cases:
         t1 = time.perf_counter()
         params = graph_params(c, design, at2, scale, seed, duration_s or 0.0, controller,
-                              plant_yaml)
+                              plant_yaml, rate_divisor)
         res = run_cores(params) if mode == 'lockstep' else None
         if via == 'graph':
             graph = launch_graph(params, os.path.join(out_dir, f'graph_case{c}'), log, mode)
@@ -798,6 +807,8 @@ def run_graph_benchmark(via: str = 'cores', record: str = 'elcentro', data_dir: 
         summary['realtime'] = worst_realtime(rt)
         summary['realtime_by_case'] = rt
     summary['settings'] = {'via': via, 'mode': mode, 'record': record, 'scale': scale,
+                           'rate_divisor': rate_divisor,
+                           'numerical_rate_hz': FS_HZ / rate_divisor,
                            'x_m_sampling': 'start of sample (measurement of step k - 1)',
                            'duration_s': float(extra['t'][-1]), 'fs_hz': FS_HZ, 'seed': seed,
                            'controller': info, 'total_s': round(time.perf_counter() - t0, 2),
@@ -1177,6 +1188,9 @@ def _cmd(args) -> int:
     fir = fir_options(args)
     if args.via == 'loop' and args.mode != 'lockstep':
         raise ValueError('--mode realtime runs through the node graph: add --via graph')
+    if args.via == 'loop' and args.rate_divisor != 1:
+        raise ValueError('--rate-divisor runs the numerical node at a divisor of the loop rate: '
+                         'add --via cores or --via graph')
     if args.via == 'loop':
         summary = run_benchmark(args.controller, args.record, args.draws, args.seed,
                                 args.duration or None, args.data_dir, fir,
@@ -1185,7 +1199,7 @@ def _cmd(args) -> int:
         summary = run_graph_benchmark(args.via, args.record, args.data_dir, args.out,
                                       parse_cases(args.cases), args.duration or None,
                                       args.seed, fir, controller=args.controller,
-                                      mode=args.mode)
+                                      mode=args.mode, rate_divisor=args.rate_divisor)
     return print_outputs(summary, args)
 
 
@@ -1251,5 +1265,11 @@ def register(commands, benches):
                         'floor before each case; summary.json gains realtime {rate_hz, '
                         'deadline_miss_pct, late_or_missed_pct, floor_late_pct, '
                         'latency_us_p99, step_us_p99_by_node, recorder_loss}')
+    p.add_argument('--rate-divisor', type=int, default=1,
+                   help='with --via cores or graph: integrate the numerical substructure at '
+                        '4096 Hz / N and interpolate its output to every loop step (the '
+                        "numerical node's rate_divisor, a multi-rate layout; default 1: "
+                        'single rate); summary.json settings gain rate_divisor and '
+                        'numerical_rate_hz')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
     p.set_defaults(func=_cmd)

@@ -802,6 +802,8 @@ def run_settings(numerical: dict, sub) -> dict:
         'dof_names': names,
         'interface_dof_names': [names[i] if i < len(names) else str(i) for i in sub.iface],
         'record_summary': sub.motion.summary() if sub.motion is not None else None,
+        # loop steps per numerical step (rths_numerical.multirate; 1: every loop step)
+        'rate_divisor': int(getattr(sub, 'divisor', 1)),
     }
 
 

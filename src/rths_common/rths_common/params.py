@@ -59,6 +59,10 @@ NODE_KEYS = {
 #: almost surely in the wrong unit or a typo.
 LOOP_RATE_RANGE_HZ = (1.0, 100_000.0)
 
+#: Range of ``rate_divisor`` (loop steps per numerical step, rths_numerical.multirate),
+#: inclusive: 4096 Hz / 64 = 64 Hz still samples a building's modes.
+RATE_DIVISOR_RANGE = (1, 64)
+
 #: Most steps one run may have (``duration_s`` x ``fs_hz``): 2**24, 4.5 h at 1024 Hz or 68 min
 #: at 4096 Hz, 134 MB for each per-step float64 array the run holds.  The ranges of the two
 #: alone allowed 1e6 s at 1024 Hz: ~8 GB for one array, allocated before anything could fail.
@@ -269,6 +273,8 @@ OPTION_RANGES = {
                    '--status-every', '--watchdog-steps', '--max-nfev', '--n-correction')},
     '--force-scale': Spec('[-] specimens the one in the lab stands for', (0.0, 1e6)),
     '--scale': Spec('[-] ground-motion scale', (0.0, 1000.0)),
+    '--rate-divisor': Spec('[-] loop steps per numerical step (1: single rate)',
+                           RATE_DIVISOR_RANGE),
     '--record-dt': Spec('[s] time step of a single-column record (0: not given)', (0.0, 1e3)),
 }
 

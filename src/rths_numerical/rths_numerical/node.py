@@ -93,8 +93,11 @@ class NumericalNode:
         if self.sub.motion is not None:    # what the run will apply, before it starts
             self.log.info(self.sub.motion.describe().replace('\n', ';'))
         self.start_timer = self.node.create_timer(0.05, self.try_start)
+        divisor = getattr(self.sub, 'divisor', 1)     # multirate.MultiRateSubstructure
+        every = (f' (integrated every {divisor} steps, at {1.0 / self.sub.dt / divisor:g} Hz)'
+                 if divisor > 1 else '')
         self.log.info(f'numerical substructure ready: {self.sub.n_steps} steps at '
-                      f'{1.0 / self.sub.dt:g} Hz, {self.sub.n_interface} interface DOF(s); '
+                      f'{1.0 / self.sub.dt:g} Hz{every}, {self.sub.n_interface} interface DOF(s); '
                       f"waiting for {own['wait_for_subscribers']} subscriber(s)")
 
     @property

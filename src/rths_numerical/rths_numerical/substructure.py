@@ -56,7 +56,12 @@ from typing import Any
 
 import numpy as np
 
-from rths_common.params import LOOP_RATE_RANGE_HZ, check_run_steps, node_schema
+from rths_common.params import (
+    LOOP_RATE_RANGE_HZ,
+    RATE_DIVISOR_RANGE,
+    check_run_steps,
+    node_schema,
+)
 
 from .building import BUILDING_MASS_KG, building_16dof
 from .dtm import FRAME_MASS_KG, SEED_CONFIGURATION, TABLE4
@@ -73,6 +78,7 @@ from .ground_motion import (
 from .integrators import INTEGRATORS, make_integrator
 from .marths import MarthsSubstructure
 from .model import LinearModel, load_model_yaml, sdof_model
+from .multirate import MultiRateSubstructure
 from .opensees_backend import (
     OpenSeesSubstructure,
     ScriptModel,
@@ -128,6 +134,9 @@ PARAMS = {
     'sdof_freq_hz': (2.81, '[Hz] SDOF natural frequency'),
     'sdof_zeta': (0.042, '[-] SDOF damping ratio'),
     'building_mass_kg': (None, "[kg] total mass of 'building2story' (0: 62 706 kg)"),
+    'rate_divisor': (1, '[-] integrate the substructure at fs_hz / rate_divisor and '
+                     'interpolate its interface displacement to every loop step '
+                     '(multirate.py); 1: every loop step'),
 }
 #: Ranges of the rates, durations, gains and model settings of :data:`PARAMS` (inclusive).
 RANGES = {
@@ -144,6 +153,7 @@ RANGES = {
     'sdof_freq_hz': (0.0, 100_000.0),
     'sdof_zeta': (0.0, 10.0),
     'building_mass_kg': (0.0, 1.0e12),
+    'rate_divisor': RATE_DIVISOR_RANGE,
 }
 #: The record's processing switches (:class:`.ground_motion.Processing`, in its order).
 PROCESSING_KEYS = ('record_resample', 'record_remove_mean', 'record_baseline')
@@ -432,7 +442,11 @@ def make_substructure(params: dict, model: Any = None, motion=None) -> SteppedSu
         except ValueError as err:
             raise ValueError(f'parameter record: {err}') from None
     ag = motion.accel
+    n = rate_divisor(params, fs, record)
     if params.get('model') == MARTHS_MODEL:
+        if n > 1:
+            raise ValueError("parameter rate_divisor: model 'marths' runs at the loop rate (its "
+                             'own Newmark integrator): use 1')
         return MarthsSubstructure(ag, dt, motion)
     iface = params.get('interface_dofs')
     if iface is not None:
@@ -444,11 +458,40 @@ def make_substructure(params: dict, model: Any = None, motion=None) -> SteppedSu
     fscale = (5.0 if params.get('model') == 'building2story' else 1.0) if fscale is None \
         else _num(params, 'force_scale', allow_zero=True)
     mass = _num(params, 'specimen_mass_kg', allow_zero=True)
+    # n > 1: the substructure takes every n-th loop sample (multirate.py)
+    sub: SteppedSubstructure
     if backend == 'opensees':
         if not script:
             builder = linear_model_builder(model, model.interface_dofs if iface is None
                                            else iface)
-        sub = OpenSeesSubstructure(builder, model, ag, dt, integ, iface, fscale, frame, mass, ug)
-        sub.motion = motion
-        return sub
-    return NumericalSubstructure(model, ag, dt, integ, rho, iface, fscale, frame, mass, ug, motion)
+        sub = OpenSeesSubstructure(builder, model, ag[::n], dt * n, integ, iface, fscale, frame,
+                                   mass, ug[::n])
+        sub.motion = motion if n == 1 else None
+    else:
+        sub = NumericalSubstructure(model, ag[::n], dt * n, integ, rho, iface, fscale, frame,
+                                    mass, ug[::n], motion if n == 1 else None)
+    return sub if n == 1 else MultiRateSubstructure(sub, n, ag, ug, motion)
+
+
+def rate_divisor(params: dict, fs: float, record: str = '') -> int:
+    """Return the parameter ``rate_divisor`` (1 if unset); ValueError naming what to fix.
+
+    The numerical rate ``fs / rate_divisor`` must sample the synthetic excitations
+    (``harmonic_freq_hz``, ``blwn_band_hz``) below its Nyquist frequency.
+    """
+    value = params.get('rate_divisor', 1)
+    if (isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating))
+            or not float(value).is_integer()
+            or not RATE_DIVISOR_RANGE[0] <= value <= RATE_DIVISOR_RANGE[1]):
+        raise ValueError(f'parameter rate_divisor = {value!r}: give a whole number in '
+                         '{}..{} (1: the substructure at the loop rate)'.format(
+                             *RATE_DIVISOR_RANGE))
+    n = int(value)
+    nyquist = fs / n / 2
+    band = {'harmonic': params.get('harmonic_freq_hz'),
+            'blwn': _num(params, 'blwn_band_hz')}.get(record)
+    if n > 1 and band and float(band) >= nyquist:
+        raise ValueError(f'parameter rate_divisor = {n}: the numerical rate {fs / n:g} Hz does '
+                         f'not sample the {record} excitation ({float(band):g} Hz; its Nyquist '
+                         f'frequency is {nyquist:g} Hz): lower rate_divisor')
+    return n

@@ -240,6 +240,8 @@ def review_rths(bag, out_dir, progress=None, limits=None, specimen_model=None,
         'compensator': compensator,
         'numerical_backend': numerical.get('backend', 'builtin'),
         'numerical_model': getattr(model, 'name', str(numerical.get('model'))),
+        # loop steps per numerical step (rths_numerical.multirate; 1: every loop step)
+        'numerical_rate_divisor': int(getattr(sub, 'divisor', 1)),
         'force_scale': float(sub.force_scale), 'interface_frame': sub.frame,
         'input_processing': list(sub.motion.processing) if sub.motion is not None else [],
         'record_summary': sub.motion.summary() if sub.motion is not None else None,
