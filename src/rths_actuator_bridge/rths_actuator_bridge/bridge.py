@@ -364,14 +364,15 @@ class Bridge:
         return {'interface_disp': np.array((float(x), float(theta))),
                 'interface_force': np.array((float(f), float(m)))}
 
-    def park(self, period_s: float = 0.0) -> list:
+    def park(self, period_s: float = 0.0, on_step=None) -> list:
         """End the run of an external actuator: ramp to the safe position, then deactivate.
 
         Only where the actuator moved and outlives the run (not ``backend.in_process``)
         and the supervisor has not stopped it already: it brakes, ramps to
         ``safe_position_m`` within the limits (no fault) and the backend is
         deactivated.  ``period_s`` > 0 paces the steps at that period (realtime;
-        lock-step: the controller's replies pace them).  Returns the steps.
+        lock-step: the controller's replies pace them).  ``on_step(result)`` is
+        called after each step, as it happens (the node publishes it).  Returns the steps.
         """
         backend, sup = self.backend, self.supervisor
         if (backend is None or backend.in_process or backend.lifecycle != 'active'
@@ -384,6 +385,8 @@ class Bridge:
         due = time.monotonic()
         while sup.state in (safety.HOLD, safety.RAMP) and len(results) < bound:
             results.append(self.step(self.next_step, None, realtime=period_s > 0))
+            if on_step is not None:
+                on_step(results[-1])
             if period_s > 0:
                 due += period_s
                 time.sleep(max(0.0, due - time.monotonic()))

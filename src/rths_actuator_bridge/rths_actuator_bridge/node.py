@@ -558,14 +558,15 @@ class BridgeNode:
     def park(self):
         """End of the run: an external actuator ramps to the safe position (published steps)."""
         period_s = 0.0 if self.lockstep else 1.0 / self.fs_hz
+
+        def publish(result):     # each step as it happens: the bag's stamps are its times
+            self.step = result.step
+            self.publish_step(result, ns.now_ns(), 0)
         try:
-            results = self.bridge.park(period_s)
+            results = self.bridge.park(period_s, publish)
         except (OSError, ValueError) as err:
             self.log.error(f'ramp to the safe position at the end of the run failed: {err}')
             results = []
-        for result in results:
-            self.step = result.step
-            self.publish_step(result, ns.now_ns(), 0)
         if results:
             last = results[-1]
             self.log.info(f'end of the run: ramped to the safe position in {len(results)} steps '

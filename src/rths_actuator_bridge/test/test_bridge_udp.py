@@ -129,7 +129,8 @@ def test_up_to_max_invalid_bad_replies_are_filled_and_the_loop_runs_on(version):
                 break
             x = out.arrays[0]
         counts = b.backend.counts()
-        parked = b.park()
+        seen = []          # each step as it happens (the node publishes it then)
+        parked = b.park(on_step=lambda r: seen.append((r.step, b.backend.lifecycle)))
     finally:
         b.close()
         emu.stop()
@@ -144,6 +145,9 @@ def test_up_to_max_invalid_bad_replies_are_filled_and_the_loop_runs_on(version):
     assert parked[-1].applied[0] == pytest.approx(SAFE, abs=1e-12)
     _within_limits(np.array([r.applied[0] for r in results + parked]), b.supervisor.limits)
     assert b.backend.lifecycle == 'inactive' and not b.supervisor.fault
+    assert [k for k, _ in seen] == [r.step for r in parked] == list(
+        range(len(results), len(results) + len(parked)))
+    assert all(state == 'active' for _, state in seen[:-1])      # before the deactivation
 
 
 def test_realtime_steps_never_wait_for_a_reply_past_the_tick():
