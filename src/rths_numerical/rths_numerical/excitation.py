@@ -73,9 +73,7 @@ class PrescribedExcitation(SteppedSubstructure):
 
     def advance(self, measured_force) -> np.ndarray:
         """Record the measured force of step k; return the displacement of step k+1."""
-        if self.done():
-            raise RuntimeError(f'all {self.n_steps} steps are finished')
-        self._force[self._k] = np.asarray(measured_force, dtype=float).reshape(self.n_interface)
+        self._force[self._k] = self.force_of(measured_force)
         self._k += 1
         return self._d[min(self._k, self.n_steps - 1)].copy()
 

@@ -174,9 +174,7 @@ class MarthsSubstructure(SteppedSubstructure):
 
     def advance(self, measured_force) -> np.ndarray:
         """Finish step k with its axial forces [N]; return the target strokes of step k+1 [m]."""
-        if self.done():
-            raise RuntimeError(f'all {self.n_steps} steps are finished')
-        f = np.asarray(measured_force, dtype=float).reshape(self.n_interface)
+        f = self.force_of(measured_force)
         k = self._k
         self._force[k] = f
         self._k = k + 1

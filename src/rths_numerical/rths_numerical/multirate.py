@@ -99,9 +99,7 @@ class MultiRateSubstructure(SteppedSubstructure):
 
     def advance(self, measured_force) -> np.ndarray:
         """Finish loop step k with its measured force [N]; return the command of step k+1 [m]."""
-        if self.done():
-            raise RuntimeError(f'all {self.n_steps} steps are finished')
-        f = np.asarray(measured_force, dtype=float).reshape(self.n_interface)
+        f = self.force_of(measured_force)
         k = self._k
         j = k % self.divisor
         if j == 0:

@@ -375,12 +375,10 @@ class OpenSeesSubstructure(SteppedSubstructure):
 
     def advance(self, measured_force) -> np.ndarray:
         """Finish step k with its measured force [N]; return the command of step k+1 [m]."""
-        if self.done():
-            raise RuntimeError(f'all {self.n_steps} steps are finished')
+        f = self.force_of(measured_force)
         if _OWNER is not self:
             raise RuntimeError('another OpenSees model was built since this one: OpenSees holds '
                                'one model per process; call reset() to rebuild this one')
-        f = np.asarray(measured_force, dtype=float).reshape(self.n_interface)
         ops, k = self.ops, self._k
         for i in range(self.n_interface):
             ops.updateParameter(i + 1, -self.force_scale * float(f[i]))

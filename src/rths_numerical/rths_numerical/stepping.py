@@ -57,6 +57,15 @@ class SteppedSubstructure(abc.ABC):
     def done(self) -> bool:
         """Return True once ``n_steps`` steps are finished."""
 
+    def force_of(self, measured_force) -> np.ndarray:
+        """Return ``measured_force`` as ``n_interface`` floats [N] for :meth:`advance`.
+
+        RuntimeError once :meth:`done` (every implementation's first check).
+        """
+        if self.done():
+            raise RuntimeError(f'all {self.n_steps} steps are finished')
+        return np.asarray(measured_force, dtype=float).reshape(self.n_interface)
+
     @abc.abstractmethod
     def history(self) -> dict:
         """Return arrays of the finished steps (SI units).
