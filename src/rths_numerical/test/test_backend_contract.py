@@ -88,6 +88,20 @@ def test_rths_with_a_dtm_equals_the_builtin_central_difference(backend):
         assert relative_rms_error(h[key], ref[key]) / 100 <= 1e-3, key
 
 
+def test_a_quarter_rate_substructure_equals_the_builtin_one(backend):
+    """``rate_divisor: 4`` (rths_numerical.multirate) wraps either backend alike.
+
+    The building at 1024 Hz inside a 4096 Hz loop, the valve #4 DTM: the same bound as above.
+    """
+    params = dict(BUILDING, fs_hz=4096.0, duration_s=2.0, rate_divisor=4)
+    ref = coupled_rths(make_substructure(params), DTMSpecimen('valve4', 1 / 4096))
+    sub = make_substructure(dict(params, backend=backend))
+    assert sub.backend == backend and sub.inner.dt == pytest.approx(1 / 1024)
+    h = coupled_rths(sub, DTMSpecimen('valve4', sub.dt))
+    for key in ('output_disp', 'measured_force', 'command'):
+        assert len(h[key]) == 8192 and relative_rms_error(h[key], ref[key]) / 100 <= 1e-3, key
+
+
 @pytest.mark.parametrize('params, key', [
     ({'integrator': 'Newmark2'}, 'integrator'),
     ({'integrator': 'kr_alpha_typo'}, 'integrator'),
