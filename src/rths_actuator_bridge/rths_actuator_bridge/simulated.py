@@ -631,6 +631,7 @@ class SimulatedPlant:
         self._rate_out = self._play_out = 0.0
         self._rod_read = (self.config.actuator_backlash_m > 0
                           or self.config.actuator_velocity_limit_m_s > 0)
+        self._stepped_nonlinear = None      # step()'s _nonlinear, taken at its first call
 
     @property
     def _nonlinear(self) -> bool:
@@ -693,7 +694,10 @@ class SimulatedPlant:
             return self.mr.step(u)
         if self.arx is not None:
             return self._step_arx(u)
-        if self._nonlinear:
+        nonlinear = self._stepped_nonlinear
+        if nonlinear is None:     # the settings are fixed once built: looked at once a run
+            nonlinear = self._stepped_nonlinear = self._nonlinear
+        if nonlinear:
             fc = ue = 0.0
             loaded = self._loaded
             for _ in range(self.config.friction_substeps):

@@ -156,20 +156,36 @@ _STATUS_NUMBERS = struct.Struct('<Q3d?')
 _STATUS_TAIL = struct.Struct('<QB')
 
 
+@functools.lru_cache(maxsize=64)
+def _status_layout(frame_len: int, node_len: int, fault_len: int) -> struct.Struct:
+    """Whole ``rths_msgs/LoopStatus`` as one Struct, for strings of these byte lengths.
+
+    Field by field: encapsulation, sec, nanosec, frame_id (length + 1, bytes, NUL), pad to 4,
+    node, pad to 8, step, period, compute, latency, missed, pad to 8, misses, safety state,
+    pad to 4, fault (offsets from the body, after the 4-byte encapsulation, as :func:`_pad`).
+    """
+    off = 8 + 4 + frame_len + 1                       # stamp, frame_id
+    pad_node = -off % 4
+    off += pad_node + 4 + node_len + 1
+    pad_numbers = -off % 8
+    off += pad_numbers + _STATUS_NUMBERS.size
+    pad_tail = -off % 8
+    off += pad_tail + _STATUS_TAIL.size
+    pad_fault = -off % 4
+    return struct.Struct(f'<4siII{frame_len + 1}s{pad_node}xI{node_len + 1}s{pad_numbers}x'
+                         f'Q3d?{pad_tail}xQB{pad_fault}xI{fault_len + 1}s')
+
+
 def pack_status(stamp_ns: int, node: str, step: int, period_us=0.0, compute_us=0.0,
                 latency_us=-1.0, missed=False, misses=0, safety_state=0, fault='',
                 frame_id: str = '') -> bytes:
-    """CDR of an ``rths_msgs/LoopStatus`` (field meanings in LoopStatus.msg)."""
-    buf = bytearray(_ENCAP_LE)
-    _header(buf, stamp_ns, frame_id)
-    _string(buf, node)
-    _pad(buf, 8)
-    buf += _STATUS_NUMBERS.pack(int(step), float(period_us), float(compute_us),
-                                float(latency_us), bool(missed))
-    _pad(buf, 8)
-    buf += _STATUS_TAIL.pack(int(misses), int(safety_state))
-    _string(buf, fault)
-    return bytes(buf)
+    """CDR of an ``rths_msgs/LoopStatus`` (field meanings in LoopStatus.msg), in one pack."""
+    frame, name, text = frame_id.encode(), node.encode(), fault.encode()
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return _status_layout(len(frame), len(name), len(text)).pack(
+        _ENCAP_LE, sec, nanosec, len(frame) + 1, frame, len(name) + 1, name, int(step),
+        float(period_us), float(compute_us), float(latency_us), bool(missed), int(misses),
+        int(safety_state), len(text) + 1, text)
 
 
 def status_state(data: bytes) -> tuple:

@@ -414,14 +414,13 @@ def spin_clocked(node, executor, next_due_ns, tick, is_done=lambda: False,
         executor.add_node(n)
     last_pass = time.monotonic_ns()     # the executor's last pass
     try:
-        while stop['signal'] is None and rclpy.ok() and not is_done():
+        while stop['signal'] is None and not is_done():
             due = next_due_ns()
-            if due is None:
-                executor.spin_once(timeout_sec=poll_s)
-                continue
-            if quiet is not None and quiet() and ready():
+            if due is not None and quiet is not None and quiet() and ready():
                 now = time.monotonic_ns()
                 if now - last_pass >= pass_ns:
+                    if not rclpy.ok():  # (2 us: asked at the executor's passes only)
+                        break
                     executor.spin_once(timeout_sec=0.0)
                     last_pass = time.monotonic_ns()
                     continue
@@ -430,6 +429,11 @@ def spin_clocked(node, executor, next_due_ns, tick, is_done=lambda: False,
                     if time.monotonic_ns() < due:
                         continue        # (a tick further than poll_s away: look again)
                 tick()
+                continue
+            if not rclpy.ok():
+                break
+            if due is None:
+                executor.spin_once(timeout_sec=poll_s)
                 continue
             wait_ns = due - time.monotonic_ns()
             if wait_ns > margin_ns:

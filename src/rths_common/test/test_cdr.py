@@ -84,6 +84,37 @@ def test_status_matches_rclpy(node, fault, missed):
     assert cdr.status_state(serialize_message(msg)) == (node, 2)
 
 
+def _status_field_by_field(stamp_ns, node, step, period_us, compute_us, latency_us, missed,
+                           misses, safety_state, fault, frame_id):
+    """Return the CDR of a LoopStatus written one field at a time (the former packer)."""
+    import struct
+    buf = bytearray(b'\x00\x01\x00\x00')
+    cdr._header(buf, stamp_ns, frame_id)
+    cdr._string(buf, node)
+    cdr._pad(buf, 8)
+    buf += struct.pack('<Q3d?', step, period_us, compute_us, latency_us, missed)
+    cdr._pad(buf, 8)
+    buf += struct.pack('<QB', misses, safety_state)
+    cdr._string(buf, fault)
+    return bytes(buf)
+
+
+@pytest.mark.parametrize('frame_len', range(9))
+def test_status_in_one_pack_is_byte_for_byte_the_field_by_field_cdr(frame_len):
+    """Every string length modulo 8 (each padding), a run identity and non-ASCII text."""
+    for node in ('', 'a', 'bridge', 'numerical', 'compensator', 'site'):
+        for fault in ('', 'x', 'xyz', 'watchdog: no command', 'überlast 2 µm'):
+            frame = ('vm-1870-c30dcf49|' + 'g' * frame_len)[-frame_len:] if frame_len else ''
+            args = (STAMP_NS + frame_len, node, 2**40 + 7, 244.140625, 31.5, -1.0,
+                    bool(frame_len % 2), 12, 3, fault, frame)
+            raw = cdr.pack_status(*args[:-1], frame_id=frame)
+            assert raw == _status_field_by_field(*args)
+            msg = deserialize_message(raw, LoopStatus)
+            assert (msg.node, msg.fault, msg.header.frame_id, msg.step) == (
+                node, fault, frame, 2**40 + 7)
+            assert cdr.status_state(raw) == (node, 3)
+
+
 def test_big_endian_is_refused():
     with pytest.raises(ValueError, match='little-endian'):
         cdr.unpack_step_arrays(b'\x00\x00\x00\x00' + bytes(32))

@@ -208,12 +208,13 @@ class _Executor:
 
 
 def _clocked(monkeypatch, period_ns, n_ticks, quiet, ready=lambda: True, at_tick=None,
-             **kwargs):
+             ok=lambda: True, done=True, **kwargs):
     """Run spin_clocked for ``n_ticks`` ticks; return (executor, tick times, start).
 
-    ``at_tick(k, executor)`` is called in tick k.
+    ``at_tick(k, executor)`` is called in tick k; ``ok`` stands for ``rclpy.ok``; ``done``:
+    what spin_clocked must return.
     """
-    monkeypatch.setattr(ns.rclpy, 'ok', lambda: True)
+    monkeypatch.setattr(ns.rclpy, 'ok', ok)
     executor = _Executor()
     start = time.monotonic_ns() + period_ns
     ticks = []
@@ -228,7 +229,7 @@ def _clocked(monkeypatch, period_ns, n_ticks, quiet, ready=lambda: True, at_tick
 
     assert ns.spin_clocked(object(), executor, next_due_ns, tick,
                            is_done=lambda: len(ticks) >= n_ticks, ready=ready, quiet=quiet,
-                           **kwargs)
+                           **kwargs) is done
     return executor, ticks, start
 
 
@@ -250,6 +251,28 @@ def test_clocked_loop_with_direct_delivery_sleeps_to_its_ticks_and_passes_each_m
     assert 5 <= len(executor.calls) <= 40
     # the event went to its callback within a millisecond (4 periods) and one tick
     assert handed_over and handed_over[0] - 20 <= 5
+
+
+def test_clocked_loop_asks_rclpy_ok_at_its_passes_and_ends_once_it_is_false(monkeypatch):
+    """Quiet: rclpy's context (2 us a call) is asked at the executor's passes, not every tick.
+
+    Its shutdown still ends the loop within a pass (1 ms).
+    """
+    period, asked = 250_000, []
+
+    def ok():
+        asked.append(1)
+        return True
+    executor, _, _ = _clocked(monkeypatch, period, 80, quiet=lambda: True, ok=ok,
+                              pass_ns=1_000_000)
+    assert len(asked) == len(executor.calls) < 40          # 80 ticks
+    state = {'ok': True}
+
+    def at_tick(k, executor):
+        state['ok'] = k < 10
+    _, ticks, _ = _clocked(monkeypatch, period, 80, quiet=lambda: True, at_tick=at_tick,
+                           ok=lambda: state['ok'], done=False, pass_ns=1_000_000)
+    assert 10 < len(ticks) <= 10 + 6                         # within a pass (4 periods)
 
 
 def test_clocked_loop_waits_in_the_executor_while_messages_cross_dds(monkeypatch):
