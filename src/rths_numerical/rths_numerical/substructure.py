@@ -478,12 +478,11 @@ def rate_divisor(params: dict, fs: float, record: str = '') -> int:
     (``harmonic_freq_hz``, ``blwn_band_hz``) below its Nyquist frequency.
     """
     value = params.get('rate_divisor', 1)
+    low, high = RATE_DIVISOR_RANGE
     if (isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating))
-            or not float(value).is_integer()
-            or not RATE_DIVISOR_RANGE[0] <= value <= RATE_DIVISOR_RANGE[1]):
+            or not float(value).is_integer() or not low <= value <= high):
         raise ValueError(f'parameter rate_divisor = {value!r}: give a whole number in '
-                         '{}..{} (1: the substructure at the loop rate)'.format(
-                             *RATE_DIVISOR_RANGE))
+                         f'{low}..{high} (1: the substructure at the loop rate)')
     n = int(value)
     nyquist = fs / n / 2
     band = {'harmonic': params.get('harmonic_freq_hz'),

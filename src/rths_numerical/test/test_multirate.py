@@ -106,6 +106,8 @@ def test_a_record_length_that_is_not_a_multiple_of_the_divisor_runs_every_loop_s
     ({'rate_divisor': 65}, '1..64'),
     ({'rate_divisor': True}, 'rate_divisor = True'),
     ({'rate_divisor': 'four'}, "rate_divisor = 'four'"),
+    ({'rate_divisor': {'n': 4}}, "rate_divisor = {'n': 4}: give a whole number"),
+    ({'rate_divisor': float('nan')}, 'rate_divisor = nan'),
     ({'record': 'blwn', 'blwn_band_hz': 600.0, 'rate_divisor': 4},
      'does not sample the blwn excitation (600 Hz; its Nyquist frequency is 512 Hz)'),
     ({'model': 'marths', 'record': 'kobe', 'rate_divisor': 4}, "model 'marths' runs at the loop"),
