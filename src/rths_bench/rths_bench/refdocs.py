@@ -146,6 +146,9 @@ MULTIRATE = ('The numerical substructure at a quarter of the loop rate (rths ben
              '4096 --duration 10 --rate-divisor N, N = 1 and 4 alternating, three pairs, medians)')
 MULTIRATE_JSON = 'loop_multirate_20261129.json'
 MULTIRATE_GRAPH = 'rths_benchmark_realtime/fir_rate_divisor_20261129/'
+TICK_COSTS = ('Three per-tick costs cut (rths bench loop --rate 4096 --duration 10 --floor 5, '
+              'before and after alternating, three pairs, medians)')
+TICK_COSTS_JSON = 'loop_tick_costs_20261129.json'
 STALLS = ("The loop's own stalls: worked through or waited (rths bench loop --rate 1024 "
           '--duration 20, four runs; the work floor: the same Python work every 1/1024 s)')
 STALLS_JSON = 'loop_stalls_20261128.json'
@@ -328,6 +331,14 @@ FIGURES = (
      MULTIRATE_GRAPH + 'single_rate/summary.json', 'cases/4/J5', '%', ''),
     (MULTIRATE, 'RTHS benchmark, fir, case 4: J5, divisor 4',
      MULTIRATE_GRAPH + 'divisor_4/summary.json', 'cases/4/J5', '%', 'within 5 % of single rate'),
+    (TICK_COSTS, 'CPU of the ticking thread per tick p50, before', TICK_COSTS_JSON,
+     'summary/before/tick_cpu_us_p50', 'us', ''),
+    (TICK_COSTS, 'CPU of the ticking thread per tick p50, after', TICK_COSTS_JSON,
+     'summary/after/tick_cpu_us_p50', 'us', ''),
+    (TICK_COSTS, 'late or missed ticks, before', TICK_COSTS_JSON,
+     'summary/before/late_or_missed_pct', '%', ''),
+    (TICK_COSTS, 'late or missed ticks, after', TICK_COSTS_JSON,
+     'summary/after/late_or_missed_pct', '%', '<= 0.2 % (issue 24)'),
     (STALLS, 'stalls (ticks more than a period late), four runs', STALLS_JSON,
      'summary/loop_stalls', '', ''),
     (STALLS, 'of them worked through: the ticking thread never left the CPU', STALLS_JSON,
