@@ -9,6 +9,8 @@ the system tests (2026-11-29, from the bag's stamps), 0.9 and 2.1 ms with the br
 A controller whose command watchdog is shorter would trip.
 """
 
+import pytest
+
 from rths_bringup import container as ct
 
 
@@ -52,4 +54,18 @@ def test_the_bridge_finishes_and_parks_before_the_other_nodes(monkeypatch):
     calls = []
     monkeypatch.setattr(ct.ns, 'make_executor', lambda kind: None)
     assert _container(calls).run() == 0
+    assert [c for c in calls if c != 'log'] == ['spin', 'bridge', 'numerical', 'compensator']
+
+
+def test_the_other_nodes_still_finish_when_the_bridge_s_finish_fails(monkeypatch):
+    calls = []
+    monkeypatch.setattr(ct.ns, 'make_executor', lambda kind: None)
+    c = _container(calls)
+
+    def fails(*args):
+        calls.append('bridge')
+        raise OSError('timing file: disk full')
+    c.bridge.finish_run = fails
+    with pytest.raises(OSError, match='disk full'):       # the error still reaches the caller
+        c.run()
     assert [c for c in calls if c != 'log'] == ['spin', 'bridge', 'numerical', 'compensator']
