@@ -7,9 +7,11 @@ sends one malformed datagram instead of a reply; ``rths run --backend udp --cont
 runs a 1024 Hz realtime RTHS through it (identity taps: the specimen is mild) and reviews
 it.  The run completes, every step is in the bag, every command is within the bridge's
 limits and the run ends at the safe position; the review counts the faults.  The faults
-are single; a loaded test machine (load 20 on 2 cores) also delays a few replies of the
-Python controller in a row, so these runs fill up to 6 in a row (max_invalid_measurements;
-default 3).
+are single, but the host also holds the Python controller's thread off the CPU now and
+then: on the 2-core CI VM, with nothing else running, two 10 s runs saw replies 20.8 and
+27.9 ms late (248 and 416 late replies; 2026-11-29), and a run that filled at most 6 in a
+row stopped as a controller stall.  So these runs fill up to 40 in a row
+(max_invalid_measurements; default 3): about 39 ms at 1024 Hz.
 
 A 300 ms silence of the controller in real time (default limit 3): the bridge fills the
 first ``max_invalid_measurements`` replies, then stops as a controller stall (hold, ramp to
@@ -77,7 +79,7 @@ def _run(tmp_path, lab, duration, code, max_invalid=3):
 def test_a_lab_controller_with_its_faults_runs_a_realtime_rths(tmp_path, version, duration):
     lab = LabController(versions=(1, 2) if version == 2 else (1,), fs_hz=FS, drop_every=500,
                         late_every=200, late_s=0.002, malformed_at=1501).start()
-    out, summary = _run(tmp_path, lab, duration, 0, max_invalid=6)
+    out, summary = _run(tmp_path, lab, duration, 0, max_invalid=40)
     c = summary['controller']
     assert c['protocol_version'] == version
     assert c['replies_lost'] >= 1 and c['replies_late'] >= 1 and c['replies_malformed'] >= 1
