@@ -13,16 +13,20 @@ import pytest
 from rths_system_tests import REPO, rths
 
 
-@pytest.mark.parametrize('method', ['fir', 'amb'])
-def test_lockstep_run_equals_offline_coupled_simulation(tmp_path, method):
-    """Also with an adaptive method: command k waits for measurement k-1 in both."""
+@pytest.mark.parametrize('method, divisor', [('fir', 1), ('amb', 1), ('fir', 4)])
+def test_lockstep_run_equals_offline_coupled_simulation(tmp_path, method, divisor):
+    """Also with an adaptive method: command k waits for measurement k-1 in both.
+
+    ``divisor`` 4: the numerical substructure at 256 Hz inside the 1024 Hz loop
+    (``rate_divisor``, rths_numerical.multirate); the bag still holds every loop step.
+    """
     from rths_bringup.offline import offline_rths
     from rths_common import bagio, runinfo, topics
 
     config = REPO / 'config'
     numerical = dict(runinfo.load_params(config / 'numerical.yaml', 'numerical'),
                      model='building2story', record='kobe', scale=0.135, duration_s=2.0,
-                     force_scale=5.0)
+                     force_scale=5.0, rate_divisor=divisor)
     for key in ('sdof_mass_kg', 'sdof_freq_hz', 'sdof_zeta'):
         numerical.pop(key)
     compensator = runinfo.load_params(config / 'compensator.yaml', 'compensator')
