@@ -485,8 +485,8 @@ def rate_divisor(params: dict, fs: float, record: str = '') -> int:
                          f'{low}..{high} (1: the substructure at the loop rate)')
     n = int(value)
     nyquist = fs / n / 2
-    band = {'harmonic': params.get('harmonic_freq_hz'),
-            'blwn': _num(params, 'blwn_band_hz')}.get(record)
+    band = (params.get('harmonic_freq_hz') if record == 'harmonic'
+            else _num(params, 'blwn_band_hz') if record == 'blwn' else None)
     if n > 1 and band and float(band) >= nyquist:
         raise ValueError(f'parameter rate_divisor = {n}: the numerical rate {fs / n:g} Hz does '
                          f'not sample the {record} excitation ({float(band):g} Hz; its Nyquist '

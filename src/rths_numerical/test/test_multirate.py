@@ -90,6 +90,14 @@ def test_rths_with_a_dtm_at_a_quarter_rate_stays_within_0_1_percent_of_the_singl
         sub.advance(np.zeros(1))
 
 
+def test_the_blwn_band_is_read_only_for_a_blwn_record():
+    """Another record's run ignores blwn_band_hz, with or without a divisor."""
+    for n in (1, 4):
+        sub = make_substructure(dict(BUILDING, duration_s=0.1, rate_divisor=n,
+                                     blwn_band_hz='unused'))
+        assert sub.n_steps == 410
+
+
 def test_a_record_length_that_is_not_a_multiple_of_the_divisor_runs_every_loop_step():
     params = dict(BUILDING, duration_s=1001 / 4096)
     plain = make_substructure(params)
