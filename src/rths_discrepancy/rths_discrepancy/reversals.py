@@ -19,7 +19,9 @@ is no part of the reading (with a constant as large as the friction, every half-
 passed through ``q = 0`` at a point and no plateau was read: a friction damper with play in
 mm and kN with an offset of 2 std(force) read "a smooth loop", plateau fraction 0.0;
 0.92 about the centre).  The *transition* is the travel until ``q`` first reaches
-``ENGAGED``; the *plateau* the travel within it while ``|q| < NEAR_ZERO``.  The
+``ENGAGED``; the *plateau* the travel within it while ``|q| < NEAR_ZERO``.  A
+half-cycle that settles below ``MIN_LEVEL`` of the record's sliding level (the 90th
+percentile of the levels) is not read: it turned inside the clearance.  The
 record shows play when the median plateau fraction is at least ``PLAY_FRACTION``
 and, where the amplitudes differ by ``AMPLITUDE_SPREAD`` or more, the plateau widths
 grow with the amplitude with an exponent below ``MAX_GROWTH`` (a smooth loop of a
@@ -36,6 +38,9 @@ AMPLITUDE_SPREAD = 1.5
 MAX_GROWTH = 0.5
 #: A reversal needs an excursion of this fraction of the displacement's spread (std).
 MIN_EXCURSION = 0.2
+#: A half-cycle is read only if its settled level is at least this fraction of the
+#: record's sliding level (the 90th percentile of the half-cycles' levels).
+MIN_LEVEL = 0.5
 
 
 def turning_points(x, min_excursion):
@@ -83,7 +88,8 @@ def centre(x, r, tp=None):
 def half_cycles(x, r):
     """Return one row per half-cycle: amplitude, transition width, plateau width, fraction.
 
-    ``r`` is read about its :func:`centre`.
+    ``r`` is read about its :func:`centre`; a half-cycle that settles below ``MIN_LEVEL``
+    of the record's sliding level has no row.
     """
     x, r = np.asarray(x, float), np.asarray(r, float)
     tp = turning_points(x, MIN_EXCURSION * float(np.std(x)))
@@ -106,8 +112,14 @@ def half_cycles(x, r):
         if travel <= 0:
             continue
         near = float(np.sum(step[np.abs(q[1:k + 1]) < NEAR_ZERO]))
-        rows.append((0.5 * abs(x[b] - x[a]), travel, near, near / travel))
-    return np.array(rows).reshape(-1, 4)
+        rows.append((0.5 * abs(x[b] - x[a]), travel, near, near / travel, level))
+    rows = np.array(rows).reshape(-1, 5)
+    if rows.shape[0]:
+        # a reversal inside the clearance never engages: its level is noise, and so is
+        # its plateau (a sweep whose held-out end turns within the clearance read a width
+        # growing with the amplitude from such half-cycles on smoother states)
+        rows = rows[rows[:, 4] >= MIN_LEVEL * np.percentile(rows[:, 4], 90)]
+    return rows[:, :4]
 
 
 def evidence(x, r):

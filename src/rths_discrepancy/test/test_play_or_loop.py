@@ -87,6 +87,25 @@ def test_play_is_read_about_the_forces_own_centre():
     assert not loop['play'] and loop['plateau_fraction'] < 0.35
 
 
+def test_reversals_inside_the_clearance_are_not_read():
+    # the path above, then 40 small cycles of 0.5 mm, inside the clearance of +-0.6 mm:
+    # they never engage, and the force left after them is the 1 % noise.  Noise spikes
+    # passed the half-cycle's test (a positive level, a sample past ENGAGED of it) and
+    # their near-zero widths, small at small amplitudes, read as a width growing with
+    # the amplitude: not play (growth 0.65 on a 3300 Hz sweep with play, whose held-out
+    # end turns within the clearance)
+    x = _path()
+    t = np.arange(40 * 100) / FS
+    x = np.concatenate([x, 0.5e-3 * np.sin(2 * np.pi * 10.0 * t)])
+    f = _friction_with_play(_fine(x))[::SUB]
+    f = f + 0.01 * 800.0 * np.random.default_rng(3).standard_normal(x.size)
+    play = reversals.evidence(x, f)
+    assert play['play'] and play['plateau_fraction'] > 0.8
+    assert play['amplitude_range'][0] > 2e-3             # only the engaging cycles read
+    assert abs(play['growth']) < 0.2
+    assert 1.0e-3 < play['plateau_width_median'] < 1.4e-3
+
+
 def test_friction_damper_with_play_is_backlash_and_a_bouc_wen_loop_is_hysteresis():
     data, _ = _record(_friction_with_play)
     res = restoring.run(data, plots=False)

@@ -146,7 +146,11 @@ def test_csv_contract_and_errors(tmp_path):
         assert key in res
     assert res['effect'] == 'coulomb_friction'
     assert os.path.getsize(out / 'restoring_force.png') > 1000
-    assert 'restoring_force.png' in (out / 'report.md').read_text()
+    report = (out / 'report.md').read_text()
+    assert 'restoring_force.png' in report
+    sd = res['smoothing_differentiator']      # the states' cut-off and who chose it
+    assert f"cut off at {sd['cutoff_hz']:.4g} Hz" in report
+    assert sd['cutoff_candidates'][0] in report
     bad = dict(data)
     bad['time_s'] = data['time_s'].copy()
     bad['time_s'][50:] += 0.3 / FS
